@@ -1,0 +1,1 @@
+"""Datasets: the on-disk format, the synthetic generator, real-video preparation, episodes."""
