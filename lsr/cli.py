@@ -40,14 +40,86 @@ def _run_bench_landmarks(cfg: config.BenchLandmarksConfig) -> None:
     run_bench_landmarks(cfg)
 
 
+def _run_prepare(cfg: config.PrepareConfig) -> None:
+    import os
+
+    from lsr.data.prepare import PrepareOptions, prepare_dataset
+
+    options = PrepareOptions(size=cfg.size, frames_per_clip=cfg.frames_per_clip, framing=cfg.framing,
+                             detector=cfg.detector, official_segmaps=cfg.official_segmaps)
+    workers = min(2, os.cpu_count() or 1) if cfg.workers == -1 else cfg.workers
+    summary = prepare_dataset(cfg.input, cfg.out, options, workers=workers, test_fraction=cfg.test_fraction,
+                              test_identities=cfg.test_identities,
+                              split_all=None if cfg.split_all == "auto" else cfg.split_all)
+    print(summary.table())
+    print(f"dataset written to {cfg.out} (manifest.json, prepare_summary.json)")
+
+
+def _run_synth(cfg: config.SynthConfig) -> None:
+    import os
+
+    from lsr.data.synth import generate_dataset, write_preview
+    from lsr.data.synth.generate import print_benchmark
+
+    if cfg.bench:
+        print_benchmark(preset=cfg.preset)
+        return
+    if cfg.preview is not None:
+        path = write_preview(cfg.preview, size=cfg.size, seed=cfg.seed, preset=cfg.preset)
+        print(f"preview written to {path}")
+        return
+    workers = min(2, os.cpu_count() or 1) if cfg.workers == -1 else cfg.workers
+    manifest = generate_dataset(cfg.out, cfg.identities, cfg.videos_per_identity, cfg.frames, size=cfg.size, seed=cfg.seed,
+                                preset=cfg.preset, test_fraction=cfg.test_fraction, fps=cfg.fps, overwrite=cfg.overwrite,
+                                workers=workers)
+    print(f"dataset written to {cfg.out} ({manifest.name})")
+
+
+def _run_train(cfg: config.TrainConfig) -> None:
+    from lsr.train.trainer import run_train
+
+    run_train(cfg)
+
+
+def _run_finetune(cfg: config.FinetuneConfig) -> None:
+    from lsr.train.finetune import run_finetune
+
+    run_finetune(cfg)
+
+
+def _run_eval(cfg: config.EvalConfig) -> None:
+    from lsr.eval.report import run_eval
+
+    run_eval(cfg)
+
+
+def _run_bench_train(cfg: config.BenchTrainConfig) -> None:
+    from lsr.train.bench import run_bench_train
+
+    run_bench_train(cfg)
+
+
+def _run_bench_models(cfg: config.BenchModelsConfig) -> None:
+    from lsr.eval.bench_models import run_bench_models
+
+    run_bench_models(cfg)
+
+
 # name -> (config dataclass, runner). Groups (like "bench") nest one level.
 COMMANDS: dict[str, tuple[type, Callable[[Any], None]]] = {
     "landmarks": (config.LandmarksConfig, _run_landmarks),
     "demo": (config.DemoConfig, _run_demo),
+    "train": (config.TrainConfig, _run_train),
+    "finetune": (config.FinetuneConfig, _run_finetune),
+    "prepare": (config.PrepareConfig, _run_prepare),
+    "eval": (config.EvalConfig, _run_eval),
+    "synth": (config.SynthConfig, _run_synth),
 }
 GROUPS: dict[str, dict[str, tuple[type, Callable[[Any], None]]]] = {
     "bench": {
         "landmarks": (config.BenchLandmarksConfig, _run_bench_landmarks),
+        "train": (config.BenchTrainConfig, _run_bench_train),
+        "models": (config.BenchModelsConfig, _run_bench_models),
     },
 }
 
@@ -62,15 +134,6 @@ def _user_errors() -> tuple[type[BaseException], ...]:
 GROUP_HELP = {"bench": "benchmarks; each prints a markdown table with machine info"}
 
 
-def _union(table: dict[str, tuple[type, Callable[[Any], None]]]) -> Any:
-    """A tyro sub-command union built from a name -> (config, runner) table."""
-    from typing import Annotated, Union
-
-    import tyro
-
-    return Union[tuple(Annotated[cls, tyro.conf.subcommand(name)] for name, (cls, _) in table.items())]  # noqa: UP007
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     import tyro
 
@@ -83,7 +146,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         table, prog = COMMANDS, "lsr"
         groups = "; ".join(f"'lsr {g} {{{','.join(t)}}}': {GROUP_HELP.get(g, '')}" for g, t in GROUPS.items())
         description = f"Few-shot talking-head synthesis (LSR). Also: {groups}."
-    cfg = tyro.cli(_union(table), args=args, prog=prog, description=description)
+    # subcommand_cli_from_dict keeps the sub-command name even for a one-member group.
+    choices = {name: cls for name, (cls, _) in table.items()}
+    cfg = tyro.extras.subcommand_cli_from_dict(choices, args=args, prog=prog, description=description)
     runners = {cls: run for cls, run in table.values()}
     user_errors = _user_errors()
     try:

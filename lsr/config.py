@@ -61,7 +61,7 @@ class BenchLandmarksConfig:
     """Print ms/frame of detection, tracking and rasterisation on a clip (a table, with machine info)."""
 
     video: Path | None = None
-    """Video to time on; default: the shared real clip if present, else a synthetic one."""
+    """Video to time on; default: the shared real clip (../shared/data/clips/tpsmm_driving.mp4) if present."""
     size: int = 512
     """Frames are resized to size x size before timing (the tracking goal is stated at 512)."""
     frames: int = 100
@@ -72,3 +72,400 @@ class BenchLandmarksConfig:
     def validate(self) -> None:
         if self.size < 64 or self.frames < 1 or self.raster_size < 16:
             raise ConfigError("--size >= 64, --frames >= 1 and --raster-size >= 16 are required")
+
+
+@dataclasses.dataclass
+class SynthConfig:
+    """Render procedural 3D talking heads with exact ground truth into an LSR dataset (or a preview / a benchmark)."""
+
+    out: Path = Path("data/synth")
+    """Dataset root to write (<identity>/<video>/ clips + manifest.json)."""
+    identities: int = 20
+    """Number of synthetic people."""
+    videos_per_identity: int = 2
+    """Videos per person (same identity, new background, motion and light)."""
+    frames: int = 50
+    """Frames per video."""
+    size: int = 128
+    """Frame size S (S x S); 128 default, 256 supported."""
+    seed: int = 0
+    """Dataset seed: the same seed gives byte-identical arrays; identity i depends only on (seed, i)."""
+    preset: Literal[
+        "default", "extreme_pose", "tiny_face", "huge_face", "heavy_occlusion", "low_light", "overexposed", "motion_blur", "noise"
+    ] = "default"
+    """Distribution: default, or a hard case (pose, framing, occlusion, exposure, blur, noise)."""
+    test_fraction: float = 0.2
+    """Share of identities in the manifest's test split."""
+    fps: float = 25.0
+    """Frame rate of the motion (talking speed, blinks)."""
+    workers: int = 1
+    """Parallel clip workers (processes); -1 = min(2, CPU count). Output does not depend on it."""
+    overwrite: bool = False
+    """Replace clips that already exist under --out."""
+    preview: Path | None = None
+    """Only write a contact sheet PNG here (frame | landmarks | landmark image | classes), no dataset."""
+    bench: bool = False
+    """Only print a frames/s table of the generator (128 and 256, 1 and 2 workers), no dataset."""
+
+    def validate(self) -> None:
+        if self.identities < 1 or self.videos_per_identity < 1 or self.frames < 1:
+            raise ConfigError("--identities, --videos-per-identity and --frames must all be >= 1")
+        if self.size < 32:
+            raise ConfigError(f"--size must be >= 32, got {self.size}")
+        if not 0.0 <= self.test_fraction < 1.0:
+            raise ConfigError(f"--test-fraction must be in [0, 1), got {self.test_fraction}")
+        if self.fps <= 0:
+            raise ConfigError(f"--fps must be > 0, got {self.fps}")
+        if self.workers == 0 or self.workers < -1:
+            raise ConfigError(f"--workers must be >= 1 or -1 (auto), got {self.workers}")
+        if self.preview is not None and self.preview.suffix.lower() not in (".png", ".jpg", ".jpeg"):
+            raise ConfigError(f"--preview must name a .png or .jpg file, got {self.preview}")
+
+
+@dataclasses.dataclass
+class PrepareConfig:
+    """Turn real videos / images (VoxCeleb2 layout, any folder, or the LSR release layout) into an LSR dataset."""
+
+    input: tyro.conf.Positional[Path]
+    """A video, a folder of videos / image folders, or an LSR release folder ({train,test}/<id>/<video>/combined/)."""
+    out: Path = Path("data/prepared")
+    """Dataset root to write (clips + manifest.json). Finished clips are skipped, so a run can be resumed."""
+    size: int = 256
+    """Training resolution S: frames, landmarks and segmentation are S x S."""
+    frames_per_clip: int = 10
+    """Frames sampled uniformly per clip (frames without a face are dropped); 0 = all frames, tracked (kept with NaN)."""
+    framing: Literal["auto", "align", "keep"] = "auto"
+    """align: crop and align on the landmarks; keep: centre square + resize; auto: keep for the LSR release layout."""
+    detector: Literal["hog", "cnn"] = "hog"
+    """dlib face detector."""
+    official_segmaps: bool = True
+    """Use an official *_segmap_merged.png beside an LSR release frame (framing keep) instead of the oracle."""
+    workers: int = -1
+    """Parallel clip workers; -1 = min(2, CPU count)."""
+    test_fraction: float = 0.1
+    """Share of identities put in the manifest's test split (stable hash of the name)."""
+    test_identities: tuple[str, ...] = ()
+    """Identities forced into the test split."""
+    split_all: Literal["auto", "train", "test"] = "auto"
+    """Put every identity into one split; auto: LSR release inputs -> test, others by --test-fraction."""
+
+    def validate(self) -> None:
+        if self.size < 32:
+            raise ConfigError(f"--size must be >= 32, got {self.size}")
+        if self.frames_per_clip < 0:
+            raise ConfigError(f"--frames-per-clip must be >= 0 (0 = all frames), got {self.frames_per_clip}")
+        if not 0.0 <= self.test_fraction < 1.0:
+            raise ConfigError(f"--test-fraction must be in [0, 1), got {self.test_fraction}")
+        if self.workers == 0 or self.workers < -1:
+            raise ConfigError(f"--workers must be >= 1 or -1 (auto), got {self.workers}")
+
+
+# ---- training (lsr.train) -------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class StagesConfig:
+    """Budgets of the three training stages (thesis §4.3.2-4.3.4, §4.6). One epoch = ``steps_per_epoch`` steps."""
+
+    pretrain_epochs: float = 2.0
+    """Stage 1, layout pre-training: X-ent on G^l's layout + lambda_R x aux RGB reconstruction (eq. 4.2)."""
+    full_epochs: float = 4.0
+    """Stage 2, full pipeline with segmentation supervision still on (eqs. 4.3, 4.4)."""
+    latent_epochs: float = 9.0
+    """Stage 3, latent layout: X-ent off, G^l learns its own representation (§4.3.4). The thesis trains 8 + 5
+    epochs after pre-training without stating where X-ent stops; 4 + 9 is this project's split."""
+    steps_per_epoch: int = 0
+    """Steps per epoch; 0 = episodes in the dataset // global batch size."""
+    lr_decay_steps: int = 0
+    """Linear lr decay to 1/100 over this many final steps (thesis: the last epoch); 0 = one epoch."""
+
+    def validate(self) -> None:
+        if min(self.pretrain_epochs, self.full_epochs, self.latent_epochs) < 0:
+            raise ConfigError("stage epochs must be >= 0")
+        if self.steps_per_epoch < 0 or self.lr_decay_steps < 0:
+            raise ConfigError("--stages.steps-per-epoch and --stages.lr-decay-steps must be >= 0")
+
+
+@dataclasses.dataclass
+class LossConfig:
+    """Loss weights of eqs. 4.2 and 4.4 (lambda_rec terms, lambda_adv, lambda_L2, lambda_R) and R1."""
+
+    l1: float = 1.0
+    """L1 reconstruction weight (colour fidelity, §4.3.3)."""
+    ssim: float = 1.0
+    """(1 - SSIM)/2 reconstruction weight."""
+    feature_matching: float = 1.0
+    """L1 between discriminator features of real and fake (perceptual signal without downloaded weights)."""
+    vgg: float = 1.0
+    """Weight of the VGG perceptual loss; used only when --losses.vgg-weights is given."""
+    vgg_weights: Path | None = None
+    """VGG19 (or VGGFace as VGG16) state dict with torchvision key names (.pth or .safetensors); None = off."""
+    adversarial: float = 0.1
+    """lambda_adv: non-saturating logistic generator loss."""
+    latent_l2: float = 1e-3
+    """lambda_L2 on mean(z^l^2) + mean(z^s^2) (eq. 4.4)."""
+    cross_entropy: float = 1.0
+    """Weight of X-ent between G^l's layout and the (oracle) segmentation while segmentation-supervised."""
+    aux_rgb: float = 0.1
+    """lambda_R: reconstruction weight of G^l's auxiliary RGB head in stage 1 (eq. 4.2, 'a low value')."""
+    r1_gamma: float = 10.0
+    """R1 gradient penalty strength gamma (loss = gamma / 2 * E||grad D||^2)."""
+    r1_every: int = 16
+    """Lazy R1: apply the penalty every N discriminator steps, scaled by N."""
+
+    def validate(self) -> None:
+        weights = [self.l1, self.ssim, self.feature_matching, self.vgg, self.adversarial, self.latent_l2,
+                   self.cross_entropy, self.aux_rgb, self.r1_gamma]  # fmt: skip
+        if min(weights) < 0:
+            raise ConfigError("loss weights must be >= 0")
+        if self.r1_every < 1:
+            raise ConfigError(f"--losses.r1-every must be >= 1, got {self.r1_every}")
+        if self.vgg_weights is not None and not Path(self.vgg_weights).is_file():
+            raise ConfigError(f"--losses.vgg-weights {self.vgg_weights} is not a file; see docs/TRAINING.md")
+
+
+@dataclasses.dataclass
+class OptimConfig:
+    """Adam for every network (thesis §4.6: beta1 = 0, beta2 = 0.999, lr = 0.001)."""
+
+    lr: float = 1e-3
+    beta1: float = 0.0
+    beta2: float = 0.999
+    ema_decay: float = 0.999
+    """Per-step decay of the EMA generators used for evaluation and export."""
+
+    def validate(self) -> None:
+        if not self.lr > 0 or not (0 <= self.beta1 < 1 and 0 <= self.beta2 < 1):
+            raise ConfigError("--optim.lr must be > 0 and betas in [0, 1)")
+        if not 0 <= self.ema_decay < 1:
+            raise ConfigError(f"--optim.ema-decay must be in [0, 1), got {self.ema_decay}")
+
+
+@dataclasses.dataclass
+class TrainConfig:
+    """Train an LSR model in three stages (layout pre-training, full pipeline, latent layout)."""
+
+    data: Path | None = None
+    """Dataset root (lsr.data format). None with --synthetic-identities > 0 = a procedural dataset."""
+    out: Path = Path("runs/lsr")
+    """Run folder: checkpoints/, tensorboard/, weights/ (inference safetensors + config.json)."""
+    preset: Literal["paper", "small", "fast", "tiny"] = "paper"
+    """Model size preset (models_def.presets)."""
+    variant: Literal["baseline", "spade_landmarks", "learned_seg", "latent_layout", "oracle_seg"] = "latent_layout"
+    """Ablation variant (thesis Table 4.2)."""
+    resolution: int = 0
+    """Image resolution; 0 = the preset's."""
+    synthetic_identities: int = 0
+    """Train on this many procedural synthetic identities instead of --data (smoke runs, tests, benches)."""
+    k_shots: int = 4
+    """K: shots per training episode."""
+    batch_size: int = 8
+    """Global batch (episodes per step, over all processes; each of N processes gets batch / N)."""
+    workers: int = 2
+    """DataLoader worker processes per training process."""
+    seed: int = 0
+    stages: StagesConfig = dataclasses.field(default_factory=StagesConfig)
+    losses: LossConfig = dataclasses.field(default_factory=LossConfig)
+    optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    precision: Literal["fp32", "bf16"] = "fp32"
+    """bf16 autocast on GPU (fp32 is the default; bf16 is ignored on CPU)."""
+    threads: int = 0
+    """CPU threads per process; 0 = os.cpu_count() // number of processes."""
+    checkpoint_every: int = 1000
+    """Save a full checkpoint every N steps (and at every stage end)."""
+    keep_checkpoints: int = 3
+    resume: bool = False
+    """Continue exactly from the newest checkpoint in OUT/checkpoints."""
+    log_every: int = 50
+    """TensorBoard scalars every N steps."""
+    image_every: int = 500
+    """TensorBoard image grids every N steps (0 = off)."""
+    max_consecutive_nonfinite: int = 5
+    """Non-finite steps in a row before restoring the last checkpoint with a halved lr."""
+    max_recoveries: int = 2
+    """Checkpoint restores allowed before stopping with an error."""
+    progress: bool = True
+    """tqdm progress bar with ETA (rank 0)."""
+
+    def validate(self) -> None:
+        self.stages.validate()
+        self.losses.validate()
+        self.optim.validate()
+        if self.data is None and self.synthetic_identities < 1:
+            raise ConfigError("give --data DATASET_ROOT or --synthetic-identities N (N >= 1) for a procedural dataset")
+        if self.data is not None and not Path(self.data).is_dir():
+            raise ConfigError(f"--data {self.data} is not a folder; prepare a dataset first (see docs/TRAINING.md)")
+        if self.resolution and (self.resolution < 32 or self.resolution & (self.resolution - 1)):
+            raise ConfigError(f"--resolution must be 0 or a power of two >= 32, got {self.resolution}")
+        if self.k_shots < 1 or self.batch_size < 1 or self.workers < 0 or self.threads < 0:
+            raise ConfigError("--k-shots and --batch-size must be >= 1, --workers and --threads >= 0")
+        if self.checkpoint_every < 1 or self.keep_checkpoints < 1 or self.log_every < 1 or self.image_every < 0:
+            raise ConfigError("--checkpoint-every, --keep-checkpoints, --log-every must be >= 1; --image-every >= 0")
+        if self.max_consecutive_nonfinite < 1 or self.max_recoveries < 0:
+            raise ConfigError("--max-consecutive-nonfinite must be >= 1 and --max-recoveries >= 0")
+
+
+@dataclasses.dataclass
+class FinetuneConfig:
+    """Fine-tune a trained model on K shots of one person (thesis §4.3.5); writes subject weights + latents."""
+
+    weights: Path
+    """Model folder (safetensors + config.json), e.g. RUN/weights from `lsr train`."""
+    shots: tyro.conf.Positional[tuple[Path, ...]]
+    """Image files, a folder of images, or one video (K frames with a face are sampled)."""
+    out: Path = Path("out/subject")
+    """Output folder: subject model (safetensors + config.json) and latents.safetensors."""
+    k: int = 8
+    """Number of shots to use (sampled evenly from a folder or video)."""
+    steps: int = 200
+    """Fine-tuning steps."""
+    lr: float = 1e-4
+    """Adam lr for G^l, G^s and D during fine-tuning."""
+    batch_size: int = 4
+    """Shots reconstructed per step (<= K)."""
+    losses: LossConfig = dataclasses.field(default_factory=LossConfig)
+    detector: Literal["hog", "cnn"] = "hog"
+    """dlib face detector for the shots."""
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    seed: int = 0
+    progress: bool = True
+
+    def validate(self) -> None:
+        self.losses.validate()
+        if not Path(self.weights).is_dir():
+            raise ConfigError(f"--weights {self.weights} must be a model folder (config.json + .safetensors)")
+        if not self.shots:
+            raise ConfigError("give at least one image, folder or video of the subject")
+        for path in self.shots:
+            if not Path(path).exists():
+                raise ConfigError(f"shot input not found: {path}")
+        if self.k < 1 or self.steps < 0 or not self.lr > 0 or self.batch_size < 1:
+            raise ConfigError("--k >= 1, --steps >= 0, --lr > 0 and --batch-size >= 1 are required")
+
+
+@dataclasses.dataclass
+class BenchTrainConfig:
+    """Print training steps/s for presets at a resolution on this machine (a markdown table)."""
+
+    presets: tuple[str, ...] = ("small", "paper")
+    resolution: int = 128
+    batch_size: int = 2
+    k_shots: int = 2
+    steps: int = 5
+    """Timed steps per preset and stage (after one warm-up step)."""
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    threads: int = 0
+    """CPU threads (0 = torch's default). On a shared/loaded machine 1 is often fastest."""
+
+    def validate(self) -> None:
+        if self.steps < 1 or self.batch_size < 1 or self.k_shots < 1 or self.resolution < 32:
+            raise ConfigError("--steps, --batch-size, --k-shots >= 1 and --resolution >= 32 are required")
+
+
+@dataclasses.dataclass
+class BenchModelsConfig:
+    """Print params, GFLOP and ms/frame of the per-frame path (G^l + G^s) per preset, variant and runtime."""
+
+    presets: tuple[str, ...] = ("fast", "small")
+    """Model presets (models_def.presets), or 'all' (paper at 256^2 is slow on 2 cores)."""
+    variants: tuple[str, ...] = ("latent_layout",)
+    """Ablation variants (baseline, spade_landmarks, learned_seg, latent_layout, oracle_seg), or 'all'."""
+    runtimes: tuple[Literal["eager", "channels_last", "compile", "onnxruntime"], ...] = (
+        "eager",
+        "channels_last",
+        "onnxruntime",
+    )
+    """Runtimes to time; 'compile' (torch.compile, channels-last) takes minutes to compile on 2 cores."""
+    runs: int = 10
+    """Timed runs per runtime (median reported), after ``warmup`` untimed runs."""
+    warmup: int = 2
+    resolution: int = 0
+    """Override every preset's resolution (0 = the preset's own, 256 except tiny)."""
+    threads: int = 0
+    """CPU threads for torch and onnxruntime (0 = default)."""
+
+    def validate(self) -> None:
+        from models_def import PRESET_NAMES, VARIANTS
+
+        for name in self.presets:
+            if name != "all" and name not in PRESET_NAMES:
+                raise ConfigError(f"unknown preset {name!r}; choose from {', '.join(PRESET_NAMES)} or all")
+        for name in self.variants:
+            if name != "all" and name not in VARIANTS:
+                raise ConfigError(f"unknown variant {name!r}; choose from {', '.join(VARIANTS)} or all")
+        if self.runs < 1 or self.warmup < 0 or self.threads < 0:
+            raise ConfigError("--runs >= 1, --warmup >= 0 and --threads >= 0 are required")
+        if self.resolution and (self.resolution < 64 or self.resolution & (self.resolution - 1)):
+            raise ConfigError(f"--resolution must be 0 or a power of two >= 64; got {self.resolution}")
+
+
+# ---- evaluation (lsr.eval) ------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class EvalConfig:
+    """Evaluate re-enactment with the thesis protocol (§4.4): K shots from the inputs, metrics on hold-out frames."""
+
+    data: Path | None = None
+    """LSR-release folder ({train,test}/<id>/<video>/combined/*_rgb.png) or an lsr dataset root (manifest.json);
+    default: the shared FSTH sample (../shared/data/fsth_eval_sample, or $LSR_SHARED_DATA/fsth_eval_sample)."""
+    out: Path = Path("out/eval")
+    """Output folder: eval_report.md, eval_report.json, examples/, cache/ (detected landmarks)."""
+    k: tuple[int, ...] = (1, 4, 8, 32)
+    """K values (shots per identity), thesis Table 4.4."""
+    methods: tuple[Literal["nearest_shot", "tps"], ...] = ("nearest_shot", "tps")
+    """Methods to evaluate (the no-learning baselines of lsr.eval.baselines)."""
+    split: str = "test"
+    """Split of an lsr dataset to evaluate on."""
+    inputs: int = 32
+    """lsr dataset: first N frames of an identity are the inputs ..."""
+    holdouts: int = 32
+    """... and the next N frames the hold-outs."""
+    max_holdouts: int = 0
+    """Use only the first N hold-out frames per identity (0 = all)."""
+    max_identities: int = 0
+    """Use only the first N identities (0 = all)."""
+    seed: int = 0
+    """Seed of the K-shot sampling."""
+    detector: Literal["hog", "cnn"] = "hog"
+    """dlib face detector for ground-truth and output landmarks."""
+    detector_upsample: int = 1
+    """dlib pyramid upsampling; 1 finds the faces of 224-px crops at 1/4 the cost of 2."""
+    bucket_thresholds: tuple[float, ...] = ()
+    """Two pose-distance thresholds (low/medium, medium/high); empty = terciles per K."""
+    cross_identity: bool = True
+    """Also drive each identity with the next identity's landmarks (ID-SIM to the source)."""
+    tps_regularization: float = 1e-3
+    """lambda of the TPS baseline (unit-spread coordinates)."""
+    examples: int = 4
+    """Frames per (method, K, identity) written to OUT/examples (output above ground truth); 0 = none."""
+    progress: bool = True
+
+    def resolved_data(self) -> Path:
+        """--data, or the shared FSTH sample; ConfigError when neither exists."""
+        import os
+
+        if self.data is not None:
+            return Path(self.data)
+        repo_root = Path(__file__).resolve().parents[1]
+        shared = Path(os.environ.get("LSR_SHARED_DATA", repo_root.parent / "shared" / "data")) / "fsth_eval_sample"
+        if not shared.is_dir():
+            raise ConfigError(f"no --data given and the shared FSTH sample {shared} is absent; pass --data FOLDER")
+        return shared
+
+    def validate(self) -> None:
+        if self.data is not None and not Path(self.data).is_dir():
+            raise ConfigError(f"--data {self.data} is not a folder")
+        if not self.k or min(self.k) < 1:
+            raise ConfigError(f"--k needs values >= 1, got {self.k}")
+        if not self.methods:
+            raise ConfigError("--methods needs at least one of nearest_shot, tps")
+        if self.inputs < 1 or self.holdouts < 1 or self.max_holdouts < 0 or self.max_identities < 0 or self.examples < 0:
+            raise ConfigError("--inputs, --holdouts >= 1 and --max-holdouts, --max-identities, --examples >= 0 are required")
+        if self.detector_upsample < 0:
+            raise ConfigError(f"--detector-upsample must be >= 0, got {self.detector_upsample}")
+        if self.bucket_thresholds and (len(self.bucket_thresholds) != 2 or self.bucket_thresholds[0] > self.bucket_thresholds[1]):
+            raise ConfigError(f"--bucket-thresholds needs two increasing values (or none for terciles), got {self.bucket_thresholds}")
+        if self.tps_regularization < 0:
+            raise ConfigError(f"--tps-regularization must be >= 0, got {self.tps_regularization}")
