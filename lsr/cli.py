@@ -105,6 +105,24 @@ def _run_bench_models(cfg: config.BenchModelsConfig) -> None:
     run_bench_models(cfg)
 
 
+def _run_reenact(cfg: config.ReenactConfig) -> None:
+    from lsr.reenact import run_reenact
+
+    run_reenact(cfg)
+
+
+def _run_export(cfg: config.ExportConfig) -> None:
+    from lsr.export_bundle import run_export
+
+    run_export(cfg)
+
+
+def _run_bench_reenact(cfg: config.BenchReenactConfig) -> None:
+    from lsr.eval.bench_reenact import run_bench_reenact
+
+    run_bench_reenact(cfg)
+
+
 # name -> (config dataclass, runner). Groups (like "bench") nest one level.
 COMMANDS: dict[str, tuple[type, Callable[[Any], None]]] = {
     "landmarks": (config.LandmarksConfig, _run_landmarks),
@@ -114,11 +132,14 @@ COMMANDS: dict[str, tuple[type, Callable[[Any], None]]] = {
     "prepare": (config.PrepareConfig, _run_prepare),
     "eval": (config.EvalConfig, _run_eval),
     "synth": (config.SynthConfig, _run_synth),
+    "reenact": (config.ReenactConfig, _run_reenact),
+    "export": (config.ExportConfig, _run_export),
 }
 GROUPS: dict[str, dict[str, tuple[type, Callable[[Any], None]]]] = {
     "bench": {
         "landmarks": (config.BenchLandmarksConfig, _run_bench_landmarks),
         "train": (config.BenchTrainConfig, _run_bench_train),
+        "reenact": (config.BenchReenactConfig, _run_bench_reenact),
         "models": (config.BenchModelsConfig, _run_bench_models),
     },
 }

@@ -318,8 +318,8 @@ class FinetuneConfig:
     """Output folder: subject model (safetensors + config.json) and latents.safetensors."""
     k: int = 8
     """Number of shots to use (sampled evenly from a folder or video)."""
-    steps: int = 200
-    """Fine-tuning steps."""
+    steps: int = 50
+    """Fine-tuning steps (small preset at 128^2, batch 4: ~4.5 s/step on one loaded CPU core)."""
     lr: float = 1e-4
     """Adam lr for G^l, G^s and D during fine-tuning."""
     batch_size: int = 4
@@ -416,6 +416,12 @@ class EvalConfig:
     """K values (shots per identity), thesis Table 4.4."""
     methods: tuple[Literal["nearest_shot", "tps"], ...] = ("nearest_shot", "tps")
     """Methods to evaluate (the no-learning baselines of lsr.eval.baselines)."""
+    weights: tuple[Path, ...] = ()
+    """Trained LSR model folders (config.json + model.safetensors) to evaluate beside the baselines."""
+    finetune_steps: int = 0
+    """> 0: also evaluate each model fine-tuned on the K shots of each identity for this many steps (thesis §4.3.5)."""
+    device: str = "cpu"
+    """Torch device of the models (cpu, cuda, cuda:1, ...)."""
     split: str = "test"
     """Split of an lsr dataset to evaluate on."""
     inputs: int = 32
@@ -459,8 +465,13 @@ class EvalConfig:
             raise ConfigError(f"--data {self.data} is not a folder")
         if not self.k or min(self.k) < 1:
             raise ConfigError(f"--k needs values >= 1, got {self.k}")
-        if not self.methods:
-            raise ConfigError("--methods needs at least one of nearest_shot, tps")
+        if not self.methods and not self.weights:
+            raise ConfigError("--methods needs at least one of nearest_shot, tps (or give --weights)")
+        for folder in self.weights:
+            if not Path(folder).is_dir():
+                raise ConfigError(f"--weights {folder} is not a model folder (config.json + model.safetensors)")
+        if self.finetune_steps < 0:
+            raise ConfigError(f"--finetune-steps must be >= 0, got {self.finetune_steps}")
         if self.inputs < 1 or self.holdouts < 1 or self.max_holdouts < 0 or self.max_identities < 0 or self.examples < 0:
             raise ConfigError("--inputs, --holdouts >= 1 and --max-holdouts, --max-identities, --examples >= 0 are required")
         if self.detector_upsample < 0:
@@ -469,3 +480,147 @@ class EvalConfig:
             raise ConfigError(f"--bucket-thresholds needs two increasing values (or none for terciles), got {self.bucket_thresholds}")
         if self.tps_regularization < 0:
             raise ConfigError(f"--tps-regularization must be >= 0, got {self.tps_regularization}")
+
+
+# ---- re-enactment and deployment (lsr.reenact, lsr.export_bundle) ------------------------------------------
+
+
+@dataclasses.dataclass
+class ReenactConfig:
+    """Re-enact a source person with a driving video: one job (--source/--driving/--out) or a batch (--jobs or dirs)."""
+
+    weights: Path | None = None
+    """Model folder (config.json + model.safetensors); for --runtime onnx an `lsr export` bundle (or a model
+    folder with one in onnx/). Required: no default model ships yet."""
+    source: Path | None = None
+    """Source person: an image, a folder of images, or a video (K frames with a face are sampled)."""
+    driving: Path | None = None
+    """Driver: a video, a folder of frames, or landmarks (.npy/.json, N x 68 x 2; see --landmark-space)."""
+    out: Path | None = None
+    """Output .mp4 (single job)."""
+    jobs: Path | None = None
+    """Batch: CSV with columns source,driving,output (paths relative to the CSV)."""
+    source_dir: Path | None = None
+    """Batch: folder of sources (images, videos, or sub-folders of images)."""
+    driving_dir: Path | None = None
+    """Batch: folder of drivers (videos, landmark files, or sub-folders of frames)."""
+    out_dir: Path | None = None
+    """Batch: output folder for --source-dir/--driving-dir."""
+    pairing: Literal["all", "by-name"] = "all"
+    """Batch dirs: every source x driving (<source>__<driving>.mp4), or same-stem pairs (<stem>.mp4)."""
+    k: int | None = None
+    """Shots of the source to average (1..32); default min(8, frames with a face). Larger than usable is an error."""
+    relative: bool = False
+    """Force relative motion (driver's motion on the source's face shape). Default: relative unless source == driver."""
+    absolute: bool = False
+    """Force absolute landmarks (the driver's own face shape)."""
+    smooth: bool = True
+    """One-Euro smoothing of the driving landmarks."""
+    paste_back: bool = False
+    """Paste the synthesised head back into the full driving frame; otherwise output the crop-sized synthesis."""
+    finetune_steps: int = 0
+    """Fine-tune the generators on the source shots first (thesis §4.3.5; torch runtime only)."""
+    runtime: Literal["torch", "onnx"] = "torch"
+    int8: bool = False
+    """--runtime onnx: use the int8 frame generator (`lsr export --int8`)."""
+    precision: Literal["fp32", "bf16"] = "fp32"
+    """--runtime torch precision (bf16 error vs fp32: `lsr bench reenact`)."""
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    side_by_side: Path | None = None
+    """Single job: also write driver | landmarks | latent layout | output to this .mp4."""
+    watermark: bool = False
+    """Draw a visible 'SYNTHETIC' mark in the corner (container metadata always marks outputs as synthetic)."""
+    landmark_space: Literal["frame", "crop"] | None = None
+    """Landmark drivers: pixel coordinates of the driver's frames (default) or of a training-framed crop."""
+    landmark_size: int | None = None
+    """Landmark drivers in crop space: the crop side the coordinates refer to (default: model resolution)."""
+    fps: float | None = None
+    """Output fps for landmark / image-folder drivers (default 25; videos keep their own)."""
+    shard: str | None = None
+    """Batch: take job share i of n ('i/n'); default RANK/WORLD_SIZE under torchrun, else all jobs."""
+    overwrite: bool = False
+    """Redo jobs whose output already exists (default: skip them, which makes reruns resume)."""
+    detector: Literal["hog", "cnn"] = "hog"
+    progress: bool = True
+
+    def validate(self) -> None:
+        if self.weights is None:
+            raise ConfigError("--weights DIR is required (a model folder from `lsr train`, or an `lsr export` bundle "
+                              "for --runtime onnx); no default model ships yet")  # fmt: skip
+        if not Path(self.weights).is_dir():
+            raise ConfigError(f"--weights {self.weights} is not a folder (config.json + model.safetensors)")
+        single = [self.source, self.driving, self.out]
+        dirs = [self.source_dir, self.driving_dir, self.out_dir]
+        modes = sum([any(v is not None for v in single), self.jobs is not None, any(v is not None for v in dirs)])
+        if modes != 1:
+            raise ConfigError("give exactly one of: --source/--driving/--out, --jobs CSV, or --source-dir/--driving-dir/--out-dir")
+        if any(v is not None for v in single) and None in single:
+            raise ConfigError("a single job needs all of --source, --driving and --out")
+        if any(v is not None for v in dirs) and None in dirs:
+            raise ConfigError("batch dirs need all of --source-dir, --driving-dir and --out-dir")
+        if self.out is not None and Path(self.out).suffix.lower() != ".mp4":
+            raise ConfigError(f"--out must be an .mp4 file, got {self.out}")
+        if self.side_by_side is not None and self.out is None:
+            raise ConfigError("--side-by-side is for single jobs (--source/--driving/--out)")
+        if self.relative and self.absolute:
+            raise ConfigError("--relative and --absolute exclude each other")
+        if self.k is not None and not 1 <= self.k <= 32:
+            raise ConfigError(f"--k must be in 1..32, got {self.k}")
+        if self.finetune_steps < 0:
+            raise ConfigError(f"--finetune-steps must be >= 0, got {self.finetune_steps}")
+        if self.finetune_steps and self.runtime != "torch":
+            raise ConfigError("--finetune-steps needs --runtime torch (fine-tuning trains the torch model)")
+        if self.int8 and self.runtime != "onnx":
+            raise ConfigError("--int8 needs --runtime onnx")
+        if self.precision != "fp32" and self.runtime != "torch":
+            raise ConfigError("--precision applies to --runtime torch; use --int8 for the onnx runtime")
+        if self.fps is not None and not self.fps > 0:
+            raise ConfigError(f"--fps must be > 0, got {self.fps}")
+        if self.landmark_size is not None and self.landmark_size < 8:
+            raise ConfigError(f"--landmark-size must be >= 8 pixels, got {self.landmark_size}")
+
+
+@dataclasses.dataclass
+class ExportConfig:
+    """Export a model folder to the ONNX bundle run by deploy.runtime.OnnxReenactor (no torch needed)."""
+
+    weights: Path
+    """Model folder (config.json + model.safetensors)."""
+    out: Path = Path("out/onnx")
+    """Bundle folder: subject_encoder.onnx, frame_generator.onnx [, frame_generator.int8.onnx]."""
+    int8: bool = False
+    """Also write a static-QDQ int8 frame generator, calibrated on real frames; prints its error vs fp32."""
+    calibration_source: Path | None = None
+    """--int8: source (image/folder/video) whose latents calibrate; default the shared tpsmm_driving.mp4."""
+    calibration_driving: Path | None = None
+    """--int8: driving video whose landmark images calibrate; default --calibration-source."""
+    calibration_frames: int = 32
+    calibration_k: int | None = None
+
+    def validate(self) -> None:
+        if not Path(self.weights).is_dir():
+            raise ConfigError(f"--weights {self.weights} is not a model folder (config.json + model.safetensors)")
+        if self.calibration_frames < 1:
+            raise ConfigError(f"--calibration-frames must be >= 1, got {self.calibration_frames}")
+
+
+@dataclasses.dataclass
+class BenchReenactConfig:
+    """Print end-to-end and per-stage fps of `lsr reenact` for each runtime (a table with machine info)."""
+
+    video: Path | None = None
+    """Driving (and source) clip; default the shared ../shared/data/clips/tpsmm_driving.mp4."""
+    weights: Path | None = None
+    """Model folder; default a randomly initialised --preset model (speed does not depend on the weights)."""
+    preset: str = "fast"
+    resolution: int = 256
+    frames: int = 50
+    """Driving frames timed (the clip is cut to its first N frames)."""
+    runtimes: tuple[Literal["torch", "onnx"], ...] = ("torch", "onnx")
+    paste_back: bool = True
+    k: int = 4
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+
+    def validate(self) -> None:
+        if self.frames < 2 or self.k < 1 or self.resolution < 32:
+            raise ConfigError("--frames >= 2, --k >= 1 and --resolution >= 32 are required")

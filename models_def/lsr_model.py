@@ -1,0 +1,153 @@
+"""The per-frame generator (one module per ablation variant, thesis Table 4.2) and the full ``LSRModel``.
+
+Two graphs with tensor-only signatures, so that each exports to ONNX on its own:
+* ``SubjectEncoder`` (models_def.encoder): K shots -> (layout_latent, style_latent), once per subject;
+* ``FrameGenerator``: target landmark image + latents -> RGB (and the layout), once per frame.
+``LSRModel`` holds both (E, G^l, G^s); the ``Discriminator`` is separate.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+from torch import nn
+
+from models_def.config import NUM_SEG_CLASSES, ModelConfig
+from models_def.encoder import SubjectEncoder
+from models_def.generator import SpadeGenerator
+from models_def.layout import build_baseline_generator, build_layout_predictor
+from models_def.serialization import PretrainedMixin
+from models_def.shapes import check_shape
+
+
+class FrameOutputs(NamedTuple):
+    """Everything one frame produces. Absent parts are None (depending on the variant and the request)."""
+
+    image: torch.Tensor
+    """(B, 3, H, W) in [-1, 1]."""
+    layout: torch.Tensor | None
+    """SPADE's layout input (B, C_l, H, W): softmax or raw G^l output, or the oracle segmentation."""
+    layout_logits: torch.Tensor | None
+    """(B, C_l, H, W) raw G^l output, for the segmentation cross-entropy of eq. 4.2."""
+    aux_rgb: torch.Tensor | None
+    """(B, 3, H, W) in [-1, 1], G^l's auxiliary reconstruction R_t (eq. 4.1); only when requested."""
+
+
+class FrameGenerator(nn.Module):
+    """Per-frame synthesis for the configured variant.
+
+    forward(landmark_image: (B, C_lm, H, W) in [-1, 1], layout_latent: (B, D), style_latent: (B, D),
+            oracle_segmentation: (B, 19, H, W) one-hot, only for variant 'oracle_seg') -> image (B, 3, H, W).
+    Inputs outside their range ([-1, 1]; [0, 1] for the segmentation) are clamped.
+    Variant 'baseline' and 'spade_landmarks' ignore layout_latent (their encoder still produces it).
+    """
+
+    def __init__(self, config: ModelConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.layout_predictor = build_layout_predictor(config) if config.uses_layout_predictor else None
+        self.image_generator = SpadeGenerator(config) if config.variant != "baseline" else None
+        self.baseline_generator = build_baseline_generator(config) if config.variant == "baseline" else None
+
+    def forward(
+        self,
+        landmark_image: torch.Tensor,
+        layout_latent: torch.Tensor,
+        style_latent: torch.Tensor,
+        oracle_segmentation: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        return self.synthesize(landmark_image, layout_latent, style_latent, oracle_segmentation).image
+
+    def predict_layout(
+        self, landmark_image: torch.Tensor, layout_latent: torch.Tensor, with_aux_rgb: bool = False
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """G^l alone (stage-1 pre-training, eq. 4.1): -> (layout_logits (B, C_l, H, W), aux_rgb or None)."""
+        if self.layout_predictor is None:
+            raise ValueError(f"variant {self.config.variant!r} has no layout predictor G^l")
+        self._check_inputs(landmark_image, layout_latent, layout_latent)
+        return self.layout_predictor(landmark_image.clamp(-1.0, 1.0), layout_latent, with_aux_rgb)
+
+    def synthesize(
+        self,
+        landmark_image: torch.Tensor,
+        layout_latent: torch.Tensor,
+        style_latent: torch.Tensor,
+        oracle_segmentation: torch.Tensor | None = None,
+        with_aux_rgb: bool = False,
+    ) -> FrameOutputs:
+        """All outputs of one frame (see ``FrameOutputs``). ``with_aux_rgb`` runs G^l's RGB head (stage 1 only)."""
+        batch = self._check_inputs(landmark_image, layout_latent, style_latent)
+        # Clamp to the input contract: out-of-range values would overflow float16 activations.
+        landmark_image = landmark_image.clamp(-1.0, 1.0)
+        variant = self.config.variant
+        if (variant == "oracle_seg") != (oracle_segmentation is not None):
+            raise ValueError(
+                "pass oracle_segmentation (B, 19, H, W) exactly when variant is 'oracle_seg' "
+                f"(variant is {variant!r})"
+            )
+        if with_aux_rgb and self.layout_predictor is None:
+            raise ValueError(f"variant {variant!r} has no layout predictor, so no auxiliary RGB head")
+
+        if self.baseline_generator is not None:  # Table 4.2 'Baseline': AdaIN UNet straight to RGB
+            rgb, _ = self.baseline_generator(landmark_image, style_latent)
+            return FrameOutputs(torch.tanh(rgb), None, None, None)
+
+        layout = layout_logits = aux_rgb = None
+        if self.layout_predictor is not None:  # thesis eq. 4.3: y^l = G^l(x_t, z^l)
+            layout_logits, aux_rgb = self.layout_predictor(landmark_image, layout_latent, with_aux_rgb)
+            layout = layout_logits.softmax(dim=1) if self.config.layout_activation == "softmax" else layout_logits
+        elif oracle_segmentation is not None:  # Table 4.2 upper bound: the oracle segmentation replaces G^l
+            size = self.config.resolution
+            check_shape("oracle_segmentation", oracle_segmentation, (batch, NUM_SEG_CLASSES, size, size))
+            layout = oracle_segmentation.clamp(0.0, 1.0)
+        # §4.6: each SPADE block sees the layout concatenated with the landmark image.
+        condition = landmark_image if layout is None else torch.cat([layout, landmark_image], dim=1)
+        image = self.image_generator(condition, style_latent)  # eq. 4.3: I_t = G^s(y^l, z^s)
+        return FrameOutputs(image, layout, layout_logits, aux_rgb)
+
+    def _check_inputs(
+        self, landmark_image: torch.Tensor, layout_latent: torch.Tensor, style_latent: torch.Tensor
+    ) -> int:
+        size, dim = self.config.resolution, self.config.latent_dim
+        batch = check_shape("landmark_image", landmark_image, ("B", self.config.landmark_channels, size, size))["B"]
+        check_shape("layout_latent", layout_latent, (batch, dim))
+        check_shape("style_latent", style_latent, (batch, dim))
+        return batch
+
+
+class LSROutputs(NamedTuple):
+    frame: FrameOutputs
+    layout_latent: torch.Tensor
+    """(B, D) z^l averaged over the K shots."""
+    style_latent: torch.Tensor
+    """(B, D) z^s averaged over the K shots."""
+
+
+class LSRModel(PretrainedMixin, nn.Module):
+    """E = {E^l, E^s}, G^l and G^s of one variant. ``save_pretrained`` / ``from_pretrained`` via safetensors.
+
+    forward(shots: (B, K, 3, H, W) in [-1, 1], shot_landmark_images: (B, K, C_lm, H, W) in [-1, 1],
+            landmark_image: (B, C_lm, H, W) target landmarks, oracle_segmentation: (B, 19, H, W) or None,
+            with_aux_rgb=False) -> LSROutputs
+    """
+
+    def __init__(self, config: ModelConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.subject_encoder = SubjectEncoder(config)
+        self.frame_generator = FrameGenerator(config)
+
+    def forward(
+        self,
+        shots: torch.Tensor,
+        shot_landmark_images: torch.Tensor,
+        landmark_image: torch.Tensor,
+        oracle_segmentation: torch.Tensor | None = None,
+        with_aux_rgb: bool = False,
+    ) -> LSROutputs:
+        layout_latent, style_latent = self.subject_encoder(shots, shot_landmark_images)
+        frame = self.frame_generator.synthesize(
+            landmark_image, layout_latent, style_latent, oracle_segmentation, with_aux_rgb
+        )
+        return LSROutputs(frame, layout_latent, style_latent)
