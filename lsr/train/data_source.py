@@ -1,0 +1,68 @@
+"""Where ``lsr train`` gets its episodes: a prepared dataset (``--data``) or a procedural one.
+
+The procedural dataset (``--synthetic-identities N``) is rendered once by ``lsr.data.synth`` into
+``OUT/synthetic_data`` with exact segmentation maps, so every variant (including X-ent supervision and
+``oracle_seg``) can train without real data.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from lsr.errors import DatasetError
+from models_def import ModelConfig
+
+SYNTHETIC_VIDEOS_PER_IDENTITY = 2
+SYNTHETIC_FRAMES_PER_VIDEO = 16
+SEGMENTATION_VARIANTS = ("latent_layout", "learned_seg", "oracle_seg")
+
+
+def synthetic_root(cfg, model_config: ModelConfig) -> Path:
+    """Render the procedural dataset on rank 0 once (other ranks wait); returns its root."""
+    from lsr.data.format import MANIFEST_NAME
+
+    root = Path(cfg.out) / "synthetic_data"
+    is_main = not (torch.distributed.is_available() and torch.distributed.is_initialized()) or torch.distributed.get_rank() == 0
+    if is_main and not (root / MANIFEST_NAME).is_file():
+        from lsr.data.synth.generate import generate_dataset
+
+        generate_dataset(
+            root,
+            identities=cfg.synthetic_identities,
+            videos_per_identity=SYNTHETIC_VIDEOS_PER_IDENTITY,
+            frames=SYNTHETIC_FRAMES_PER_VIDEO,
+            size=model_config.resolution,
+            seed=cfg.seed,
+            test_fraction=0.0,
+            progress=cfg.progress,
+            overwrite=True,
+        )
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        torch.distributed.barrier()
+    return root
+
+
+def episode_dataset(cfg, model_config: ModelConfig) -> torch.utils.data.Dataset:
+    """``EpisodeDataset`` over ``cfg.data`` (split 'train') or the synthetic dataset, at the model's resolution."""
+    from lsr.data.episodes import EpisodeDataset
+
+    root = Path(cfg.data) if cfg.data is not None else synthetic_root(cfg, model_config)
+    needs_segmentation = model_config.variant in SEGMENTATION_VARIANTS
+    dataset = EpisodeDataset(
+        root,
+        split="train",
+        shots=cfg.k_shots,
+        size=model_config.resolution,
+        seed=cfg.seed,
+        with_segmentation=needs_segmentation,
+    )
+    if needs_segmentation:
+        probe = dataset[0]
+        if "target_segmentation" not in probe or bool((probe["target_segmentation"] < 0).all()):
+            raise DatasetError(
+                f"variant {model_config.variant!r} needs segmentation maps but {root} has none; add oracle maps "
+                "(lsr.data.oracle_seg / `lsr prepare`) or train --variant baseline / spade_landmarks"
+            )
+    return dataset

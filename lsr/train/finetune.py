@@ -1,0 +1,271 @@
+"""``lsr finetune``: subject fine-tuning on K shots of one person (thesis §4.3.5).
+
+z^l and z^s are computed once from the K shots and kept fixed; G^l, G^s and D are fine-tuned by
+reconstructing the shots from their own landmarks with the objective of eq. 4.4 (the same
+generator/discriminator steps as ``lsr train``). Output: the subject's model folder
+(safetensors + config.json) and ``latents.safetensors`` (layout_latent, style_latent), ready for
+the pipeline.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from lsr.errors import DatasetError, WeightsError
+from lsr.train.checkpoint import nonfinite_entries
+from lsr.train.optim import make_adam
+from lsr.train.steps import Batch, LossWeights, StagePlan, discriminator_step, generator_step
+from models_def import Discriminator, LSRModel
+
+DISCRIMINATOR_NAME = "discriminator.safetensors"
+LATENTS_NAME = "latents.safetensors"
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v")
+FINETUNE_PLAN = StagePlan(stage=3, cross_entropy=False)  # eq. 4.4 only: the shots have no segmentation
+
+
+@dataclasses.dataclass
+class SubjectShots:
+    """K aligned crops of one person. frames: (K, S, S, 3) uint8 RGB; landmarks: (K, 68, 2) float32 crop pixels."""
+
+    frames: np.ndarray
+    landmarks: np.ndarray
+
+
+@dataclasses.dataclass
+class FinetuneResult:
+    model: LSRModel
+    layout_latent: Tensor
+    """(1, D) fixed z^l."""
+    style_latent: Tensor
+    """(1, D) fixed z^s."""
+    l1_before: float
+    l1_after: float
+    skipped_steps: int
+    seconds: float
+
+
+# ---- inputs --------------------------------------------------------------------------------------------
+
+
+def _sample_evenly(items: list, k: int) -> list:
+    if len(items) <= k:
+        return items
+    picks = np.unique(np.round(np.linspace(0, len(items) - 1, k)).astype(int))
+    return [items[i] for i in picks]
+
+
+def load_subject_shots(inputs: Sequence[Path], k: int, size: int, detector: str = "hog") -> SubjectShots:
+    """Read images / a folder / a video, keep K frames with a face, crop them like the training data.
+
+    Video frames are scanned evenly (4K candidates) and the first K with a detected face are kept.
+    """
+    from landmarks.align import crop as align_crop
+    from landmarks.detect import FaceDetector
+    from landmarks.imageio import read_image
+
+    paths: list[Path] = []
+    for item in map(Path, inputs):
+        if item.is_dir():
+            paths += sorted(
+                p for p in item.iterdir()
+                if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.endswith(("_contour.png", "_segmap_merged.png"))
+            )  # fmt: skip (LSR release folders keep landmark drawings and maps beside the frames)
+        else:
+            paths.append(item)
+    videos = [p for p in paths if p.suffix.lower() in VIDEO_SUFFIXES]
+    if videos and len(paths) > 1:
+        raise DatasetError("give either one video or image files/folders for the shots, not both")
+    if videos:
+        from landmarks.video import iter_frames, probe_video
+
+        total = probe_video(videos[0]).frames
+        wanted = set(np.unique(np.round(np.linspace(0, max(0, total - 1), 4 * k)).astype(int)).tolist())
+        candidates = [(f"{videos[0].name}#{i}", f) for i, f in enumerate(iter_frames(videos[0])) if i in wanted]
+    else:
+        candidates = [(p.name, read_image(p)) for p in _sample_evenly(paths, 4 * k)]
+    if not candidates:
+        raise DatasetError(f"no images found in {', '.join(map(str, inputs))}; give image files, a folder or a video")
+    face_detector = FaceDetector(detector)
+    frames, points = [], []
+    for _, image in candidates:
+        faces = face_detector.detect(image)
+        if not faces:
+            continue
+        cropped, matrix = align_crop(image, faces[0].landmarks, size)
+        matrix = np.asarray(matrix, np.float64)
+        frames.append(cropped)
+        points.append((faces[0].landmarks @ matrix[:, :2].T + matrix[:, 2]).astype(np.float32))
+    if not frames:
+        raise DatasetError(f"no face found in any of {len(candidates)} frame(s); use frontal, well-lit shots or --detector cnn")
+    chosen = _sample_evenly(list(range(len(frames))), k)
+    return SubjectShots(np.stack([frames[i] for i in chosen]), np.stack([points[i] for i in chosen]))
+
+
+def shots_to_tensors(shots: SubjectShots, size: int) -> tuple[Tensor, Tensor]:
+    """-> (images (K, 3, S, S) in [-1, 1], landmark images (K, 3, S, S) in [-1, 1]), as in lsr.data.episodes."""
+    from lsr.data.episodes import landmark_images
+
+    if shots.frames.ndim != 4 or shots.frames.shape[1:] != (size, size, 3):
+        raise DatasetError(f"shots must be (K, {size}, {size}, 3) uint8 crops; got {shots.frames.shape}")
+    images = torch.from_numpy(shots.frames).permute(0, 3, 1, 2).float() / 127.5 - 1
+    return images, landmark_images(torch.from_numpy(shots.landmarks), size)
+
+
+# ---- fine-tuning ---------------------------------------------------------------------------------------
+
+
+def load_discriminator(weights: Path, model: LSRModel) -> tuple[Discriminator, bool]:
+    """D saved beside the weights by ``lsr train``, or a fresh one (returns whether it was found)."""
+    discriminator = Discriminator(model.config)
+    path = Path(weights) / DISCRIMINATOR_NAME
+    if not path.is_file():
+        return discriminator, False
+    from safetensors.torch import load_file
+
+    try:
+        discriminator.load_state_dict(load_file(str(path)))
+    except (RuntimeError, OSError) as exc:
+        raise WeightsError(f"{path} does not match the model config: {exc}; re-export with `lsr train`") from exc
+    return discriminator, True
+
+
+@torch.no_grad()
+def reconstruction_l1(model: LSRModel, images: Tensor, landmark_images: Tensor, latents: tuple[Tensor, Tensor],
+                      oracle: Tensor | None) -> float:
+    """Mean L1 of reconstructing every shot from its own landmarks with the fixed latents."""
+    count = images.shape[0]
+    layout_latent, style_latent = (z.expand(count, -1) for z in latents)
+    fake = model.frame_generator(landmark_images, layout_latent, style_latent, oracle)
+    return (fake - images).abs().mean().item()
+
+
+def _oracle_one_hot(shots: SubjectShots) -> Tensor:
+    from lsr.data.oracle_seg import oracle_segmentation
+
+    maps = np.stack([oracle_segmentation(f, lm) for f, lm in zip(shots.frames, shots.landmarks, strict=True)])
+    segmentation = torch.from_numpy(maps.astype(np.int64))
+    return torch.nn.functional.one_hot(segmentation, 19).permute(0, 3, 1, 2).float()
+
+
+def finetune_subject(
+    model: LSRModel,
+    discriminator: Discriminator,
+    shots: SubjectShots,
+    *,
+    steps: int,
+    lr: float = 1e-4,
+    batch_size: int = 4,
+    weights: LossWeights | None = None,
+    device: torch.device | str = "cpu",
+    seed: int = 0,
+    progress: bool = False,
+) -> FinetuneResult:
+    """Fine-tune G^l, G^s and D on the shots (thesis §4.3.5); the encoder and the latents stay fixed."""
+    device = torch.device(device)
+    weights = weights or LossWeights()
+    size = model.config.resolution
+    images, landmark_imgs = (t.to(device) for t in shots_to_tensors(shots, size))
+    oracle = _oracle_one_hot(shots).to(device) if model.config.variant == "oracle_seg" else None
+    model.to(device).train()
+    discriminator.to(device).train()
+    with torch.no_grad():  # z^l, z^s = 1/K sum_i E(I_i): computed once, then frozen (§4.3.5)
+        layout_latent, style_latent = model.subject_encoder(images[None], landmark_imgs[None])
+    model.requires_grad_(False)
+    model.frame_generator.requires_grad_(True)
+    aux_head = getattr(model.frame_generator.layout_predictor, "to_aux_rgb", None)
+    if aux_head is not None:
+        aux_head.requires_grad_(False)
+    discriminator.requires_grad_(True)
+    g_optimizer = make_adam([p for p in model.frame_generator.parameters() if p.requires_grad], lr, (0.0, 0.999))
+    d_optimizer = make_adam(discriminator.parameters(), lr, (0.0, 0.999))
+    latents = (layout_latent, style_latent)
+    l1_before = reconstruction_l1(model, images, landmark_imgs, latents, oracle)
+
+    rng = np.random.default_rng(seed)
+    count = images.shape[0]
+    batch_size = min(batch_size, count)
+    skipped = 0
+    started = time.perf_counter()
+    iterator = range(steps)
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(iterator, desc="finetune", unit="step", dynamic_ncols=True)
+    for step in iterator:
+        picks = torch.from_numpy(rng.choice(count, size=batch_size, replace=False)).to(device)
+        batch = Batch(
+            shots=images[picks, None],  # unused: the latents are fixed
+            shot_landmark_images=landmark_imgs[picks, None],
+            target=images[picks],
+            target_landmark_image=landmark_imgs[picks],
+            target_segmentation=None if oracle is None else oracle[picks].argmax(1),
+        )
+        fixed = (layout_latent.expand(batch_size, -1), style_latent.expand(batch_size, -1))
+        result = generator_step(model, discriminator, g_optimizer, batch, FINETUNE_PLAN, weights, latents=fixed)
+        if not result.finite:
+            skipped += 1
+            continue
+        d_result = discriminator_step(discriminator, d_optimizer, batch.target, result.fake, weights, step)
+        skipped += int(not d_result.finite)
+    seconds = time.perf_counter() - started
+    model.eval()
+    model.requires_grad_(False)
+    l1_after = reconstruction_l1(model, images, landmark_imgs, latents, oracle)
+    return FinetuneResult(model, layout_latent.cpu(), style_latent.cpu(), l1_before, l1_after, skipped, seconds)
+
+
+def save_subject(result: FinetuneResult, out: Path, extra: dict | None = None) -> Path:
+    """Write the subject model (safetensors + config.json), latents.safetensors and finetune.json. Never non-finite."""
+    from safetensors.torch import save_file
+
+    from models_def.serialization import _atomic_write
+
+    out = Path(out)
+    bad = nonfinite_entries(result.model.state_dict()) + nonfinite_entries(
+        {"layout_latent": result.layout_latent, "style_latent": result.style_latent}
+    )
+    if bad:
+        raise WeightsError(f"fine-tuning produced non-finite values ({', '.join(bad[:5])}); lower --lr and retry")
+    result.model.cpu().save_pretrained(out)
+    latents = {"layout_latent": result.layout_latent.contiguous(), "style_latent": result.style_latent.contiguous()}
+    _atomic_write(out / LATENTS_NAME, lambda temp: save_file(latents, temp))
+    summary = {"l1_before": result.l1_before, "l1_after": result.l1_after, "skipped_steps": result.skipped_steps,
+               "seconds": result.seconds, **(extra or {})}  # fmt: skip
+    _atomic_write(out / "finetune.json", lambda temp: Path(temp).write_text(json.dumps(summary, indent=2) + "\n"))
+    return out
+
+
+def run_finetune(cfg) -> FinetuneResult:
+    """Entry point of ``lsr finetune``."""
+    from lsr.train.steps import LossWeights as Weights
+    from lsr.train.trainer import resolve_device
+
+    device = resolve_device(cfg.device)
+    torch.manual_seed(cfg.seed)
+    try:
+        model = LSRModel.from_pretrained(cfg.weights)
+    except ValueError as exc:  # models_def's ModelConfigError says what is wrong with the folder
+        raise WeightsError(str(exc)) from exc
+    discriminator, found = load_discriminator(cfg.weights, model)
+    if not found:
+        print(f"lsr finetune: no {DISCRIMINATOR_NAME} in {cfg.weights}; fine-tuning with a fresh discriminator")
+    shots = load_subject_shots(cfg.shots, cfg.k, model.config.resolution, cfg.detector)
+    result = finetune_subject(
+        model, discriminator, shots, steps=cfg.steps, lr=cfg.lr, batch_size=cfg.batch_size,
+        weights=Weights.from_config(cfg.losses), device=device, seed=cfg.seed, progress=cfg.progress,
+    )  # fmt: skip
+    save_subject(result, cfg.out, {"shots": len(shots.frames), "steps": cfg.steps, "weights": str(cfg.weights)})
+    print(
+        f"fine-tuned on {len(shots.frames)} shots in {result.seconds:.1f} s ({cfg.steps} steps, "
+        f"{result.skipped_steps} skipped): shot L1 {result.l1_before:.4f} -> {result.l1_after:.4f}; wrote {cfg.out}"
+    )
+    return result

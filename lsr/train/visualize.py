@@ -1,0 +1,149 @@
+"""Training previews: image grids, layout maps as RGB (PCA of channels, argmax class colours), loss curves.
+
+Everything returns uint8 RGB numpy arrays (H, W, 3) so TensorBoard, PNG writers and tests share them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch import Tensor
+
+from lsr.data.classes import NUM_SEG_CLASSES, colorize_segmentation
+
+
+def images_to_uint8(images: Tensor) -> np.ndarray:
+    """(B, 3, H, W) float in [-1, 1] -> (B, H, W, 3) uint8."""
+    if images.ndim != 4 or images.shape[1] != 3:
+        raise ValueError(f"images must be (B, 3, H, W); got {tuple(images.shape)}")
+    array = ((images.detach().float().clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8)
+    return array.permute(0, 2, 3, 1).cpu().numpy()
+
+
+def layout_pca_rgb(layout: Tensor) -> Tensor:
+    """Project a layout map's channels onto their 3 principal components -> (B, 3, H, W) in [-1, 1].
+
+    layout: (B, C, H, W) float. One PCA basis is fitted on the whole batch so colours are comparable
+    across the row; each component is scaled by its robust range. C < 3 is zero-padded.
+    """
+    if layout.ndim != 4:
+        raise ValueError(f"layout must be (B, C, H, W); got {tuple(layout.shape)}")
+    batch, channels, height, width = layout.shape
+    pixels = layout.detach().float().permute(0, 2, 3, 1).reshape(-1, channels)  # (B*H*W, C)
+    pixels = pixels - pixels.mean(dim=0, keepdim=True)
+    if channels < 3:
+        pixels = torch.cat([pixels, pixels.new_zeros(pixels.shape[0], 3 - channels)], dim=1)
+    # Principal axes from the C x C covariance (cheap: C is small), largest variance first.
+    covariance = pixels.T @ pixels / max(1, pixels.shape[0] - 1)
+    _, eigenvectors = torch.linalg.eigh(covariance.double())
+    basis = eigenvectors[:, -3:].flip(1).float()  # (C, 3)
+    projected = pixels @ basis  # (B*H*W, 3)
+    scale = projected.abs().quantile(0.99, dim=0).clamp_min(1e-6)
+    projected = (projected / scale).clamp(-1, 1)
+    return projected.reshape(batch, height, width, 3).permute(0, 3, 1, 2)  # (B, 3, H, W)
+
+
+def layout_argmax_rgb(layout: Tensor) -> Tensor:
+    """Argmax over the layout's class channels coloured with ``SEG_PALETTE`` -> (B, 3, H, W) in [-1, 1]."""
+    if layout.ndim != 4 or layout.shape[1] != NUM_SEG_CLASSES:
+        raise ValueError(f"layout must be (B, {NUM_SEG_CLASSES}, H, W) class scores; got {tuple(layout.shape)}")
+    return segmentation_rgb(layout.detach().argmax(dim=1))
+
+
+def segmentation_rgb(segmentation: Tensor, ignore_index: int = -1) -> Tensor:
+    """Class map (B, H, W) int -> palette colours (B, 3, H, W) in [-1, 1]; ignored pixels are grey."""
+    maps = segmentation.detach().cpu().numpy()
+    coloured = np.stack([colorize_segmentation(np.where(m == ignore_index, 0, m).astype(np.uint8)) for m in maps])
+    coloured[maps == ignore_index] = 128
+    return torch.from_numpy(coloured).permute(0, 3, 1, 2).float() / 127.5 - 1
+
+
+def image_grid(rows: Sequence[Tensor], max_columns: int = 8) -> np.ndarray:
+    """Stack rows of (B, 3, H, W) images in [-1, 1] into one (rows*H, B*W, 3) uint8 grid (one sample per column)."""
+    if not rows:
+        raise ValueError("image_grid needs at least one row")
+    arrays = [images_to_uint8(row[:max_columns].to(torch.float32).cpu()) for row in rows]
+    height, width = arrays[0].shape[1:3]
+    lines = []
+    for array in arrays:
+        if array.shape[1:3] != (height, width):
+            array = np.stack([cv2.resize(a, (width, height), interpolation=cv2.INTER_NEAREST) for a in array])
+        lines.append(np.concatenate(list(array), axis=1))
+    columns = max(line.shape[1] for line in lines)
+    lines = [np.pad(line, ((0, 0), (0, columns - line.shape[1]), (0, 0))) for line in lines]
+    return np.concatenate(lines, axis=0)
+
+
+# ---- loss curves --------------------------------------------------------------------------------------
+
+_CURVE_COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),
+                  (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]  # fmt: skip
+
+
+def read_tensorboard_scalars(log_dir: Path) -> dict[str, list[tuple[int, float]]]:
+    """All scalar series of a TensorBoard run folder: tag -> [(step, value), ...] sorted by step."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    accumulator = EventAccumulator(str(log_dir), size_guidance={"scalars": 0})
+    accumulator.Reload()
+    return {tag: [(e.step, e.value) for e in accumulator.Scalars(tag)] for tag in accumulator.Tags()["scalars"]}
+
+
+def plot_curves(series: Mapping[str, Sequence[tuple[int, float]]], panel_size: tuple[int, int] = (420, 260)) -> np.ndarray:
+    """One small line plot per tag (opencv drawing; no matplotlib), tiled 3 per row. Returns (H, W, 3) uint8."""
+    panels = []
+    width, height = panel_size
+    margin = 36
+    for index, (tag, points) in enumerate(sorted(series.items())):
+        panel = np.full((height, width, 3), 255, np.uint8)
+        cv2.putText(panel, tag, (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+        finite = [(s, v) for s, v in points if np.isfinite(v)]
+        if len(finite) >= 1:
+            steps = np.array([s for s, _ in finite], float)
+            values = np.array([v for _, v in finite], float)
+            low, high = float(values.min()), float(values.max())
+            if high - low < 1e-12:
+                low, high = low - 0.5, high + 0.5
+            span_steps = max(1.0, steps.max() - steps.min())
+            xs = margin + (steps - steps.min()) / span_steps * (width - margin - 10)
+            ys = height - margin + (values - low) / (high - low) * -(height - 2 * margin)
+            colour = _CURVE_COLOURS[index % len(_CURVE_COLOURS)][::-1]
+            cv2.polylines(panel, [np.stack([xs, ys], 1).round().astype(np.int32)], False, colour, 1, cv2.LINE_AA)
+            for y_value, y_pixel in ((high, margin), (low, height - margin)):
+                cv2.putText(panel, f"{y_value:.3g}", (2, int(y_pixel)), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (80, 80, 80), 1)
+            cv2.putText(panel, f"step {int(steps.min())}..{int(steps.max())}", (margin, height - 8),
+                        cv2.FONT_HERSHEY_SIMPLEX, 0.35, (80, 80, 80), 1)  # fmt: skip
+        cv2.rectangle(panel, (margin, margin), (width - 10, height - margin), (200, 200, 200), 1)
+        panels.append(panel)
+    if not panels:
+        raise ValueError("no scalar series to plot")
+    per_row = 3
+    blank = np.full_like(panels[0], 255)
+    while len(panels) % per_row:
+        panels.append(blank)
+    return np.concatenate([np.concatenate(panels[i : i + per_row], axis=1) for i in range(0, len(panels), per_row)])
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    """Write an RGB uint8 image atomically (temp file + os.replace)."""
+    import os
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}.png")
+    if not cv2.imwrite(str(tmp), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+        raise OSError(f"could not write {path}")
+    os.replace(tmp, path)
+
+
+def tensorboard_to_png(log_dir: Path, png_path: Path, tags: Sequence[str] | None = None) -> Path:
+    """Export a run's TensorBoard scalars (optionally only ``tags``) as a tiled PNG of line plots."""
+    series = read_tensorboard_scalars(log_dir)
+    if tags is not None:
+        series = {tag: series[tag] for tag in tags if tag in series}
+    write_png(png_path, plot_curves(series))
+    return Path(png_path)
