@@ -117,6 +117,12 @@ def _run_export(cfg: config.ExportConfig) -> None:
     run_export(cfg)
 
 
+def _run_app(cfg: config.AppConfig) -> None:
+    from app.ui import run_app
+
+    run_app(cfg)
+
+
 def _run_bench_reenact(cfg: config.BenchReenactConfig) -> None:
     from lsr.eval.bench_reenact import run_bench_reenact
 
@@ -134,6 +140,7 @@ COMMANDS: dict[str, tuple[type, Callable[[Any], None]]] = {
     "synth": (config.SynthConfig, _run_synth),
     "reenact": (config.ReenactConfig, _run_reenact),
     "export": (config.ExportConfig, _run_export),
+    "app": (config.AppConfig, _run_app),
 }
 GROUPS: dict[str, dict[str, tuple[type, Callable[[Any], None]]]] = {
     "bench": {

@@ -540,10 +540,15 @@ class ReenactConfig:
     """Batch: take job share i of n ('i/n'); default RANK/WORLD_SIZE under torchrun, else all jobs."""
     overwrite: bool = False
     """Redo jobs whose output already exists (default: skip them, which makes reruns resume)."""
+    threads: int = 0
+    """CPU threads for the networks (torch intra-op / onnxruntime intra-op); 0 = the library default. On a
+    loaded machine 1 can be much faster than torch's default (its OpenMP threads stall when descheduled)."""
     detector: Literal["hog", "cnn"] = "hog"
     progress: bool = True
 
     def validate(self) -> None:
+        if self.threads < 0:
+            raise ConfigError(f"--threads must be >= 0, got {self.threads}")
         if self.weights is None:
             raise ConfigError("--weights DIR is required (a model folder from `lsr train`, or an `lsr export` bundle "
                               "for --runtime onnx); no default model ships yet")  # fmt: skip
@@ -620,7 +625,47 @@ class BenchReenactConfig:
     paste_back: bool = True
     k: int = 4
     device: Literal["auto", "cpu", "cuda"] = "auto"
+    threads: int = 0
+    """CPU threads for the networks (as `lsr reenact --threads`); 0 = the library default."""
 
     def validate(self) -> None:
         if self.frames < 2 or self.k < 1 or self.resolution < 32:
             raise ConfigError("--frames >= 2, --k >= 1 and --resolution >= 32 are required")
+
+
+@dataclasses.dataclass
+class AppConfig:
+    """Start the Gradio web app (K-shot upload, re-enactment, the latent layout made visible) on HOST:PORT."""
+
+    weights: Path | None = None
+    """Model folder (config.json + model.safetensors, from `lsr train`). Default: $LSR_WEIGHTS, else
+    runs/lsr/weights when it exists; without any the page explains how to get weights."""
+    random_init: bool = False
+    """No trained model yet: serve a randomly initialised 'tiny' model (outputs are noise; to try the interface)."""
+    host: str = "127.0.0.1"
+    port: int = 7860
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    max_video_seconds: float = 20.0
+    """Longest driving or source video accepted (seconds)."""
+    max_video_frames: int = 500
+    """Most driving frames accepted (video frames or landmark rows)."""
+    max_upload_mb: float = 50.0
+    """Largest single uploaded file (MB)."""
+    max_k: int = 32
+    """Largest K (source shots) offered (1..32)."""
+    queue_size: int = 8
+    """Requests allowed to wait while one runs (one runs at a time); beyond that the page says the queue is full."""
+    examples_dir: Path | None = None
+    """Where the bundled synthetic examples are generated on first use (default ~/.cache/lsr/app_examples)."""
+
+    def validate(self) -> None:
+        if self.weights is not None and not Path(self.weights).is_dir():
+            raise ConfigError(f"--weights {self.weights} is not a folder (config.json + model.safetensors from `lsr train`)")
+        if self.weights is not None and self.random_init:
+            raise ConfigError("--weights and --random-init exclude each other")
+        if not 0 <= self.port <= 65535:
+            raise ConfigError(f"--port must be in 0..65535, got {self.port}")
+        if self.max_video_seconds <= 0 or self.max_video_frames < 1 or self.max_upload_mb <= 0 or self.queue_size < 1:
+            raise ConfigError("--max-video-seconds and --max-upload-mb must be > 0; --max-video-frames, --queue-size >= 1")
+        if not 1 <= self.max_k <= 32:
+            raise ConfigError(f"--max-k must be in 1..32, got {self.max_k}")

@@ -1,0 +1,97 @@
+"""No-learning baselines, evaluated in the same run and through the same ``Method`` protocol
+(``lsr.eval.protocol.Method``) as a trained model.
+
+nearest_shot  copies the source shot whose landmarks are closest to the target's. Distance:
+              NMKE of the raw landmarks (no alignment; mean point distance over the target's eye
+              distance). Raw, because the copied pixels keep their position: a shot whose head
+              sits elsewhere in the frame is a worse copy even if the pose matches.
+tps           warps that nearest shot onto the target landmarks with a regularised thin-plate
+              spline (``lsr.eval.tps``), frame corners and edge midpoints fixed. Counts how often
+              each warp method (tps / tps_stronger / similarity / identity) was used.
+"""
+
+from __future__ import annotations
+
+import collections
+
+import numpy as np
+
+from lsr.eval import tps
+from lsr.eval.metrics import nmke
+
+
+def check_method_inputs(shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray) -> None:
+    """Shape contract of ``Method.reenact``: K shots (S, S, 3) uint8, (K, 68, 2), (T, 68, 2)."""
+    if not shots:
+        raise ValueError("reenact needs at least one shot")
+    size = shots[0].shape
+    for shot in shots:
+        if shot.dtype != np.uint8 or shot.ndim != 3 or shot.shape[2] != 3 or shot.shape != size:
+            raise ValueError(f"shots must all be (S, S, 3) uint8 of one size, got {shot.shape} {shot.dtype}")
+    if shot_landmarks.shape != (len(shots), 68, 2):
+        raise ValueError(f"shot_landmarks must be ({len(shots)}, 68, 2), got {shot_landmarks.shape}")
+    if target_landmarks.ndim != 3 or target_landmarks.shape[1:] != (68, 2):
+        raise ValueError(f"target_landmarks must be (T, 68, 2), got {target_landmarks.shape}")
+
+
+def nearest_shot_indices(shot_landmarks: np.ndarray, target_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per target, the shot with the smallest raw-landmark NMKE to it, and that NMKE.
+
+    shot_landmarks: (K, 68, 2) (NaN rows = shot without a face; never chosen unless all are);
+    target_landmarks: (T, 68, 2). Returns (T,) int indices, (T,) float distances (NaN when the
+    target or every shot lacks landmarks; index 0 then).
+    """
+    distances = nmke(shot_landmarks[None, :], target_landmarks[:, None])  # (T, K)
+    filled = np.where(np.isnan(distances), np.inf, distances)
+    indices = np.argmin(filled, axis=1)
+    best = filled[np.arange(len(indices)), indices]
+    return indices, np.where(np.isfinite(best), best, np.nan)
+
+
+class NearestShot:
+    """Copy the nearest source shot (see the module docstring)."""
+
+    name = "nearest_shot"
+
+    def reenact(self, shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray) -> np.ndarray:
+        """shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (T, 68, 2)
+        -> (T, S, S, 3) uint8."""
+        check_method_inputs(shots, shot_landmarks, target_landmarks)
+        indices, _ = nearest_shot_indices(shot_landmarks, target_landmarks)
+        return np.stack([shots[i] for i in indices])
+
+
+class TpsWarp:
+    """Warp the nearest shot onto the target landmarks with a regularised TPS (see the module docstring).
+
+    ``warp_counts`` counts the warp method used per output frame over the object's lifetime.
+    """
+
+    name = "tps"
+
+    def __init__(
+        self,
+        regularization: float = tps.DEFAULT_REGULARIZATION,
+        merge_distance: float = tps.DEFAULT_MERGE_DISTANCE,
+        max_folded_fraction: float = tps.DEFAULT_MAX_FOLDED_FRACTION,
+        fix_border: bool = True,
+    ) -> None:
+        self.regularization = regularization
+        self.fix_border = fix_border
+        self.merge_distance = merge_distance
+        self.max_folded_fraction = max_folded_fraction
+        self.warp_counts: collections.Counter[str] = collections.Counter({m: 0 for m in tps.WARP_METHODS})
+
+    def reenact(self, shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray) -> np.ndarray:
+        """shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (T, 68, 2)
+        -> (T, S, S, 3) uint8."""
+        check_method_inputs(shots, shot_landmarks, target_landmarks)
+        indices, _ = nearest_shot_indices(shot_landmarks, target_landmarks)
+        outputs = []
+        for index, target in zip(indices, target_landmarks):
+            result = tps.warp_tps(shots[index], shot_landmarks[index], target, regularization=self.regularization,
+                                  merge_distance=self.merge_distance, max_folded_fraction=self.max_folded_fraction,
+                                  fix_border=self.fix_border)  # fmt: skip
+            self.warp_counts[result.method] += 1
+            outputs.append(result.image)
+        return np.stack(outputs)

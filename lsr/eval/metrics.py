@@ -1,0 +1,121 @@
+"""Image and landmark metrics of the evaluation protocol (thesis §4.4 "Metrics").
+
+Conventions (stated in every report):
+  PSNR  on uint8 RGB with peak 255, over all pixels and channels. Identical images have
+        MSE 0 and PSNR = +inf; ``summarise_psnr`` reports the mean over finite frames, the
+        count of infinite ones, and the PSNR of the mean MSE (which stays finite unless every
+        frame is identical).
+  SSIM  ``kornia.metrics.ssim``: 11x11 Gaussian window, sigma 1.5, reflect padding ('same'),
+        on RGB in [0, 1] (c1 = 0.01^2, c2 = 0.03^2), mean of the map over pixels and channels.
+  NMKE  (Bi-layer / LPD, [113, 114]): mean Euclidean distance of the 68 landmarks detected on
+        the output to those on the ground truth, divided by the distance between the ground
+        truth's eye centres (means of points 36-41 and 42-47).
+ID-SIM lives in ``lsr.eval.idsim`` (dlib embeddings; needs the model file).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from landmarks.parts import NUM_LANDMARKS
+from lsr.errors import ConfigError
+
+SSIM_WINDOW = 11
+SSIM_SIGMA = 1.5  # kornia's fixed Gaussian sigma; only the window size is a parameter
+PIXEL_PEAK = 255.0
+LEFT_EYE = slice(36, 42)  # iBUG-68 points 36-41 (subject's right eye, image left)
+RIGHT_EYE = slice(42, 48)
+
+
+def _check_image_pair(output: np.ndarray, target: np.ndarray) -> None:
+    if output.shape != target.shape or output.ndim < 3 or output.shape[-1] != 3:
+        raise ConfigError(f"images must have the same (..., H, W, 3) shape, got {output.shape} and {target.shape}")
+    if output.dtype != np.uint8 or target.dtype != np.uint8:
+        raise ConfigError(f"images must be uint8 RGB, got {output.dtype} and {target.dtype}")
+
+
+def mse(output: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Mean squared error in grey levels^2. output, target: (..., H, W, 3) uint8 -> (...) float64."""
+    _check_image_pair(output, target)
+    difference = output.astype(np.float64) - target.astype(np.float64)
+    return np.mean(difference**2, axis=(-3, -2, -1))
+
+
+def psnr_from_mse(mean_squared_error: np.ndarray | float) -> np.ndarray:
+    """PSNR in dB for peak 255; MSE 0 gives +inf (identical images), never a division warning."""
+    value = np.asarray(mean_squared_error, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        return np.where(value > 0, 10.0 * np.log10(PIXEL_PEAK**2 / np.maximum(value, 1e-300)), np.inf)
+
+
+def psnr(output: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """PSNR in dB. output, target: (..., H, W, 3) uint8 -> (...) float64; +inf where identical."""
+    return psnr_from_mse(mse(output, target))
+
+
+def summarise_psnr(values: np.ndarray, mses: np.ndarray) -> dict[str, float | int]:
+    """Means of per-frame PSNR with infinities handled explicitly.
+
+    Returns {"mean_finite": mean over finite frames (nan if none), "infinite": count of identical
+    frames (excluded from mean_finite), "of_mean_mse": PSNR of the mean MSE over all frames}.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    finite = values[np.isfinite(values)]
+    return {
+        "mean_finite": float(finite.mean()) if finite.size else math.nan,
+        "infinite": int(np.sum(np.isinf(values))),
+        "of_mean_mse": float(psnr_from_mse(float(np.mean(mses)))) if len(mses) else math.nan,
+    }
+
+
+def ssim(output: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Mean SSIM (11x11 Gaussian window, sigma 1.5). output, target: (N, H, W, 3) or (H, W, 3) uint8
+    -> (N,) or () float64. Computed in fp32 (fp64 is 5x slower on CPU; identical images give 1 to ~1e-7)."""
+    import kornia
+    import torch
+
+    _check_image_pair(output, target)
+    single = output.ndim == 3
+    if single:
+        output, target = output[None], target[None]
+    if min(output.shape[1:3]) <= SSIM_WINDOW // 2:
+        raise ConfigError(f"SSIM needs images larger than {SSIM_WINDOW // 2} pixels, got {output.shape[1:3]}")
+    # (N, H, W, 3) uint8 -> (N, 3, H, W) float32 in [0, 1]
+    first = torch.from_numpy(output).permute(0, 3, 1, 2).to(torch.float32) / PIXEL_PEAK
+    second = torch.from_numpy(target).permute(0, 3, 1, 2).to(torch.float32) / PIXEL_PEAK
+    with torch.no_grad():
+        ssim_map = kornia.metrics.ssim(first, second, window_size=SSIM_WINDOW, max_val=1.0, eps=0.0)
+    values = ssim_map.mean(dim=(1, 2, 3)).double().numpy()
+    return values[0] if single else values
+
+
+def check_landmarks(landmarks: np.ndarray, name: str = "landmarks") -> np.ndarray:
+    """(..., 68, 2) float array or ConfigError."""
+    landmarks = np.asarray(landmarks)
+    if landmarks.ndim < 2 or landmarks.shape[-2:] != (NUM_LANDMARKS, 2):
+        raise ConfigError(f"{name} must have shape (..., {NUM_LANDMARKS}, 2), got {landmarks.shape}")
+    return landmarks.astype(np.float64)
+
+
+def eye_distance(landmarks: np.ndarray) -> np.ndarray:
+    """Distance between the eye centres (means of points 36-41 and 42-47). (..., 68, 2) -> (...)."""
+    landmarks = check_landmarks(landmarks)
+    left = landmarks[..., LEFT_EYE, :].mean(axis=-2)
+    right = landmarks[..., RIGHT_EYE, :].mean(axis=-2)
+    return np.linalg.norm(right - left, axis=-1)
+
+
+def nmke(predicted: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Normalised mean keypoint error [113, 114]: mean point distance / eye distance of ``reference``.
+
+    predicted, reference: (..., 68, 2) x, y pixels (broadcastable) -> (...) float64. NaN where
+    either set has NaN rows (no face) or the reference eye distance is 0.
+    """
+    predicted = check_landmarks(predicted, "predicted")
+    reference = check_landmarks(reference, "reference")
+    mean_distance = np.linalg.norm(predicted - reference, axis=-1).mean(axis=-1)
+    normaliser = eye_distance(reference)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(normaliser > 0, mean_distance / np.where(normaliser > 0, normaliser, 1.0), np.nan)

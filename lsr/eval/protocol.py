@@ -1,0 +1,381 @@
+"""The evaluation protocol of the thesis (§4.4, taken over from FSTH [112]) and its runner.
+
+Per test identity there are input frames (32 in the FSTH sample) and hold-out frames (32). K
+shots are drawn uniformly without replacement from the input frames that have landmarks,
+seeded by (seed, K, identity), and the method (including any subject fine-tuning) sees only
+them. Metrics are computed on the hold-out frames, driven by their ground-truth landmarks.
+
+Data sources (``load_identities``):
+  * the LSR release / FSTH layout ``{train,test}/<id>/<video>/combined/NNNNN_rgb.png``:
+    ``train`` = inputs, ``test`` = hold-outs; landmarks detected with ``landmarks.detect`` and
+    cached as ``<cache_dir>/landmarks_<split>_<id>.npz``;
+  * an ``lsr.data.format`` dataset (manifest + clips): for each identity of the split, its
+    clips' frames in clip-name order, first ``inputs`` frames = inputs, next ``holdouts`` =
+    hold-outs (with fewer than inputs + holdouts frames, the first half is used as inputs);
+    landmarks from ``landmarks.npy``.
+
+A method is anything with ``reenact`` (``Method``); the runner also evaluates, per method:
+  * NMKE / ID-SIM of the output, where output landmarks come from the same detector; hold-outs
+    whose ground truth has no face cannot be driven and are skipped (counted); outputs with no
+    detected face are counted (``no_face``), their NMKE is missing and their ID-SIM embedding
+    is aligned with the ground-truth landmarks instead (the output is meant to be in that pose);
+  * pose-variance buckets (thesis §4.5.1): the raw-landmark NMKE between the nearest source shot
+    and the target (= the single shot at K = 1), split into low / medium / high;
+  * cross-identity re-enactment (§4.4.3): identity i driven by identity i+1's hold-out
+    landmarks (raw, not retargeted), ID-SIM of the output to the mean embedding of i's shots.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import glob
+import hashlib
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from lsr.errors import ConfigError, DatasetError
+from lsr.eval import idsim
+from lsr.eval.baselines import check_method_inputs, nearest_shot_indices
+from lsr.eval.metrics import mse, nmke, psnr_from_mse, ssim
+
+BUCKETS = ("low", "medium", "high")
+
+
+@runtime_checkable
+class Method(Protocol):
+    """A re-enactment method under evaluation. Optionally also has
+    ``finetune(shots, shot_landmarks) -> Method``: a subject-specific method fitted on the shots only."""
+
+    name: str
+
+    def reenact(self, shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray) -> np.ndarray:
+        """shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (T, 68, 2)
+        -> (T, S, S, 3) uint8."""
+        ...
+
+
+@dataclasses.dataclass
+class EvalIdentity:
+    """One test identity. frames: (N, S, S, 3) uint8; landmarks: (N, 68, 2) float32, NaN rows = no face."""
+
+    name: str
+    input_frames: np.ndarray
+    input_landmarks: np.ndarray
+    holdout_frames: np.ndarray
+    holdout_landmarks: np.ndarray
+
+
+# ---- data -----------------------------------------------------------------------------------------
+
+
+def detect_landmarks(frames: Sequence[np.ndarray], detector: Any) -> np.ndarray:
+    """Largest face's 68 landmarks per frame. frames: N x (H, W, 3) uint8 -> (N, 68, 2) float32, NaN = no face."""
+    result = np.full((len(frames), 68, 2), np.nan, np.float32)
+    retry = None
+    for index, frame in enumerate(frames):
+        faces = detector.detect(frame)
+        if not faces and isinstance(getattr(detector, "upsample", None), int):
+            # ground truth should not lose a face to a cheap detection setting: retry one pyramid level up
+            if retry is None:
+                retry = type(detector)(kind=detector.kind, max_side=detector.max_side, upsample=detector.upsample + 1)
+            faces = retry.detect(frame)
+        if faces:
+            result[index] = faces[0].landmarks
+    return result
+
+
+def _cached_landmarks(files: list[str], frames: list[np.ndarray], detector: Any, cache: Path | None) -> np.ndarray:
+    settings = f"{detector.kind}/{detector.max_side}/{detector.upsample}/{detector.min_score}/retry+1"
+    names = np.array([os.path.basename(os.path.dirname(os.path.dirname(f))) + "/" + os.path.basename(f) for f in files])
+    if cache is not None and cache.is_file():
+        with np.load(cache, allow_pickle=False) as stored:
+            if str(stored["settings"]) == settings and np.array_equal(stored["files"], names):
+                return stored["landmarks"]
+    landmarks = detect_landmarks(frames, detector)
+    if cache is not None:
+        from landmarks.imageio import atomic_output
+
+        with atomic_output(cache) as temp, open(temp, "wb") as handle:
+            np.savez(handle, files=names, settings=np.array(settings), landmarks=landmarks)
+    return landmarks
+
+
+def load_fsth_sample(root: Path, detector: Any, cache_dir: Path | None = None, progress: bool = True) -> list[EvalIdentity]:
+    """Identities of the LSR release / FSTH layout (see the module docstring), sorted by name."""
+    from tqdm import tqdm
+
+    from landmarks.imageio import read_image
+
+    root = Path(root)
+    names = sorted(p.name for p in (root / "train").iterdir() if p.is_dir() and (root / "test" / p.name).is_dir())
+    if not names:
+        raise DatasetError(f"{root}: no identity has both train/<id> and test/<id>; expected {{train,test}}/<id>/<video>/combined/*_rgb.png")
+    identities = []
+    for name in tqdm(names, desc="lsr eval: frames + landmarks", disable=not progress):
+        parts = {}
+        for split in ("train", "test"):
+            files = sorted(glob.glob(str(root / split / name / "*" / "combined" / "*_rgb.png")))
+            if not files:
+                raise DatasetError(f"{root / split / name}: no <video>/combined/*_rgb.png frames")
+            frames = [read_image(f) for f in files]
+            if len({f.shape for f in frames}) != 1 or frames[0].shape[0] != frames[0].shape[1]:
+                raise DatasetError(f"{root / split / name}: frames must all be square and of one size")
+            cache = None if cache_dir is None else Path(cache_dir) / f"landmarks_{split}_{name}.npz"
+            parts[split] = (np.stack(frames), _cached_landmarks(files, frames, detector, cache))
+        identities.append(EvalIdentity(name, *parts["train"], *parts["test"]))
+    return identities
+
+
+def load_lsr_split(root: Path, split: str = "test", inputs: int = 32, holdouts: int = 32) -> list[EvalIdentity]:
+    """Identities of an ``lsr.data.format`` dataset split (see the module docstring)."""
+    from lsr.data.format import identity_clips, read_clip, read_manifest
+
+    manifest = read_manifest(root)
+    if split not in manifest["splits"] or not manifest["splits"][split]:
+        raise DatasetError(f"{root}: split {split!r} is missing or empty (splits: {sorted(manifest['splits'])})")
+    identities = []
+    for name in manifest["splits"][split]:
+        frames, landmarks = [], []
+        for clip in identity_clips(root, name):
+            data = read_clip(clip, with_segmentation=False)
+            frames.append(data["frames"])
+            landmarks.append(data["landmarks"])
+        all_frames, all_landmarks = np.concatenate(frames), np.concatenate(landmarks)
+        total = len(all_frames)
+        if total < 2:
+            raise DatasetError(f"{root / name}: {total} frame(s); evaluation needs >= 2 (inputs and hold-outs)")
+        num_inputs = inputs if total >= inputs + holdouts else total // 2
+        end = min(total, num_inputs + holdouts)
+        identities.append(EvalIdentity(name, all_frames[:num_inputs], all_landmarks[:num_inputs],
+                                       all_frames[num_inputs:end], all_landmarks[num_inputs:end]))  # fmt: skip
+    return identities
+
+
+def detect_layout(root: Path) -> str:
+    """'lsr' (manifest.json) or 'fsth' ({train,test}/ folders); DatasetError otherwise."""
+    root = Path(root)
+    if (root / "manifest.json").is_file():
+        return "lsr"
+    if (root / "train").is_dir() and (root / "test").is_dir():
+        return "fsth"
+    raise DatasetError(f"{root} is neither an lsr dataset (manifest.json) nor an LSR-release folder ({{train,test}}/<id>/...)")
+
+
+# ---- sampling and buckets -------------------------------------------------------------------------
+
+
+def _stable_hash(text: str) -> int:
+    return int.from_bytes(hashlib.blake2b(text.encode(), digest_size=8).digest(), "little")
+
+
+def sample_shots(candidates: np.ndarray, k: int, seed: int, identity: str) -> np.ndarray:
+    """K distinct input-frame indices drawn uniformly from ``candidates`` (sorted), seeded by
+    (seed, K, identity). candidates: (N,) int indices into the *input* frames only."""
+    candidates = np.asarray(candidates)
+    if k < 1 or k > len(candidates):
+        raise ConfigError(f"identity {identity}: K = {k} but only {len(candidates)} input frames with a face; lower --k")
+    rng = np.random.default_rng(np.random.SeedSequence([seed, k, _stable_hash(identity)]))
+    return np.sort(rng.choice(candidates, size=k, replace=False))
+
+
+def bucket_thresholds(pose_distances: np.ndarray) -> tuple[float, float]:
+    """Tercile thresholds of the finite pose distances (thesis §4.5.1 clusters into three groups)."""
+    finite = np.asarray(pose_distances, np.float64)
+    finite = finite[np.isfinite(finite)]
+    if finite.size == 0:
+        return (float("nan"), float("nan"))
+    low, high = np.quantile(finite, [1 / 3, 2 / 3])
+    return float(low), float(high)
+
+
+def assign_buckets(pose_distances: np.ndarray, thresholds: tuple[float, float]) -> list[str]:
+    """'low' (< t0), 'medium' (t0 <= d < t1), 'high' (>= t1), 'unknown' for NaN."""
+    low, high = thresholds
+    labels = []
+    for distance in np.asarray(pose_distances, np.float64):
+        if not np.isfinite(distance):
+            labels.append("unknown")
+        else:
+            labels.append("low" if distance < low else "medium" if distance < high else "high")
+    return labels
+
+
+# ---- runner ---------------------------------------------------------------------------------------
+
+
+class FaceAnalysis:
+    """Landmarks and embeddings of images, memoised by content hash (copies of input frames,
+    as the nearest-shot baseline outputs, are analysed once)."""
+
+    def __init__(self, detector: Any) -> None:
+        self.detector = detector
+        self._landmarks: dict[bytes, np.ndarray | None] = {}
+        self._embeddings: dict[bytes, np.ndarray] = {}
+
+    @staticmethod
+    def key(image: np.ndarray, extra: bytes = b"") -> bytes:
+        return hashlib.blake2b(image.tobytes() + extra, digest_size=16).digest()
+
+    def seed(self, images: np.ndarray, landmarks: np.ndarray) -> None:
+        """Register already-detected landmarks (N, 68, 2) for images (N, S, S, 3)."""
+        for image, points in zip(images, landmarks):
+            self._landmarks[self.key(image)] = points if np.all(np.isfinite(points)) else None
+
+    def landmarks(self, image: np.ndarray) -> np.ndarray | None:
+        key = self.key(image)
+        if key not in self._landmarks:
+            faces = self.detector.detect(image)
+            self._landmarks[key] = faces[0].landmarks.astype(np.float32) if faces else None
+        return self._landmarks[key]
+
+    def embedding(self, image: np.ndarray, points: np.ndarray) -> np.ndarray:
+        key = self.key(image, np.asarray(points, np.float32).tobytes())
+        if key not in self._embeddings:
+            self._embeddings[key] = idsim.face_embedding(image, points)
+        return self._embeddings[key]
+
+
+@dataclasses.dataclass
+class EvalRun:
+    """Everything a report needs. records: one dict per (method, K, identity, hold-out frame) with
+    keys method, k, identity, frame, mse, psnr, ssim, idsim, nmke, no_face, pose_distance, bucket.
+    cross_records: one per cross-identity frame with method, k, identity, driver, frame, idsim_source, no_face."""
+
+    records: list[dict[str, Any]]
+    cross_records: list[dict[str, Any]]
+    thresholds: dict[int, tuple[float, float]]
+    counts: dict[str, Any]
+    settings: dict[str, Any]
+
+
+def _warp_counts(method: Any) -> dict[str, int]:
+    return dict(getattr(method, "warp_counts", {}))
+
+
+def _add_warp_counts(counts: dict[str, Any], name: str, k: int, kind: str, before: dict[str, int], after: dict[str, int]) -> None:
+    """counts["warp_methods"][name][f"K={k} {kind}"][warp method] += frames (methods with ``warp_counts`` only)."""
+    if not after:
+        return
+    table = counts.setdefault("warp_methods", {}).setdefault(name, {}).setdefault(f"K={k} {kind}", {})
+    for method, value in after.items():
+        table[method] = table.get(method, 0) + value - before.get(method, 0)
+
+
+def _check_outputs(outputs: np.ndarray, count: int, size: tuple[int, ...], name: str) -> None:
+    if not isinstance(outputs, np.ndarray) or outputs.dtype != np.uint8 or outputs.shape != (count, *size):
+        raise ConfigError(f"method {name} returned {getattr(outputs, 'shape', type(outputs))} "
+                          f"{getattr(outputs, 'dtype', '')}; expected ({count}, {', '.join(map(str, size))}) uint8")  # fmt: skip
+
+
+def run_protocol(
+    methods: Sequence[Method],
+    identities: Sequence[EvalIdentity],
+    ks: Sequence[int],
+    analysis: FaceAnalysis,
+    *,
+    seed: int = 0,
+    max_holdouts: int = 0,
+    fixed_thresholds: tuple[float, float] | None = None,
+    cross_identity: bool = True,
+    finetune: bool = True,
+    on_outputs: Callable[[str, int, EvalIdentity, np.ndarray, np.ndarray], None] | None = None,
+    progress: bool = True,
+) -> EvalRun:
+    """Evaluate ``methods`` on ``identities`` for each K (see the module docstring).
+
+    max_holdouts: use only the first N driveable hold-out frames per identity (0 = all).
+    fixed_thresholds: bucket thresholds on the pose distance; None = terciles per K.
+    on_outputs(method_name, k, identity, outputs, targets) is called per (method, K, identity)
+    (e.g. to save example images). A method with ``finetune`` is also evaluated fine-tuned,
+    as "<name>+ft", when ``finetune`` is true.
+    """
+    from tqdm import tqdm
+
+    if not methods or not identities or not ks:
+        raise ConfigError("evaluation needs at least one method, one identity and one K")
+    records: list[dict[str, Any]] = []
+    cross_records: list[dict[str, Any]] = []
+    counts: dict[str, Any] = {"holdouts_without_face": {}, "inputs_without_face": {}}
+    for identity in identities:
+        analysis.seed(identity.input_frames, identity.input_landmarks)
+        analysis.seed(identity.holdout_frames, identity.holdout_landmarks)
+        counts["inputs_without_face"][identity.name] = int(np.sum(~np.isfinite(identity.input_landmarks).all(axis=(1, 2))))
+        counts["holdouts_without_face"][identity.name] = int(np.sum(~np.isfinite(identity.holdout_landmarks).all(axis=(1, 2))))
+    variants: list[tuple[str, Method, bool]] = []
+    for method in methods:
+        variants.append((method.name, method, False))
+        if finetune and callable(getattr(method, "finetune", None)):
+            variants.append((f"{method.name}+ft", method, True))
+    bar = tqdm(total=len(variants) * len(ks) * len(identities), desc="lsr eval", disable=not progress)
+    for k in ks:
+        for position, identity in enumerate(identities):
+            candidates = np.flatnonzero(np.isfinite(identity.input_landmarks).all(axis=(1, 2)))
+            if k > len(candidates):  # fewer input frames with a face than K: use them all, and say so
+                counts.setdefault("k_capped", {})[f"K={k} {identity.name}"] = int(len(candidates))
+            shot_indices = sample_shots(candidates, min(k, len(candidates)), seed, identity.name)  # input frames only
+            shots = [identity.input_frames[i] for i in shot_indices]
+            shot_landmarks = identity.input_landmarks[shot_indices].astype(np.float64)
+            driveable = np.flatnonzero(np.isfinite(identity.holdout_landmarks).all(axis=(1, 2)))
+            if max_holdouts:
+                driveable = driveable[:max_holdouts]
+            targets = identity.holdout_frames[driveable]
+            target_landmarks = identity.holdout_landmarks[driveable].astype(np.float64)
+            _, pose_distances = nearest_shot_indices(shot_landmarks, target_landmarks)
+            target_embeddings = [analysis.embedding(t, p) for t, p in zip(targets, target_landmarks)]
+            source_embedding = idsim.mean_embedding(np.stack([analysis.embedding(s, p) for s, p in zip(shots, shot_landmarks)]))
+            driver = identities[(position + 1) % len(identities)] if cross_identity and len(identities) > 1 else None
+            if driver is not None:
+                driver_rows = np.flatnonzero(np.isfinite(driver.holdout_landmarks).all(axis=(1, 2)))[: len(driveable)]
+                driver_landmarks = driver.holdout_landmarks[driver_rows].astype(np.float64)
+            for name, method, use_finetune in variants:
+                check_method_inputs(shots, shot_landmarks, target_landmarks)
+                model = method.finetune(shots, shot_landmarks) if use_finetune else method  # type: ignore[attr-defined]
+                before = _warp_counts(model)
+                outputs = model.reenact(shots, shot_landmarks, target_landmarks)
+                _add_warp_counts(counts, name, k, "self", before, _warp_counts(model))
+                _check_outputs(outputs, len(targets), targets.shape[1:], name)
+                errors = mse(outputs, targets)
+                similarities = ssim(outputs, targets) if len(targets) else np.zeros(0)
+                for row, output in enumerate(outputs):
+                    found = analysis.landmarks(output)
+                    align = found if found is not None else target_landmarks[row]
+                    records.append({
+                        "method": name, "k": int(k), "identity": identity.name, "frame": int(driveable[row]),
+                        "mse": float(errors[row]), "psnr": float(psnr_from_mse(errors[row])),
+                        "ssim": float(similarities[row]),
+                        "idsim": idsim.cosine_similarity(analysis.embedding(output, align), target_embeddings[row]),
+                        "nmke": float(nmke(found, target_landmarks[row])) if found is not None else float("nan"),
+                        "no_face": found is None, "pose_distance": float(pose_distances[row]),
+                    })  # fmt: skip
+                if driver is not None and len(driver_landmarks):
+                    before = _warp_counts(model)
+                    crossed = model.reenact(shots, shot_landmarks, driver_landmarks)
+                    _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))
+                    _check_outputs(crossed, len(driver_landmarks), targets.shape[1:], name)
+                    for row, output in enumerate(crossed):
+                        found = analysis.landmarks(output)
+                        align = found if found is not None else driver_landmarks[row]
+                        cross_records.append({
+                            "method": name, "k": int(k), "identity": identity.name, "driver": driver.name,
+                            "frame": int(driver_rows[row]), "no_face": found is None,
+                            "idsim_source": idsim.cosine_similarity(analysis.embedding(output, align), source_embedding),
+                        })  # fmt: skip
+                if on_outputs is not None:
+                    on_outputs(name, int(k), identity, outputs, targets)
+                bar.update(1)
+    bar.close()
+    thresholds: dict[int, tuple[float, float]] = {}
+    for k in ks:
+        at_k = [r for r in records if r["k"] == k]
+        thresholds[int(k)] = fixed_thresholds or bucket_thresholds(np.array([r["pose_distance"] for r in at_k]))
+        labels = assign_buckets(np.array([r["pose_distance"] for r in at_k]), thresholds[int(k)])
+        for record, label in zip(at_k, labels):
+            record["bucket"] = label
+    settings = {"ks": [int(k) for k in ks], "seed": seed, "max_holdouts": max_holdouts, "cross_identity": cross_identity,
+                "identities": [i.name for i in identities], "methods": [v[0] for v in variants],
+                "bucket_thresholds": "fixed" if fixed_thresholds else "terciles per K"}  # fmt: skip
+    return EvalRun(records, cross_records, thresholds, counts, settings)

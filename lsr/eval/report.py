@@ -1,0 +1,258 @@
+"""``lsr eval``: run the protocol (``lsr.eval.protocol``) and write the report (markdown + JSON).
+
+The report lists, per method and K: PSNR (mean over finite frames, the count of identical
+frames = +inf, and PSNR of the mean MSE), SSIM, ID-SIM, NMKE and the count of outputs without a
+detected face; ID-SIM per pose-variance bucket (thesis §4.5.1); cross-identity ID-SIM to the
+source (§4.4.3); TPS warp-method counts; the thesis' Table 4.4 rows for reference; machine info.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lsr.errors import ConfigError
+from lsr.eval import idsim, metrics
+from lsr.eval.protocol import BUCKETS, EvalIdentity, EvalRun
+
+NOT_COMPUTED = "not computed (no backbone weights: LPIPS needs AlexNet + LPIPS heads, FID an Inception-v3; neither can be downloaded here and loading them is not implemented yet)"
+
+# Thesis Table 4.4 (VoxCeleb2 test set of FSTH: 50 ids, 1,600 frames; ID-SIM from a VGGFace network).
+# (method, K, fine-tuned): (PSNR, SSIM, LPIPS, ID-SIM, NMKE, FID); None = not reported.
+THESIS_TABLE_4_4: dict[tuple[str, int, bool], tuple[float | None, ...]] = {
+    ("FSTH", 1, False): (16.80, 0.570, 0.259, 0.801, 0.048, 51.12),
+    ("FSTH", 1, True): (16.92, 0.597, 0.263, 0.836, 0.049, 53.07),
+    ("LPD", 1, False): (None, None, None, 0.732, 0.072, 80.20),
+    ("LPD", 1, True): (None, None, None, 0.837, 0.070, 48.48),
+    ("LSR (ours)", 1, False): (17.27, 0.598, 0.241, 0.869, 0.041, 48.11),
+    ("LSR (ours)", 1, True): (17.37, 0.605, 0.232, 0.886, 0.041, 45.69),
+    ("LPD", 4, False): (None, None, None, 0.755, 0.069, 79.67),
+    ("LPD", 4, True): (None, None, None, 0.909, 0.058, 38.81),
+    ("LSR (ours)", 4, False): (18.90, 0.638, 0.192, 0.909, 0.039, 43.19),
+    ("LSR (ours)", 4, True): (19.33, 0.661, 0.171, 0.930, 0.037, 34.31),
+    ("FSTH", 8, False): (17.86, 0.600, 0.225, 0.836, 0.046, 46.38),
+    ("FSTH", 8, True): (18.35, 0.647, 0.218, 0.899, 0.044, 45.15),
+    ("LPD", 8, False): (None, None, None, 0.760, 0.068, 77.00),
+    ("LPD", 8, True): (None, None, None, 0.922, 0.056, 35.87),
+    ("LSR (ours)", 8, False): (19.18, 0.645, 0.186, 0.917, 0.039, 44.23),
+    ("LSR (ours)", 8, True): (19.65, 0.675, 0.160, 0.940, 0.036, 32.54),
+    ("FSTH", 32, False): (18.66, 0.613, 0.207, 0.843, 0.044, 44.85),
+    ("FSTH", 32, True): (19.69, 0.686, 0.171, 0.927, 0.041, 33.69),
+    ("LPD", 32, False): (None, None, None, 0.769, 0.066, 63.47),
+    ("LPD", 32, True): (None, None, None, 0.935, 0.054, 33.96),
+    ("LSR (ours)", 32, False): (19.35, 0.650, 0.182, 0.921, 0.037, 43.32),
+    ("LSR (ours)", 32, True): (19.98, 0.690, 0.146, 0.948, 0.038, 28.26),
+}
+
+
+def _mean(values: Sequence[float]) -> float:
+    finite = [v for v in values if v is not None and math.isfinite(v)]
+    return float(np.mean(finite)) if finite else float("nan")
+
+
+def summarise(run: EvalRun) -> dict[str, Any]:
+    """Aggregate an EvalRun into JSON-ready tables (keys: rows, buckets, cross, thresholds, counts, settings)."""
+    rows, bucket_rows, cross_rows = [], [], []
+    for name in run.settings["methods"]:
+        for k in run.settings["ks"]:
+            group = [r for r in run.records if r["method"] == name and r["k"] == k]
+            if not group:
+                continue
+            psnr = metrics.summarise_psnr(np.array([r["psnr"] for r in group]), np.array([r["mse"] for r in group]))
+            rows.append({
+                "method": name, "k": k, "frames": len(group),
+                "psnr": psnr["mean_finite"], "psnr_infinite": psnr["infinite"], "psnr_of_mean_mse": psnr["of_mean_mse"],
+                "ssim": _mean([r["ssim"] for r in group]), "idsim": _mean([r["idsim"] for r in group]),
+                "nmke": _mean([r["nmke"] for r in group]), "no_face": sum(r["no_face"] for r in group),
+                "lpips": None, "fid": None,
+            })  # fmt: skip
+            bucket = {"method": name, "k": k}
+            for label in BUCKETS:
+                members = [r for r in group if r.get("bucket") == label]
+                bucket[label] = _mean([r["idsim"] for r in members])
+                bucket[f"{label}_frames"] = len(members)
+            bucket_rows.append(bucket)
+            crossed = [r for r in run.cross_records if r["method"] == name and r["k"] == k]
+            if crossed:
+                cross_rows.append({"method": name, "k": k, "frames": len(crossed),
+                                   "idsim_source": _mean([r["idsim_source"] for r in crossed]),
+                                   "no_face": sum(r["no_face"] for r in crossed)})  # fmt: skip
+    return {
+        "rows": rows,
+        "buckets": bucket_rows,
+        "cross": cross_rows,
+        "thresholds": {str(k): list(v) for k, v in run.thresholds.items()},
+        "counts": run.counts,
+        "settings": run.settings,
+        "lpips": NOT_COMPUTED,
+        "fid": NOT_COMPUTED,
+        "conventions": {
+            "psnr": "uint8 RGB, peak 255; 'PSNR' = mean over frames with finite PSNR, 'inf' = identical frames "
+                    "(excluded from that mean), 'PSNR(mean MSE)' = PSNR of the MSE averaged over all frames",
+            "ssim": f"kornia.metrics.ssim, {metrics.SSIM_WINDOW}x{metrics.SSIM_WINDOW} Gaussian window, sigma "
+                    f"{metrics.SSIM_SIGMA}, reflect padding, RGB in [0, 1], mean over pixels and channels",
+            "idsim": f"cosine similarity, {idsim.EMBEDDER_NAME}; outputs without a detected face are aligned with "
+                     "the ground-truth landmarks. dlib's embeddings are compressed towards 1: its same-person "
+                     "threshold (distance 0.6 between unit vectors) is cosine 0.82",
+            "nmke": "mean distance of the 68 detected landmarks (output vs ground truth) / ground-truth eye-centre "
+                    "distance (points 36-41, 42-47); mean over outputs with a detected face, the rest counted in 'no face'",
+            "buckets": "pose distance = raw-landmark NMKE between the nearest source shot and the target (the single "
+                       "shot at K = 1), split at the thresholds given above the bucket table",
+            "cross": "identity i driven by identity i+1's hold-out landmarks (not retargeted); ID-SIM of the output "
+                     "to the mean embedding of i's K shots",
+        },
+    }  # fmt: skip
+
+
+def _fmt(value: Any, digits: int = 3) -> str:
+    if value is None:
+        return "–"
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "n/a"
+        if math.isinf(value):
+            return "inf"
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+def markdown(summary: dict[str, Any], machine: str) -> str:
+    """The report as markdown (the same text is printed by ``lsr eval``)."""
+    settings = summary["settings"]
+    lines = [
+        "# lsr eval: thesis §4.4 protocol",
+        "",
+        f"data: `{settings.get('data', '?')}` ({len(settings['identities'])} identities: {', '.join(settings['identities'])}); "
+        f"K = {settings['ks']}; seed {settings['seed']}; hold-outs per identity: {settings['max_holdouts'] or 'all'}",
+        "",
+        "## Self re-enactment (hold-out frames)",
+        "",
+        "| method | K | frames | PSNR ↑ | inf | PSNR(mean MSE) | SSIM ↑ | ID-SIM ↑ | NMKE ↓ | no face | LPIPS ↓ | FID ↓ |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in summary["rows"]:
+        lines.append(
+            f"| {row['method']} | {row['k']} | {row['frames']} | {_fmt(row['psnr'], 2)} | {row['psnr_infinite']} | "
+            f"{_fmt(row['psnr_of_mean_mse'], 2)} | {_fmt(row['ssim'])} | {_fmt(row['idsim'])} | {_fmt(row['nmke'])} | "
+            f"{row['no_face']} | – | – |"
+        )
+    lines += ["", f"LPIPS and FID: {summary['lpips']}.", "",
+              "## Thesis Table 4.4 (reference; VoxCeleb2, 50 ids, ID-SIM from VGGFace: compare trends, not absolute ID-SIM)", "",
+              "| method | K | fine-tuned | PSNR ↑ | SSIM ↑ | LPIPS ↓ | ID-SIM ↑ | NMKE ↓ | FID ↓ |",
+              "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    shown_ks = set(settings["ks"])
+    for (method, k, tuned), values in THESIS_TABLE_4_4.items():
+        if k in shown_ks:
+            cells = " | ".join(_fmt(v, 2 if i == 0 or i == 5 else 3) for i, v in enumerate(values))
+            lines.append(f"| {method} | {k} | {'yes' if tuned else 'no'} | {cells} |")
+    lines += ["", "## ID-SIM per pose-variance bucket (thesis §4.5.1)", ""]
+    lines.append("thresholds (pose distance, " + settings["bucket_thresholds"] + "): "
+                 + "; ".join(f"K={k}: low < {_fmt(t[0])} <= medium < {_fmt(t[1])} <= high" for k, t in summary["thresholds"].items()))  # fmt: skip
+    lines += ["", "| method | K | low | medium | high | frames (l/m/h) |", "|---|---|---|---|---|---|"]
+    for row in summary["buckets"]:
+        lines.append(f"| {row['method']} | {row['k']} | {_fmt(row['low'])} | {_fmt(row['medium'])} | {_fmt(row['high'])} | "
+                     f"{row['low_frames']}/{row['medium_frames']}/{row['high_frames']} |")  # fmt: skip
+    if summary["cross"]:
+        lines += ["", "## Cross-identity re-enactment (thesis §4.4.3)", "",
+                  "| method | K | frames | ID-SIM to source ↑ | no face |", "|---|---|---|---|---|"]  # fmt: skip
+        for row in summary["cross"]:
+            lines.append(f"| {row['method']} | {row['k']} | {row['frames']} | {_fmt(row['idsim_source'])} | {row['no_face']} |")
+    warp = summary["counts"].get("warp_methods", {})
+    if warp:
+        lines += ["", "## TPS warp methods used (frames)", "", "| method | run | tps | tps_stronger | similarity | identity |",
+                  "|---|---|---|---|---|---|"]  # fmt: skip
+        for name, table in warp.items():
+            for run_name, used in table.items():
+                lines.append(f"| {name} | {run_name} | {used.get('tps', 0)} | {used.get('tps_stronger', 0)} | "
+                             f"{used.get('similarity', 0)} | {used.get('identity', 0)} |")  # fmt: skip
+    skipped = {k: v for k, v in summary["counts"]["holdouts_without_face"].items() if v}
+    no_input = {k: v for k, v in summary["counts"]["inputs_without_face"].items() if v}
+    lines += ["", "## Notes", ""]
+    lines.append(f"- hold-out frames without a ground-truth face (cannot be driven, skipped): {skipped or 'none'}")
+    lines.append(f"- input frames without a face (never drawn as shots): {no_input or 'none'}")
+    capped = summary["counts"].get("k_capped")
+    if capped:
+        lines.append(f"- K larger than the input frames with a face (all of them used instead): {capped}")
+    lines += [f"- {name}: {text}" for name, text in summary["conventions"].items()]
+    lines += ["", machine, ""]
+    return "\n".join(lines)
+
+
+def write_report(out_dir: Path, summary: dict[str, Any], text: str) -> tuple[Path, Path]:
+    """Atomically write OUT/eval_report.md and OUT/eval_report.json; returns both paths."""
+    from landmarks.imageio import atomic_output, write_json
+
+    out_dir = Path(out_dir)
+    markdown_path, json_path = out_dir / "eval_report.md", out_dir / "eval_report.json"
+    write_json(json_path, _json_safe(summary))
+    with atomic_output(markdown_path) as temp:
+        temp.write_text(text)
+    return markdown_path, json_path
+
+
+def _json_safe(value: Any) -> Any:
+    """NaN / inf -> strings (strict JSON has neither)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, np.generic):
+        return _json_safe(value.item())
+    return value
+
+
+def _example_writer(out_dir: Path, count: int):
+    from landmarks.imageio import write_image
+
+    def write(name: str, k: int, identity: EvalIdentity, outputs: np.ndarray, targets: np.ndarray) -> None:
+        if count <= 0 or not len(outputs):
+            return
+        strip = np.concatenate([np.concatenate(list(outputs[:count]), axis=1),
+                                np.concatenate(list(targets[:count]), axis=1)], axis=0)  # fmt: skip
+        write_image(out_dir / "examples" / f"{name}_k{k}_{identity.name}.png", strip)  # top: output, bottom: truth
+
+    return write
+
+
+def run_eval(cfg: Any) -> dict[str, Any]:
+    """Run ``lsr eval`` (cfg: lsr.config.EvalConfig): load, evaluate the baselines, write and print the report."""
+    from landmarks.detect import FaceDetector
+    from lsr.eval.baselines import NearestShot, TpsWarp
+    from lsr.eval.protocol import FaceAnalysis, detect_layout, load_fsth_sample, load_lsr_split, run_protocol
+    from lsr.machine import machine_markdown
+
+    data = cfg.resolved_data()
+    detector = FaceDetector(kind=cfg.detector, upsample=cfg.detector_upsample)
+    layout = detect_layout(data)
+    if layout == "fsth":
+        identities = load_fsth_sample(data, detector, cache_dir=Path(cfg.out) / "cache", progress=cfg.progress)
+    else:
+        identities = load_lsr_split(data, cfg.split, cfg.inputs, cfg.holdouts)
+    if cfg.max_identities:
+        identities = identities[: cfg.max_identities]
+    available = {"nearest_shot": NearestShot, "tps": lambda: TpsWarp(regularization=cfg.tps_regularization)}
+    methods = [available[name]() for name in cfg.methods]
+    if cfg.weights:
+        from lsr.eval.model_method import LsrModelMethod
+
+        methods += [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps) for folder in cfg.weights]
+    if not methods:
+        raise ConfigError("no method to evaluate: pass --methods nearest_shot tps and/or --weights MODEL_DIR")
+    thresholds = tuple(cfg.bucket_thresholds) if cfg.bucket_thresholds else None
+    run = run_protocol(methods, identities, cfg.k, FaceAnalysis(detector), seed=cfg.seed, max_holdouts=cfg.max_holdouts,
+                       fixed_thresholds=thresholds, cross_identity=cfg.cross_identity,
+                       on_outputs=_example_writer(Path(cfg.out), cfg.examples), progress=cfg.progress)  # fmt: skip
+    run.settings.update({"data": str(data), "layout": layout, "detector": f"{cfg.detector}, upsample {cfg.detector_upsample}",
+                         "tps_regularization": cfg.tps_regularization})  # fmt: skip
+    summary = summarise(run)
+    text = markdown(summary, machine_markdown())
+    markdown_path, json_path = write_report(Path(cfg.out), summary, text)
+    print(text)
+    print(f"report written to {markdown_path} and {json_path}")
+    return summary

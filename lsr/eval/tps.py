@@ -1,0 +1,247 @@
+"""Regularised thin-plate-spline image warping (numpy + OpenCV) for the TPS baseline.
+
+Backward mapping: a TPS f is solved from *target* points to *source* points, evaluated on
+every output pixel, and the source image is sampled there with ``cv2.remap``.
+
+Dense 68-point sets from a real detector contain near-coincident points (closed lips, eye
+corners), for which the plain interpolating TPS system is singular or produces huge weights
+that tear the image. So:
+  1. control points closer than ``merge_distance`` pixels are merged (their values averaged);
+  2. the solve is regularised, K + lambda*I on the kernel block, with coordinates normalised to
+     unit RMS spread so lambda is dimensionless ("scaled to the point spread");
+  3. a system whose condition number exceeds ``max_condition`` is not solved, and a dense map
+     that folds (Jacobian determinant <= 0 on more than ``max_folded_fraction`` of the pixels)
+     is rejected; both retry with 10x and 100x lambda, then fall back to a least-squares
+     similarity warp, then to the identity. ``WarpResult.method`` says which one was used so
+     callers can count fallbacks.
+The frame corners and edge midpoints are added as fixed control points so the background
+stays put.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+DEFAULT_REGULARIZATION = 1e-3
+DEFAULT_MERGE_DISTANCE = 1.0  # pixels
+DEFAULT_MAX_CONDITION = 1e10
+DEFAULT_MAX_FOLDED_FRACTION = 0.0
+RETRY_FACTORS = (1.0, 10.0, 100.0)
+WARP_METHODS = ("tps", "tps_stronger", "similarity", "identity")
+
+
+class DegenerateTpsError(ValueError):
+    """The TPS system for these control points cannot be solved reliably (internal; triggers fallback)."""
+
+
+def _kernel(squared_distance: np.ndarray) -> np.ndarray:
+    """TPS radial basis U(r) = r^2 log r^2, written on r^2 (0 at r = 0)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        values = squared_distance * np.log(squared_distance)
+    return np.where(squared_distance > 0, values, 0.0)
+
+
+def _squared_distances(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """(M, 2), (N, 2) -> (M, N) squared Euclidean distances (exact differences: used for the solve)."""
+    difference = first[:, None, :] - second[None, :, :]  # (M, N, 2)
+    return np.einsum("mnc,mnc->mn", difference, difference)
+
+
+def _squared_distances_fast(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Same as ``_squared_distances`` via |a|^2 + |b|^2 - 2ab (one matrix product; for dense grids)."""
+    squared = np.sum(first**2, axis=1)[:, None] + np.sum(second**2, axis=1)[None, :] - 2.0 * first @ second.T
+    return np.maximum(squared, 0.0, out=squared)
+
+
+@dataclasses.dataclass
+class ThinPlateSpline:
+    """A fitted 2-D TPS f: R^2 -> R^2. Call it on (M, 2) points -> (M, 2)."""
+
+    control: np.ndarray  # (N, 2) normalised control points
+    centre: np.ndarray  # (2,)
+    scale: float
+    weights: np.ndarray  # (N, 2) kernel weights
+    affine: np.ndarray  # (3, 2) rows: constant, x, y
+    condition: float
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        normalised = (np.asarray(points, np.float64) - self.centre) / self.scale
+        kernel = _kernel(_squared_distances_fast(normalised, self.control))  # (M, N)
+        linear = self.affine[0] + normalised @ self.affine[1:]
+        return kernel @ self.weights + linear
+
+
+def fit_tps(
+    control_points: np.ndarray,
+    values: np.ndarray,
+    regularization: float = DEFAULT_REGULARIZATION,
+    max_condition: float = DEFAULT_MAX_CONDITION,
+) -> ThinPlateSpline:
+    """Solve the (regularised) TPS with f(control_points[i]) ~= values[i].
+
+    control_points, values: (N, 2) float, N >= 3. regularization: lambda >= 0 on the kernel
+    block in unit-RMS-spread coordinates (0 = exact interpolation). Raises DegenerateTpsError when
+    the points have no spread or the system's condition number exceeds ``max_condition``.
+    """
+    control_points = np.asarray(control_points, np.float64)
+    values = np.asarray(values, np.float64)
+    if control_points.ndim != 2 or control_points.shape[1] != 2 or values.shape != control_points.shape:
+        raise ValueError(f"control points and values must both be (N, 2), got {control_points.shape}, {values.shape}")
+    if regularization < 0:
+        raise ValueError(f"regularization must be >= 0, got {regularization}")
+    count = len(control_points)
+    if count < 3:
+        raise DegenerateTpsError(f"a TPS needs >= 3 control points, got {count}")
+    centre = control_points.mean(axis=0)
+    scale = float(np.sqrt(np.mean(np.sum((control_points - centre) ** 2, axis=1))))
+    if not scale > 1e-9:
+        raise DegenerateTpsError("control points have no spread")
+    normalised = (control_points - centre) / scale
+    system = np.zeros((count + 3, count + 3))
+    system[:count, :count] = _kernel(_squared_distances(normalised, normalised)) + regularization * np.eye(count)
+    system[:count, count] = 1.0
+    system[:count, count + 1 :] = normalised
+    system[count:, :count] = system[:count, count:].T
+    condition = float(np.linalg.cond(system))
+    if not np.isfinite(condition) or condition > max_condition:
+        raise DegenerateTpsError(f"TPS system ill-conditioned (condition number {condition:.3g})")
+    right_side = np.zeros((count + 3, 2))
+    right_side[:count] = values
+    solution = np.linalg.solve(system, right_side)
+    return ThinPlateSpline(normalised, centre, scale, solution[:count], solution[count:], condition)
+
+
+def merge_close_points(
+    control_points: np.ndarray, values: np.ndarray, min_distance: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Greedily merge control points closer than ``min_distance`` (their values averaged).
+
+    (N, 2), (N, 2) -> (M, 2), (M, 2) with M <= N; order of first occurrence is kept.
+    """
+    close = _squared_distances(control_points, control_points) < min_distance**2  # (N, N)
+    clusters: list[list[int]] = []
+    owner = np.full(len(control_points), -1)
+    for index in range(len(control_points)):
+        if owner[index] >= 0:
+            continue
+        members = np.flatnonzero(close[index] & (owner < 0))  # unassigned points near this representative
+        owner[members] = len(clusters)
+        clusters.append(members.tolist() or [index])
+    merged_control = np.array([control_points[c].mean(axis=0) for c in clusters])
+    merged_values = np.array([values[c].mean(axis=0) for c in clusters])
+    return merged_control, merged_values
+
+
+def border_points(height: int, width: int) -> np.ndarray:
+    """The 4 frame corners and 4 edge midpoints, (8, 2) x, y pixel centres."""
+    right, bottom = width - 1.0, height - 1.0
+    return np.array([[0, 0], [right / 2, 0], [right, 0], [right, bottom / 2],
+                     [right, bottom], [right / 2, bottom], [0, bottom], [0, bottom / 2]], np.float64)  # fmt: skip
+
+
+def folded_fraction(map_x: np.ndarray, map_y: np.ndarray) -> float:
+    """Share of pixels where the dense map (H, W) x 2 folds: Jacobian determinant <= 0."""
+    dx_du, dx_dv = np.gradient(map_x, axis=1), np.gradient(map_x, axis=0)
+    dy_du, dy_dv = np.gradient(map_y, axis=1), np.gradient(map_y, axis=0)
+    determinant = dx_du * dy_dv - dx_dv * dy_du
+    return float(np.mean(~(determinant > 0)))
+
+
+def fit_similarity(control_points: np.ndarray, values: np.ndarray) -> np.ndarray | None:
+    """Least-squares similarity (Umeyama, no reflection) control -> values: (2, 3) matrix, or None
+    when the control points have no spread."""
+    source_centre, value_centre = control_points.mean(axis=0), values.mean(axis=0)
+    centred_source, centred_values = control_points - source_centre, values - value_centre
+    variance = float(np.mean(np.sum(centred_source**2, axis=1)))
+    if not variance > 1e-9:
+        return None
+    covariance = centred_values.T @ centred_source / len(control_points)
+    u, singular, vt = np.linalg.svd(covariance)
+    sign = np.diag([1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
+    rotation = u @ sign @ vt
+    scale = float(np.trace(np.diag(singular) @ sign)) / variance
+    if not scale > 1e-6:
+        return None
+    matrix = np.zeros((2, 3))
+    matrix[:, :2] = scale * rotation
+    matrix[:, 2] = value_centre - scale * rotation @ source_centre
+    return matrix
+
+
+@dataclasses.dataclass
+class WarpResult:
+    """image: (H, W, 3) uint8; method: one of WARP_METHODS; regularization: lambda used (TPS only);
+    folded_fraction of the accepted map; reason: why earlier options were rejected ('' if none)."""
+
+    image: np.ndarray
+    method: str
+    regularization: float
+    folded_fraction: float
+    reason: str
+
+
+def _pixel_grid(height: int, width: int) -> np.ndarray:
+    grid_y, grid_x = np.mgrid[0:height, 0:width]
+    return np.stack([grid_x.ravel(), grid_y.ravel()], axis=1).astype(np.float64)  # (H*W, 2) x, y
+
+
+def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+    return cv2.remap(image, map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+
+
+def warp_tps(
+    image: np.ndarray,
+    source_points: np.ndarray,
+    target_points: np.ndarray,
+    *,
+    regularization: float = DEFAULT_REGULARIZATION,
+    merge_distance: float = DEFAULT_MERGE_DISTANCE,
+    max_condition: float = DEFAULT_MAX_CONDITION,
+    max_folded_fraction: float = DEFAULT_MAX_FOLDED_FRACTION,
+    fix_border: bool = True,
+) -> WarpResult:
+    """Warp ``image`` so that ``source_points`` land on ``target_points``.
+
+    image: (H, W, 3) uint8; source_points, target_points: (N, 2) x, y pixels (rows with NaN in
+    either are ignored). Returns a WarpResult; never raises for degenerate point sets (falls back).
+    """
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"image must be (H, W, 3) uint8, got {image.shape} {image.dtype}")
+    source_points = np.asarray(source_points, np.float64)
+    target_points = np.asarray(target_points, np.float64)
+    if source_points.shape != target_points.shape or source_points.ndim != 2 or source_points.shape[1] != 2:
+        raise ValueError(f"point sets must both be (N, 2), got {source_points.shape}, {target_points.shape}")
+    height, width = image.shape[:2]
+    valid = np.all(np.isfinite(source_points), axis=1) & np.all(np.isfinite(target_points), axis=1)
+    landmark_targets, landmark_sources = target_points[valid], source_points[valid]
+    control, values = landmark_targets, landmark_sources
+    if fix_border:
+        fixed = border_points(height, width)
+        control, values = np.concatenate([control, fixed]), np.concatenate([values, fixed])
+    control, values = merge_close_points(control, values, merge_distance)
+    grid = _pixel_grid(height, width)
+    reasons: list[str] = []
+    for attempt, factor in enumerate(RETRY_FACTORS):
+        try:
+            spline = fit_tps(control, values, regularization * factor, max_condition)
+        except DegenerateTpsError as exc:
+            reasons.append(str(exc))
+            break  # more regularisation does not help a system without spread / affine rank
+        mapped = spline(grid)  # (H*W, 2) source x, y for each output pixel (backward map)
+        map_x, map_y = mapped[:, 0].reshape(height, width), mapped[:, 1].reshape(height, width)
+        folds = folded_fraction(map_x, map_y)
+        if np.all(np.isfinite(mapped)) and folds <= max_folded_fraction:
+            method = "tps" if attempt == 0 else "tps_stronger"
+            return WarpResult(_remap(image, map_x, map_y), method, regularization * factor, folds, "; ".join(reasons))
+        reasons.append(f"lambda {regularization * factor:.3g}: {folds:.2%} of pixels folded")
+    matrix = fit_similarity(landmark_targets, landmark_sources) if len(landmark_targets) >= 2 else None
+    if matrix is not None:
+        mapped = grid @ matrix[:, :2].T + matrix[:, 2]
+        map_x, map_y = mapped[:, 0].reshape(height, width), mapped[:, 1].reshape(height, width)
+        return WarpResult(_remap(image, map_x, map_y), "similarity", 0.0, 0.0, "; ".join(reasons))
+    reasons.append("no similarity: landmarks have no spread")
+    return WarpResult(image.copy(), "identity", 0.0, 0.0, "; ".join(reasons))

@@ -1,0 +1,78 @@
+"""Metric identities and known values (lsr.eval.metrics)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from lsr.errors import ConfigError
+from lsr.eval import metrics
+
+
+def _face_landmarks(rng: np.random.Generator) -> np.ndarray:
+    points = rng.uniform(40, 180, size=(68, 2))
+    points[36:42] = [60, 90] + rng.normal(0, 2, size=(6, 2))  # one eye around x = 60
+    points[42:48] = [140, 90] + rng.normal(0, 2, size=(6, 2))  # the other around x = 140
+    return points
+
+
+class TestPsnr:
+    def test_identical_images_are_infinite(self, rng):
+        image = rng.integers(0, 256, size=(32, 32, 3), dtype=np.uint8)
+        assert metrics.psnr(image, image) == math.inf
+        summary = metrics.summarise_psnr(np.array([math.inf, 20.0]), np.array([0.0, 650.25]))
+        assert summary["infinite"] == 1
+        assert summary["mean_finite"] == pytest.approx(20.0)
+        assert summary["of_mean_mse"] == pytest.approx(10 * math.log10(255**2 / (650.25 / 2)))
+
+    def test_known_noise_matches_formula(self):
+        target = np.full((16, 16, 3), 128, np.uint8)
+        output = target.copy()
+        output[::2] += 10  # half the pixels +10, half -10: MSE = 100 exactly
+        output[1::2] -= 10
+        assert metrics.mse(output, target) == pytest.approx(100.0)
+        assert metrics.psnr(output, target) == pytest.approx(10 * math.log10(255**2 / 100.0))
+
+    def test_random_noise_matches_formula(self, rng):
+        target = rng.integers(20, 236, size=(2, 24, 24, 3)).astype(np.uint8)
+        noise = rng.integers(-15, 16, size=target.shape)
+        output = (target.astype(int) + noise).astype(np.uint8)
+        expected = 10 * np.log10(255**2 / np.mean(noise.astype(float) ** 2, axis=(1, 2, 3)))
+        np.testing.assert_allclose(metrics.psnr(output, target), expected, rtol=1e-12)
+
+    def test_bad_inputs_raise(self):
+        with pytest.raises(ConfigError):
+            metrics.psnr(np.zeros((8, 8, 3), np.uint8), np.zeros((8, 9, 3), np.uint8))
+        with pytest.raises(ConfigError):
+            metrics.psnr(np.zeros((8, 8, 3), np.float32), np.zeros((8, 8, 3), np.float32))
+
+
+class TestSsim:
+    def test_identical_is_one(self, rng):
+        images = rng.integers(0, 256, size=(3, 32, 32, 3), dtype=np.uint8)
+        np.testing.assert_allclose(metrics.ssim(images, images), 1.0, atol=1e-6)
+
+    def test_noise_lowers_ssim_and_is_symmetric(self, rng):
+        image = rng.integers(0, 256, size=(32, 32, 3), dtype=np.uint8)
+        noisy = np.clip(image.astype(int) + rng.integers(-40, 41, size=image.shape), 0, 255).astype(np.uint8)
+        value = metrics.ssim(noisy, image)
+        assert 0.0 < value < 0.99
+        assert metrics.ssim(image, noisy) == pytest.approx(value, abs=1e-6)
+
+
+class TestNmke:
+    def test_identical_is_zero(self, rng):
+        landmarks = _face_landmarks(rng)
+        assert metrics.nmke(landmarks, landmarks) == 0.0
+
+    def test_translation_is_distance_over_eye_distance(self, rng):
+        landmarks = _face_landmarks(rng)
+        eyes = np.linalg.norm(landmarks[42:48].mean(0) - landmarks[36:42].mean(0))
+        assert metrics.nmke(landmarks + [3.0, 4.0], landmarks) == pytest.approx(5.0 / eyes)
+
+    def test_missing_landmarks_give_nan_and_bad_shapes_raise(self, rng):
+        assert np.isnan(metrics.nmke(np.full((68, 2), np.nan), _face_landmarks(rng)))
+        with pytest.raises(ConfigError):
+            metrics.nmke(np.zeros((5, 2)), np.zeros((5, 2)))

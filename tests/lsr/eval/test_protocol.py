@@ -1,0 +1,113 @@
+"""K-shot sampling, buckets and the protocol runner (lsr.eval.protocol) on constructed data."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lsr.errors import ConfigError
+from lsr.eval import protocol
+
+
+def _landmarks(rng: np.random.Generator, count: int, size: int = 64) -> np.ndarray:
+    base = rng.uniform(0.3 * size, 0.7 * size, size=(68, 2))
+    base[36:42] = [0.35 * size, 0.4 * size]
+    base[42:48] = [0.65 * size, 0.4 * size]
+    return (base[None] + rng.normal(0, 1.0, size=(count, 68, 2))).astype(np.float32)
+
+
+def _identity(rng: np.random.Generator, name: str, inputs: int = 8, holdouts: int = 4, size: int = 64) -> protocol.EvalIdentity:
+    frames = rng.integers(0, 256, size=(inputs + holdouts, size, size, 3), dtype=np.uint8)
+    points = _landmarks(rng, inputs + holdouts, size)
+    return protocol.EvalIdentity(name, frames[:inputs], points[:inputs], frames[inputs:], points[inputs:])
+
+
+class TestSampling:
+    def test_deterministic_distinct_and_within_candidates(self):
+        candidates = np.array([0, 2, 3, 5, 7, 11, 13])
+        first = protocol.sample_shots(candidates, 4, seed=0, identity="id0")
+        assert np.array_equal(first, protocol.sample_shots(candidates, 4, seed=0, identity="id0"))
+        assert len(set(first.tolist())) == 4 and set(first.tolist()) <= set(candidates.tolist())
+        others = {tuple(protocol.sample_shots(candidates, 4, seed=s, identity="id0")) for s in range(20)}
+        assert len(others) > 5  # the seed matters
+
+    def test_uniform_over_inputs(self):
+        counts = np.zeros(32)
+        for seed in range(2000):
+            counts[protocol.sample_shots(np.arange(32), 1, seed=seed, identity="x")] += 1
+        expected = 2000 / 32
+        chi_square = float(np.sum((counts - expected) ** 2 / expected))
+        assert chi_square < 70  # 31 degrees of freedom: p ~ 1e-4 at 70
+
+    def test_all_shots_when_k_equals_inputs_and_error_beyond(self):
+        assert np.array_equal(protocol.sample_shots(np.arange(32), 32, 0, "x"), np.arange(32))
+        with pytest.raises(ConfigError):
+            protocol.sample_shots(np.arange(4), 5, 0, "x")
+
+
+class TestBuckets:
+    def test_constructed_cases(self):
+        labels = protocol.assign_buckets(np.array([0.01, 0.1, 0.2, 0.5, np.nan]), (0.1, 0.3))
+        assert labels == ["low", "medium", "medium", "high", "unknown"]
+
+    def test_terciles_split_evenly(self):
+        distances = np.arange(1, 10, dtype=float)
+        thresholds = protocol.bucket_thresholds(distances)
+        labels = protocol.assign_buckets(distances, thresholds)
+        assert [labels.count(b) for b in protocol.BUCKETS] == [3, 3, 3]
+
+
+class _NoFaceDetector:
+    kind, max_side, upsample, min_score = "fake", 64, 0, 0.0
+
+    def detect(self, image):
+        return []
+
+
+class _SpyMethod:
+    """Outputs the inverted first shot and remembers every shot it was given."""
+
+    name = "spy"
+
+    def __init__(self):
+        self.seen: list[np.ndarray] = []
+        self.finetuned = 0
+
+    def reenact(self, shots, shot_landmarks, target_landmarks):
+        self.seen.extend(shots)
+        return np.stack([255 - shots[0]] * len(target_landmarks))  # a new image: the fake detector finds no face
+
+    def finetune(self, shots, shot_landmarks):
+        self.finetuned += 1
+        self.seen.extend(shots)
+        return self
+
+
+def test_runner_never_shows_holdouts_to_the_method(rng):
+    identities = [_identity(rng, "a"), _identity(rng, "b")]
+    identities[0].holdout_landmarks[1] = np.nan  # a hold-out without a face: skipped and counted
+    spy = _SpyMethod()
+    run = protocol.run_protocol([spy], identities, [1, 4], protocol.FaceAnalysis(_NoFaceDetector()),
+                                max_holdouts=3, progress=False)  # fmt: skip
+    holdouts = {frame.tobytes() for identity in identities for frame in identity.holdout_frames}
+    inputs = {frame.tobytes() for identity in identities for frame in identity.input_frames}
+    assert spy.seen and all(shot.tobytes() in inputs and shot.tobytes() not in holdouts for shot in spy.seen)
+    assert spy.finetuned == 4  # 2 identities x 2 K values
+    assert {r["method"] for r in run.records} == {"spy", "spy+ft"}
+    assert run.counts["holdouts_without_face"] == {"a": 1, "b": 0}
+    at_a = [r for r in run.records if r["identity"] == "a" and r["method"] == "spy" and r["k"] == 1]
+    assert [r["frame"] for r in at_a] == [0, 2, 3]
+    # the fake detector finds no face on any output: counted, NMKE missing, never dropped
+    assert all(r["no_face"] and np.isnan(r["nmke"]) for r in run.records)
+    assert len(run.cross_records) == 2 * 2 * 2 * 3  # variants x K x identities x frames
+    assert all(r["bucket"] in protocol.BUCKETS for r in run.records)
+
+
+def test_k_beyond_usable_inputs_is_capped_and_reported(rng):
+    identity = _identity(rng, "a", inputs=5, holdouts=2)
+    identity.input_landmarks[0] = np.nan  # 4 usable inputs
+    spy = _SpyMethod()
+    run = protocol.run_protocol([spy], [identity], [8], protocol.FaceAnalysis(_NoFaceDetector()),
+                                cross_identity=False, finetune=False, progress=False)  # fmt: skip
+    assert run.counts["k_capped"] == {"K=8 a": 4}
+    assert len(spy.seen) == 4 and not any(np.array_equal(shot, identity.input_frames[0]) for shot in spy.seen)
