@@ -1,0 +1,386 @@
+"""The re-enactment frame loop shared by both runtimes (torch-free: numpy, OpenCV, dlib via ``landmarks``).
+
+``ReenactorBase`` does everything around the two networks: subject shots -> K crops and landmark images,
+the driver -> tracked, smoothed, retargeted, cropped landmarks -> landmark images, the synthesised crop ->
+pasted back into the driver frame, face-less frames passed through. A runtime supplies only a
+``SynthesisBackend`` (two numpy functions): ``lsr.pipeline.Reenactor`` runs them with torch,
+``deploy.runtime.OnnxReenactor`` with onnxruntime. Same code, same numbers, one API.
+
+Why here: the generic image operations (crop, rasterise, paste-back, retarget, One-Euro) already live in
+``landmarks``; this loop only composes them. It sits in ``deploy`` because ``deploy`` may import only
+``landmarks`` (+ onnxruntime) and must stay torch-free; ``lsr`` reaches ``deploy`` anyway
+(``lsr reenact --runtime onnx``), so ``lsr.pipeline`` importing this module adds no new dependency edge.
+
+Coordinates: the synthesis happens in a training-framed crop of side S (thesis §4.4 VoxCeleb2 framing),
+one crop transform per driver frame computed from its (smoothed) landmarks, so pasting back uses the exact
+inverse of the crop warp. Relative mode (default when source and driver differ) moves the source's own
+landmarks by the driver's motion relative to the driver's first valid frame (``retarget_relative``), both in
+crop coordinates; absolute mode uses the driver's crop landmarks as they are.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.metadata
+import os
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Literal, Protocol
+
+import cv2
+import numpy as np
+
+from deploy.sources import (
+    DriverInfo,
+    LandmarkSpace,
+    SourceInput,
+    SubjectShots,
+    describe_driver,
+    iter_driver_frames,
+    load_subject_shots,
+    read_landmark_array,
+)
+from landmarks.errors import InputFileError, NoFaceError
+
+Mode = Literal["auto", "relative", "absolute"]
+LayoutKind = Literal["none", "latent", "segmentation"]
+STAGES = ("decode", "landmarks", "subject_encoding", "synthesis", "paste_back")
+PASTE_FEATHER_FRACTION = 1 / 8  # blend ramp, in crop sides: wide enough to hide the synthesised background
+
+
+class SynthesisBackend(Protocol):
+    """The two networks of LSR as numpy functions (thesis §4.3: E once per subject, G per frame)."""
+
+    resolution: int
+    """Crop side S of the model."""
+    layout_kind: LayoutKind
+    """What the layout output is: 'none' (variant has none), 'latent' (C_l latent maps), 'segmentation' (19 classes)."""
+
+    def encode_subject(self, shots: np.ndarray, shot_landmark_images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """shots, shot_landmark_images: (1, K, 3, S, S) float32 in [-1, 1] -> (layout_latent, style_latent), (1, D) each."""
+        ...
+
+    def synthesize(
+        self, landmark_image: np.ndarray, layout_latent: np.ndarray, style_latent: np.ndarray, with_layout: bool
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """landmark_image (1, 3, S, S) in [-1, 1], latents (1, D) -> (image (1, 3, S, S) in [-1, 1], layout (1, C_l, S, S) or None)."""
+        ...
+
+
+@dataclasses.dataclass
+class Subject:
+    """An encoded subject: its K shots and averaged latents (thesis eq. 4.3: z = 1/K sum_i E(I_i))."""
+
+    shots: SubjectShots
+    layout_latent: np.ndarray
+    """(1, D) float32."""
+    style_latent: np.ndarray
+    """(1, D) float32."""
+    source: str | None
+    """Resolved source path when the source was one file or folder (decides the default mode)."""
+
+    @property
+    def reference_landmarks(self) -> np.ndarray:
+        """(68, 2) crop landmarks of the first shot: the face shape relative motion is applied to."""
+        return self.shots.landmarks[0]
+
+
+@dataclasses.dataclass
+class ReenactedFrame:
+    """One output frame. ``image`` is the full driver frame (paste-back) or the (S, S, 3) synthesis."""
+
+    index: int
+    image: np.ndarray
+    """(H, W, 3) uint8 RGB: what goes into the output video."""
+    has_face: bool
+    """False: the driver frame had no face and ``image`` is it, passed through unchanged."""
+    driver_frame: np.ndarray | None
+    """(H, W, 3) uint8 driver frame (None for raw landmark drivers)."""
+    landmark_image: np.ndarray | None
+    """(S, S, 3) uint8: the rasterised target landmarks fed to the generator (None without a face)."""
+    synthesis: np.ndarray | None
+    """(S, S, 3) uint8: the synthesised crop (None without a face)."""
+    layout: np.ndarray | None
+    """(C_l, S, S) float32: the generator's layout (only when asked for and the variant has one)."""
+
+
+@dataclasses.dataclass
+class ReenactStats:
+    """Counts and per-stage seconds of the last ``reenact`` call (plus the subject encoding)."""
+
+    frames: int = 0
+    no_face: int = 0
+    seconds: dict[str, float] = dataclasses.field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+
+    def add(self, stage: str, seconds: float) -> None:
+        self.seconds[stage] = self.seconds.get(stage, 0.0) + seconds
+
+    def merge(self, other: ReenactStats) -> None:
+        self.frames += other.frames
+        self.no_face += other.no_face
+        for stage, seconds in other.seconds.items():
+            self.add(stage, seconds)
+
+
+def to_network(images: np.ndarray) -> np.ndarray:
+    """(..., S, S, 3) uint8 -> (..., 3, S, S) float32 in [-1, 1] (black = -1, as in training)."""
+    return np.moveaxis(images, -1, -3).astype(np.float32) / np.float32(127.5) - np.float32(1.0)
+
+
+def from_network(image: np.ndarray) -> np.ndarray:
+    """(3, S, S) float in [-1, 1] -> (S, S, 3) uint8."""
+    return np.clip(np.rint((np.moveaxis(np.asarray(image, np.float32), 0, -1) + 1.0) * 127.5), 0, 255).astype(np.uint8)
+
+
+def square_resize(frame: np.ndarray, size: int) -> np.ndarray:
+    """Centre square of a frame resized to (size, size): the pass-through picture of crop-sized output."""
+    height, width = frame.shape[:2]
+    side = min(height, width)
+    top, left = (height - side) // 2, (width - side) // 2
+    square = frame[top : top + side, left : left + side]
+    interpolation = cv2.INTER_AREA if side > size else cv2.INTER_CUBIC
+    return cv2.resize(square, (size, size), interpolation=interpolation)
+
+
+def draw_watermark(image: np.ndarray, text: str = "SYNTHETIC") -> np.ndarray:
+    """A visible provenance mark: ``text`` in white on a dark box in the bottom-right corner (a new image)."""
+    marked = np.ascontiguousarray(image).copy()
+    height, width = marked.shape[:2]
+    scale = max(0.35, min(height, width) / 700)
+    thickness = max(1, round(scale * 2))
+    (text_w, text_h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness)
+    pad = max(2, text_h // 3)
+    x0, y0 = max(0, width - text_w - 3 * pad), max(0, height - text_h - base - 3 * pad)
+    region = marked[y0 : height - pad, x0 : width - pad]
+    region[:] = (region * 0.4).astype(np.uint8)
+    cv2.putText(marked, text, (x0 + pad, height - base - 2 * pad), cv2.FONT_HERSHEY_SIMPLEX, scale,
+                (255, 255, 255), thickness, cv2.LINE_AA)  # fmt: skip
+    return marked
+
+
+def tool_version() -> str:
+    try:
+        return importlib.metadata.version("lsr-talking-heads")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def provenance_metadata(version: str | None = None, runtime: str = "torch") -> dict[str, str]:
+    """Container tags marking a video as synthetic (written by every output of ``lsr reenact``)."""
+    version = version or tool_version()
+    return {
+        "comment": f"synthetic: generated by lsr {version} (LSR talking-head synthesis)",
+        "description": "Synthetic video: a face re-enacted by a neural network (LSR, Meshry et al. ICCV 2021).",
+        "encoder_tool": f"lsr {version} ({runtime} runtime)",
+    }
+
+
+class ReenactorBase:
+    """Subject encoding once, then one synthesised frame per driver frame (thesis §4.3). See the module docstring.
+
+    backend: a ``SynthesisBackend``. detector: "hog" | "cnn" or a ``landmarks.detect.FaceDetector``.
+    """
+
+    def __init__(self, backend: SynthesisBackend, *, detector: str | object = "hog") -> None:
+        self.backend = backend
+        self._detector_spec = detector
+        self._detector = None
+        self.subject: Subject | None = None
+        self.last_stats = ReenactStats()
+
+    @property
+    def resolution(self) -> int:
+        return int(self.backend.resolution)
+
+    @property
+    def detector(self):
+        if self._detector is None:  # dlib models load on first use, not at construction
+            from landmarks.detect import FaceDetector
+
+            spec = self._detector_spec
+            self._detector = FaceDetector(spec) if isinstance(spec, str) else spec
+        return self._detector
+
+    # ---- subject ---------------------------------------------------------------------------------------
+    def encode_subject(self, source: SourceInput | SubjectShots, k: int | None = None) -> Subject:
+        """Load the K shots of ``source`` (images, a folder, a video or arrays; see ``deploy.sources``), encode and cache.
+
+        k: shots to average (1..32); None = min(8, usable shots). Returns the cached ``Subject``.
+        """
+        started = time.perf_counter()
+        shots = source if isinstance(source, SubjectShots) else load_subject_shots(
+            source, self.resolution, k=k, detector=self.detector
+        )
+        self.subject = self._encode(shots, _source_key(source))
+        self.last_stats = ReenactStats()
+        self.last_stats.add("subject_encoding", time.perf_counter() - started)
+        return self.subject
+
+    def _encode(self, shots: SubjectShots, source_key: str | None) -> Subject:
+        from landmarks.raster import draw_landmarks
+
+        size = self.resolution
+        if shots.frames.ndim != 4 or shots.frames.shape[1:] != (size, size, 3):
+            raise InputFileError(f"subject shots must be (K, {size}, {size}, 3) uint8 crops, got {shots.frames.shape}")
+        landmark_images = np.stack([draw_landmarks(points, size) for points in shots.landmarks])  # (K, S, S, 3)
+        layout_latent, style_latent = self.backend.encode_subject(
+            to_network(shots.frames)[None], to_network(landmark_images)[None]  # (1, K, 3, S, S) each
+        )
+        return Subject(shots, np.asarray(layout_latent, np.float32), np.asarray(style_latent, np.float32), source_key)
+
+    # ---- frames ----------------------------------------------------------------------------------------
+    def synthesize_crop(
+        self, crop_landmarks: np.ndarray, with_layout: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Target landmarks (68, 2) in crop pixels -> (synthesis (S, S, 3) uint8, landmark image (S, S, 3) uint8, layout)."""
+        from landmarks.raster import draw_landmarks
+
+        subject = self._require_subject()
+        landmark_image = draw_landmarks(crop_landmarks, self.resolution)
+        image, layout = self.backend.synthesize(
+            to_network(landmark_image)[None], subject.layout_latent, subject.style_latent, with_layout
+        )
+        return from_network(image[0]), landmark_image, None if layout is None else np.asarray(layout[0], np.float32)
+
+    def reenact(
+        self,
+        driver: str | os.PathLike | np.ndarray,
+        *,
+        mode: Mode = "auto",
+        smooth: bool = True,
+        paste_back: bool = False,
+        with_layout: bool = False,
+        landmark_space: LandmarkSpace | None = None,
+        landmark_size: int | None = None,
+        progress: bool = False,
+    ) -> Iterator[ReenactedFrame]:
+        """Stream re-enacted frames, one per driver frame, in order (a generator: nothing is held but one frame).
+
+        driver: a video, a folder of images, a .npy/.json landmark file or an (N, 68, 2) array (``deploy.sources``).
+        mode: "relative" (driver motion on the source's face shape), "absolute" (the driver's landmarks), or
+            "auto": absolute when the driver is the source file itself, else relative.
+        smooth: One-Euro smoothing of the driver landmarks (and so of the crop framing).
+        paste_back: put the synthesised head back into the driver frame (feathered ellipse blend); otherwise the
+            output is the (S, S) synthesis. Raw landmark drivers have no frame and always give the synthesis.
+        Face-less driver frames pass through (the frame, or its centre square resized) and are counted.
+        """
+        if mode not in ("auto", "relative", "absolute"):
+            raise InputFileError(f"mode must be 'auto', 'relative' or 'absolute', got {mode!r}")
+        subject = self._require_subject()
+        info = describe_driver(driver)
+        relative = mode == "relative" or (mode == "auto" and not _same_input(subject.source, driver))
+        with_layout = with_layout and self.backend.layout_kind != "none"
+        self.last_stats = stats = ReenactStats()
+        if info.kind == "landmarks":
+            read_landmark_array(driver, landmark_space=landmark_space, landmark_size=landmark_size)  # fail early
+            frames = self._landmark_driver(driver, info, relative, smooth, with_layout, landmark_space, landmark_size, stats)
+        else:
+            frames = self._frame_driver(info, relative, smooth, paste_back, with_layout, stats)
+        if progress:
+            from tqdm import tqdm
+
+            frames = tqdm(frames, total=info.frames, desc="reenact", unit="frame", dynamic_ncols=True)
+        return iter(frames)  # checks above run now; frames are produced lazily
+
+    __call__ = reenact
+
+    def _retarget(self, crop_landmarks: np.ndarray, reference: np.ndarray | None, relative: bool) -> np.ndarray:
+        from landmarks.retarget import retarget_relative
+
+        if not relative:
+            return crop_landmarks
+        # Relative motion: the driver's first valid frame maps to the source's own face (FOMM/LivePortrait style).
+        return retarget_relative(crop_landmarks, reference, self._require_subject().reference_landmarks)
+
+    def _landmark_driver(self, driver, info: DriverInfo, relative: bool, smooth: bool, with_layout: bool,
+                         landmark_space, landmark_size, stats: ReenactStats) -> Iterator[ReenactedFrame]:  # fmt: skip
+        from landmarks.align import crop_transform, transform_landmarks
+        from landmarks.smooth import OneEuroFilter
+
+        array, space, size = read_landmark_array(driver, landmark_space=landmark_space, landmark_size=landmark_size)
+        one_euro = OneEuroFilter(info.fps) if smooth else None
+        reference = None
+        for index, points in enumerate(array):
+            started = time.perf_counter()
+            points = one_euro(points) if one_euro is not None else points
+            if space == "frame":
+                crop_landmarks = transform_landmarks(points, crop_transform(points, self.resolution))
+            else:
+                crop_landmarks = points.astype(np.float64) * (self.resolution / float(size or self.resolution))
+            reference = crop_landmarks if reference is None else reference
+            target = self._retarget(crop_landmarks, reference, relative)
+            stats.add("landmarks", time.perf_counter() - started)
+            started = time.perf_counter()
+            synthesis, landmark_image, layout = self.synthesize_crop(target, with_layout)
+            stats.add("synthesis", time.perf_counter() - started)
+            stats.frames += 1
+            yield ReenactedFrame(index, synthesis, True, None, landmark_image, synthesis, layout)
+
+    def _frame_driver(self, info: DriverInfo, relative: bool, smooth: bool, paste_back: bool, with_layout: bool,
+                      stats: ReenactStats) -> Iterator[ReenactedFrame]:  # fmt: skip
+        from landmarks.align import crop_transform, paste_back as paste, transform_landmarks
+        from landmarks.smooth import OneEuroFilter
+        from landmarks.track import LandmarkTracker
+
+        size = self.resolution
+        tracker = LandmarkTracker(self.detector)
+        one_euro = OneEuroFilter(info.fps) if smooth else None
+        reference = None
+        frames = iter_driver_frames(info)
+        index = 0
+        while True:
+            started = time.perf_counter()
+            frame = next(frames, None)
+            stats.add("decode", time.perf_counter() - started)
+            if frame is None:
+                break
+            started = time.perf_counter()
+            points = tracker.update(frame)
+            if points is not None and one_euro is not None:
+                points = one_euro(points)
+            matrix = crop_landmarks = None
+            if points is not None and np.isfinite(points).all():
+                matrix = crop_transform(points, size)
+                crop_landmarks = transform_landmarks(points, matrix)
+                reference = crop_landmarks if reference is None else reference
+                crop_landmarks = self._retarget(crop_landmarks, reference, relative)
+            elif one_euro is not None:
+                one_euro.reset()  # never smooth across a gap
+            stats.add("landmarks", time.perf_counter() - started)
+            if crop_landmarks is None:
+                stats.no_face += 1
+                stats.frames += 1
+                passthrough = frame if paste_back else square_resize(frame, size)
+                yield ReenactedFrame(index, passthrough, False, frame, None, None, None)
+                index += 1
+                continue
+            started = time.perf_counter()
+            synthesis, landmark_image, layout = self.synthesize_crop(crop_landmarks, with_layout)
+            stats.add("synthesis", time.perf_counter() - started)
+            output = synthesis
+            if paste_back:
+                started = time.perf_counter()
+                # Only the head is synthesised: an ellipse with a wide feather hides the crop's background.
+                output = paste(frame, synthesis, matrix, mask="ellipse", feather=size * PASTE_FEATHER_FRACTION)
+                stats.add("paste_back", time.perf_counter() - started)
+            stats.frames += 1
+            yield ReenactedFrame(index, output, True, frame, landmark_image, synthesis, layout)
+            index += 1
+
+    def _require_subject(self) -> Subject:
+        if self.subject is None:
+            raise NoFaceError("no subject encoded yet: call encode_subject(source) before re-enacting")
+        return self.subject
+
+
+def _source_key(source) -> str | None:
+    if isinstance(source, (str, os.PathLike)):
+        return str(Path(source).resolve())
+    if isinstance(source, (list, tuple)) and len(source) == 1 and isinstance(source[0], (str, os.PathLike)):
+        return str(Path(source[0]).resolve())
+    return None
+
+
+def _same_input(source_key: str | None, driver) -> bool:
+    return source_key is not None and isinstance(driver, (str, os.PathLike)) and str(Path(driver).resolve()) == source_key

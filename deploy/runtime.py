@@ -1,0 +1,102 @@
+"""``OnnxReenactor``: LSR re-enactment from an ``lsr export`` bundle with onnxruntime. No torch anywhere.
+
+Needs numpy, onnxruntime, OpenCV, dlib and the ``landmarks`` toolkit. Same API as ``lsr.pipeline.Reenactor``
+(both are ``deploy.engine.ReenactorBase``; only the backend differs):
+
+    reenactor = OnnxReenactor("bundle/")               # subject_encoder.onnx + frame_generator.onnx
+    reenactor.encode_subject("person.jpg", k=1)
+    for frame in reenactor("driving.mp4", paste_back=True):
+        use(frame.image)                                # (H, W, 3) uint8 RGB
+
+``int8=True`` runs ``frame_generator.int8.onnx`` (``lsr export --int8``) for the per-frame graph.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from deploy.engine import ReenactorBase
+from landmarks.errors import InputFileError
+
+SUBJECT_ENCODER_FILE = "subject_encoder.onnx"
+FRAME_GENERATOR_FILE = "frame_generator.onnx"
+FRAME_GENERATOR_INT8_FILE = "frame_generator.int8.onnx"
+
+
+class BundleError(InputFileError):
+    """An ONNX bundle folder is missing a graph or its metadata (re-run ``lsr export``)."""
+
+
+def _session(path: Path, providers: list[str] | None, threads: int):
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    if threads > 0:
+        options.intra_op_num_threads = threads
+    available = ort.get_available_providers()
+    chosen = [p for p in (providers or ["CUDAExecutionProvider", "CPUExecutionProvider"]) if p in available]
+    try:
+        return ort.InferenceSession(str(path), options, providers=chosen or ["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own untyped errors for bad files
+        raise BundleError(f"cannot load {path} with onnxruntime: {exc}; re-run `lsr export`") from exc
+
+
+class OnnxBackend:
+    """``deploy.engine.SynthesisBackend`` over the two ONNX graphs of a bundle folder."""
+
+    def __init__(self, folder: str | os.PathLike, *, int8: bool = False, providers: list[str] | None = None,
+                 threads: int = 0) -> None:  # fmt: skip
+        folder = Path(folder)
+        frame_name = FRAME_GENERATOR_INT8_FILE if int8 else FRAME_GENERATOR_FILE
+        for name in (SUBJECT_ENCODER_FILE, frame_name):
+            if not (folder / name).is_file():
+                hint = "`lsr export --int8`" if name == FRAME_GENERATOR_INT8_FILE else "`lsr export --weights DIR --out FOLDER`"
+                raise BundleError(f"{folder / name} not found; make the ONNX bundle with {hint}")
+        self.folder = folder
+        self.subject_session = _session(folder / SUBJECT_ENCODER_FILE, providers, threads)
+        self.frame_session = _session(folder / frame_name, providers, threads)
+        self.metadata = dict(self.frame_session.get_modelmeta().custom_metadata_map)
+        try:
+            self.resolution = int(self.metadata["resolution"])
+            self.layout_kind = self.metadata["layout_kind"]
+            self.config = json.loads(self.metadata.get("model_config", "{}"))
+        except (KeyError, ValueError) as exc:
+            raise BundleError(f"{folder / frame_name} lacks LSR metadata ({exc}); re-run `lsr export`") from exc
+        self.frame_outputs = [output.name for output in self.frame_session.get_outputs()]
+
+    def encode_subject(self, shots: np.ndarray, shot_landmark_images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(1, K, 3, S, S) each, in [-1, 1] -> (layout_latent, style_latent), (1, D) float32 each."""
+        feed = {"shots": np.ascontiguousarray(shots, np.float32),
+                "shot_landmark_images": np.ascontiguousarray(shot_landmark_images, np.float32)}  # fmt: skip
+        layout_latent, style_latent = self.subject_session.run(["layout_latent", "style_latent"], feed)
+        return layout_latent, style_latent
+
+    def synthesize(self, landmark_image: np.ndarray, layout_latent: np.ndarray, style_latent: np.ndarray,
+                   with_layout: bool) -> tuple[np.ndarray, np.ndarray | None]:  # fmt: skip
+        """(B, 3, S, S) + (B, D) latents -> (image (B, 3, S, S) in [-1, 1], layout (B, C_l, S, S) or None)."""
+        feed = {"landmark_image": np.ascontiguousarray(landmark_image, np.float32),
+                "layout_latent": np.ascontiguousarray(layout_latent, np.float32),
+                "style_latent": np.ascontiguousarray(style_latent, np.float32)}  # fmt: skip
+        wanted = ["image", "layout"] if with_layout and "layout" in self.frame_outputs else ["image"]
+        outputs = self.frame_session.run(wanted, feed)
+        return outputs[0], outputs[1] if len(outputs) > 1 else None
+
+
+class OnnxReenactor(ReenactorBase):
+    """Torch-free re-enactment. folder: an ``lsr export`` bundle. int8: use the quantised frame generator.
+
+    providers: onnxruntime execution providers (default CUDA when available, else CPU); threads: intra-op
+    threads (0 = onnxruntime's default). detector: "hog" | "cnn" (dlib). API as ``lsr.pipeline.Reenactor``.
+    """
+
+    def __init__(self, folder: str | os.PathLike, *, int8: bool = False, providers: list[str] | None = None,
+                 threads: int = 0, detector: str | object = "hog") -> None:  # fmt: skip
+        super().__init__(OnnxBackend(folder, int8=int8, providers=providers, threads=threads), detector=detector)
+
+    @property
+    def metadata(self) -> dict[str, str]:
+        return self.backend.metadata

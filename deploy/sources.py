@@ -1,0 +1,258 @@
+"""Loading a re-enactment's inputs: the subject's K shots and the driver (torch-free, streaming).
+
+Shared by ``lsr.pipeline.Reenactor`` (torch) and ``deploy.runtime.OnnxReenactor`` (ONNX): one loader
+for both runtimes. numpy + OpenCV + dlib through the ``landmarks`` toolkit only.
+
+Sources (the subject, thesis §4.3.1: K shots averaged into the latents):
+* one or more image files, or a folder of images (every image with a face is usable);
+* one video: up to 4K candidate frames spread evenly over it are decoded in one streaming pass and
+  the frames with a face are kept;
+* already-loaded (H, W, 3) uint8 RGB arrays.
+Each usable shot is cropped like the training data (``landmarks.align.crop``). K shots are then taken
+evenly from the usable ones. ``k=None`` uses min(8, usable); an explicit K larger than the usable
+shots is an error (it never silently repeats shots).
+
+Drivers:
+* a video file, a folder of images, or one image (frames, tracked with ``LandmarkTracker``);
+* raw landmarks: a ``.npy`` / ``.json`` file or an (N, 68, 2) array. ``landmark_space="frame"`` means
+  pixel coordinates of the driver's frames (each frame is then cropped by its own crop transform);
+  ``"crop"`` means coordinates already in a training-framed crop of side ``landmark_size`` (default: the
+  model resolution), rescaled to the model resolution. A ``.json`` file holds either the nested list or
+  ``{"landmarks": [...], "space": "frame"|"crop", "size": S}``. NaN/inf in raw arrays is rejected with
+  an error naming the frames (there is no picture to pass through; interpolate or drop those frames).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from landmarks.errors import InputFileError, NoFaceError
+from landmarks.imageio import IMAGE_SUFFIXES, read_image
+from landmarks.parts import NUM_LANDMARKS
+from landmarks.video import VIDEO_SUFFIXES
+
+LANDMARK_SUFFIXES = (".npy", ".json")
+DEFAULT_K = 8
+MAX_K = 32  # the thesis evaluates K = 1..32 (Table 4.4)
+CANDIDATES_PER_SHOT = 4  # video sources: decode 4K evenly spread frames to find K with a face
+
+LandmarkSpace = Literal["frame", "crop"]
+SourceInput = str | os.PathLike | np.ndarray | Sequence[str | os.PathLike | np.ndarray]
+
+
+@dataclasses.dataclass
+class SubjectShots:
+    """K aligned crops of one person.
+
+    frames: (K, S, S, 3) uint8 RGB crops; landmarks: (K, 68, 2) float32 in crop pixels; names: where each came from.
+    """
+
+    frames: np.ndarray
+    landmarks: np.ndarray
+    names: list[str]
+
+
+@dataclasses.dataclass(frozen=True)
+class DriverInfo:
+    """What the output needs to know before the first frame: kind, frame count, fps, frame size (W, H) or None."""
+
+    kind: Literal["video", "images", "landmarks"]
+    frames: int
+    fps: float
+    size: tuple[int, int] | None
+    path: Path | None
+    has_audio: bool = False
+
+
+def _spread(count: int, wanted: int) -> list[int]:
+    """``wanted`` indices spread evenly over range(count) (all of them when count <= wanted)."""
+    if count <= wanted:
+        return list(range(count))
+    return np.unique(np.round(np.linspace(0, count - 1, wanted)).astype(int)).tolist()
+
+
+def _check_k(k: int | None) -> None:
+    if k is not None and not (isinstance(k, (int, np.integer)) and 1 <= k <= MAX_K):
+        raise InputFileError(f"K (shots) must be an integer in 1..{MAX_K}, got {k!r}")
+
+
+def is_video(path: Path) -> bool:
+    return path.suffix.lower() in VIDEO_SUFFIXES
+
+
+def list_images(folder: Path) -> list[Path]:
+    """Image files of a folder, sorted by name; an error when there are none."""
+    images = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not images:
+        raise InputFileError(f"folder {folder} holds no images ({', '.join(IMAGE_SUFFIXES)}); give images or a video")
+    return images
+
+
+def _source_candidates(source: SourceInput, k: int | None) -> Iterator[tuple[str, np.ndarray]]:
+    """(name, (H, W, 3) uint8 RGB) candidate frames of a source, streaming."""
+    items = [source] if isinstance(source, (str, os.PathLike, np.ndarray)) else list(source)
+    if not items:
+        raise InputFileError("no source given: pass image files, a folder of images or a video")
+    for number, item in enumerate(items):
+        if isinstance(item, np.ndarray):
+            if item.ndim != 3 or item.shape[2] != 3 or item.dtype != np.uint8:
+                raise InputFileError(f"source array #{number} must be (H, W, 3) uint8 RGB, got {item.shape} {item.dtype}")
+            yield f"array#{number}", item
+            continue
+        path = Path(item)
+        if not path.exists():
+            raise InputFileError(f"source not found: {path}")
+        if path.is_dir():
+            for image_path in list_images(path):
+                yield str(image_path), read_image(image_path)
+        elif is_video(path):
+            from landmarks.video import iter_frames, probe_video
+
+            total = probe_video(path).frames
+            wanted = set(_spread(total, CANDIDATES_PER_SHOT * (k or DEFAULT_K)))
+            for index, frame in enumerate(iter_frames(path)):
+                if index in wanted:
+                    yield f"{path}#{index}", frame
+        elif path.suffix.lower() in IMAGE_SUFFIXES:
+            yield str(path), read_image(path)
+        else:
+            raise InputFileError(
+                f"unsupported source {path}: give images ({', '.join(IMAGE_SUFFIXES)}), a folder or a video"
+            )
+
+
+def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, detector=None) -> SubjectShots:
+    """Detect, crop and pick the K shots of a subject (see the module docstring for the rules).
+
+    size: crop side S (the model resolution). detector: a ``landmarks.detect.FaceDetector`` (default HOG).
+    Raises ``NoFaceError`` when no candidate has a face, ``InputFileError`` for unreadable input or K too large.
+    """
+    from landmarks.align import crop, transform_landmarks
+    from landmarks.detect import FaceDetector
+
+    _check_k(k)
+    detector = detector if detector is not None else FaceDetector()
+    frames, points, names, tried = [], [], [], []
+    for name, image in _source_candidates(source, k):
+        tried.append(name)
+        faces = detector.detect(np.ascontiguousarray(image))
+        if not faces:
+            continue
+        cropped, matrix = crop(image, faces[0].landmarks, size)
+        frames.append(cropped)
+        points.append(transform_landmarks(faces[0].landmarks, matrix).astype(np.float32))
+        names.append(name)
+    files = sorted({name.split("#")[0] for name in tried})
+    where = files[0] if len(files) == 1 else f"{len(files)} source files"
+    if not frames:
+        raise NoFaceError(
+            f"no face found in the source ({where}, {len(tried)} frame(s) tried); use frontal, well-lit shots of one person"
+        )
+    if k is not None and k > len(frames):
+        raise InputFileError(
+            f"K={k} is larger than the usable source frames: only {len(frames)} of {len(tried)} tried frame(s) of "
+            f"{where} have a face; lower --k to <= {len(frames)} or give more shots"
+        )
+    chosen = _spread(len(frames), k or DEFAULT_K)
+    return SubjectShots(
+        np.stack([frames[i] for i in chosen]), np.stack([points[i] for i in chosen]), [names[i] for i in chosen]
+    )
+
+
+# ---- drivers ---------------------------------------------------------------------------------------------
+
+
+def read_landmark_array(
+    driver: str | os.PathLike | np.ndarray, *, landmark_space: LandmarkSpace | None = None, landmark_size: int | None = None
+) -> tuple[np.ndarray, LandmarkSpace, int | None]:
+    """A raw landmark driver -> ((N, 68, 2) float32, space, size). NaN/inf rows are an ``InputFileError``."""
+    name = "landmark array" if isinstance(driver, np.ndarray) else str(driver)
+    space_in_file, size_in_file = None, None
+    if isinstance(driver, np.ndarray):
+        array = driver
+    else:
+        path = Path(driver)
+        if not path.is_file():
+            raise InputFileError(f"driving landmarks not found: {path}")
+        try:
+            if path.suffix.lower() == ".npy":
+                array = np.load(path, allow_pickle=False)
+            else:
+                data = json.loads(path.read_text())
+                if isinstance(data, dict):
+                    space_in_file, size_in_file = data.get("space"), data.get("size")
+                    data = data.get("landmarks")
+                array = np.asarray(data, dtype=np.float64)
+        except (OSError, ValueError, json.JSONDecodeError) as exc:
+            raise InputFileError(f"cannot read driving landmarks {path}: {exc}; write an (N, 68, 2) .npy or .json") from exc
+    array = np.asarray(array)
+    if array.dtype.kind not in "fiu" or array.ndim != 3 or array.shape[1:] != (NUM_LANDMARKS, 2) or len(array) == 0:
+        raise InputFileError(
+            f"driving landmarks {name} must be a non-empty (N, {NUM_LANDMARKS}, 2) numeric array (x, y), "
+            f"got shape {array.shape} dtype {array.dtype}"
+        )
+    bad = np.flatnonzero(~np.isfinite(array).all(axis=(1, 2)))
+    if len(bad):
+        raise InputFileError(
+            f"driving landmarks {name} contain NaN/inf in {len(bad)} frame(s) (first: {bad[:5].tolist()}); raw "
+            "landmark drivers must be complete: interpolate or drop those frames (video drivers pass face-less frames through)"
+        )
+    space = landmark_space or space_in_file or "frame"
+    if space not in ("frame", "crop"):
+        raise InputFileError(f"landmark space must be 'frame' or 'crop', got {space!r} ({name})")
+    return array.astype(np.float32), space, landmark_size or size_in_file
+
+
+def describe_driver(driver: str | os.PathLike | np.ndarray, fps: float | None = None) -> DriverInfo:
+    """Kind, frame count, fps and frame size of a driver, without decoding it (errors name the file)."""
+    if isinstance(driver, np.ndarray):
+        array, _, _ = read_landmark_array(driver)
+        return DriverInfo("landmarks", len(array), fps or 25.0, None, None)
+    path = Path(driver)
+    if not path.exists():
+        raise InputFileError(f"driver not found: {path}")
+    if path.is_dir():
+        images = list_images(path)
+        height, width = read_image(images[0]).shape[:2]
+        return DriverInfo("images", len(images), fps or 25.0, (width, height), path)
+    if is_video(path):
+        from landmarks.video import probe_video
+
+        info = probe_video(path)
+        return DriverInfo("video", info.frames, fps or info.fps, (info.width, info.height), path, info.has_audio)
+    if path.suffix.lower() in IMAGE_SUFFIXES:  # one still frame
+        height, width = read_image(path).shape[:2]
+        return DriverInfo("images", 1, fps or 25.0, (width, height), path)
+    if path.suffix.lower() in LANDMARK_SUFFIXES:
+        array, _, _ = read_landmark_array(path)
+        return DriverInfo("landmarks", len(array), fps or 25.0, None, path)
+    raise InputFileError(
+        f"unsupported driver {path}: give a video ({', '.join(VIDEO_SUFFIXES)}), an image or a folder of images, "
+        f"or landmarks ({', '.join(LANDMARK_SUFFIXES)})"
+    )
+
+
+def iter_driver_frames(info: DriverInfo) -> Iterator[np.ndarray]:
+    """Frames of a video or image-folder driver, one at a time: (H, W, 3) uint8 RGB, all of the first's size."""
+    if info.kind == "video":
+        from landmarks.video import iter_frames
+
+        yield from iter_frames(info.path)
+        return
+    expected = None
+    for path in [info.path] if info.path.is_file() else list_images(info.path):
+        frame = read_image(path)
+        if expected is not None and frame.shape != expected:
+            raise InputFileError(
+                f"driver image {path} is {frame.shape[1]}x{frame.shape[0]}, the first image is "
+                f"{expected[1]}x{expected[0]}; a driver folder needs frames of one size"
+            )
+        expected = frame.shape
+        yield frame

@@ -1,0 +1,133 @@
+"""``lsr bench reenact``: end-to-end fps of ``lsr reenact`` on a real clip, per stage and per runtime.
+
+For each runtime (torch, onnx) the clip's first N frames (a trimmed copy, audio kept) drive a subject encoded
+from the same clip, written exactly as ``lsr reenact`` writes (``lsr.reenact.run_job``). Stages: decode,
+landmarks (tracking, smoothing, crop transform, retargeting, rasterising), subject encoding (once), synthesis
+(the generator plus its pre/post-processing), paste-back, encode (H.264 + audio mux). "synthesis only" times
+the generator alone on one landmark image, the ceiling of the end-to-end rate. Goals: end-to-end >= 0.8x
+synthesis-only; the default preset <= 33 ms/frame at 256^2. Also prints the bf16 error against fp32.
+Speed does not depend on the weights, so a randomly initialised preset stands in when --weights is absent.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from lsr.config import BenchReenactConfig
+from lsr.eval.bench_landmarks import default_video
+
+
+def trim_clip(video: Path, out: Path, frames: int) -> Path:
+    """Write the first ``frames`` frames of ``video`` (with its audio) to ``out``."""
+    from landmarks.video import VideoWriter, iter_frames, probe_video
+
+    info = probe_video(video)
+    with VideoWriter(out, info.fps, audio_from=video if info.has_audio else None) as writer:
+        for index, frame in enumerate(iter_frames(video)):
+            if index >= frames:
+                break
+            writer.write(frame)
+    return out
+
+
+def synthesis_only_ms(reenactor, repeats: int = 20) -> float:
+    """Median ms of one ``backend.synthesize`` call on a real landmark image (after one warm-up)."""
+    from deploy.engine import to_network
+    from landmarks.raster import draw_landmarks
+
+    subject = reenactor.subject
+    landmark_image = to_network(draw_landmarks(subject.reference_landmarks, reenactor.resolution))[None]
+    times = []
+    for _ in range(repeats + 1):
+        started = time.perf_counter()
+        reenactor.backend.synthesize(landmark_image, subject.layout_latent, subject.style_latent, False)
+        times.append(time.perf_counter() - started)
+    return float(np.median(times[1:]) * 1000)
+
+
+@dataclasses.dataclass
+class _JobOptions:  # the ReenactConfig fields run_job reads
+    paste_back: bool
+    fps: float | None = None
+    relative: bool = False
+    absolute: bool = False
+    smooth: bool = True
+    watermark: bool = False
+    landmark_space: str | None = None
+    landmark_size: int | None = None
+    progress: bool = False
+    runtime: str = "torch"
+
+
+def run_bench_reenact(cfg: BenchReenactConfig) -> str:
+    from lsr.export_bundle import export_graphs
+    from lsr.machine import machine_markdown
+    from lsr.pipeline import Reenactor
+    from lsr.reenact import Job, resolve_device, run_job
+    from models_def import LSRModel, preset_config
+
+    video = cfg.video or default_video()
+    device = resolve_device(cfg.device)
+    rows, notes = [], []
+    with tempfile.TemporaryDirectory(prefix="lsr-bench-reenact-") as temp:
+        temp = Path(temp)
+        weights = cfg.weights
+        if weights is None:
+            weights = LSRModel(preset_config(cfg.preset, resolution=cfg.resolution)).save_pretrained(temp / "weights")
+            label = f"{cfg.preset} (random init) at {cfg.resolution}^2"
+        else:
+            label = str(weights)
+        clip = trim_clip(video, temp / "driving.mp4", cfg.frames)
+        for runtime in cfg.runtimes:
+            if runtime == "onnx":
+                from deploy.runtime import OnnxReenactor
+
+                export_graphs(Reenactor(weights).model, temp / "onnx")
+                reenactor = OnnxReenactor(temp / "onnx", threads=cfg.threads)
+            else:
+                if cfg.threads > 0:
+                    import torch
+
+                    torch.set_num_threads(cfg.threads)
+                reenactor = Reenactor(weights, device=device)
+            started = time.perf_counter()
+            reenactor.encode_subject(clip, k=cfg.k)
+            encode_subject_s = time.perf_counter() - started
+            synth_ms = synthesis_only_ms(reenactor)
+            started = time.perf_counter()
+            stats = run_job(reenactor, Job(clip, clip, temp / f"out_{runtime}.mp4"),
+                            _JobOptions(cfg.paste_back, runtime=runtime))  # fmt: skip
+            wall = time.perf_counter() - started
+            per_frame = {stage: 1000 * stats.seconds.get(stage, 0.0) / max(1, stats.frames)
+                         for stage in ("decode", "landmarks", "synthesis", "paste_back", "encode")}  # fmt: skip
+            end_to_end = stats.frames / wall
+            rows.append(
+                f"| {runtime} | {stats.frames} | {stats.no_face} | {per_frame['decode']:.1f} | {per_frame['landmarks']:.1f} | "
+                f"{encode_subject_s:.2f} | {per_frame['synthesis']:.1f} | {per_frame['paste_back']:.1f} | "
+                f"{per_frame['encode']:.1f} | {end_to_end:.2f} | {synth_ms:.1f} ({1000 / synth_ms:.2f} fps) | "
+                f"{end_to_end * synth_ms / 1000:.2f} |"
+            )
+            if runtime == "torch":
+                lm = reenactor.subject.shots.landmarks
+                notes.append(f"bf16 (torch, {device}): {reenactor.precision_error(list(lm), 'bf16')}")
+    table = "\n".join([
+        f"## lsr reenact, {label}, {cfg.frames} frames of {video.name}, paste-back {cfg.paste_back}, device {device}, "
+        f"threads {cfg.threads or 'default'}",
+        "",
+        "| runtime | frames | no face | decode ms | landmarks ms | subject encoding s | synthesis ms | paste-back ms "
+        "| encode ms | end-to-end fps | synthesis only ms | end-to-end / synthesis-only |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        *rows,
+        "",
+        "Goals: end-to-end / synthesis-only >= 0.8; default preset synthesis <= 33 ms/frame at 256^2.",
+        *notes,
+        "",
+        machine_markdown(),
+    ])  # fmt: skip
+    print(table)
+    return table

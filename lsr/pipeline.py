@@ -1,0 +1,191 @@
+"""Inference pipeline: load the weights once, encode the subject once, synthesise per frame (thesis §4.3).
+
+``Reenactor`` is the torch runtime of the shared frame loop ``deploy.engine.ReenactorBase`` (source and
+driver loading, tracking, retargeting, crop, rasterise, paste-back, pass-through of face-less frames live
+there, torch-free, and serve ``deploy.runtime.OnnxReenactor`` too). This module adds only the torch glue:
+``TorchBackend`` runs ``LSRModel.subject_encoder`` and ``LSRModel.frame_generator`` on numpy arrays.
+
+    reenactor = Reenactor("runs/x/weights")               # fp32 on CPU by default
+    reenactor.encode_subject("person.jpg")                 # or a folder, a video, several images; k=1..32
+    for frame in reenactor("driving.mp4", paste_back=True):  # a generator: streams, one frame at a time
+        writer.write(frame.image)
+
+bf16 is an option (``precision="bf16"``); ``precision_error`` reports its error against fp32.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+
+from deploy.engine import LayoutKind, ReenactorBase, Subject
+from deploy.sources import SubjectShots
+from lsr.errors import ConfigError, WeightsError
+from models_def import Discriminator, LSRModel
+
+Precision = Literal["fp32", "bf16"]
+_DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
+
+
+def layout_kind_of(variant: str) -> LayoutKind:
+    """What the frame generator's layout output is for a variant (thesis Table 4.2)."""
+    if variant == "latent_layout":
+        return "latent"
+    if variant in ("learned_seg", "oracle_seg"):
+        return "segmentation"
+    return "none"
+
+
+def load_model(weights: str | os.PathLike) -> LSRModel:
+    """``LSRModel.from_pretrained`` with user-facing errors (a missing or mismatched folder says what to do)."""
+    folder = Path(weights)
+    if not folder.is_dir():
+        raise WeightsError(
+            f"weights folder not found: {folder}; pass --weights DIR holding config.json + model.safetensors "
+            "(written by `lsr train` or LSRModel.save_pretrained)"
+        )
+    try:
+        model = LSRModel.from_pretrained(folder)
+    except ValueError as exc:  # models_def.ModelConfigError names the problem with the folder
+        raise WeightsError(str(exc)) from exc
+    if model.config.variant == "oracle_seg":
+        raise WeightsError(
+            f"{folder} is an 'oracle_seg' model: it needs the target's ground-truth segmentation, which a driving "
+            "video does not have; re-enact with a latent_layout, learned_seg or spade_landmarks model"
+        )
+    return model.eval().requires_grad_(False)
+
+
+class TorchBackend:
+    """``deploy.engine.SynthesisBackend`` over an ``LSRModel`` (numpy in, numpy out, fp32 results)."""
+
+    def __init__(self, model: LSRModel, device: str | torch.device = "cpu", precision: Precision = "fp32") -> None:
+        if precision not in _DTYPES:
+            raise ConfigError(f"precision must be 'fp32' or 'bf16', got {precision!r}")
+        self.model = model.eval().requires_grad_(False)
+        self.device = torch.device(device)
+        self.precision = precision
+        self.model.to(self.device)
+        self.resolution = model.config.resolution
+        self.layout_kind = layout_kind_of(model.config.variant)
+
+    def _autocast(self):
+        # bf16 via autocast keeps norms/softmax in fp32 where torch deems it necessary (fp32 is the default).
+        return torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.precision == "bf16")
+
+    def _tensor(self, array: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(np.ascontiguousarray(array, np.float32)).to(self.device)
+
+    @torch.inference_mode()
+    def encode_subject(self, shots: np.ndarray, shot_landmark_images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(1, K, 3, S, S) each, in [-1, 1] -> (layout_latent, style_latent), (1, D) float32 each."""
+        with self._autocast():
+            layout_latent, style_latent = self.model.subject_encoder(self._tensor(shots), self._tensor(shot_landmark_images))
+        return layout_latent.float().cpu().numpy(), style_latent.float().cpu().numpy()
+
+    @torch.inference_mode()
+    def synthesize(
+        self, landmark_image: np.ndarray, layout_latent: np.ndarray, style_latent: np.ndarray, with_layout: bool
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """(B, 3, S, S) + (B, D) latents -> (image (B, 3, S, S) in [-1, 1], layout (B, C_l, S, S) or None)."""
+        with self._autocast():
+            outputs = self.model.frame_generator.synthesize(
+                self._tensor(landmark_image), self._tensor(layout_latent), self._tensor(style_latent)
+            )
+        layout = outputs.layout.float().cpu().numpy() if with_layout and outputs.layout is not None else None
+        return outputs.image.float().cpu().numpy(), layout
+
+
+@dataclasses.dataclass(frozen=True)
+class PrecisionError:
+    """Error of a faster precision against fp32 on the same inputs (images in [-1, 1])."""
+
+    precision: str
+    frames: int
+    max_abs: float
+    mean_abs: float
+
+    def __str__(self) -> str:
+        return (f"{self.precision} vs fp32 over {self.frames} frame(s): max abs error {self.max_abs:.4g}, "
+                f"mean abs error {self.mean_abs:.4g} (images in [-1, 1])")  # fmt: skip
+
+
+class Reenactor(ReenactorBase):
+    """Torch re-enactment (inference only). API: ``encode_subject``, ``reenact`` / ``__call__`` (``ReenactorBase``).
+
+    weights: model folder (config.json + model.safetensors). device: "cpu", "cuda", ... precision: "fp32"
+    (default) or "bf16". detector: "hog" | "cnn" (dlib) for the source shots and the driver.
+    """
+
+    def __init__(
+        self,
+        weights: str | os.PathLike | LSRModel,
+        *,
+        device: str | torch.device = "cpu",
+        precision: Precision = "fp32",
+        detector: str | object = "hog",
+    ) -> None:
+        model = weights if isinstance(weights, LSRModel) else load_model(weights)
+        self.weights_path = None if isinstance(weights, LSRModel) else Path(weights)
+        super().__init__(TorchBackend(model, device, precision), detector=detector)
+
+    @property
+    def model(self) -> LSRModel:
+        return self.backend.model
+
+    def finetune(self, steps: int, *, lr: float = 1e-4, batch_size: int = 4, seed: int = 0, progress: bool = False):
+        """Fine-tune G^l, G^s on the cached subject's shots (thesis §4.3.5; ``lsr.train.finetune``), in place.
+
+        The latents stay those of ``encode_subject`` (fixed during fine-tuning, as in the thesis).
+        Returns the ``FinetuneResult`` (L1 before/after).
+        """
+        from lsr.train.finetune import SubjectShots as TrainShots
+        from lsr.train.finetune import finetune_subject, load_discriminator
+
+        subject = self._require_subject()
+        model = self.backend.model
+        if self.weights_path is not None:  # D saved beside the weights by `lsr train`, else a fresh one
+            discriminator, _ = load_discriminator(self.weights_path, model)
+        else:
+            discriminator = Discriminator(model.config)
+        result = finetune_subject(
+            model, discriminator, TrainShots(subject.shots.frames, subject.shots.landmarks),
+            steps=steps, lr=lr, batch_size=batch_size, device=self.backend.device, seed=seed, progress=progress,
+        )  # fmt: skip
+        self.backend.model = result.model.eval().requires_grad_(False)
+        return result
+
+    def precision_error(self, driver_landmarks: Iterable[np.ndarray], precision: Precision = "bf16") -> PrecisionError:
+        """Synthesise the same crop landmarks (each (68, 2) in crop pixels) in fp32 and ``precision``; print and return the error."""
+        subject = self._require_subject()
+        reference = Reenactor(self.backend.model, device=self.backend.device, precision="fp32")
+        other = Reenactor(self.backend.model, device=self.backend.device, precision=precision)
+        for runtime in (reference, other):
+            runtime.subject = Subject(subject.shots, subject.layout_latent, subject.style_latent, subject.source)
+        max_abs, total, count = 0.0, 0.0, 0
+        for points in driver_landmarks:
+            from landmarks.raster import draw_landmarks
+
+            from deploy.engine import to_network
+
+            landmark_image = to_network(draw_landmarks(points, self.resolution))[None]
+            outputs = [r.backend.synthesize(landmark_image, subject.layout_latent, subject.style_latent, False)[0]
+                       for r in (reference, other)]  # fmt: skip
+            difference = np.abs(outputs[0] - outputs[1])
+            max_abs, total, count = max(max_abs, float(difference.max())), total + float(difference.mean()), count + 1
+        if count == 0:
+            raise ConfigError("precision_error needs at least one set of driver landmarks")
+        error = PrecisionError(precision, count, max_abs, total / count)
+        print(error)
+        return error
+
+
+def subject_shots_from_training(frames: np.ndarray, landmarks: np.ndarray) -> SubjectShots:
+    """Wrap already-cropped shots ((K, S, S, 3) uint8, (K, 68, 2) crop pixels) for ``encode_subject``."""
+    return SubjectShots(np.asarray(frames, np.uint8), np.asarray(landmarks, np.float32), [f"shot#{i}" for i in range(len(frames))])

@@ -1,0 +1,280 @@
+"""``lsr reenact``: re-enact one (source, driving) pair or a batch of them into H.264 videos.
+
+Jobs come from exactly one of
+* ``--source S --driving D --out OUT.mp4`` (one job);
+* ``--jobs jobs.csv`` with a header ``source,driving,output`` (relative paths are relative to the CSV's folder);
+* ``--source-dir A --driving-dir B --out-dir C``: ``--pairing all`` (default) makes every source x driving
+  job, written as ``C/<source stem>__<driving stem>.mp4``; ``--pairing by-name`` pairs files with the same stem
+  (``A/alice.jpg`` with ``B/alice.mp4``) into ``C/<stem>.mp4``. A source is an image or a video file, or a
+  sub-folder of images; a driving entry is a video, a sub-folder of frames, or a .npy/.json landmark file.
+
+Outputs keep the driving video's frame count, fps and audio, and carry container metadata marking them as
+synthetic (``deploy.engine.provenance_metadata``); ``--watermark`` adds a visible "SYNTHETIC" mark. Each output
+appears only once complete (temp file + rename), so a rerun skips finished jobs (resume) and redoes the rest.
+``--shard i/n`` (or RANK/WORLD_SIZE under torchrun) takes every n-th job of the sorted list. A failing job leaves
+no file, the others still run, and the command exits non-zero naming each failed job.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import csv
+import dataclasses
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from deploy.engine import STAGES, ReenactorBase, ReenactStats, draw_watermark, provenance_metadata, square_resize
+from deploy.sources import LANDMARK_SUFFIXES, describe_driver
+from landmarks.errors import LandmarksError
+from landmarks.imageio import IMAGE_SUFFIXES
+from lsr import __version__
+from lsr.errors import ConfigError, LsrError
+
+
+class ReenactJobsError(LsrError):
+    """Some jobs of a batch failed (each is named with its problem); the finished outputs are kept."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Job:
+    source: Path
+    driving: Path
+    output: Path
+
+
+# ---- job lists --------------------------------------------------------------------------------------------
+
+
+def jobs_from_csv(path: Path) -> list[Job]:
+    """Rows of a ``source,driving,output`` CSV (paths relative to the CSV's folder)."""
+    if not path.is_file():
+        raise ConfigError(f"jobs file not found: {path}")
+    with open(path, newline="") as handle:
+        reader = csv.DictReader(handle)
+        if reader.fieldnames is None or not {"source", "driving", "output"} <= set(reader.fieldnames):
+            raise ConfigError(f"{path} needs a header row with the columns source,driving,output")
+        base = path.parent
+        jobs = [Job(*(base / row[key].strip() for key in ("source", "driving", "output"))) for row in reader]
+    if not jobs:
+        raise ConfigError(f"{path} lists no jobs")
+    return jobs
+
+
+def _entries(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
+    if not folder.is_dir():
+        raise ConfigError(f"folder not found: {folder}")
+    return sorted(p for p in folder.iterdir() if p.is_dir() or p.suffix.lower() in suffixes)
+
+
+def jobs_from_dirs(source_dir: Path, driving_dir: Path, out_dir: Path, pairing: str) -> list[Job]:
+    """Every source x driving (``pairing='all'``) or same-stem pairs (``'by-name'``); see the module docstring."""
+    from landmarks.video import VIDEO_SUFFIXES
+
+    sources = _entries(source_dir, IMAGE_SUFFIXES + VIDEO_SUFFIXES)
+    drivers = _entries(driving_dir, VIDEO_SUFFIXES + LANDMARK_SUFFIXES)
+    if not sources or not drivers:
+        raise ConfigError(f"no sources in {source_dir} or no driving inputs in {driving_dir}")
+    if pairing == "by-name":
+        by_stem = {d.stem: d for d in drivers}
+        jobs = [Job(s, by_stem[s.stem], out_dir / f"{s.stem}.mp4") for s in sources if s.stem in by_stem]
+        if not jobs:
+            raise ConfigError(f"--pairing by-name found no source in {source_dir} with a same-named driver in {driving_dir}")
+        return jobs
+    return [Job(s, d, out_dir / f"{s.stem}__{d.stem}.mp4") for s in sources for d in drivers]
+
+
+def parse_shard(shard: str | None) -> tuple[int, int]:
+    """'i/n' -> (i, n); None -> torchrun's (RANK, WORLD_SIZE) when set, else (0, 1)."""
+    if shard is None:
+        return int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1))
+    try:
+        index, count = (int(part) for part in shard.split("/"))
+    except ValueError:
+        raise ConfigError(f"--shard must look like i/n (e.g. 0/4), got {shard!r}") from None
+    if not (count >= 1 and 0 <= index < count):
+        raise ConfigError(f"--shard i/n needs 0 <= i < n, got {shard!r}")
+    return index, count
+
+
+def shard_jobs(jobs: list[Job], index: int, count: int) -> list[Job]:
+    return sorted(jobs, key=lambda job: str(job.output))[index::count]
+
+
+def collect_jobs(cfg) -> list[Job]:
+    if cfg.jobs is not None:
+        return jobs_from_csv(cfg.jobs)
+    if cfg.source_dir is not None:
+        return jobs_from_dirs(cfg.source_dir, cfg.driving_dir, cfg.out_dir, cfg.pairing)
+    return [Job(cfg.source, cfg.driving, cfg.out)]
+
+
+# ---- runtimes ---------------------------------------------------------------------------------------------
+
+
+def resolve_device(device: str) -> str:
+    if device != "auto":
+        return device
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def onnx_bundle_folder(weights: Path) -> Path:
+    """--weights for --runtime onnx: an ``lsr export`` bundle, or a model folder holding one in ``onnx/``."""
+    for folder in (weights, weights / "onnx"):
+        if (folder / "subject_encoder.onnx").is_file():
+            return folder
+    raise ConfigError(f"--runtime onnx: no subject_encoder.onnx in {weights} or {weights / 'onnx'}; "
+                      f"run `lsr export --weights {weights} --out {weights / 'onnx'}` first")  # fmt: skip
+
+
+def make_reenactor(cfg) -> ReenactorBase:
+    if cfg.runtime == "onnx":
+        from deploy.runtime import OnnxReenactor
+
+        return OnnxReenactor(onnx_bundle_folder(cfg.weights), int8=cfg.int8, threads=cfg.threads, detector=cfg.detector)
+    from lsr.pipeline import Reenactor
+
+    if cfg.threads > 0:
+        import torch
+
+        torch.set_num_threads(cfg.threads)  # process-wide: torch has no per-model thread pool
+    return Reenactor(cfg.weights, device=resolve_device(cfg.device), precision=cfg.precision, detector=cfg.detector)
+
+
+# ---- side-by-side -----------------------------------------------------------------------------------------
+
+
+def layout_panel(layout: np.ndarray | None, kind: str, size: int) -> np.ndarray:
+    """(C_l, S, S) layout -> (S, S, 3) uint8: argmax class colours for segmentations, else PCA of the channels."""
+    if layout is None:
+        return np.zeros((size, size, 3), np.uint8)
+    import torch
+
+    from lsr.train.visualize import images_to_uint8, layout_argmax_rgb, layout_pca_rgb
+
+    tensor = torch.from_numpy(layout)[None]
+    rgb = layout_argmax_rgb(tensor) if kind == "segmentation" else layout_pca_rgb(tensor)
+    return images_to_uint8(rgb)[0]
+
+
+def side_by_side_frame(frame, kind: str, size: int) -> np.ndarray:
+    """driver | landmarks | latent layout | output, each an (S, S) panel."""
+    blank = np.zeros((size, size, 3), np.uint8)
+    driver = blank if frame.driver_frame is None else square_resize(frame.driver_frame, size)
+    landmarks = blank if frame.landmark_image is None else frame.landmark_image
+    output = frame.image if frame.image.shape[:2] == (size, size) else square_resize(frame.image, size)
+    return np.concatenate([driver, landmarks, layout_panel(frame.layout, kind, size), output], axis=1)
+
+
+# ---- running ----------------------------------------------------------------------------------------------
+
+
+def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | None = None) -> ReenactStats:
+    """Re-enact one job into ``job.output`` (atomic). The subject must already be encoded."""
+    from landmarks.video import VideoWriter
+
+    info = describe_driver(job.driving, fps=cfg.fps)
+    mode = "relative" if cfg.relative else "absolute" if cfg.absolute else "auto"
+    with_layout = side_by_side is not None
+    metadata = provenance_metadata(__version__, cfg.runtime)
+    audio = job.driving if info.kind == "video" and info.has_audio else None
+    frames = reenactor.reenact(
+        job.driving, mode=mode, smooth=cfg.smooth, paste_back=cfg.paste_back, with_layout=with_layout,
+        landmark_space=cfg.landmark_space, landmark_size=cfg.landmark_size, progress=cfg.progress,
+    )  # fmt: skip
+    encode_seconds = 0.0
+    with contextlib.ExitStack() as stack:
+        writer = stack.enter_context(VideoWriter(job.output, info.fps, audio_from=audio, metadata=metadata))
+        sbs_writer = None
+        if side_by_side is not None:
+            sbs_writer = stack.enter_context(VideoWriter(side_by_side, info.fps, audio_from=audio, metadata=metadata))
+        for frame in frames:
+            image = draw_watermark(frame.image) if cfg.watermark else frame.image
+            started = time.perf_counter()
+            writer.write(image)
+            encode_seconds += time.perf_counter() - started
+            if sbs_writer is not None:
+                panel = side_by_side_frame(frame, reenactor.backend.layout_kind, reenactor.resolution)
+                sbs_writer.write(draw_watermark(panel) if cfg.watermark else panel)
+        stats = reenactor.last_stats
+        if stats.frames != info.frames and info.kind != "video":
+            raise LsrError(f"{job.driving}: produced {stats.frames} frames for {info.frames} driver frames")
+        started = time.perf_counter()
+    stats.add("encode", encode_seconds + time.perf_counter() - started)  # includes the final flush and audio mux
+    if stats.no_face:
+        print(f"lsr reenact: {job.driving}: {stats.no_face} of {stats.frames} frame(s) had no face and were passed through")
+    return stats
+
+
+def _subject_for(reenactor: ReenactorBase, source: Path, cfg, cache: dict):
+    """Encode (and optionally fine-tune on) a source once per batch."""
+    key = str(source.resolve())
+    if cache.get("key") == key:
+        reenactor.subject = cache["subject"]
+        if "backend_model" in cache:
+            reenactor.backend.model = cache["backend_model"]
+        return
+    started = time.perf_counter()
+    if cfg.finetune_steps > 0:
+        reenactor.backend.model = copy.deepcopy(cache.setdefault("base_model", reenactor.backend.model))
+    subject = reenactor.encode_subject(source, k=cfg.k)
+    if cfg.finetune_steps > 0:
+        result = reenactor.finetune(cfg.finetune_steps, progress=cfg.progress)
+        print(f"fine-tuned on {len(subject.shots.frames)} shots of {source}: shot L1 {result.l1_before:.4f} -> {result.l1_after:.4f}")
+        cache["backend_model"] = reenactor.backend.model
+    cache.update(key=key, subject=subject, seconds=time.perf_counter() - started)
+
+
+def summary_table(done: int, skipped: int, failed: int, stats: ReenactStats, wall: float) -> str:
+    rows = [
+        "| jobs done | skipped (finished) | failed | frames | frames without a face | end-to-end fps |",
+        "|---|---|---|---|---|---|",
+        f"| {done} | {skipped} | {failed} | {stats.frames} | {stats.no_face} | "
+        f"{stats.frames / wall if wall > 0 else float('nan'):.2f} |",
+        "",
+        "| stage | seconds | fps (frames / stage seconds) |",
+        "|---|---|---|",
+    ]
+    for stage in (*STAGES, "encode"):
+        seconds = stats.seconds.get(stage, 0.0)
+        fps = stats.frames / seconds if seconds > 0 and stage != "subject_encoding" else float("nan")
+        rows.append(f"| {stage} | {seconds:.2f} | {fps:.1f} |")
+    return "\n".join(rows)
+
+
+def run_reenact(cfg) -> ReenactStats:
+    """Entry point of ``lsr reenact`` (``lsr.config.ReenactConfig``). Returns the merged stats."""
+    from tqdm import tqdm
+
+    index, count = parse_shard(cfg.shard)
+    jobs = shard_jobs(collect_jobs(cfg), index, count)
+    pending = [job for job in jobs if cfg.overwrite or not job.output.exists()]
+    skipped = len(jobs) - len(pending)
+    total = ReenactStats()
+    failures: list[str] = []
+    started = time.perf_counter()
+    if pending:
+        reenactor = make_reenactor(cfg)
+        cache: dict = {}
+        for job in tqdm(pending, desc=f"jobs (shard {index}/{count})", unit="job", disable=not cfg.progress or len(pending) < 2):
+            try:
+                _subject_for(reenactor, job.source, cfg, cache)
+                if cache.get("counted") != cache["key"]:
+                    total.add("subject_encoding", cache["seconds"])
+                    cache["counted"] = cache["key"]
+                total.merge(run_job(reenactor, job, cfg, side_by_side=cfg.side_by_side))
+            except (LsrError, LandmarksError) as exc:
+                if len(jobs) == 1:
+                    raise
+                failures.append(f"{job.source} -> {job.output}: {exc}")
+                print(f"lsr reenact: job failed: {failures[-1]}")
+    wall = time.perf_counter() - started
+    print(summary_table(len(pending) - len(failures), skipped, len(failures), total, wall))
+    if failures:
+        raise ReenactJobsError(f"{len(failures)} of {len(pending)} job(s) failed: " + "; ".join(failures))
+    return total
