@@ -25,6 +25,7 @@ import os
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from deploy.engine import STAGES, ReenactorBase, ReenactStats, draw_watermark, provenance_metadata, square_resize
@@ -162,13 +163,19 @@ def layout_panel(layout: np.ndarray | None, kind: str, size: int) -> np.ndarray:
     return images_to_uint8(rgb)[0]
 
 
+SIDE_BY_SIDE_MIN_PANEL = 256
+
+
 def side_by_side_frame(frame, kind: str, size: int) -> np.ndarray:
     """driver | landmarks | latent layout | output, each an (S, S) panel."""
     blank = np.zeros((size, size, 3), np.uint8)
     driver = blank if frame.driver_frame is None else square_resize(frame.driver_frame, size)
     landmarks = blank if frame.landmark_image is None else frame.landmark_image
     output = frame.image if frame.image.shape[:2] == (size, size) else square_resize(frame.image, size)
-    return np.concatenate([driver, landmarks, layout_panel(frame.layout, kind, size), output], axis=1)
+    panels = [driver, landmarks, layout_panel(frame.layout, kind, size), output]
+    if size < SIDE_BY_SIDE_MIN_PANEL:  # low-resolution models: enlarge so the panels stay legible
+        panels = [cv2.resize(p, (SIDE_BY_SIDE_MIN_PANEL,) * 2, interpolation=cv2.INTER_NEAREST) for p in panels]
+    return np.concatenate(panels, axis=1)
 
 
 # ---- running ----------------------------------------------------------------------------------------------
