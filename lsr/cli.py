@@ -105,6 +105,12 @@ def _run_bench_models(cfg: config.BenchModelsConfig) -> None:
     run_bench_models(cfg)
 
 
+def _run_bench_speed(cfg: config.BenchSpeedConfig) -> None:
+    from lsr.eval.bench_speed import run_bench_speed
+
+    run_bench_speed(cfg)
+
+
 def _run_reenact(cfg: config.ReenactConfig) -> None:
     from lsr.reenact import run_reenact
 
@@ -148,6 +154,7 @@ GROUPS: dict[str, dict[str, tuple[type, Callable[[Any], None]]]] = {
         "train": (config.BenchTrainConfig, _run_bench_train),
         "reenact": (config.BenchReenactConfig, _run_bench_reenact),
         "models": (config.BenchModelsConfig, _run_bench_models),
+        "speed": (config.BenchSpeedConfig, _run_bench_speed),
     },
 }
 

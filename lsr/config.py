@@ -400,6 +400,70 @@ class BenchModelsConfig:
             raise ConfigError(f"--resolution must be 0 or a power of two >= 64; got {self.resolution}")
 
 
+@dataclasses.dataclass
+class BenchSpeedConfig:
+    """Speed beside error: params, GFLOP, ms/frame and subject-encoding ms per preset x resolution x runtime, with
+    PSNR / SSIM / NMKE of each preset's trained weights (thesis protocol), written into a BENCHMARKS.md section."""
+
+    presets: tuple[str, ...] = ("tiny", "fast")
+    """Model presets (models_def.presets)."""
+    resolutions: tuple[int, ...] = (128, 256)
+    runtimes: tuple[Literal["eager", "channels_last", "compile", "onnxruntime", "int8"], ...] = (
+        "eager",
+        "channels_last",
+        "onnxruntime",
+        "int8",
+    )
+    """'compile' (torch.compile) is opt-in: it takes minutes to compile on 2 cores. 'int8': static QDQ frame generator."""
+    weights: tuple[str, ...] = ()
+    """Trained weights per preset as PRESET=DIR (from `lsr train`); presets without weights get no error columns."""
+    k: tuple[int, ...] = (1, 8)
+    """K (shots) of the error columns."""
+    runs: int = 10
+    """Timed runs per measurement (median), after ``warmup`` untimed runs."""
+    warmup: int = 2
+    encoder_runs: int = 3
+    """Timed runs of subject encoding at K=32 (slow at 256^2)."""
+    out_md: Path = Path("BENCHMARKS.md")
+    """Markdown file whose `bench:speed` section is replaced (created when missing); bench_speed.json goes beside it."""
+    plot: Path | None = None
+    """PNG of ms/frame against the error with the Pareto front; default OUT_MD's folder/docs/bench_speed.png."""
+    pareto_metric: Literal["psnr", "ssim", "nmke"] = "psnr"
+    synthetic_root: Path | None = None
+    """An existing `lsr synth` dataset whose 'test' split is scored; default a small fixed-seed one in --cache-dir."""
+    cache_dir: Path | None = None
+    """Where the default synthetic split and FSTH landmarks are cached (default ~/.cache/lsr/bench_speed)."""
+    fsth: bool = False
+    """Also score on the FSTH sample (../shared/data/fsth_eval_sample or --fsth-root)."""
+    fsth_root: Path | None = None
+    inputs: int = 32
+    """Input frames per identity of the synthetic split (shots are drawn from them)."""
+    holdouts: int = 32
+    max_holdouts: int = 0
+    """Score only the first N hold-out frames per identity (0 = all)."""
+    note: str = ""
+    """Free text shown in the section header (e.g. how the weights were trained)."""
+    threads: int = 0
+    """CPU threads for torch and onnxruntime (0 = default)."""
+    progress: bool = True
+
+    def validate(self) -> None:
+        from models_def import PRESET_NAMES
+
+        for name in self.presets:
+            if name not in PRESET_NAMES:
+                raise ConfigError(f"unknown preset {name!r}; choose from {', '.join(PRESET_NAMES)}")
+        for resolution in self.resolutions:
+            if resolution < 32 or resolution & (resolution - 1):
+                raise ConfigError(f"--resolutions must be powers of two >= 32; got {resolution}")
+        if not self.presets or not self.resolutions or not self.runtimes or not self.k:
+            raise ConfigError("--presets, --resolutions, --runtimes and --k need at least one value each")
+        if min(self.k) < 1 or self.runs < 1 or self.warmup < 0 or self.encoder_runs < 1 or self.threads < 0:
+            raise ConfigError("--k >= 1, --runs >= 1, --encoder-runs >= 1, --warmup >= 0 and --threads >= 0 are required")
+        if self.inputs < 1 or self.holdouts < 1 or self.max_holdouts < 0:
+            raise ConfigError("--inputs and --holdouts must be >= 1, --max-holdouts >= 0")
+
+
 # ---- evaluation (lsr.eval) ------------------------------------------------------------------------------
 
 

@@ -1,0 +1,460 @@
+"""The app's callbacks: a thin layer over ``lsr.pipeline`` / ``deploy`` (no Gradio layout here; see ``app.ui``).
+
+Everything heavy (torch, dlib, the model) loads on the first request, once, in ``ModelStore``. Each
+handler turns the library's typed errors (``LsrError``, ``LandmarksError``) into ``gr.Error`` so the page
+shows their message (which already says what to do). Files a run writes live in a per-session folder
+(``SessionFiles``) that is replaced by the next run and removed when the browser tab closes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import dataclasses
+import logging
+import os
+import shutil
+import tempfile
+import threading
+import time
+import uuid
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+LOG = logging.getLogger("lsr.app")
+DISPLAY_SIDE = 256  # shots, per-shot results and side-by-side tiles are shown at least this large
+PANEL_TITLES = ("driving frame", "landmarks", "latent layout", "output")
+
+
+def how_to_get_weights() -> str:
+    return (
+        "**No model loaded.** No trained LSR model ships yet. Train one, for example a small one on procedural "
+        "synthetic faces:\n\n"
+        "`lsr train --synthetic-identities 16 --preset tiny --out runs/lsr` (writes `runs/lsr/weights`), then "
+        "`lsr app --weights runs/lsr/weights`.\n\n"
+        "To try the interface first: `lsr app --random-init` serves an untrained tiny model (its output is noise)."
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class Limits:
+    """What the app accepts (``lsr.config.AppConfig``)."""
+
+    max_video_seconds: float = 20.0
+    max_video_frames: int = 500
+    max_upload_mb: float = 50.0
+    max_k: int = 32
+
+
+def default_weights() -> Path | None:
+    """$LSR_WEIGHTS, else ``runs/lsr/weights`` (where ``lsr train`` writes by default) when it exists."""
+    candidates = [os.environ.get("LSR_WEIGHTS"), "runs/lsr/weights"]
+    for candidate in candidates:
+        if candidate and (Path(candidate) / "config.json").is_file():
+            return Path(candidate)
+    return None
+
+
+def random_init_weights(folder: Path, seed: int = 0) -> Path:
+    """A randomly initialised ``tiny`` model saved into ``folder`` (config.json + model.safetensors)."""
+    import torch
+
+    from models_def import LSRModel, preset_config
+
+    if (folder / "config.json").is_file():
+        return folder
+    torch.manual_seed(seed)
+    return LSRModel(preset_config("tiny")).save_pretrained(folder)
+
+
+class ModelStore:
+    """The runtimes, each loaded once on first use (thread-safe). ``weights`` None = no model (see ``problem``)."""
+
+    def __init__(self, weights: Path | None, device: str = "auto") -> None:
+        self.weights = Path(weights) if weights is not None else None
+        self.device = device
+        self._lock = threading.Lock()
+        self._torch = None
+        self._onnx = None
+        self._base_model = None
+        self._detector = None
+
+    @property
+    def problem(self) -> str | None:
+        """Markdown explaining why no model can run, or None."""
+        return how_to_get_weights() if self.weights is None else None
+
+    @property
+    def detector(self):
+        with self._lock:
+            if self._detector is None:
+                from landmarks.detect import FaceDetector
+
+                self._detector = FaceDetector("hog")
+            return self._detector
+
+    def _require_weights(self) -> Path:
+        if self.weights is None:
+            from lsr.errors import WeightsError
+
+            raise WeightsError("no model loaded: start the app with `lsr app --weights DIR` (see the note at the top)")
+        return self.weights
+
+    def reenactor(self, runtime: str):
+        """The torch ``Reenactor`` or the ``OnnxReenactor`` (from WEIGHTS/onnx, made by ``lsr export``)."""
+        weights = self._require_weights()
+        detector = self.detector
+        with self._lock:
+            if runtime == "onnx":
+                if self._onnx is None:
+                    from deploy.runtime import OnnxReenactor
+                    from lsr.reenact import onnx_bundle_folder
+
+                    self._onnx = OnnxReenactor(onnx_bundle_folder(weights), detector=detector)
+                return self._onnx
+            if self._torch is None:
+                from lsr.pipeline import Reenactor
+                from lsr.reenact import resolve_device
+
+                self._torch = Reenactor(weights, device=resolve_device(self.device), detector=detector)
+                self._base_model = self._torch.backend.model
+            return self._torch
+
+    @contextlib.contextmanager
+    def finetuned(self, reenactor, steps: int) -> Iterator[float | None]:
+        """Fine-tune a copy of the generators for this run only (thesis §4.3.5); yields seconds spent (None if 0 steps)."""
+        if steps <= 0:
+            yield None
+            return
+        from lsr.pipeline import Reenactor
+        from lsr.errors import ConfigError
+
+        if not isinstance(reenactor, Reenactor):
+            raise ConfigError("fine-tuning needs the torch runtime: choose runtime 'torch' or set the steps to 0")
+        base = self._base_model
+        reenactor.backend.model = copy.deepcopy(base)  # the shared base model must stay untouched
+        try:
+            started = time.perf_counter()
+            reenactor.finetune(steps, progress=True)
+            yield time.perf_counter() - started
+        finally:
+            reenactor.backend.model = base
+
+
+class SessionFiles:
+    """Per-session temp folders under one root: each run gets a fresh folder, the previous one is removed."""
+
+    def __init__(self, root: Path | None = None) -> None:
+        self.root = Path(root) if root is not None else Path(tempfile.mkdtemp(prefix="lsr-app-"))
+        self.root.mkdir(parents=True, exist_ok=True)
+
+    def new_run(self, session: str | None) -> Path:
+        session_dir = self.root / _safe_name(session or "anonymous")
+        if session_dir.is_dir():
+            for old in session_dir.iterdir():
+                shutil.rmtree(old, ignore_errors=True)
+        run = session_dir / f"run-{uuid.uuid4().hex[:12]}"
+        run.mkdir(parents=True)
+        return run
+
+    def drop(self, session: str | None) -> None:
+        shutil.rmtree(self.root / _safe_name(session or "anonymous"), ignore_errors=True)
+
+    def drop_all(self) -> None:
+        shutil.rmtree(self.root, ignore_errors=True)
+
+
+def _safe_name(text: str) -> str:
+    return "".join(c for c in text if c.isalnum() or c in "-_")[:64] or "anonymous"
+
+
+@contextlib.contextmanager
+def readable_errors(what: str) -> Iterator[None]:
+    """Typed library errors -> ``gr.Error`` with their message; anything else -> a short message + a server log."""
+    import gradio as gr
+
+    from landmarks.errors import LandmarksError, NoFaceError
+    from lsr.errors import LsrError
+
+    try:
+        yield
+    except gr.Error:
+        raise
+    except NoFaceError as exc:
+        raise gr.Error(str(exc), title="No face found", print_exception=False) from exc
+    except (LsrError, LandmarksError) as exc:
+        raise gr.Error(str(exc), title=f"Cannot {what}", print_exception=False) from exc
+    except Exception as exc:  # a bug, not user input: keep the page usable, log the traceback
+        LOG.exception("unexpected error while trying to %s", what)
+        raise gr.Error(f"{type(exc).__name__}: {exc} (an internal error; the server log has the details)",
+                       title=f"Cannot {what}") from exc  # fmt: skip
+
+
+# ---- inputs ----------------------------------------------------------------------------------------------
+
+
+def _paths(files) -> list[Path]:
+    """gr.File values (str paths, or objects with .name) -> paths."""
+    if files is None:
+        return []
+    items = files if isinstance(files, (list, tuple)) else [files]
+    # str / PathLike from type="filepath"; objects with a .name (temp-file wrappers) from older clients
+    return [Path(item) if isinstance(item, (str, os.PathLike)) else Path(item.name) for item in items if item]
+
+
+def check_upload_size(path: Path, limits: Limits) -> None:
+    from landmarks.errors import InputFileError
+
+    megabytes = path.stat().st_size / 1e6
+    if megabytes > limits.max_upload_mb:
+        raise InputFileError(f"{path.name} is {megabytes:.1f} MB; the limit is {limits.max_upload_mb:g} MB "
+                             "(a shorter or smaller file, or start the app with a larger --max-upload-mb)")  # fmt: skip
+
+
+def check_driver(driving: Path, limits: Limits):
+    """``describe_driver`` plus the app's length limits; returns the ``DriverInfo``."""
+    from deploy.sources import describe_driver
+    from landmarks.errors import InputFileError
+
+    check_upload_size(driving, limits)
+    info = describe_driver(driving)
+    seconds = info.frames / info.fps
+    if info.kind == "video" and seconds > limits.max_video_seconds:
+        raise InputFileError(f"the driving video is {seconds:.1f} s long; this app accepts up to "
+                             f"{limits.max_video_seconds:g} s (trim it, or use `lsr reenact` for long videos)")  # fmt: skip
+    if info.frames > limits.max_video_frames:
+        raise InputFileError(f"the driver has {info.frames} frames; this app accepts up to {limits.max_video_frames} "
+                             "(trim it, or use `lsr reenact` for long inputs)")  # fmt: skip
+    return info
+
+
+def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
+    """Uploaded images (1..32, each one shot) or one video (sampled) -> (``SubjectShots`` of <= k crops, notes).
+
+    Images without a face are skipped and named in the notes (an error only when none has a face).
+    """
+    from deploy.sources import DEFAULT_K, SubjectShots, load_subject_shots
+    from landmarks.errors import InputFileError, NoFaceError
+    from landmarks.imageio import IMAGE_SUFFIXES
+    from landmarks.video import VIDEO_SUFFIXES, probe_video
+
+    paths = _paths(files)
+    if not paths:
+        raise InputFileError("no source yet: upload 1-32 photos of one person (or a short video), or load the example")
+    if not 1 <= int(k) <= limits.max_k:
+        raise InputFileError(f"K must be in 1..{limits.max_k}, got {k}")
+    for path in paths:
+        check_upload_size(path, limits)
+    videos = [p for p in paths if p.suffix.lower() in VIDEO_SUFFIXES]
+    others = [p for p in paths if p.suffix.lower() not in VIDEO_SUFFIXES + IMAGE_SUFFIXES]
+    if others:
+        raise InputFileError(f"unsupported source file {others[0].name}: upload images ({', '.join(IMAGE_SUFFIXES)}) "
+                             f"or one video ({', '.join(VIDEO_SUFFIXES)})")  # fmt: skip
+    if videos:
+        if len(paths) > 1:
+            raise InputFileError("upload either images or one video as the source, not both / several videos")
+        info = probe_video(videos[0])
+        if info.frames / info.fps > limits.max_video_seconds:
+            raise InputFileError(f"the source video is {info.frames / info.fps:.1f} s long; the limit is "
+                                 f"{limits.max_video_seconds:g} s: trim it or upload a few photos instead")  # fmt: skip
+        # Up to DEFAULT_K the engine samples min(8, usable) shots and we thin them to K; a larger K is asked
+        # for explicitly (the engine then says how many frames had a face if there are too few).
+        shots = load_subject_shots(videos[0], size, k=None if k <= DEFAULT_K else int(k), detector=detector)
+        if len(shots.frames) > k:
+            shots = _take(shots, int(k))
+        return shots, [f"{len(shots.frames)} shot(s) sampled from {videos[0].name}"]
+    if len(paths) > 32:
+        raise InputFileError(f"{len(paths)} images uploaded; give at most 32 shots (K <= 32)")
+    frames, points, names, notes = [], [], [], []
+    for path in paths:  # one image = one candidate shot; a face-less one is skipped, not fatal
+        try:
+            one = load_subject_shots(path, size, detector=detector)
+        except NoFaceError:
+            notes.append(f"no face in {path.name}: skipped")
+            continue
+        frames.append(one.frames[0])
+        points.append(one.landmarks[0])
+        names.append(path.name)
+    if not frames:
+        raise NoFaceError(f"no face found in the {len(paths)} uploaded image(s); upload frontal, well-lit photos of one person")
+    shots = _take(SubjectShots(np.stack(frames), np.stack(points), names), int(k))
+    notes.insert(0, f"using {len(shots.frames)} of {len(frames)} shot(s) with a face (K={k})")
+    return shots, notes
+
+
+def _take(shots, k: int):
+    """At most k shots, evenly spread."""
+    from deploy.sources import SubjectShots
+
+    if len(shots.frames) <= k:
+        return shots
+    chosen = np.unique(np.round(np.linspace(0, len(shots.frames) - 1, k)).astype(int))
+    return SubjectShots(shots.frames[chosen], shots.landmarks[chosen], [shots.names[i] for i in chosen])
+
+
+# ---- pictures --------------------------------------------------------------------------------------------
+
+
+def enlarge(image: np.ndarray, side: int = DISPLAY_SIDE) -> np.ndarray:
+    """(S, S, 3) uint8 -> (side, side, 3): small model crops are shown at a readable size."""
+    import cv2
+
+    if image.shape[0] >= side:
+        return image
+    return cv2.resize(image, (side, side), interpolation=cv2.INTER_CUBIC)
+
+
+def shot_gallery(shots) -> list[tuple[np.ndarray, str]]:
+    """Each shot enlarged with its detected landmarks drawn over it, captioned with its file."""
+    from landmarks.annotate import draw_overlay
+
+    items = []
+    for frame, points, name in zip(shots.frames, shots.landmarks, shots.names):
+        big = enlarge(frame)
+        scale = big.shape[0] / frame.shape[0]
+        items.append((draw_overlay(big, (points + 0.5) * scale - 0.5), Path(name.split("#")[0]).name))
+    return items
+
+
+def labelled_panel(panel: np.ndarray, tiles: int = 4) -> np.ndarray:
+    """(S, tiles*S, 3) side-by-side -> enlarged tiles under a title strip (``PANEL_TITLES``)."""
+    import cv2
+
+    side = panel.shape[0]
+    big_side = max(side, DISPLAY_SIDE)
+    tiles_big = [enlarge(np.ascontiguousarray(panel[:, i * side : (i + 1) * side]), big_side) for i in range(tiles)]
+    strip = np.full((28, big_side * tiles, 3), 32, np.uint8)
+    for i, title in enumerate(PANEL_TITLES[:tiles]):
+        cv2.putText(strip, title, (i * big_side + 8, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (235, 235, 235), 1, cv2.LINE_AA)
+    return np.concatenate([strip, np.concatenate(tiles_big, axis=1)], axis=0)
+
+
+def latent_averaging(reenactor, shots, target_landmark_image: np.ndarray) -> list[tuple[np.ndarray, str]]:
+    """Each shot encoded alone, then all K averaged, synthesised at one target pose (thesis Fig. 4.10, eq. 4.3).
+
+    target_landmark_image: (S, S, 3) uint8 rasterised landmarks (the first driven frame's target).
+    """
+    from deploy.engine import from_network, to_network
+    from landmarks.raster import draw_landmarks
+
+    size = reenactor.resolution
+    landmark_images = np.stack([draw_landmarks(points, size) for points in shots.landmarks])  # (K, S, S, 3)
+    target = to_network(target_landmark_image)[None]  # (1, 3, S, S)
+    items = []
+    for i in range(len(shots.frames)):
+        layout_latent, style_latent = reenactor.backend.encode_subject(
+            to_network(shots.frames[i : i + 1])[None], to_network(landmark_images[i : i + 1])[None]  # (1, 1, 3, S, S)
+        )
+        image, _ = reenactor.backend.synthesize(target, layout_latent, style_latent, False)
+        items.append((enlarge(from_network(image[0])), f"shot {i + 1} alone"))
+    subject = reenactor.subject
+    image, _ = reenactor.backend.synthesize(target, subject.layout_latent, subject.style_latent, False)
+    items.append((enlarge(from_network(image[0])), f"average of K={len(shots.frames)}"))
+    return items
+
+
+def timing_table(stats, extra: dict[str, float]) -> str:
+    """Markdown table of seconds per stage (``deploy.engine.STAGES`` + encode + the app's extra stages)."""
+    rows = ["| stage | seconds | ms / frame |", "|---|---|---|"]
+    frames = max(1, stats.frames)
+    once_per_run = ("shot detection", "subject_encoding", "latent averaging", "fine-tuning")
+    merged = {**extra, **{stage: s for stage, s in stats.seconds.items() if stage not in extra}}
+    for stage, seconds in merged.items():
+        per_frame = "" if stage in once_per_run else f"{1000 * seconds / frames:.1f}"
+        rows.append(f"| {stage} | {seconds:.2f} | {per_frame} |")
+    return "\n".join(rows)
+
+
+# ---- the run ---------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class RunResult:
+    """What one re-enactment shows on the page."""
+
+    video: Path
+    """H.264 MP4 (driver's fps and audio, provenance metadata, optional watermark)."""
+    frames: int
+    shots: list[tuple[np.ndarray, str]]
+    averaging: list[tuple[np.ndarray, str]]
+    panels_dir: Path
+    """One PNG per frame: driver | landmarks | layout | output (``panel_path``)."""
+    timing: str
+    summary: str
+
+
+def panel_path(panels_dir: str | os.PathLike, index: int) -> Path:
+    return Path(panels_dir) / f"{int(index):05d}.png"
+
+
+def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_files, k: int, driving, *,
+                    motion: str = "relative", smooth: bool = True, paste_back: bool = False, finetune_steps: int = 0,
+                    runtime: str = "torch", watermark: bool = True) -> RunResult:  # fmt: skip
+    """Shots -> subject latents (K-shot average) -> one output frame per driver frame, written as the app shows them."""
+    from deploy.engine import draw_watermark, provenance_metadata
+    from landmarks.errors import InputFileError
+    from landmarks.imageio import write_image
+    from landmarks.video import VideoWriter
+    from lsr import __version__
+    from lsr.errors import LsrError
+    from lsr.reenact import side_by_side_frame
+
+    reenactor = store.reenactor(runtime)  # first: without a model nothing else matters
+    driving_paths = _paths(driving)
+    if not driving_paths:
+        raise InputFileError("no driving input yet: upload a video or a landmark file (.npy/.json), or pick a bundled example")
+    driving = driving_paths[0]
+    if motion not in ("relative", "absolute"):
+        raise InputFileError(f"motion must be 'relative' or 'absolute', got {motion!r}")
+    if not 0 <= int(finetune_steps) <= 1000:
+        raise InputFileError(f"fine-tuning steps must be in 0..1000, got {finetune_steps}")
+    info = check_driver(driving, limits)
+    started = time.perf_counter()
+    shots, notes = load_shots(source_files, k, reenactor.resolution, store.detector, limits)
+    extra = {"shot detection": time.perf_counter() - started}
+    reenactor.encode_subject(shots)
+    extra["subject_encoding"] = reenactor.last_stats.seconds["subject_encoding"]
+    kind, size = reenactor.backend.layout_kind, reenactor.resolution
+    output = run_dir / "reenacted.mp4"
+    panels_dir = run_dir / "panels"
+    panels_dir.mkdir()
+    audio = driving if info.kind == "video" and info.has_audio else None
+    target_landmark_image = None
+    encode_seconds = 0.0
+    with store.finetuned(reenactor, int(finetune_steps)) as finetune_seconds:
+        frames = reenactor.reenact(driving, mode=motion, smooth=smooth, paste_back=paste_back, with_layout=True, progress=True)
+        with VideoWriter(output, info.fps, audio_from=audio, metadata=provenance_metadata(__version__, runtime)) as writer:
+            for frame in frames:
+                image = draw_watermark(frame.image) if watermark else frame.image
+                tick = time.perf_counter()
+                writer.write(image)
+                encode_seconds += time.perf_counter() - tick
+                if target_landmark_image is None and frame.landmark_image is not None:
+                    target_landmark_image = frame.landmark_image
+                write_image(panel_path(panels_dir, frame.index), side_by_side_frame(frame, kind, size))
+            stats = reenactor.last_stats
+            if stats.frames != info.frames:
+                raise LsrError(f"{driving.name}: produced {stats.frames} frames for {info.frames} driver frames")
+        stats.add("encode", encode_seconds)
+        tick = time.perf_counter()
+        if target_landmark_image is None:  # no face anywhere in the driver: show the averaging at the first shot's pose
+            from landmarks.raster import draw_landmarks
+
+            target_landmark_image = draw_landmarks(shots.landmarks[0], size)
+        averaging = latent_averaging(reenactor, shots, target_landmark_image)
+        extra["latent averaging"] = time.perf_counter() - tick
+    if finetune_seconds is not None:
+        extra["fine-tuning"] = finetune_seconds
+    if kind == "none":
+        notes.append("this model variant has no layout stage: the layout panel stays black")
+    if info.kind == "landmarks":
+        notes.append("a landmark driver has no pictures: the 'driving frame' panel stays black")
+    if info.kind == "landmarks" and paste_back:
+        notes.append("landmark drivers have no frames to paste into: the output is the synthesised crop")
+    notes.append(f"{stats.frames} frame(s) at {info.fps:g} fps"
+                 + (f", {stats.no_face} without a face (passed through)" if stats.no_face else "")
+                 + (", audio kept" if audio is not None else ""))  # fmt: skip
+    return RunResult(output, stats.frames, shot_gallery(shots), averaging, panels_dir, timing_table(stats, extra),
+                     "\n".join(f"- {note}" for note in notes))  # fmt: skip

@@ -1,0 +1,229 @@
+"""The Gradio page of ``lsr app``: K-shot source, driving motion, the re-enacted video and the latent layout.
+
+Layout only; the work happens in ``app.handlers`` (over ``lsr.pipeline``). Importing this module imports
+Gradio but loads no model: ``ModelStore`` loads the weights on the first request.
+
+    demo, store, files = build_app(AppConfig(weights=Path("runs/lsr/weights")))
+    launch(demo, cfg, files)           # queue (one run at a time), upload limit, cleanup
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import sys
+from pathlib import Path
+
+import gradio as gr
+
+from app import examples as ex
+from app import handlers
+from lsr.config import AppConfig
+
+MODEL_EVENTS = "model"  # one concurrency group: the model and the dlib detector serve one request at a time
+DELETE_CACHE = (1800, 3600)
+CSS = ".lsr-warning {border: 2px solid #e8a33d; border-radius: 8px; padding: 4px 12px; background: #fff7e8}"  # every 30 min, remove Gradio's cached uploads/outputs older than an hour
+
+INTRO = """# LSR: few-shot talking heads
+Give **a few photos of one person** (the source, K shots) and **a driving video or landmarks**; the model
+moves the source person like the driver. Based on *Learned Spatial Representations for Few-shot Talking-Head
+Synthesis* (Meshry et al., ICCV 2021). Outputs are marked as synthetic (a visible mark and the file's metadata).
+
+**Quick start:** click *Use the example person*, pick a *bundled driving example*, then **Re-enact**."""
+
+AVERAGING_HELP = """Each source shot is encoded **alone** and rendered at the same target pose (the first driven
+frame), next to the result of **averaging the K latents** (thesis eq. 4.3, Fig. 4.10): with more shots, details
+seen in only one shot (an occluding hand, glasses, a bad frame) fade out of the average."""
+
+LAYOUT_HELP = """Per frame: the driving frame, the landmark image the generator receives, its **latent spatial layout**
+(the layout channels projected to RGB by PCA; segmentation-stage models show class colours) and the output.
+Drag the slider to scrub through the frames."""
+
+
+def model_summary(weights: Path | None, random_init: bool) -> str:
+    """One line about the served model, read from its config.json (no model load)."""
+    if weights is None:
+        return handlers.how_to_get_weights()
+    try:
+        config = json.loads((weights / "config.json").read_text())
+    except (OSError, ValueError):
+        return f"Model: `{weights}` (its config.json is unreadable; the first run will say more)"
+    line = (f"Model: `{weights}` (variant `{config.get('variant', '?')}`, {config.get('resolution', '?')}x"
+            f"{config.get('resolution', '?')} crops)")  # fmt: skip
+    if random_init:
+        line = ("**Untrained demo model (`--random-init`)**: the output is noise. It shows how the app works; "
+                "for real results train a model (`lsr train ...`) and start `lsr app --weights DIR`.\n\n" + line)
+    return line
+
+
+def resolve_weights(cfg: AppConfig, examples_dir: Path) -> tuple[Path | None, bool]:
+    """--weights, else a --random-init tiny model in the cache, else the default location (or None)."""
+    if cfg.weights is not None:
+        return Path(cfg.weights), False
+    if cfg.random_init:
+        return handlers.random_init_weights(examples_dir.parent / "app_random_tiny"), True
+    return handlers.default_weights(), False
+
+
+def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.SessionFiles]:
+    """The Blocks page, the lazily loading model store and the per-session file folders."""
+    examples_dir = Path(cfg.examples_dir) if cfg.examples_dir is not None else ex.default_examples_dir()
+    weights, random_init = resolve_weights(cfg, examples_dir)
+    store = handlers.ModelStore(weights, cfg.device)
+    files = handlers.SessionFiles()
+    limits = handlers.Limits(cfg.max_video_seconds, cfg.max_video_frames, cfg.max_upload_mb, cfg.max_k)
+
+    def preview_source(source_files, k):
+        if not source_files:
+            return [], "Upload photos or a video of the source person (or use the example person)."
+        with handlers.readable_errors("read the source"):
+            size = store.reenactor("torch").resolution if store.weights is not None else handlers.DISPLAY_SIDE
+            shots, notes = handlers.load_shots(source_files, int(k), size, store.detector, limits)
+        return handlers.shot_gallery(shots), "\n".join(f"- {note}" for note in notes)
+
+    def use_example_person():
+        with handlers.readable_errors("make the example"):
+            return [str(p) for p in ex.ensure_examples(examples_dir).source_images]
+
+    def use_example_driver(name):
+        path = None
+        if name and name != ex.DRIVER_EXAMPLE_NONE:
+            with handlers.readable_errors("make the example"):
+                path = ex.ensure_examples(examples_dir).driver(name)
+        return str(path) if path is not None else gr.skip()
+
+    def run(source_files, k, driving, motion, smooth, paste_back, finetune_steps, runtime, watermark,
+            request: gr.Request, progress=gr.Progress(track_tqdm=True)):  # fmt: skip
+        progress(0.0, desc="loading the model and the source shots")
+        with handlers.readable_errors("re-enact"):
+            run_dir = files.new_run(request.session_hash if request is not None else None)
+            result = handlers.run_reenactment(
+                store, limits, run_dir, source_files, int(k), driving, motion=motion, smooth=bool(smooth),
+                paste_back=bool(paste_back), finetune_steps=int(finetune_steps), runtime=runtime,
+                watermark=bool(watermark),
+            )  # fmt: skip
+        first = show_frame(0, str(result.panels_dir))
+        scrubber = gr.Slider(minimum=0, maximum=max(1, result.frames - 1), value=0, step=1, interactive=True,
+                             label=f"frame (0-{result.frames - 1})")  # fmt: skip
+        return (str(result.video), result.summary, result.shots, result.averaging, first, scrubber,
+                str(result.panels_dir), result.timing)  # fmt: skip
+
+    def show_frame(index, panels_dir):
+        if not panels_dir:
+            return None
+        path = handlers.panel_path(panels_dir, int(index or 0))
+        if not path.is_file():
+            return None
+        from landmarks.imageio import read_image
+
+        return handlers.labelled_panel(read_image(path))
+
+    def forget_session(request: gr.Request):
+        files.drop(request.session_hash if request is not None else None)
+
+    with gr.Blocks(title="LSR talking heads", delete_cache=DELETE_CACHE) as demo:
+        gr.Markdown(INTRO)
+        gr.Markdown(model_summary(weights, random_init), elem_id="model-status",
+                    elem_classes=["lsr-warning"] if weights is None or random_init else None)  # fmt: skip
+        panels_state = gr.State("")
+        with gr.Row(equal_height=False):
+            with gr.Column():
+                gr.Markdown("### 1. Source person (K shots)")
+                source_files = gr.File(file_count="multiple", file_types=["image", "video"], elem_id="source-files",
+                                       label="Photos of one person (1-32), or one short video")  # fmt: skip
+                example_person = gr.Button("Use the example person (synthetic)", size="sm")
+                k = gr.Slider(1, cfg.max_k, value=min(4, cfg.max_k), step=1, label="K: shots to average",
+                              info="A video source is sampled to K frames; extra photos are thinned evenly.")  # fmt: skip
+                shots = gr.Gallery(label="Shots used, with detected landmarks", columns=2, height=300,
+                                   object_fit="contain", elem_id="shots")  # fmt: skip
+                source_notes = gr.Markdown()
+            with gr.Column():
+                gr.Markdown("### 2. Driving motion")
+                driving = gr.File(file_types=[".mp4", ".mov", ".avi", ".mkv", ".webm", ".npy", ".json"],
+                                  label="Driving video, or landmarks (.npy / .json, N x 68 x 2)",
+                                  elem_id="driving-file")  # fmt: skip
+                driver_example = gr.Dropdown(list(ex.DRIVER_EXAMPLES), value=ex.DRIVER_EXAMPLE_NONE,
+                                             label="...or a bundled driving example", elem_id="driver-example")  # fmt: skip
+                with gr.Accordion("Options", open=False):
+                    motion = gr.Radio(["relative", "absolute"], value="relative", label="Motion",
+                                      info="relative: the driver's motion on the source's face shape; "
+                                           "absolute: the driver's own landmarks")  # fmt: skip
+                    smooth = gr.Checkbox(True, label="Smooth the driving landmarks (One-Euro)")
+                    paste_back = gr.Checkbox(False, label="Paste the head back into the driving frame",
+                                             info="video drivers only; otherwise the output is the face crop")  # fmt: skip
+                    finetune_steps = gr.Slider(0, 200, value=0, step=1, label="Fine-tuning steps on the source",
+                                               info="thesis §4.3.5; slower, torch runtime only")  # fmt: skip
+                    runtime = gr.Radio(["torch", "onnx"], value="torch", label="Runtime",
+                                       info="onnx needs an `lsr export` bundle in WEIGHTS/onnx")  # fmt: skip
+                    watermark = gr.Checkbox(True, label="Visible 'SYNTHETIC' watermark")
+                run_button = gr.Button("Re-enact" if store.weights is not None else "Re-enact (no model loaded: see the top)",
+                                       variant="primary", elem_id="run", interactive=store.weights is not None)  # fmt: skip
+            with gr.Column():
+                gr.Markdown("### 3. Result")
+                video = gr.Video(label="Re-enacted video (H.264, with the driver's audio)", elem_id="result-video",
+                                 interactive=False, autoplay=False)  # fmt: skip
+                summary = gr.Markdown(elem_id="run-summary")
+        gr.Markdown("### The latent layout, frame by frame\n" + LAYOUT_HELP)
+        panel = gr.Image(label="driving frame | landmarks | latent layout | output", show_label=False,
+                         interactive=False, elem_id="layout-panel", format="png")  # fmt: skip (titles are in the picture)
+        scrubber = gr.Slider(0, 1, value=0, step=1, label="frame", interactive=False, elem_id="frame-scrubber")
+        gr.Markdown("### Latent averaging over the K shots\n" + AVERAGING_HELP)
+        averaging = gr.Gallery(label="each shot alone | the K-shot average", columns=6, height=240,
+                               elem_id="averaging")  # fmt: skip
+        with gr.Accordion("Timing per stage", open=False):
+            timing = gr.Markdown()
+
+        preview_inputs = dict(fn=preview_source, inputs=[source_files, k], outputs=[shots, source_notes],
+                              concurrency_id=MODEL_EVENTS)  # fmt: skip
+        preview_inputs["show_progress_on"] = [shots]
+        source_files.change(**preview_inputs)
+        k.release(**preview_inputs)
+        example_person.click(use_example_person, outputs=source_files, concurrency_id="examples")
+        driver_example.change(use_example_driver, inputs=driver_example, outputs=driving, concurrency_id="examples")
+        # An own upload replaces the example: show that in the dropdown too.
+        driving.upload(lambda: ex.DRIVER_EXAMPLE_NONE, outputs=driver_example, queue=False)
+        run_button.click(
+            run,
+            inputs=[source_files, k, driving, motion, smooth, paste_back, finetune_steps, runtime, watermark],
+            outputs=[video, summary, shots, averaging, panel, scrubber, panels_state, timing],
+            concurrency_id=MODEL_EVENTS,
+            api_name="reenact",
+            show_progress_on=[video],  # one progress bar / error badge, on the result, not on every panel
+            scroll_to_output=True,
+        )
+        scrubber.change(show_frame, inputs=[scrubber, panels_state], outputs=panel, concurrency_id="scrub",
+                        concurrency_limit=4, show_progress="hidden")  # fmt: skip
+        demo.unload(forget_session)
+    demo.lsr_examples_dir = examples_dir  # launch() allows serving these files
+    return demo, store, files
+
+
+def launch(demo: gr.Blocks, cfg: AppConfig, files: handlers.SessionFiles, *, block: bool = True) -> str:
+    """Queue (one model run at a time, ``cfg.queue_size`` waiting), upload limit, then serve on host:port; returns the URL."""
+    demo.queue(default_concurrency_limit=1, max_size=cfg.queue_size)
+    examples_dir = Path(demo.lsr_examples_dir)
+    examples_dir.mkdir(parents=True, exist_ok=True)
+    _, url, _ = demo.launch(
+        css=CSS,
+        server_name=cfg.host, server_port=cfg.port, max_file_size=int(cfg.max_upload_mb * 1e6),
+        allowed_paths=[str(files.root), str(examples_dir)], prevent_thread_lock=not block, share=False,
+        quiet=not block, footer_links=["api"],
+    )  # fmt: skip
+    return url
+
+
+def run_app(cfg: AppConfig) -> None:
+    """Entry point of ``lsr app`` (blocks until interrupted; removes the app's temp files on exit)."""
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("httpx").setLevel(logging.WARNING)  # Gradio's own startup requests
+    os.environ.setdefault("GRADIO_ANALYTICS_ENABLED", "False")
+    demo, _, files = build_app(cfg)
+    # SIGTERM (a service manager, `kill`) exits through the finally below, so temp files go too.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    try:
+        launch(demo, cfg, files, block=True)
+    finally:
+        files.drop_all()
+

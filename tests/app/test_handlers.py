@@ -1,0 +1,120 @@
+"""The app's callbacks without a server: limits, shot loading, latent averaging, temp-file cleanup, no-weights page."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app import handlers
+from landmarks.errors import InputFileError, NoFaceError
+from lsr.errors import WeightsError
+
+
+def test_driver_limits_are_enforced_with_a_message(app_inputs):
+    assert handlers.check_driver(app_inputs["driving"], handlers.Limits()).frames == 5
+    with pytest.raises(InputFileError, match="up to 3"):
+        handlers.check_driver(app_inputs["driving"], handlers.Limits(max_video_frames=3))
+    with pytest.raises(InputFileError, match=r"s long; this app accepts up to 0.1 s"):
+        handlers.check_driver(app_inputs["driving"], handlers.Limits(max_video_seconds=0.1))
+    with pytest.raises(InputFileError, match="MB"):
+        handlers.check_driver(app_inputs["driving"], handlers.Limits(max_upload_mb=1e-6))
+
+
+def test_faceless_images_are_skipped_and_named(app_inputs):
+    from landmarks.detect import FaceDetector
+
+    detector = FaceDetector()
+    shots, notes = handlers.load_shots([app_inputs["source"], app_inputs["no_face"]], 4, 64, detector, handlers.Limits())
+    assert shots.frames.shape == (1, 64, 64, 3) and shots.landmarks.shape == (1, 68, 2)
+    assert any("no_face.png: skipped" in note for note in notes)
+    with pytest.raises(NoFaceError, match="no face found"):
+        handlers.load_shots([app_inputs["no_face"]], 4, 64, detector, handlers.Limits())
+    with pytest.raises(InputFileError, match="either images or one video"):
+        handlers.load_shots([app_inputs["source"], app_inputs["driving"]], 4, 64, detector, handlers.Limits())
+    with pytest.raises(InputFileError, match="K must be in 1..2"):
+        handlers.load_shots([app_inputs["source"]], 3, 64, detector, handlers.Limits(max_k=2))
+
+
+def test_latent_average_of_one_shot_is_that_shot(tiny_app_weights, app_inputs):
+    """K=1: the 'average' panel must equal the shot encoded alone (thesis eq. 4.3 with K=1)."""
+    store = handlers.ModelStore(tiny_app_weights, "cpu")
+    reenactor = store.reenactor("torch")
+    shots, _ = handlers.load_shots([app_inputs["source"]], 1, reenactor.resolution, store.detector, handlers.Limits())
+    reenactor.encode_subject(shots)
+    from landmarks.raster import draw_landmarks
+
+    items = handlers.latent_averaging(reenactor, shots, draw_landmarks(shots.landmarks[0], reenactor.resolution))
+    assert [caption for _, caption in items] == ["shot 1 alone", "average of K=1"]
+    assert items[0][0].shape == (handlers.DISPLAY_SIDE, handlers.DISPLAY_SIDE, 3)
+    np.testing.assert_allclose(items[0][0].astype(int), items[1][0].astype(int), atol=1)
+
+
+def test_session_files_replace_runs_and_clean_up(tmp_path):
+    files = handlers.SessionFiles(tmp_path / "root")
+    first = files.new_run("abc")
+    (first / "out.mp4").write_bytes(b"x")
+    second = files.new_run("abc")
+    assert not first.exists() and second.is_dir()  # one run per session is kept
+    other = files.new_run("../../etc")  # session ids never escape the root
+    assert files.root in other.parents
+    files.drop("abc")
+    assert not second.exists()
+    files.drop_all()
+    assert not files.root.exists()
+
+
+def test_without_weights_the_page_explains_and_runs_refuse(tmp_path, monkeypatch):
+    monkeypatch.delenv("LSR_WEIGHTS", raising=False)
+    monkeypatch.chdir(tmp_path)  # no runs/lsr/weights here
+    store = handlers.ModelStore(handlers.default_weights())
+    assert store.weights is None and "lsr train" in store.problem and "--random-init" in store.problem
+    with pytest.raises(WeightsError, match="lsr app --weights"):
+        store.reenactor("torch")
+
+
+def test_readable_errors_become_gradio_errors():
+    import gradio as gr
+
+    with pytest.raises(gr.Error) as caught, handlers.readable_errors("re-enact"):
+        raise NoFaceError("no face found in the source")
+    assert caught.value.title == "No face found" and "no face found" in caught.value.message
+
+
+def test_cli_rejects_a_missing_weights_folder(tmp_path, capsys):
+    from lsr.cli import main
+
+    assert main(["app", "--weights", str(tmp_path / "missing")]) == 2
+    assert "is not a folder" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_examples_are_generated_once_and_usable(tmp_path):
+    from app import examples
+    from landmarks.video import probe_video
+
+    made = examples.ensure_examples(tmp_path)
+    stamp = made.driving_video.stat().st_mtime_ns
+    again = examples.ensure_examples(tmp_path)
+    assert again.driving_video.stat().st_mtime_ns == stamp  # cached, not regenerated
+    assert all(path.is_file() for path in made.source_images)
+    info = probe_video(made.driving_video)
+    assert info.frames == examples.DRIVER_FRAMES and info.has_audio
+    landmarks = np.load(made.driving_landmarks, allow_pickle=False)
+    assert landmarks.shape == (examples.DRIVER_FRAMES, 68, 2) and np.isfinite(landmarks).all()
+    assert made.driver(examples.DRIVER_EXAMPLE_LANDMARKS) == made.driving_landmarks
+    assert not list(tmp_path.glob(".staging-*"))
+
+
+@pytest.mark.slow
+def test_finetuning_is_per_run_and_leaves_the_served_model_untouched(tiny_app_weights, app_inputs, tmp_path):
+    import torch
+
+    store = handlers.ModelStore(tiny_app_weights, "cpu")
+    base = store.reenactor("torch").model
+    before = {name: tensor.clone() for name, tensor in base.state_dict().items()}
+    files = handlers.SessionFiles(tmp_path / "sessions")
+    result = handlers.run_reenactment(store, handlers.Limits(), files.new_run("s"), [app_inputs["source"]], 1,
+                                      app_inputs["driving"], finetune_steps=1, watermark=False)  # fmt: skip
+    assert result.frames == 5 and "fine-tuning" in result.timing
+    assert store.reenactor("torch").model is base
+    assert all(torch.equal(before[name], tensor) for name, tensor in base.state_dict().items())
