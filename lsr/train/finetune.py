@@ -246,7 +246,6 @@ def save_subject(result: FinetuneResult, out: Path, extra: dict | None = None) -
 
 def run_finetune(cfg) -> FinetuneResult:
     """Entry point of ``lsr finetune``."""
-    from lsr.train.steps import LossWeights as Weights
     from lsr.train.trainer import resolve_device
 
     device = resolve_device(cfg.device)
@@ -261,7 +260,7 @@ def run_finetune(cfg) -> FinetuneResult:
     shots = load_subject_shots(cfg.shots, cfg.k, model.config.resolution, cfg.detector)
     result = finetune_subject(
         model, discriminator, shots, steps=cfg.steps, lr=cfg.lr, batch_size=cfg.batch_size,
-        weights=Weights.from_config(cfg.losses), device=device, seed=cfg.seed, progress=cfg.progress,
+        weights=cfg.losses, device=device, seed=cfg.seed, progress=cfg.progress,
     )  # fmt: skip
     save_subject(result, cfg.out, {"shots": len(shots.frames), "steps": cfg.steps, "weights": str(cfg.weights)})
     print(

@@ -20,6 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from lsr.config import LossConfig
 from lsr.data.episodes import SEGMENTATION_IGNORE_INDEX
 from lsr.train import losses
 from lsr.train.distributed import DistContext, all_true, average_gradients
@@ -95,25 +96,8 @@ class Batch:
         return one_hot * (seg != IGNORE_INDEX).unsqueeze(1).float()
 
 
-@dataclasses.dataclass
-class LossWeights:
-    """Weights of eqs. 4.2/4.4 (mirrors ``lsr.config.LossConfig`` without the paths)."""
-
-    l1: float = 1.0
-    ssim: float = 1.0
-    feature_matching: float = 1.0
-    vgg: float = 1.0
-    adversarial: float = 0.1
-    latent_l2: float = 1e-3
-    cross_entropy: float = 1.0
-    aux_rgb: float = 0.1
-    r1_gamma: float = 10.0
-    r1_every: int = 16
-
-    @classmethod
-    def from_config(cls, config) -> LossWeights:
-        names = {f.name for f in dataclasses.fields(cls)}
-        return cls(**{name: getattr(config, name) for name in names})
+# The loss weights are the CLI's dataclass itself: one set of defaults for train, finetune and benches.
+LossWeights = LossConfig
 
 
 # ---- which parameters train in which stage -------------------------------------------------------------

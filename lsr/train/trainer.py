@@ -23,7 +23,6 @@ from lsr.train.guard import NonFiniteGuard
 from lsr.train.optim import EMA, lr_factor, make_adam, set_lr
 from lsr.train.steps import (
     Batch,
-    LossWeights,
     StagePlan,
     StepResult,
     discriminator_step,
@@ -104,7 +103,7 @@ class Trainer:
         self.model_config = model_config_for(cfg)
         self.out = Path(cfg.out)
         self.checkpoint_dir = self.out / "checkpoints"
-        self.weights = LossWeights.from_config(cfg.losses)
+        self.weights = cfg.losses
         self.loss_hook, self.keep_history = loss_hook, keep_history
         self.history: list[dict[str, float]] = []
 
