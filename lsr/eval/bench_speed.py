@@ -33,7 +33,7 @@ import torch
 
 from lsr.errors import ConfigError
 from lsr.eval.bench_models import conv_peak_gflops, count_gflop, frame_inputs, median_ms, time_runtime
-from lsr.eval.model_method import LsrModelMethod, _scale_points
+from lsr.eval.model_method import LsrModelMethod, scale_points
 from lsr.eval.pareto import pareto_front, plot_speed_error, write_plot
 
 SECTION_START = "<!-- bench:speed:start -->"
@@ -216,7 +216,7 @@ def identity_calibration(method: LsrModelMethod, identities, frames: int = 32, k
         scale = method._encode(shots, identity.input_landmarks[usable[:k]].astype(np.float64))
         subject = method.reenactor.subject
         for index in usable[:per_identity]:
-            points = _scale_points(identity.input_landmarks[index], scale)
+            points = scale_points(identity.input_landmarks[index], scale)
             landmark_image = to_network(draw_landmarks(points, method.reenactor.resolution))[None]
             feeds.append({"landmark_image": landmark_image, "layout_latent": subject.layout_latent,
                           "style_latent": subject.style_latent})  # fmt: skip
@@ -413,9 +413,9 @@ def replace_section(path: Path, section: str) -> Path:
 
 
 def _json_ready(rows: list[dict]) -> list[dict]:
-    from lsr.eval.report import _json_safe
+    from lsr.eval.report import json_safe
 
-    return _json_safe([{k: ({str(kk): vv for kk, vv in v.items()} if isinstance(v, dict) else v) for k, v in row.items()} for row in rows])
+    return json_safe([{k: ({str(kk): vv for kk, vv in v.items()} if isinstance(v, dict) else v) for k, v in row.items()} for row in rows])
 
 
 def command_line(cfg) -> str:

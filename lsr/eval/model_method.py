@@ -18,7 +18,7 @@ import numpy as np
 from lsr.eval.baselines import check_method_inputs
 
 
-def _scale_points(points: np.ndarray, scale: float) -> np.ndarray:
+def scale_points(points: np.ndarray, scale: float) -> np.ndarray:
     """x, y pixel centres at integers: (p + 0.5) * scale - 0.5."""
     return (np.asarray(points, np.float64) + 0.5) * scale - 0.5
 
@@ -57,7 +57,7 @@ class LsrModelMethod:
         key = hashlib.blake2b(b"".join(s.tobytes() for s in shots) + shot_landmarks.tobytes(), digest_size=16).digest()
         if key != self._encoded:
             frames = np.stack([_resize(shot, size) for shot in shots])
-            self.reenactor.encode_subject(subject_shots_from_training(frames, _scale_points(shot_landmarks, scale)))
+            self.reenactor.encode_subject(subject_shots_from_training(frames, scale_points(shot_landmarks, scale)))
             self._encoded = key
         return scale
 
@@ -66,7 +66,7 @@ class LsrModelMethod:
         check_method_inputs(shots, shot_landmarks, target_landmarks)
         scale = self._encode(shots, shot_landmarks)
         size = shots[0].shape[0]
-        outputs = [_resize(self.reenactor.synthesize_crop(_scale_points(points, scale))[0], size) for points in target_landmarks]
+        outputs = [_resize(self.reenactor.synthesize_crop(scale_points(points, scale))[0], size) for points in target_landmarks]
         return np.stack(outputs) if outputs else np.zeros((0, size, size, 3), np.uint8)
 
     def finetune(self, shots: list[np.ndarray], shot_landmarks: np.ndarray) -> LsrModelMethod:

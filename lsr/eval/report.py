@@ -188,22 +188,22 @@ def write_report(out_dir: Path, summary: dict[str, Any], text: str) -> tuple[Pat
 
     out_dir = Path(out_dir)
     markdown_path, json_path = out_dir / "eval_report.md", out_dir / "eval_report.json"
-    write_json(json_path, _json_safe(summary))
+    write_json(json_path, json_safe(summary))
     with atomic_output(markdown_path) as temp:
         temp.write_text(text)
     return markdown_path, json_path
 
 
-def _json_safe(value: Any) -> Any:
+def json_safe(value: Any) -> Any:
     """NaN / inf -> strings (strict JSON has neither)."""
     if isinstance(value, float) and not math.isfinite(value):
         return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
     if isinstance(value, dict):
-        return {str(k): _json_safe(v) for k, v in value.items()}
+        return {str(k): json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
+        return [json_safe(v) for v in value]
     if isinstance(value, np.generic):
-        return _json_safe(value.item())
+        return json_safe(value.item())
     return value
 
 
