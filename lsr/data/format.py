@@ -221,12 +221,7 @@ class ClipReader:
 
     def _read_meta(self) -> dict[str, Any]:
         path = self.clip_dir / META_NAME
-        if not path.is_file():
-            raise DatasetError(f"{path} is missing: the clip is incomplete, re-generate or re-prepare it")
-        try:
-            meta = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise DatasetError(f"{path} is not valid JSON ({exc}); re-generate the clip") from exc
+        meta = _read_json(path, missing="the clip is incomplete, re-generate or re-prepare it", fix="re-generate the clip")
         version = meta.get("format_version")
         if version != FORMAT_VERSION:
             raise DatasetError(f"{path}: format_version {version!r}, this code reads version {FORMAT_VERSION}; re-generate the dataset")
@@ -358,15 +353,21 @@ def write_manifest(root: str | os.PathLike[str], split: dict[str, list[str]], ex
     return path
 
 
+def _read_json(path: Path, *, missing: str, fix: str) -> Any:
+    """Parse a JSON file of the format, or raise a DatasetError that says what to do."""
+    if not path.is_file():
+        raise DatasetError(f"{path} is missing: {missing}")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise DatasetError(f"{path} is not valid JSON ({exc}); {fix}") from exc
+
+
 def read_manifest(root: str | os.PathLike[str]) -> dict[str, Any]:
     """Read and validate ``root/manifest.json`` -> {"format_version", "splits", "counts", "extra"}."""
     path = Path(root) / MANIFEST_NAME
-    if not path.is_file():
-        raise DatasetError(f"{path} is missing: generate the dataset with `lsr synth --out {root}` or prepare it first")
-    try:
-        manifest = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path} is not valid JSON ({exc}); re-generate the manifest") from exc
+    missing = f"generate the dataset with `lsr synth --out {root}` or prepare it first"
+    manifest = _read_json(path, missing=missing, fix="re-generate the manifest")
     if manifest.get("format_version") != FORMAT_VERSION:
         raise DatasetError(f"{path}: format_version {manifest.get('format_version')!r}, expected {FORMAT_VERSION}; re-generate the dataset")
     splits = manifest.get("splits")

@@ -7,18 +7,12 @@ import re
 
 import numpy as np
 import pytest
-import skimage.data
 
 from landmarks.annotate import annotate_path
 from landmarks.errors import NoFaceError
 from landmarks.imageio import read_image, write_image
 from landmarks.video import VideoWriter, iter_frames, probe_video
 from lsr.cli import main
-
-
-@pytest.fixture(scope="module")
-def astronaut() -> np.ndarray:
-    return skimage.data.astronaut()
 
 
 @pytest.fixture(scope="module")

@@ -5,22 +5,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-import skimage.data
 
 from landmarks import models
 from landmarks.detect import Face, FaceDetector
 from landmarks.errors import InputFileError, ModelFilesError, NoFaceError
 from landmarks.parts import LEFT_EYE, RIGHT_EYE
-
-
-@pytest.fixture(scope="module")
-def astronaut() -> np.ndarray:
-    return skimage.data.astronaut()
-
-
-@pytest.fixture(scope="module")
-def detector() -> FaceDetector:
-    return FaceDetector()
 
 
 @pytest.fixture(scope="module")

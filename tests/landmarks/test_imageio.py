@@ -7,16 +7,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import skimage.data
 
 from landmarks.errors import InputFileError
 from landmarks.imageio import atomic_output, read_image, to_rgb_uint8, write_image
 from landmarks.video import VideoWriter, iter_frames, probe_video
-
-
-@pytest.fixture(scope="module")
-def astronaut() -> np.ndarray:
-    return skimage.data.astronaut()
 
 
 class TestToRgbUint8:

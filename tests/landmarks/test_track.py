@@ -4,23 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import skimage.data
 
-from landmarks.detect import FaceDetector
 from landmarks.smooth import OneEuroFilter, jitter, smooth_sequence
 from landmarks.track import LandmarkTracker, box_iou
 from landmarks.video import iter_frames
 from lsr.eval.bench_landmarks import static_jitter
-
-
-@pytest.fixture(scope="module")
-def astronaut() -> np.ndarray:
-    return skimage.data.astronaut()
-
-
-@pytest.fixture(scope="module")
-def detector() -> FaceDetector:
-    return FaceDetector()
 
 
 class TestOneEuro:
