@@ -510,6 +510,10 @@ class EvalConfig:
     """lambda of the TPS baseline (unit-spread coordinates)."""
     examples: int = 4
     """Frames per (method, K, identity) written to OUT/examples (output above ground truth); 0 = none."""
+    lpips_weights: Path | None = None
+    """LPIPS (AlexNet v0.1) weights file, .pth or .safetensors (see lsr/eval/lpips.py); unset = LPIPS not computed."""
+    fid_weights: Path | None = None
+    """FID feature extractor, TorchScript (.pt) or .onnx (see lsr/eval/fid.py); unset = FID not computed."""
     progress: bool = True
 
     def resolved_data(self) -> Path:
@@ -544,6 +548,9 @@ class EvalConfig:
             raise ConfigError(f"--bucket-thresholds needs two increasing values (or none for terciles), got {self.bucket_thresholds}")
         if self.tps_regularization < 0:
             raise ConfigError(f"--tps-regularization must be >= 0, got {self.tps_regularization}")
+        for flag, path in (("--lpips-weights", self.lpips_weights), ("--fid-weights", self.fid_weights)):
+            if path is not None and not Path(path).is_file():
+                raise ConfigError(f"{flag} {path} is not a file; pass an existing weights file or leave {flag} unset")
 
 
 # ---- re-enactment and deployment (lsr.reenact, lsr.export_bundle) ------------------------------------------

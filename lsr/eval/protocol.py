@@ -283,6 +283,7 @@ def run_protocol(
     cross_identity: bool = True,
     finetune: bool = True,
     on_outputs: Callable[[str, int, EvalIdentity, np.ndarray, np.ndarray], None] | None = None,
+    frame_metrics: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] | None = None,
     progress: bool = True,
 ) -> EvalRun:
     """Evaluate ``methods`` on ``identities`` for each K (see the module docstring).
@@ -290,7 +291,8 @@ def run_protocol(
     max_holdouts: use only the first N driveable hold-out frames per identity (0 = all).
     fixed_thresholds: bucket thresholds on the pose distance; None = terciles per K.
     on_outputs(method_name, k, identity, outputs, targets) is called per (method, K, identity)
-    (e.g. to save example images). A method with ``finetune`` is also evaluated fine-tuned,
+    (e.g. to save example images). frame_metrics: {key: metric(outputs, targets) -> (T,)}, each value
+    stored per frame in the records under its key (e.g. LPIPS). A method with ``finetune`` is also evaluated fine-tuned,
     as "<name>+ft", when ``finetune`` is true.
     """
     from tqdm import tqdm
@@ -340,6 +342,7 @@ def run_protocol(
                 _check_outputs(outputs, len(targets), targets.shape[1:], name)
                 errors = mse(outputs, targets)
                 similarities = ssim(outputs, targets) if len(targets) else np.zeros(0)
+                extra = {key: metric(outputs, targets) for key, metric in (frame_metrics or {}).items()}
                 for row, output in enumerate(outputs):
                     found = analysis.landmarks(output)
                     align = found if found is not None else target_landmarks[row]
@@ -350,6 +353,7 @@ def run_protocol(
                         "idsim": idsim.cosine_similarity(analysis.embedding(output, align), target_embeddings[row]),
                         "nmke": float(nmke(found, target_landmarks[row])) if found is not None else float("nan"),
                         "no_face": found is None, "pose_distance": float(pose_distances[row]),
+                        **{key: float(values[row]) for key, values in extra.items()},
                     })  # fmt: skip
                 if driver is not None and len(driver_landmarks):
                     before = _warp_counts(model)

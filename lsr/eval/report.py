@@ -19,7 +19,7 @@ from lsr.errors import ConfigError
 from lsr.eval import idsim, metrics
 from lsr.eval.protocol import BUCKETS, EvalIdentity, EvalRun
 
-NOT_COMPUTED = "not computed (no backbone weights: LPIPS needs AlexNet + LPIPS heads, FID an Inception-v3; neither can be downloaded here and loading them is not implemented yet)"
+NOT_COMPUTED = "not computed (pass --lpips-weights / --fid-weights: LPIPS needs AlexNet + LPIPS v0.1 heads, FID a feature extractor; neither can be downloaded here, see lsr/eval/lpips.py and lsr/eval/fid.py)"
 
 # Thesis Table 4.4 (VoxCeleb2 test set of FSTH: 50 ids, 1,600 frames; ID-SIM from a VGGFace network).
 # (method, K, fine-tuned): (PSNR, SSIM, LPIPS, ID-SIM, NMKE, FID); None = not reported.
@@ -54,8 +54,14 @@ def _mean(values: Sequence[float]) -> float:
     return float(np.mean(finite)) if finite else float("nan")
 
 
-def summarise(run: EvalRun) -> dict[str, Any]:
-    """Aggregate an EvalRun into JSON-ready tables (keys: rows, buckets, cross, thresholds, counts, settings)."""
+def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backbones: dict[str, str] | None = None) -> dict[str, Any]:
+    """Aggregate an EvalRun into JSON-ready tables (keys: rows, buckets, cross, thresholds, counts, settings).
+
+    LPIPS comes from the records' "lpips" values (``run_protocol(frame_metrics=...)``); fid maps
+    (method, K) -> ``lsr.eval.fid.FidResult``; backbones {"lpips"/"fid": description} replaces
+    NOT_COMPUTED for the metrics that were computed."""
+    fid = fid or {}
+    backbones = backbones or {}
     rows, bucket_rows, cross_rows = [], [], []
     for name in run.settings["methods"]:
         for k in run.settings["ks"]:
@@ -68,7 +74,9 @@ def summarise(run: EvalRun) -> dict[str, Any]:
                 "psnr": psnr["mean_finite"], "psnr_infinite": psnr["infinite"], "psnr_of_mean_mse": psnr["of_mean_mse"],
                 "ssim": _mean([r["ssim"] for r in group]), "idsim": _mean([r["idsim"] for r in group]),
                 "nmke": _mean([r["nmke"] for r in group]), "no_face": sum(r["no_face"] for r in group),
-                "lpips": None, "fid": None,
+                "lpips": _mean([r["lpips"] for r in group]) if "lpips" in group[0] else None,
+                "fid": fid[(name, k)].value if (name, k) in fid else None,
+                "fid_samples": fid[(name, k)].samples_first if (name, k) in fid else None,
             })  # fmt: skip
             bucket = {"method": name, "k": k}
             for label in BUCKETS:
@@ -88,8 +96,8 @@ def summarise(run: EvalRun) -> dict[str, Any]:
         "thresholds": {str(k): list(v) for k, v in run.thresholds.items()},
         "counts": run.counts,
         "settings": run.settings,
-        "lpips": NOT_COMPUTED,
-        "fid": NOT_COMPUTED,
+        "lpips": backbones.get("lpips", NOT_COMPUTED),
+        "fid": backbones.get("fid", NOT_COMPUTED),
         "conventions": {
             "psnr": "uint8 RGB, peak 255; 'PSNR' = mean over frames with finite PSNR, 'inf' = identical frames "
                     "(excluded from that mean), 'PSNR(mean MSE)' = PSNR of the MSE averaged over all frames",
@@ -138,9 +146,9 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
         lines.append(
             f"| {row['method']} | {row['k']} | {row['frames']} | {_fmt(row['psnr'], 2)} | {row['psnr_infinite']} | "
             f"{_fmt(row['psnr_of_mean_mse'], 2)} | {_fmt(row['ssim'])} | {_fmt(row['idsim'])} | {_fmt(row['nmke'])} | "
-            f"{row['no_face']} | – | – |"
+            f"{row['no_face']} | {_fmt(row['lpips'])} | {_fmt(row['fid'], 2)} |"
         )
-    lines += ["", f"LPIPS and FID: {summary['lpips']}.", "",
+    lines += ["", f"LPIPS: {summary['lpips']}.", "", f"FID: {summary['fid']}.", "",
               "## Thesis Table 4.4 (reference; VoxCeleb2, 50 ids, ID-SIM from VGGFace: compare trends, not absolute ID-SIM)", "",
               "| method | K | fine-tuned | PSNR ↑ | SSIM ↑ | LPIPS ↓ | ID-SIM ↑ | NMKE ↓ | FID ↓ |",
               "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
@@ -220,6 +228,29 @@ def _example_writer(out_dir: Path, count: int):
     return write
 
 
+def _fid_collector(weights: Path, device: str, then: Any) -> tuple[dict[tuple[str, int], tuple[list, list]], Any]:
+    """An ``on_outputs`` callback that stores FID features of outputs and targets per (method, K), then calls ``then``.
+    Ground-truth features are computed once per distinct target set (they repeat for every method and K)."""
+    from lsr.eval.fid import image_features, load_feature_extractor
+    from lsr.eval.protocol import FaceAnalysis
+
+    extractor = load_feature_extractor(weights, device=device)
+    collected: dict[tuple[str, int], tuple[list, list]] = {}
+    target_cache: dict[bytes, np.ndarray] = {}
+
+    def collect(name: str, k: int, identity: EvalIdentity, outputs: np.ndarray, targets: np.ndarray) -> None:
+        if len(outputs):
+            key = FaceAnalysis.key(np.ascontiguousarray(targets))
+            if key not in target_cache:
+                target_cache[key] = image_features(extractor, targets)
+            outputs_list, targets_list = collected.setdefault((name, k), ([], []))
+            outputs_list.append(image_features(extractor, outputs))
+            targets_list.append(target_cache[key])
+        then(name, k, identity, outputs, targets)
+
+    return collected, collect
+
+
 def run_eval(cfg: Any) -> dict[str, Any]:
     """Run ``lsr eval`` (cfg: lsr.config.EvalConfig): load, evaluate the baselines, write and print the report."""
     from landmarks.detect import FaceDetector
@@ -245,12 +276,33 @@ def run_eval(cfg: Any) -> dict[str, Any]:
     if not methods:
         raise ConfigError("no method to evaluate: pass --methods nearest_shot tps and/or --weights MODEL_DIR")
     thresholds = tuple(cfg.bucket_thresholds) if cfg.bucket_thresholds else None
+    frame_metrics, backbones, on_outputs = {}, {}, _example_writer(Path(cfg.out), cfg.examples)
+    if cfg.lpips_weights is not None:
+        from lsr.eval.lpips import load_lpips, lpips_distance
+
+        lpips_model = load_lpips(cfg.lpips_weights, device=cfg.device)
+        frame_metrics["lpips"] = lambda outputs, targets: lpips_distance(lpips_model, outputs, targets)
+        backbones["lpips"] = f"AlexNet LPIPS v0.1 from {cfg.lpips_weights}; inputs uint8 RGB -> [-1, 1], mean over hold-out frames"
+    if cfg.fid_weights is not None:
+        fid_features, on_outputs = _fid_collector(cfg.fid_weights, cfg.device, on_outputs)
     run = run_protocol(methods, identities, cfg.k, FaceAnalysis(detector), seed=cfg.seed, max_holdouts=cfg.max_holdouts,
-                       fixed_thresholds=thresholds, cross_identity=cfg.cross_identity,
-                       on_outputs=_example_writer(Path(cfg.out), cfg.examples), progress=cfg.progress)  # fmt: skip
+                       fixed_thresholds=thresholds, cross_identity=cfg.cross_identity, on_outputs=on_outputs,
+                       frame_metrics=frame_metrics, progress=cfg.progress)  # fmt: skip
+    fid_results = {}
+    if cfg.fid_weights is not None:
+        from lsr.eval.fid import fid_from_features
+
+        for key, (outputs, targets) in fid_features.items():
+            fid_results[key] = fid_from_features(np.concatenate(outputs), np.concatenate(targets))
+        dims = {r.dims for r in fid_results.values()}
+        eps = {r.eps for r in fid_results.values() if r.eps}
+        backbones["fid"] = (f"features from {cfg.fid_weights} (D = {', '.join(map(str, sorted(dims)))}), outputs vs ground "
+                            f"truth over all hold-out frames per (method, K); samples per row in the JSON 'fid_samples'"
+                            + (f"; N <= D, so {min(eps):g} was added to the covariance diagonals (values are not "
+                               "comparable to 50k-sample FIDs)" if eps else ""))  # fmt: skip
     run.settings.update({"data": str(data), "layout": layout, "detector": f"{cfg.detector}, upsample {cfg.detector_upsample}",
                          "tps_regularization": cfg.tps_regularization})  # fmt: skip
-    summary = summarise(run)
+    summary = summarise(run, fid=fid_results, backbones=backbones)
     text = markdown(summary, machine_markdown())
     markdown_path, json_path = write_report(Path(cfg.out), summary, text)
     print(text)
