@@ -12,6 +12,13 @@ from typing import Literal
 
 import tyro
 
+from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command config is lsr.config.*
+    BenchLandmarksConfig,
+    BenchTrainConfig,
+    BenchModelsConfig,
+    BenchSpeedConfig,
+    BenchReenactConfig,
+)
 from lsr.errors import ConfigError
 
 
@@ -54,24 +61,6 @@ class DemoConfig:
 
     def validate(self) -> None:
         pass
-
-
-@dataclasses.dataclass
-class BenchLandmarksConfig:
-    """Print ms/frame of detection, tracking and rasterisation on a clip (a table, with machine info)."""
-
-    video: Path | None = None
-    """Video to time on; default: the shared real clip (../shared/data/clips/tpsmm_driving.mp4) if present."""
-    size: int = 512
-    """Frames are resized to size x size before timing (the tracking goal is stated at 512)."""
-    frames: int = 100
-    """Number of frames to time."""
-    raster_size: int = 256
-    """Resolution of the rasterised landmark image."""
-
-    def validate(self) -> None:
-        if self.size < 64 or self.frames < 1 or self.raster_size < 16:
-            raise ConfigError("--size >= 64, --frames >= 1 and --raster-size >= 16 are required")
 
 
 @dataclasses.dataclass
@@ -345,129 +334,6 @@ class FinetuneConfig:
 
 
 @dataclasses.dataclass
-class BenchTrainConfig:
-    """Print training steps/s for presets at a resolution on this machine (a markdown table)."""
-
-    presets: tuple[str, ...] = ("small", "paper")
-    resolution: int = 128
-    batch_size: int = 2
-    k_shots: int = 2
-    steps: int = 5
-    """Timed steps per preset and stage (after one warm-up step)."""
-    device: Literal["auto", "cpu", "cuda"] = "auto"
-    threads: int = 0
-    """CPU threads (0 = torch's default). On a shared/loaded machine 1 is often fastest."""
-
-    def validate(self) -> None:
-        if self.steps < 1 or self.batch_size < 1 or self.k_shots < 1 or self.resolution < 32:
-            raise ConfigError("--steps, --batch-size, --k-shots >= 1 and --resolution >= 32 are required")
-
-
-@dataclasses.dataclass
-class BenchModelsConfig:
-    """Print params, GFLOP and ms/frame of the per-frame path (G^l + G^s) per preset, variant and runtime."""
-
-    presets: tuple[str, ...] = ("fast", "small")
-    """Model presets (models_def.presets), or 'all' (paper at 256^2 is slow on 2 cores)."""
-    variants: tuple[str, ...] = ("latent_layout",)
-    """Ablation variants (baseline, spade_landmarks, learned_seg, latent_layout, oracle_seg), or 'all'."""
-    runtimes: tuple[Literal["eager", "channels_last", "compile", "onnxruntime"], ...] = (
-        "eager",
-        "channels_last",
-        "onnxruntime",
-    )
-    """Runtimes to time; 'compile' (torch.compile, channels-last) takes minutes to compile on 2 cores."""
-    runs: int = 10
-    """Timed runs per runtime (median reported), after ``warmup`` untimed runs."""
-    warmup: int = 2
-    resolution: int = 0
-    """Override every preset's resolution (0 = the preset's own, 256 except tiny)."""
-    threads: int = 0
-    """CPU threads for torch and onnxruntime (0 = default)."""
-
-    def validate(self) -> None:
-        from models_def import PRESET_NAMES, VARIANTS
-
-        for name in self.presets:
-            if name != "all" and name not in PRESET_NAMES:
-                raise ConfigError(f"unknown preset {name!r}; choose from {', '.join(PRESET_NAMES)} or all")
-        for name in self.variants:
-            if name != "all" and name not in VARIANTS:
-                raise ConfigError(f"unknown variant {name!r}; choose from {', '.join(VARIANTS)} or all")
-        if self.runs < 1 or self.warmup < 0 or self.threads < 0:
-            raise ConfigError("--runs >= 1, --warmup >= 0 and --threads >= 0 are required")
-        if self.resolution and (self.resolution < 64 or self.resolution & (self.resolution - 1)):
-            raise ConfigError(f"--resolution must be 0 or a power of two >= 64; got {self.resolution}")
-
-
-@dataclasses.dataclass
-class BenchSpeedConfig:
-    """Speed beside error: params, GFLOP, ms/frame and subject-encoding ms per preset x resolution x runtime, with
-    PSNR / SSIM / NMKE of each preset's trained weights (thesis protocol), written into a BENCHMARKS.md section."""
-
-    presets: tuple[str, ...] = ("tiny", "fast")
-    """Model presets (models_def.presets)."""
-    resolutions: tuple[int, ...] = (128, 256)
-    runtimes: tuple[Literal["eager", "channels_last", "compile", "onnxruntime", "int8"], ...] = (
-        "eager",
-        "channels_last",
-        "onnxruntime",
-        "int8",
-    )
-    """'compile' (torch.compile) is opt-in: it takes minutes to compile on 2 cores. 'int8': static QDQ frame generator."""
-    weights: tuple[str, ...] = ()
-    """Trained weights per preset as PRESET=DIR (from `lsr train`); presets without weights get no error columns."""
-    k: tuple[int, ...] = (1, 8)
-    """K (shots) of the error columns."""
-    runs: int = 10
-    """Timed runs per measurement (median), after ``warmup`` untimed runs."""
-    warmup: int = 2
-    encoder_runs: int = 3
-    """Timed runs of subject encoding at K=32 (slow at 256^2)."""
-    out_md: Path = Path("BENCHMARKS.md")
-    """Markdown file whose `bench:speed` section is replaced (created when missing); bench_speed.json goes beside it."""
-    plot: Path | None = None
-    """PNG of ms/frame against the error with the Pareto front; default OUT_MD's folder/docs/bench_speed.png."""
-    pareto_metric: Literal["psnr", "ssim", "nmke"] = "psnr"
-    synthetic_root: Path | None = None
-    """An existing `lsr synth` dataset whose 'test' split is scored; default a small fixed-seed one in --cache-dir."""
-    cache_dir: Path | None = None
-    """Where the default synthetic split and FSTH landmarks are cached (default ~/.cache/lsr/bench_speed)."""
-    fsth: bool = False
-    """Also score on the FSTH sample (../shared/data/fsth_eval_sample or --fsth-root)."""
-    fsth_root: Path | None = None
-    inputs: int = 32
-    """Input frames per identity of the synthetic split (shots are drawn from them)."""
-    holdouts: int = 32
-    max_holdouts: int = 0
-    """Score only the first N hold-out frames per identity (0 = all)."""
-    note: str = ""
-    """Free text shown in the section header (e.g. how the weights were trained)."""
-    threads: int = 0
-    """CPU threads for torch and onnxruntime (0 = default)."""
-    progress: bool = True
-
-    def validate(self) -> None:
-        from models_def import PRESET_NAMES
-
-        for name in self.presets:
-            if name not in PRESET_NAMES:
-                raise ConfigError(f"unknown preset {name!r}; choose from {', '.join(PRESET_NAMES)}")
-        for resolution in self.resolutions:
-            if resolution < 32 or resolution & (resolution - 1):
-                raise ConfigError(f"--resolutions must be powers of two >= 32; got {resolution}")
-        if not self.presets or not self.resolutions or not self.runtimes or not self.k:
-            raise ConfigError("--presets, --resolutions, --runtimes and --k need at least one value each")
-        if min(self.k) < 1 or self.runs < 1 or self.warmup < 0 or self.encoder_runs < 1 or self.threads < 0:
-            raise ConfigError("--k >= 1, --runs >= 1, --encoder-runs >= 1, --warmup >= 0 and --threads >= 0 are required")
-        if self.inputs < 1 or self.holdouts < 1 or self.max_holdouts < 0:
-            raise ConfigError("--inputs and --holdouts must be >= 1, --max-holdouts >= 0")
-
-
-# ---- evaluation (lsr.eval) ------------------------------------------------------------------------------
-
-
-@dataclasses.dataclass
 class EvalConfig:
     """Evaluate re-enactment with the thesis protocol (§4.4): K shots from the inputs, metrics on hold-out frames."""
 
@@ -678,30 +544,6 @@ class ExportConfig:
             raise ConfigError(f"--weights {self.weights} is not a model folder (config.json + model.safetensors)")
         if self.calibration_frames < 1:
             raise ConfigError(f"--calibration-frames must be >= 1, got {self.calibration_frames}")
-
-
-@dataclasses.dataclass
-class BenchReenactConfig:
-    """Print end-to-end and per-stage fps of `lsr reenact` for each runtime (a table with machine info)."""
-
-    video: Path | None = None
-    """Driving (and source) clip; default the shared ../shared/data/clips/tpsmm_driving.mp4."""
-    weights: Path | None = None
-    """Model folder; default a randomly initialised --preset model (speed does not depend on the weights)."""
-    preset: str = "fast"
-    resolution: int = 256
-    frames: int = 50
-    """Driving frames timed (the clip is cut to its first N frames)."""
-    runtimes: tuple[Literal["torch", "onnx"], ...] = ("torch", "onnx")
-    paste_back: bool = True
-    k: int = 4
-    device: Literal["auto", "cpu", "cuda"] = "auto"
-    threads: int = 0
-    """CPU threads for the networks (as `lsr reenact --threads`); 0 = the library default."""
-
-    def validate(self) -> None:
-        if self.frames < 2 or self.k < 1 or self.resolution < 32:
-            raise ConfigError("--frames >= 2, --k >= 1 and --resolution >= 32 are required")
 
 
 @dataclasses.dataclass
