@@ -56,7 +56,7 @@ class SubjectShots:
 
     frames: np.ndarray
     landmarks: np.ndarray
-    names: list[str]
+    names: list[str] = dataclasses.field(default_factory=list)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,9 +87,16 @@ def is_video(path: Path) -> bool:
     return path.suffix.lower() in VIDEO_SUFFIXES
 
 
+# The LSR release keeps landmark drawings and oracle maps beside its frames; they are not shots.
+LSR_RELEASE_DRAWINGS = ("_contour.png", "_segmap_merged.png")
+
+
 def list_images(folder: Path) -> list[Path]:
     """Image files of a folder, sorted by name; an error when there are none."""
-    images = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    images = sorted(
+        p for p in folder.iterdir()
+        if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.endswith(LSR_RELEASE_DRAWINGS)
+    )  # fmt: skip
     if not images:
         raise InputFileError(f"folder {folder} holds no images ({', '.join(IMAGE_SUFFIXES)}); give images or a video")
     return images

@@ -145,7 +145,6 @@ class Reenactor(ReenactorBase):
         The latents stay those of ``encode_subject`` (fixed during fine-tuning, as in the thesis).
         Returns the ``FinetuneResult`` (L1 before/after).
         """
-        from lsr.train.finetune import SubjectShots as TrainShots
         from lsr.train.finetune import finetune_subject, load_discriminator
 
         subject = self._require_subject()
@@ -155,7 +154,7 @@ class Reenactor(ReenactorBase):
         else:
             discriminator = Discriminator(model.config)
         result = finetune_subject(
-            model, discriminator, TrainShots(subject.shots.frames, subject.shots.landmarks),
+            model, discriminator, subject.shots,
             steps=steps, lr=lr, batch_size=batch_size, device=self.backend.device, seed=seed, progress=progress,
         )  # fmt: skip
         self.backend.model = result.model.eval().requires_grad_(False)

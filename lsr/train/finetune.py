@@ -12,13 +12,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from deploy.sources import SubjectShots, load_subject_shots  # one source loader for reenact, app and finetune
 from lsr.errors import DatasetError, WeightsError
 from lsr.train.checkpoint import nonfinite_entries
 from lsr.train.optim import make_adam
@@ -27,17 +27,7 @@ from models_def import Discriminator, LSRModel
 
 DISCRIMINATOR_NAME = "discriminator.safetensors"
 LATENTS_NAME = "latents.safetensors"
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
-VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v")
 FINETUNE_PLAN = StagePlan(stage=3, cross_entropy=False)  # eq. 4.4 only: the shots have no segmentation
-
-
-@dataclasses.dataclass
-class SubjectShots:
-    """K aligned crops of one person. frames: (K, S, S, 3) uint8 RGB; landmarks: (K, 68, 2) float32 crop pixels."""
-
-    frames: np.ndarray
-    landmarks: np.ndarray
 
 
 @dataclasses.dataclass
@@ -54,60 +44,6 @@ class FinetuneResult:
 
 
 # ---- inputs --------------------------------------------------------------------------------------------
-
-
-def _sample_evenly(items: list, k: int) -> list:
-    if len(items) <= k:
-        return items
-    picks = np.unique(np.round(np.linspace(0, len(items) - 1, k)).astype(int))
-    return [items[i] for i in picks]
-
-
-def load_subject_shots(inputs: Sequence[Path], k: int, size: int, detector: str = "hog") -> SubjectShots:
-    """Read images / a folder / a video, keep K frames with a face, crop them like the training data.
-
-    Video frames are scanned evenly (4K candidates) and the first K with a detected face are kept.
-    """
-    from landmarks.align import crop as align_crop
-    from landmarks.detect import FaceDetector
-    from landmarks.imageio import read_image
-
-    paths: list[Path] = []
-    for item in map(Path, inputs):
-        if item.is_dir():
-            paths += sorted(
-                p for p in item.iterdir()
-                if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.endswith(("_contour.png", "_segmap_merged.png"))
-            )  # fmt: skip (LSR release folders keep landmark drawings and maps beside the frames)
-        else:
-            paths.append(item)
-    videos = [p for p in paths if p.suffix.lower() in VIDEO_SUFFIXES]
-    if videos and len(paths) > 1:
-        raise DatasetError("give either one video or image files/folders for the shots, not both")
-    if videos:
-        from landmarks.video import iter_frames, probe_video
-
-        total = probe_video(videos[0]).frames
-        wanted = set(np.unique(np.round(np.linspace(0, max(0, total - 1), 4 * k)).astype(int)).tolist())
-        candidates = [(f"{videos[0].name}#{i}", f) for i, f in enumerate(iter_frames(videos[0])) if i in wanted]
-    else:
-        candidates = [(p.name, read_image(p)) for p in _sample_evenly(paths, 4 * k)]
-    if not candidates:
-        raise DatasetError(f"no images found in {', '.join(map(str, inputs))}; give image files, a folder or a video")
-    face_detector = FaceDetector(detector)
-    frames, points = [], []
-    for _, image in candidates:
-        faces = face_detector.detect(image)
-        if not faces:
-            continue
-        cropped, matrix = align_crop(image, faces[0].landmarks, size)
-        matrix = np.asarray(matrix, np.float64)
-        frames.append(cropped)
-        points.append((faces[0].landmarks @ matrix[:, :2].T + matrix[:, 2]).astype(np.float32))
-    if not frames:
-        raise DatasetError(f"no face found in any of {len(candidates)} frame(s); use frontal, well-lit shots or --detector cnn")
-    chosen = _sample_evenly(list(range(len(frames))), k)
-    return SubjectShots(np.stack([frames[i] for i in chosen]), np.stack([points[i] for i in chosen]))
 
 
 def shots_to_tensors(shots: SubjectShots, size: int) -> tuple[Tensor, Tensor]:
@@ -257,7 +193,9 @@ def run_finetune(cfg) -> FinetuneResult:
     discriminator, found = load_discriminator(cfg.weights, model)
     if not found:
         print(f"lsr finetune: no {DISCRIMINATOR_NAME} in {cfg.weights}; fine-tuning with a fresh discriminator")
-    shots = load_subject_shots(cfg.shots, cfg.k, model.config.resolution, cfg.detector)
+    from landmarks.detect import FaceDetector
+
+    shots = load_subject_shots(cfg.shots, model.config.resolution, k=cfg.k, detector=FaceDetector(cfg.detector))
     result = finetune_subject(
         model, discriminator, shots, steps=cfg.steps, lr=cfg.lr, batch_size=cfg.batch_size,
         weights=cfg.losses, device=device, seed=cfg.seed, progress=cfg.progress,
