@@ -4,17 +4,23 @@ Shots and targets arrive at the evaluation resolution S (224 for the FSTH sample
 runs at its own resolution R: shots are resized to R (landmarks scaled with the pixel-centre
 convention), outputs resized back to S. ``finetune`` returns a fresh subject-specific copy
 (thesis §4.3.5: G^l, G^s and D fine-tuned on the K shots only), so identities never share weights.
+
+An ``oracle_seg`` model (thesis Table 4.2's upper bound) is evaluable here, unlike in ``lsr.pipeline``:
+the protocol has the hold-outs' ground-truth segmentation, which the method receives as
+``target_segmentations`` (it declares ``needs_target_segmentation``) and feeds to G^s in place of G^l.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from lsr.errors import ConfigError, WeightsError
 from lsr.eval.baselines import check_method_inputs
 
 
@@ -30,9 +36,41 @@ def _resize(image: np.ndarray, size: int) -> np.ndarray:
     return cv2.resize(image, (size, size), interpolation=interpolation)
 
 
+def _resize_segmentation(segmentation: np.ndarray, size: int) -> np.ndarray:
+    """(S, S) class ids -> (size, size); nearest, so ids stay ids."""
+    if segmentation.shape[0] == size:
+        return segmentation
+    return cv2.resize(segmentation, (size, size), interpolation=cv2.INTER_NEAREST)
+
+
+def load_eval_model(weights: str | os.PathLike):
+    """``lsr.pipeline.load_model``, except that an ``oracle_seg`` model loads too (evaluation has its ground truth)."""
+    from lsr.pipeline import load_model
+
+    folder = Path(weights)
+    config_path = folder / "config.json"
+    try:
+        variant = json.loads(config_path.read_text()).get("variant") if config_path.is_file() else None
+    except (OSError, json.JSONDecodeError, AttributeError):
+        variant = None  # load_model reports the broken folder
+    if variant != "oracle_seg":
+        return load_model(folder)
+    from models_def import LSRModel
+
+    try:
+        model = LSRModel.from_pretrained(folder)
+    except ValueError as exc:  # models_def.ModelConfigError names the problem with the folder
+        raise WeightsError(str(exc)) from exc
+    return model.eval().requires_grad_(False)
+
+
 class LsrModelMethod:
     """weights: model folder (config.json + model.safetensors). finetune_steps: steps of subject
-    fine-tuning when the runner asks for the fine-tuned variant (0 = the method has no ``finetune``)."""
+    fine-tuning when the runner asks for the fine-tuned variant (0 = the method has no ``finetune``).
+    ``variant`` is the model's ablation variant (thesis Table 4.2); an ``oracle_seg`` model needs
+    ``target_segmentations`` in ``reenact``."""
+
+    needs_target_segmentation = False  # class default: subclasses that bypass __init__ (ONNX runtimes) stay non-oracle
 
     def __init__(self, weights: str | os.PathLike, *, device: str = "cpu", finetune_steps: int = 0,
                  finetune_lr: float = 1e-4, name: str | None = None) -> None:  # fmt: skip
@@ -43,7 +81,10 @@ class LsrModelMethod:
         self.finetune_steps = finetune_steps
         self.finetune_lr = finetune_lr
         self.name = name or f"lsr:{self.weights.name}"
-        self.reenactor = Reenactor(self.weights, device=device)
+        self.reenactor = Reenactor(load_eval_model(self.weights), device=device)
+        self.reenactor.weights_path = self.weights  # fine-tuning then starts from the saved discriminator
+        self.variant: str = self.reenactor.model.config.variant
+        self.needs_target_segmentation = self.variant == "oracle_seg"
         self._encoded: bytes | None = None
         if finetune_steps <= 0:
             self.finetune = None  # type: ignore[assignment]  # the runner then evaluates the meta-learned model only
@@ -61,12 +102,48 @@ class LsrModelMethod:
             self._encoded = key
         return scale
 
-    def reenact(self, shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray) -> np.ndarray:
-        """shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (T, 68, 2) -> (T, S, S, 3) uint8."""
+    def reenact(self, shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray,
+                target_segmentations: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+        """shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (T, 68, 2);
+        target_segmentations: (T, S, S) uint8 class ids, ground truth of the targets (``oracle_seg`` only)
+        -> (T, S, S, 3) uint8."""
         check_method_inputs(shots, shot_landmarks, target_landmarks)
         scale = self._encode(shots, shot_landmarks)
         size = shots[0].shape[0]
+        if self.needs_target_segmentation:
+            return self._reenact_with_oracle(target_landmarks, target_segmentations, scale, size)
         outputs = [_resize(self.reenactor.synthesize_crop(scale_points(points, scale))[0], size) for points in target_landmarks]
+        return np.stack(outputs) if outputs else np.zeros((0, size, size, 3), np.uint8)
+
+    def _reenact_with_oracle(self, target_landmarks: np.ndarray, target_segmentations: np.ndarray | None,
+                             scale: float, size: int) -> np.ndarray:  # fmt: skip
+        """Table 4.2's upper bound: G^s conditioned on the targets' one-hot ground-truth segmentation."""
+        import torch
+
+        from deploy.engine import from_network, to_network
+        from landmarks.raster import draw_landmarks
+        from models_def.config import NUM_SEG_CLASSES
+
+        if target_segmentations is None:
+            raise ConfigError(f"{self.name} is an 'oracle_seg' model: it needs the hold-out frames' ground-truth "
+                              "segmentation; evaluate it on an lsr dataset with segmentation maps (e.g. one written "
+                              "by lsr.data.synth.generate_dataset), or drop it from --weights")  # fmt: skip
+        count = len(target_landmarks)
+        if target_segmentations.shape != (count, size, size) or target_segmentations.dtype != np.uint8:
+            raise ConfigError(f"target_segmentations must be ({count}, {size}, {size}) uint8, "
+                              f"got {target_segmentations.shape} {target_segmentations.dtype}")  # fmt: skip
+        subject = self.reenactor._require_subject()
+        backend, resolution = self.reenactor.backend, self.reenactor.resolution
+        generator = backend.model.frame_generator
+        outputs = []
+        for points, segmentation in zip(target_landmarks, target_segmentations):
+            landmark_image = to_network(draw_landmarks(scale_points(points, scale), resolution))[None]  # (1, 3, R, R)
+            classes = torch.from_numpy(_resize_segmentation(segmentation, resolution).astype(np.int64))
+            one_hot = torch.nn.functional.one_hot(classes, NUM_SEG_CLASSES).permute(2, 0, 1)[None].float()  # (1, 19, R, R)
+            with torch.inference_mode(), backend._autocast():
+                image = generator.synthesize(backend._tensor(landmark_image), backend._tensor(subject.layout_latent),
+                                             backend._tensor(subject.style_latent), one_hot.to(backend.device)).image  # fmt: skip
+            outputs.append(_resize(from_network(image[0].float().cpu().numpy()), size))
         return np.stack(outputs) if outputs else np.zeros((0, size, size, 3), np.uint8)
 
     def finetune(self, shots: list[np.ndarray], shot_landmarks: np.ndarray) -> LsrModelMethod:

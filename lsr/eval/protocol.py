@@ -12,7 +12,7 @@ Data sources (``load_identities``):
   * an ``lsr.data.format`` dataset (manifest + clips): for each identity of the split, its
     clips' frames in clip-name order, first ``inputs`` frames = inputs, next ``holdouts`` =
     hold-outs (with fewer than inputs + holdouts frames, the first half is used as inputs);
-    landmarks from ``landmarks.npy``.
+    landmarks from ``landmarks.npy``; the hold-outs' segmentation maps too, when every clip has them.
 
 A method is anything with ``reenact`` (``Method``); the runner also evaluates, per method:
   * NMKE / ID-SIM of the output, where output landmarks come from the same detector; hold-outs
@@ -48,7 +48,10 @@ BUCKETS = ("low", "medium", "high")
 @runtime_checkable
 class Method(Protocol):
     """A re-enactment method under evaluation. Optionally also has
-    ``finetune(shots, shot_landmarks) -> Method``: a subject-specific method fitted on the shots only."""
+    ``finetune(shots, shot_landmarks) -> Method``: a subject-specific method fitted on the shots only.
+    A method with ``needs_target_segmentation = True`` (thesis Table 4.2's ``oracle_seg`` upper bound)
+    is also passed ``target_segmentations=`` (T, S, S) uint8 ground truth of the targets, or None
+    when the data has none (the method then raises ConfigError)."""
 
     name: str
 
@@ -60,13 +63,15 @@ class Method(Protocol):
 
 @dataclasses.dataclass
 class EvalIdentity:
-    """One test identity. frames: (N, S, S, 3) uint8; landmarks: (N, 68, 2) float32, NaN rows = no face."""
+    """One test identity. frames: (N, S, S, 3) uint8; landmarks: (N, 68, 2) float32, NaN rows = no face;
+    holdout_segmentations: (N_holdout, S, S) uint8 class ids (lsr.data.classes) or None when unknown."""
 
     name: str
     input_frames: np.ndarray
     input_landmarks: np.ndarray
     holdout_frames: np.ndarray
     holdout_landmarks: np.ndarray
+    holdout_segmentations: np.ndarray | None = None
 
 
 # ---- data -----------------------------------------------------------------------------------------
@@ -139,19 +144,23 @@ def load_lsr_split(root: Path, split: str = "test", inputs: int = 32, holdouts: 
         raise DatasetError(f"{root}: split {split!r} is missing or empty (splits: {sorted(manifest['splits'])})")
     identities = []
     for name in manifest["splits"][split]:
-        frames, landmarks = [], []
+        frames, landmarks, segmentations = [], [], []
         for clip in identity_clips(root, name):
-            data = read_clip(clip, with_segmentation=False)
+            data = read_clip(clip, with_segmentation=True)
             frames.append(data["frames"])
             landmarks.append(data["landmarks"])
+            segmentations.append(data["segmentation"])
         all_frames, all_landmarks = np.concatenate(frames), np.concatenate(landmarks)
+        # ground truth for the oracle_seg upper bound (thesis Table 4.2), only if every clip has it
+        all_segmentations = None if any(s is None for s in segmentations) else np.concatenate(segmentations)
         total = len(all_frames)
         if total < 2:
             raise DatasetError(f"{root / name}: {total} frame(s); evaluation needs >= 2 (inputs and hold-outs)")
         num_inputs = inputs if total >= inputs + holdouts else total // 2
         end = min(total, num_inputs + holdouts)
+        holdout_segmentations = None if all_segmentations is None else all_segmentations[num_inputs:end]
         identities.append(EvalIdentity(name, all_frames[:num_inputs], all_landmarks[:num_inputs],
-                                       all_frames[num_inputs:end], all_landmarks[num_inputs:end]))  # fmt: skip
+                                       all_frames[num_inputs:end], all_landmarks[num_inputs:end], holdout_segmentations))  # fmt: skip
     return identities
 
 
@@ -265,6 +274,10 @@ def _add_warp_counts(counts: dict[str, Any], name: str, k: int, kind: str, befor
         table[method] = table.get(method, 0) + value - before.get(method, 0)
 
 
+def _rows_or_none(array: np.ndarray | None, rows: np.ndarray) -> np.ndarray | None:
+    return None if array is None else array[rows]
+
+
 def _check_outputs(outputs: np.ndarray, count: int, size: tuple[int, ...], name: str) -> None:
     if not isinstance(outputs, np.ndarray) or outputs.dtype != np.uint8 or outputs.shape != (count, *size):
         raise ConfigError(f"method {name} returned {getattr(outputs, 'shape', type(outputs))} "
@@ -330,14 +343,18 @@ def run_protocol(
             target_embeddings = [analysis.embedding(t, p) for t, p in zip(targets, target_landmarks)]
             source_embedding = idsim.mean_embedding(np.stack([analysis.embedding(s, p) for s, p in zip(shots, shot_landmarks)]))
             driver = identities[(position + 1) % len(identities)] if cross_identity and len(identities) > 1 else None
+            target_segmentations = _rows_or_none(identity.holdout_segmentations, driveable)
             if driver is not None:
                 driver_rows = np.flatnonzero(np.isfinite(driver.holdout_landmarks).all(axis=(1, 2)))[: len(driveable)]
                 driver_landmarks = driver.holdout_landmarks[driver_rows].astype(np.float64)
+                driver_segmentations = _rows_or_none(driver.holdout_segmentations, driver_rows)
             for name, method, use_finetune in variants:
                 check_method_inputs(shots, shot_landmarks, target_landmarks)
                 model = method.finetune(shots, shot_landmarks) if use_finetune else method  # type: ignore[attr-defined]
                 before = _warp_counts(model)
-                outputs = model.reenact(shots, shot_landmarks, target_landmarks)
+                oracle = getattr(model, "needs_target_segmentation", False)  # baselines never see the ground truth
+                extra_inputs = {"target_segmentations": target_segmentations} if oracle else {}
+                outputs = model.reenact(shots, shot_landmarks, target_landmarks, **extra_inputs)
                 _add_warp_counts(counts, name, k, "self", before, _warp_counts(model))
                 _check_outputs(outputs, len(targets), targets.shape[1:], name)
                 errors = mse(outputs, targets)
@@ -357,7 +374,9 @@ def run_protocol(
                     })  # fmt: skip
                 if driver is not None and len(driver_landmarks):
                     before = _warp_counts(model)
-                    crossed = model.reenact(shots, shot_landmarks, driver_landmarks)
+                    # the oracle sees the driving frame's segmentation, i.e. identity i+1's face layout
+                    extra_inputs = {"target_segmentations": driver_segmentations} if oracle else {}
+                    crossed = model.reenact(shots, shot_landmarks, driver_landmarks, **extra_inputs)
                     _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))
                     _check_outputs(crossed, len(driver_landmarks), targets.shape[1:], name)
                     for row, output in enumerate(crossed):

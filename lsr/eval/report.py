@@ -251,6 +251,14 @@ def _fid_collector(weights: Path, device: str, then: Any) -> tuple[dict[tuple[st
     return collected, collect
 
 
+def label_by_variant(models: Sequence[Any], folders: Sequence[Any]) -> list[Any]:
+    """Name each model method "lsr:<variant>" (thesis Table 4.2 rows); variants given twice get "@<folder>" too."""
+    variants = [model.variant for model in models]
+    for model, folder, variant in zip(models, folders, variants, strict=True):
+        model.name = f"lsr:{variant}" if variants.count(variant) == 1 else f"lsr:{variant}@{folder}"
+    return list(models)
+
+
 def run_eval(cfg: Any) -> dict[str, Any]:
     """Run ``lsr eval`` (cfg: lsr.config.EvalConfig): load, evaluate the baselines, write and print the report."""
     from landmarks.detect import FaceDetector
@@ -272,7 +280,8 @@ def run_eval(cfg: Any) -> dict[str, Any]:
     if cfg.weights:
         from lsr.eval.model_method import LsrModelMethod
 
-        methods += [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps) for folder in cfg.weights]
+        models = [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps) for folder in cfg.weights]
+        methods += label_by_variant(models, cfg.weights)
     if not methods:
         raise ConfigError("no method to evaluate: pass --methods nearest_shot tps and/or --weights MODEL_DIR")
     thresholds = tuple(cfg.bucket_thresholds) if cfg.bucket_thresholds else None
