@@ -30,7 +30,7 @@ Layout (``root/<identity>/<video>/`` is one *clip*)::
     generator       dict of generator/preparation parameters (free form, JSON)
 
 Every reader validates and raises ``lsr.errors.DatasetError`` with a message that names the
-file and says what to do. Writers are atomic: a clip is built in ``<clip>.tmp-XXXX`` beside the
+file and says what to do. Writers are atomic: a clip is built in ``<clip>.tmp-<random suffix>`` beside the
 final folder and moved into place with ``os.replace``; the manifest goes through a temp file.
 """
 
