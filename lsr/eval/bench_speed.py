@@ -192,12 +192,8 @@ class OnnxModelMethod(LsrModelMethod):
     def __init__(self, bundle: Path, *, int8: bool, name: str, threads: int = 0) -> None:  # noqa: D107
         from deploy.runtime import OnnxReenactor
 
-        # Not super().__init__: that loads the torch weights, which this method never uses.
-        self.weights, self.device, self.finetune_steps, self.finetune_lr = Path(bundle), "cpu", 0, 0.0
-        self.name = name
-        self.reenactor = OnnxReenactor(bundle, int8=int8, providers=["CPUExecutionProvider"], threads=threads)
-        self._encoded = None
-        self.finetune = None  # type: ignore[assignment]
+        reenactor = OnnxReenactor(bundle, int8=int8, providers=["CPUExecutionProvider"], threads=threads)
+        super().__init__(bundle, name=name, reenactor=reenactor)
 
 
 def identity_calibration(method: LsrModelMethod, identities, frames: int = 32, k: int = 8) -> list[dict[str, np.ndarray]]:

@@ -70,20 +70,24 @@ class LsrModelMethod:
     ``variant`` is the model's ablation variant (thesis Table 4.2); an ``oracle_seg`` model needs
     ``target_segmentations`` in ``reenact``."""
 
-    needs_target_segmentation = False  # class default: subclasses that bypass __init__ (ONNX runtimes) stay non-oracle
-
     def __init__(self, weights: str | os.PathLike, *, device: str = "cpu", finetune_steps: int = 0,
-                 finetune_lr: float = 1e-4, name: str | None = None) -> None:  # fmt: skip
-        from lsr.pipeline import Reenactor
-
+                 finetune_lr: float = 1e-4, name: str | None = None, reenactor=None) -> None:  # fmt: skip
+        """reenactor: a ready ``ReenactorBase`` (e.g. ``deploy.runtime.OnnxReenactor`` over the bundle at
+        ``weights``); None = load the torch model from ``weights``."""
         self.weights = Path(weights)
         self.device = device
         self.finetune_steps = finetune_steps
         self.finetune_lr = finetune_lr
         self.name = name or f"lsr:{self.weights.name}"
-        self.reenactor = Reenactor(load_eval_model(self.weights), device=device)
-        self.reenactor.weights_path = self.weights  # fine-tuning then starts from the saved discriminator
-        self.variant: str = self.reenactor.model.config.variant
+        if reenactor is None:
+            from lsr.pipeline import Reenactor
+
+            reenactor = Reenactor(load_eval_model(self.weights), device=device)
+            reenactor.weights_path = self.weights  # fine-tuning then starts from the saved discriminator
+            self.variant: str = reenactor.model.config.variant
+        else:
+            self.variant = reenactor.backend.config.get("variant", "")
+        self.reenactor = reenactor
         self.needs_target_segmentation = self.variant == "oracle_seg"
         self._encoded: bytes | None = None
         if finetune_steps <= 0:
