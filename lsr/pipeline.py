@@ -91,12 +91,17 @@ class TorchBackend:
 
     @torch.inference_mode()
     def synthesize(
-        self, landmark_image: np.ndarray, layout_latent: np.ndarray, style_latent: np.ndarray, with_layout: bool
+        self, landmark_image: np.ndarray, layout_latent: np.ndarray, style_latent: np.ndarray, with_layout: bool,
+        oracle_segmentation: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """(B, 3, S, S) + (B, D) latents -> (image (B, 3, S, S) in [-1, 1], layout (B, C_l, S, S) or None)."""
+        """(B, 3, S, S) + (B, D) latents -> (image (B, 3, S, S) in [-1, 1], layout (B, C_l, S, S) or None).
+
+        oracle_segmentation: (B, 19, S, S) one-hot ground truth, for ``oracle_seg`` models only (evaluation).
+        """
+        oracle = None if oracle_segmentation is None else self._tensor(oracle_segmentation)
         with self._autocast():
             outputs = self.model.frame_generator.synthesize(
-                self._tensor(landmark_image), self._tensor(layout_latent), self._tensor(style_latent)
+                self._tensor(landmark_image), self._tensor(layout_latent), self._tensor(style_latent), oracle
             )
         layout = outputs.layout.float().cpu().numpy() if with_layout and outputs.layout is not None else None
         return outputs.image.float().cpu().numpy(), layout

@@ -122,8 +122,6 @@ class LsrModelMethod:
     def _reenact_with_oracle(self, target_landmarks: np.ndarray, target_segmentations: np.ndarray | None,
                              scale: float, size: int) -> np.ndarray:  # fmt: skip
         """Table 4.2's upper bound: G^s conditioned on the targets' one-hot ground-truth segmentation."""
-        import torch
-
         from deploy.engine import from_network, to_network
         from landmarks.raster import draw_landmarks
         from models_def.config import NUM_SEG_CLASSES
@@ -136,18 +134,17 @@ class LsrModelMethod:
         if target_segmentations.shape != (count, size, size) or target_segmentations.dtype != np.uint8:
             raise ConfigError(f"target_segmentations must be ({count}, {size}, {size}) uint8, "
                               f"got {target_segmentations.shape} {target_segmentations.dtype}")  # fmt: skip
-        subject = self.reenactor._require_subject()
-        backend, resolution = self.reenactor.backend, self.reenactor.resolution
-        generator = backend.model.frame_generator
+        subject = self.reenactor.subject  # encoded by _encode just before
+        resolution = self.reenactor.resolution
+        eye = np.eye(NUM_SEG_CLASSES, dtype=np.float32)
         outputs = []
         for points, segmentation in zip(target_landmarks, target_segmentations):
             landmark_image = to_network(draw_landmarks(scale_points(points, scale), resolution))[None]  # (1, 3, R, R)
-            classes = torch.from_numpy(_resize_segmentation(segmentation, resolution).astype(np.int64))
-            one_hot = torch.nn.functional.one_hot(classes, NUM_SEG_CLASSES).permute(2, 0, 1)[None].float()  # (1, 19, R, R)
-            with torch.inference_mode(), backend._autocast():
-                image = generator.synthesize(backend._tensor(landmark_image), backend._tensor(subject.layout_latent),
-                                             backend._tensor(subject.style_latent), one_hot.to(backend.device)).image  # fmt: skip
-            outputs.append(_resize(from_network(image[0].float().cpu().numpy()), size))
+            one_hot = eye[_resize_segmentation(segmentation, resolution)].transpose(2, 0, 1)[None]  # (1, 19, R, R)
+            image, _ = self.reenactor.backend.synthesize(
+                landmark_image, subject.layout_latent, subject.style_latent, False, oracle_segmentation=one_hot
+            )
+            outputs.append(_resize(from_network(image[0]), size))
         return np.stack(outputs) if outputs else np.zeros((0, size, size, 3), np.uint8)
 
     def finetune(self, shots: list[np.ndarray], shot_landmarks: np.ndarray) -> LsrModelMethod:
