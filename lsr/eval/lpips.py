@@ -135,13 +135,7 @@ def load_lpips(path: Path, device: str = "cpu") -> Lpips:
     from lsr.train.perceptual import read_state_dict  # one reader of .pth / .safetensors for every backbone
 
     path = Path(path)
-    if not path.is_file():
-        raise WeightsError(f"LPIPS weights file not found: {path}. {WEIGHTS_HELP}")
-    try:
-        state = read_state_dict(path)
-    except WeightsError as exc:
-        reason = exc.__cause__ if exc.__cause__ is not None else "not a state dict of tensors"
-        raise WeightsError(f"could not read LPIPS weights {path}: {reason}. {WEIGHTS_HELP}") from exc
+    state = read_state_dict(path, what="LPIPS weights", help_text=WEIGHTS_HELP)
     model = Lpips()
     expected = {key: value.shape for key, value in model.state_dict().items()}
     mapped: dict[str, Tensor] = {}

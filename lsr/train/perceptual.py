@@ -51,11 +51,14 @@ def build_vgg_features(arch: str) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-def read_state_dict(path: Path) -> dict[str, Tensor]:
-    """A flat tensor dict from ``.safetensors`` or a torch ``.pth``/``.pt`` file (weights only)."""
+def read_state_dict(path: Path, *, what: str = "VGG weights", help_text: str = WEIGHTS_HELP) -> dict[str, Tensor]:
+    """A flat tensor dict from ``.safetensors`` or a torch ``.pth``/``.pt`` file (weights only).
+
+    what / help_text: the backbone named in errors and where to get its weights (one reader for every backbone).
+    """
     path = Path(path)
     if not path.is_file():
-        raise WeightsError(f"VGG weights file not found: {path}. {WEIGHTS_HELP}")
+        raise WeightsError(f"{what} file not found: {path}. {help_text}")
     try:
         if path.suffix == ".safetensors":
             from safetensors.torch import load_file
@@ -64,11 +67,11 @@ def read_state_dict(path: Path) -> dict[str, Tensor]:
         else:
             state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # any reader failure means "not a usable weights file"
-        raise WeightsError(f"could not read VGG weights {path}: {exc}. {WEIGHTS_HELP}") from exc
+        raise WeightsError(f"could not read {what} {path}: {exc}. {help_text}") from exc
     if isinstance(state, dict) and "state_dict" in state and isinstance(state["state_dict"], dict):
         state = state["state_dict"]
     if not isinstance(state, dict):
-        raise WeightsError(f"{path} does not hold a state dict (got {type(state).__name__}). {WEIGHTS_HELP}")
+        raise WeightsError(f"{path} does not hold a state dict (got {type(state).__name__}). {help_text}")
     return state
 
 
