@@ -249,8 +249,8 @@ def summary_table(done: int, skipped: int, failed: int, stats: ReenactStats, wal
     ]
     for stage in (*STAGES, "encode"):
         seconds = stats.seconds.get(stage, 0.0)
-        fps = stats.frames / seconds if seconds > 0 and stage != "subject_encoding" else float("nan")
-        rows.append(f"| {stage} | {seconds:.2f} | {fps:.1f} |")
+        per_frame = seconds > 0 and stage != "subject_encoding"  # subject encoding runs once, not per frame
+        rows.append(f"| {stage} | {seconds:.2f} | {f'{stats.frames / seconds:.1f}' if per_frame else '–'} |")
     return "\n".join(rows)
 
 
