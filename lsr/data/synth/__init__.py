@@ -7,7 +7,15 @@ pose/expression/light), features (2D feature curves shared by landmarks and pain
 noise), presets (hard cases).
 """
 
-from lsr.data.synth.generate import SynthClip, benchmark, generate_dataset, identity_seed_of, render_video
+from lsr.data.synth.generate import (
+    SynthClip,
+    align_clip,
+    benchmark,
+    generate_dataset,
+    identity_seed_of,
+    render_framed,
+    render_video,
+)
 from lsr.data.synth.presets import PRESET_NAMES, PRESETS, Preset, get_preset
 
 __all__ = [
@@ -20,6 +28,8 @@ __all__ = [
     "get_preset",
     "identity_seed_of",
     "render_video",
+    "render_framed",
+    "align_clip",
     "write_preview",
 ]
 

@@ -11,8 +11,9 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
+import cv2
 import numpy as np
 
 from lsr.data.synth import effects
@@ -24,6 +25,9 @@ from lsr.data.synth.render import background_image, render_head
 from lsr.errors import ConfigError
 
 DEFAULT_FPS = 25.0
+Framing = Literal["aligned", "camera"]
+FRAMINGS: tuple[str, ...] = ("aligned", "camera")
+ALIGN_OVERSAMPLE = 2  # 'aligned' renders at 2x and crops down (the crop zooms in ~1.3x on the camera framing)
 VISIBILITY_TOLERANCE = 0.03  # head units a landmark may lie behind the z-buffer and still count as visible
 
 
@@ -122,6 +126,41 @@ def render_video(
     return SynthClip(frames, landmarks, segmentation, motion.pose(), visible, np.array([o is not None for o in plan]), motion, params)
 
 
+def align_clip(clip: SynthClip, size: int) -> SynthClip:
+    """Crop every frame the way inference crops faces (``landmarks.align.crop_transform`` on the exact landmarks).
+
+    Real data (``lsr prepare``) and every driver at inference are framed by that crop, so training on aligned
+    synthetic frames removes a framing gap between the synthetic training set and what the model sees later.
+    Frames are warped with cubic interpolation (edges replicated), classes with nearest, landmarks exactly.
+    """
+    from landmarks.align import crop_transform, transform_landmarks, warp_to_crop
+
+    count = len(clip.frames)
+    frames = np.empty((count, size, size, 3), np.uint8)
+    segmentation = np.empty((count, size, size), np.uint8)
+    landmarks = np.empty((count, 68, 2), np.float32)
+    for index in range(count):
+        matrix = crop_transform(clip.landmarks[index], size)
+        frames[index] = warp_to_crop(clip.frames[index], matrix, size)
+        segmentation[index] = cv2.warpAffine(clip.segmentation[index], matrix, (size, size), flags=cv2.INTER_NEAREST,
+                                             borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+        landmarks[index] = transform_landmarks(clip.landmarks[index], matrix)
+    params = {**clip.params, "framing": "aligned", "size": size, "render_size": int(clip.frames.shape[1])}
+    return dataclasses.replace(clip, frames=frames, landmarks=landmarks, segmentation=segmentation, params=params)
+
+
+def render_framed(identity_seed: int, num_frames: int, size: int = 128, preset: str | Preset = "default",
+                  video_index: int = 0, fps: float = DEFAULT_FPS, framing: Framing = "aligned") -> SynthClip:  # fmt: skip
+    """``render_video`` with a framing: 'camera' (the scene's camera, the head moves in the frame) or 'aligned'
+    (rendered at ``ALIGN_OVERSAMPLE`` x size, then cropped per frame like inference; see ``align_clip``)."""
+    if framing not in FRAMINGS:
+        raise ConfigError(f"framing must be one of {', '.join(FRAMINGS)}, got {framing!r}")
+    if framing == "camera":
+        return render_video(identity_seed, num_frames, size, preset, video_index=video_index, fps=fps)
+    clip = render_video(identity_seed, num_frames, size * ALIGN_OVERSAMPLE, preset, video_index=video_index, fps=fps)
+    return align_clip(clip, size)
+
+
 def _visible(pixels: np.ndarray, point_depth: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """(68,) bool: the landmark is not behind the rendered surface at its pixel."""
     size = depth.shape[0]
@@ -151,8 +190,8 @@ def _render_and_write(job: tuple) -> int:
     """Worker: render one clip and write it (top-level so process pools can pickle it)."""
     from lsr.data.format import write_clip
 
-    root, name, identity_index, identity_seed, video_index, frames, size, preset, fps, seed, overwrite = job
-    clip = render_video(identity_seed, frames, size, preset, video_index=video_index, fps=fps)
+    root, name, identity_index, identity_seed, video_index, frames, size, preset, fps, seed, overwrite, framing = job
+    clip = render_framed(identity_seed, frames, size, preset, video_index=video_index, fps=fps, framing=framing)
     meta = {"origin": "synthetic", "fps": fps, "generator": {**clip.params, "dataset_seed": seed, "identity_index": identity_index}}
     write_clip(Path(root) / name / f"vid{video_index:03d}", clip.frames, clip.landmarks, clip.pose, meta, clip.segmentation, overwrite=overwrite)
     return frames
@@ -171,11 +210,13 @@ def generate_dataset(
     progress: bool = True,
     overwrite: bool = False,
     workers: int = 1,
+    framing: Framing = "aligned",
 ) -> Path:
     """Write ``identities`` x ``videos_per_identity`` clips of ``frames`` frames and the manifest.
 
     Returns the manifest path. Layout and files: ``lsr.data.format``. ``workers`` > 1 renders
-    clips in a process pool; the output is the same for any number of workers.
+    clips in a process pool; the output is the same for any number of workers. ``framing``: see
+    ``render_framed`` ('aligned', the default, frames faces like inference and ``lsr prepare`` do).
     """
     from concurrent.futures import ProcessPoolExecutor
     import multiprocessing
@@ -189,11 +230,13 @@ def generate_dataset(
     if not 0.0 <= test_fraction < 1.0:
         raise ConfigError(f"test_fraction must be in [0, 1), got {test_fraction}")
     get_preset(preset)
+    if framing not in FRAMINGS:
+        raise ConfigError(f"framing must be one of {', '.join(FRAMINGS)}, got {framing!r}")
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     names = [f"id{i:05d}" for i in range(identities)]
     jobs = [
-        (str(root), name, i, identity_seed_of(seed, i), v, frames, size, preset, fps, seed, overwrite)
+        (str(root), name, i, identity_seed_of(seed, i), v, frames, size, preset, fps, seed, overwrite, framing)
         for i, name in enumerate(names)
         for v in range(videos_per_identity)
     ]
@@ -207,7 +250,7 @@ def generate_dataset(
                 for done in pool.map(_render_and_write, jobs):
                     bar.update(done)
     split = split_identities(names, seed, test_fraction)
-    extra = {"generator": "lsr.data.synth", "seed": seed, "preset": preset, "size": size, "fps": fps}
+    extra = {"generator": "lsr.data.synth", "seed": seed, "preset": preset, "size": size, "fps": fps, "framing": framing}
     return write_manifest(root, split, extra)
 
 

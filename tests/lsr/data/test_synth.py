@@ -90,6 +90,22 @@ def test_landmarks_fall_in_their_own_classes() -> None:
     assert min(rates.values()) >= 0.85, rates
 
 
+def test_aligned_framing_matches_the_inference_crop() -> None:
+    from landmarks.align import crop_transform
+
+    from lsr.data.synth import render_framed
+
+    camera = render_framed(identity_seed_of(0, 1), 6, 128, framing="camera")
+    aligned = render_framed(identity_seed_of(0, 1), 6, 128)  # the default
+    assert aligned.frames.shape == camera.frames.shape and aligned.params["framing"] == "aligned"
+    for points in aligned.landmarks:  # cropping an aligned frame again is (nearly) the identity
+        matrix = crop_transform(points, 128)
+        assert np.allclose(matrix[:, :2], np.eye(2), atol=1e-3) and np.allclose(matrix[:, 2], 0, atol=0.1)
+    checks = landmark_class_checks(aligned)  # classes were warped with the same transform as the points
+    assert float(np.mean([v for values in checks.values() for v in values])) >= 0.95
+    assert not np.allclose(crop_transform(camera.landmarks[0], 128)[:, :2], np.eye(2), atol=0.05)
+
+
 def test_jaw_follows_the_silhouette_at_large_yaw() -> None:
     """At |yaw| > 30 the far-side jaw points lie on the head/background (or neck) border, not inside the face."""
     on_border = []
