@@ -31,7 +31,8 @@ def _run_landmarks(cfg: config.LandmarksConfig) -> None:
 def _run_demo(cfg: config.DemoConfig) -> None:
     from lsr.demo import run_demo
 
-    run_demo(cfg.out)
+    run_demo(cfg.out, weights=cfg.weights, frames=cfg.frames, k=cfg.k, finetune_steps=cfg.finetune_steps,
+             threads=cfg.threads, progress=cfg.progress)  # fmt: skip
 
 
 def _run_bench_landmarks(cfg: config.BenchLandmarksConfig) -> None:
@@ -71,7 +72,7 @@ def _run_synth(cfg: config.SynthConfig) -> None:
     workers = min(2, os.cpu_count() or 1) if cfg.workers == -1 else cfg.workers
     manifest = generate_dataset(cfg.out, cfg.identities, cfg.videos_per_identity, cfg.frames, size=cfg.size, seed=cfg.seed,
                                 preset=cfg.preset, test_fraction=cfg.test_fraction, fps=cfg.fps, overwrite=cfg.overwrite,
-                                workers=workers)
+                                workers=workers, framing=cfg.framing)
     print(f"dataset written to {cfg.out} ({manifest.name})")
 
 

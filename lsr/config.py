@@ -54,13 +54,33 @@ class LandmarksConfig:
 
 @dataclasses.dataclass
 class DemoConfig:
-    """The README's main job on a fresh machine: make a bundled input and run the pipeline on it."""
+    """The README's main job: render a synthetic source and driver, re-enact with the default model (lsr.demo)."""
 
     out: Path = Path("out")
-    """Output folder."""
+    """Output folder: demo.mp4, demo_side_by_side.{mp4,png}, inputs/{source,driver}.mp4."""
+    weights: Path | None = None
+    """Model folder; default: $LSR_WEIGHTS, else the shipped default model."""
+    frames: int = 100
+    """Frames of the driving clip (25 fps)."""
+    k: int = 8
+    """Source shots to average (1..32)."""
+    finetune_steps: int = 100
+    """Subject fine-tuning steps on the K shots before re-enacting (thesis §4.3.5; 0 = the meta-learned model)."""
+    threads: int = 0
+    """CPU threads for the networks; 0 = the library default."""
+    progress: bool = True
 
     def validate(self) -> None:
-        pass
+        if self.weights is not None and not Path(self.weights).is_dir():
+            raise ConfigError(f"--weights {self.weights} is not a model folder (config.json + model.safetensors)")
+        if self.finetune_steps < 0:
+            raise ConfigError(f"--finetune-steps must be >= 0, got {self.finetune_steps}")
+        if self.frames < 1:
+            raise ConfigError(f"--frames must be >= 1, got {self.frames}")
+        if not 1 <= self.k <= 32:
+            raise ConfigError(f"--k must be in 1..32, got {self.k}")
+        if self.threads < 0:
+            raise ConfigError(f"--threads must be >= 0, got {self.threads}")
 
 
 @dataclasses.dataclass
@@ -87,6 +107,9 @@ class SynthConfig:
     """Share of identities in the manifest's test split."""
     fps: float = 25.0
     """Frame rate of the motion (talking speed, blinks)."""
+    framing: Literal["aligned", "camera"] = "aligned"
+    """aligned: faces cropped per frame like inference and `lsr prepare` (rendered at 2x, then cropped);
+    camera: the scene camera's framing (the head moves inside a fixed frame)."""
     workers: int = 1
     """Parallel clip workers (processes); -1 = min(2, CPU count). Output does not depend on it."""
     overwrite: bool = False
@@ -238,7 +261,7 @@ class TrainConfig:
     """Dataset root (lsr.data format). None with --synthetic-identities > 0 = a procedural dataset."""
     out: Path = Path("runs/lsr")
     """Run folder: checkpoints/, tensorboard/, weights/ (inference safetensors + config.json)."""
-    preset: Literal["paper", "small", "fast", "tiny"] = "paper"
+    preset: Literal["paper", "small", "fast", "compact", "tiny"] = "paper"
     """Model size preset (models_def.presets)."""
     variant: Literal["baseline", "spade_landmarks", "learned_seg", "latent_layout", "oracle_seg"] = "latent_layout"
     """Ablation variant (thesis Table 4.2)."""
@@ -248,6 +271,9 @@ class TrainConfig:
     """Train on this many procedural synthetic identities instead of --data (smoke runs, tests, benches)."""
     k_shots: int = 4
     """K: shots per training episode."""
+    shots_from: Literal["video", "identity"] = "video"
+    """Where an episode's K shots come from: the target's own video (FSTH's episodes, and the evaluation
+    protocol: shots and hold-outs share a video) or any video of the identity (other backgrounds and light)."""
     batch_size: int = 8
     """Global batch (episodes per step, over all processes; each of N processes gets batch / N)."""
     workers: int = 2
@@ -299,18 +325,18 @@ class TrainConfig:
 class FinetuneConfig:
     """Fine-tune a trained model on K shots of one person (thesis §4.3.5); writes subject weights + latents."""
 
-    weights: Path
-    """Model folder (safetensors + config.json), e.g. RUN/weights from `lsr train`."""
     shots: tyro.conf.Positional[tuple[Path, ...]]
     """Image files, a folder of images, or one video (K frames with a face are sampled)."""
+    weights: Path | None = None
+    """Model folder (config.json + model.safetensors); default: $LSR_WEIGHTS, else the shipped default model (MODEL_CARD.md)."""
     out: Path = Path("out/subject")
     """Output folder: subject model (safetensors + config.json) and latents.safetensors."""
     k: int = 8
     """Number of shots to use (sampled evenly from a folder or video)."""
     steps: int = 50
     """Fine-tuning steps (small preset at 128^2, batch 4: ~4.5 s/step on one loaded CPU core)."""
-    lr: float = 1e-4
-    """Adam lr for G^l, G^s and D during fine-tuning."""
+    lr: float = 1e-3
+    """Adam lr for G^l, G^s and D during fine-tuning (the training lr, thesis §4.6)."""
     batch_size: int = 4
     """Shots reconstructed per step (<= K)."""
     losses: LossConfig = dataclasses.field(default_factory=LossConfig)
@@ -322,7 +348,7 @@ class FinetuneConfig:
 
     def validate(self) -> None:
         self.losses.validate()
-        if not Path(self.weights).is_dir():
+        if self.weights is not None and not Path(self.weights).is_dir():
             raise ConfigError(f"--weights {self.weights} must be a model folder (config.json + .safetensors)")
         if not self.shots:
             raise ConfigError("give at least one image, folder or video of the subject")
@@ -350,6 +376,8 @@ class EvalConfig:
     """Trained LSR model folders (config.json + model.safetensors) to evaluate beside the baselines."""
     finetune_steps: int = 0
     """> 0: also evaluate each model fine-tuned on the K shots of each identity for this many steps (thesis §4.3.5)."""
+    finetune_lr: float = 1e-3
+    """Adam lr of that fine-tuning (G^l, G^s, D)."""
     device: str = "cpu"
     """Torch device of the models (cpu, cuda, cuda:1, ...)."""
     split: str = "test"
@@ -380,6 +408,15 @@ class EvalConfig:
     """LPIPS (AlexNet v0.1) weights file, .pth or .safetensors (see lsr/eval/lpips.py); unset = LPIPS not computed."""
     fid_weights: Path | None = None
     """FID feature extractor, TorchScript (.pt) or .onnx (see lsr/eval/fid.py); unset = FID not computed."""
+    out_md: Path | None = None
+    """Also put the report into this markdown file (e.g. BENCHMARKS.md) as the section named by --section,
+    with the command that wrote it; other sections are kept."""
+    section: str = "eval"
+    """Name of that section: its markers are <!-- eval:NAME:start --> / <!-- eval:NAME:end -->."""
+    title: str = ""
+    """Heading of that section (default: the data folder)."""
+    note: str = ""
+    """A note printed under the command in that section (e.g. how the weights were trained)."""
     progress: bool = True
 
     def resolved_data(self) -> Path:
@@ -404,8 +441,8 @@ class EvalConfig:
         for folder in self.weights:
             if not Path(folder).is_dir():
                 raise ConfigError(f"--weights {folder} is not a model folder (config.json + model.safetensors)")
-        if self.finetune_steps < 0:
-            raise ConfigError(f"--finetune-steps must be >= 0, got {self.finetune_steps}")
+        if self.finetune_steps < 0 or not self.finetune_lr > 0:
+            raise ConfigError(f"--finetune-steps must be >= 0 and --finetune-lr > 0, got {self.finetune_steps}, {self.finetune_lr}")
         if self.inputs < 1 or self.holdouts < 1 or self.max_holdouts < 0 or self.max_identities < 0 or self.examples < 0:
             raise ConfigError("--inputs, --holdouts >= 1 and --max-holdouts, --max-identities, --examples >= 0 are required")
         if self.detector_upsample < 0:
@@ -414,6 +451,8 @@ class EvalConfig:
             raise ConfigError(f"--bucket-thresholds needs two increasing values (or none for terciles), got {self.bucket_thresholds}")
         if self.tps_regularization < 0:
             raise ConfigError(f"--tps-regularization must be >= 0, got {self.tps_regularization}")
+        if not self.section.replace("_", "").replace("-", "").isalnum():
+            raise ConfigError(f"--section must be letters, digits, '-' or '_', got {self.section!r}")
         for flag, path in (("--lpips-weights", self.lpips_weights), ("--fid-weights", self.fid_weights)):
             if path is not None and not Path(path).is_file():
                 raise ConfigError(f"{flag} {path} is not a file; pass an existing weights file or leave {flag} unset")
@@ -427,8 +466,8 @@ class ReenactConfig:
     """Re-enact a source person with a driving video: one job (--source/--driving/--out) or a batch (--jobs or dirs)."""
 
     weights: Path | None = None
-    """Model folder (config.json + model.safetensors); for --runtime onnx an `lsr export` bundle (or a model
-    folder with one in onnx/). Required: no default model ships yet."""
+    """Model folder (config.json + model.safetensors); for --runtime onnx also an `lsr export` bundle (a model
+    folder without one is exported on first use and cached). Default: $LSR_WEIGHTS, else the shipped model."""
     source: Path | None = None
     """Source person: an image, a folder of images, or a video (K frames with a face are sampled)."""
     driving: Path | None = None
@@ -457,6 +496,8 @@ class ReenactConfig:
     """Paste the synthesised head back into the full driving frame; otherwise output the crop-sized synthesis."""
     finetune_steps: int = 0
     """Fine-tune the generators on the source shots first (thesis §4.3.5; torch runtime only)."""
+    finetune_lr: float = 1e-3
+    """Adam lr of that fine-tuning (G^l, G^s, D)."""
     runtime: Literal["torch", "onnx"] = "torch"
     int8: bool = False
     """--runtime onnx: use the int8 frame generator (`lsr export --int8`)."""
@@ -486,10 +527,7 @@ class ReenactConfig:
     def validate(self) -> None:
         if self.threads < 0:
             raise ConfigError(f"--threads must be >= 0, got {self.threads}")
-        if self.weights is None:
-            raise ConfigError("--weights DIR is required (a model folder from `lsr train`, or an `lsr export` bundle "
-                              "for --runtime onnx); no default model ships yet")  # fmt: skip
-        if not Path(self.weights).is_dir():
+        if self.weights is not None and not Path(self.weights).is_dir():
             raise ConfigError(f"--weights {self.weights} is not a folder (config.json + model.safetensors)")
         single = [self.source, self.driving, self.out]
         dirs = [self.source_dir, self.driving_dir, self.out_dir]
@@ -508,8 +546,8 @@ class ReenactConfig:
             raise ConfigError("--relative and --absolute exclude each other")
         if self.k is not None and not 1 <= self.k <= 32:
             raise ConfigError(f"--k must be in 1..32, got {self.k}")
-        if self.finetune_steps < 0:
-            raise ConfigError(f"--finetune-steps must be >= 0, got {self.finetune_steps}")
+        if self.finetune_steps < 0 or not self.finetune_lr > 0:
+            raise ConfigError(f"--finetune-steps must be >= 0 and --finetune-lr > 0, got {self.finetune_steps}, {self.finetune_lr}")
         if self.finetune_steps and self.runtime != "torch":
             raise ConfigError("--finetune-steps needs --runtime torch (fine-tuning trains the torch model)")
         if self.int8 and self.runtime != "onnx":
@@ -526,8 +564,8 @@ class ReenactConfig:
 class ExportConfig:
     """Export a model folder to the ONNX bundle run by deploy.runtime.OnnxReenactor (no torch needed)."""
 
-    weights: Path
-    """Model folder (config.json + model.safetensors)."""
+    weights: Path | None = None
+    """Model folder (config.json + model.safetensors); default: $LSR_WEIGHTS, else the shipped default model (MODEL_CARD.md)."""
     out: Path = Path("out/onnx")
     """Bundle folder: subject_encoder.onnx, frame_generator.onnx [, frame_generator.int8.onnx]."""
     int8: bool = False
@@ -540,7 +578,7 @@ class ExportConfig:
     calibration_k: int | None = None
 
     def validate(self) -> None:
-        if not Path(self.weights).is_dir():
+        if self.weights is not None and not Path(self.weights).is_dir():
             raise ConfigError(f"--weights {self.weights} is not a model folder (config.json + model.safetensors)")
         if self.calibration_frames < 1:
             raise ConfigError(f"--calibration-frames must be >= 1, got {self.calibration_frames}")
@@ -551,8 +589,8 @@ class AppConfig:
     """Start the Gradio web app (K-shot upload, re-enactment, the latent layout made visible) on HOST:PORT."""
 
     weights: Path | None = None
-    """Model folder (config.json + model.safetensors, from `lsr train`). Default: $LSR_WEIGHTS, else
-    runs/lsr/weights when it exists; without any the page explains how to get weights."""
+    """Model folder (config.json + model.safetensors, from `lsr train`). Default: $LSR_WEIGHTS, else the
+    shipped default model (trained on synthetic heads; see MODEL_CARD.md)."""
     random_init: bool = False
     """No trained model yet: serve a randomly initialised 'tiny' model (outputs are noise; to try the interface)."""
     host: str = "127.0.0.1"

@@ -144,7 +144,7 @@ class Reenactor(ReenactorBase):
     def model(self) -> LSRModel:
         return self.backend.model
 
-    def finetune(self, steps: int, *, lr: float = 1e-4, batch_size: int = 4, seed: int = 0, progress: bool = False):
+    def finetune(self, steps: int, *, lr: float = 1e-3, batch_size: int = 4, seed: int = 0, progress: bool = False):
         """Fine-tune G^l, G^s on the cached subject's shots (thesis §4.3.5; ``lsr.train.finetune``), in place.
 
         The latents stay those of ``encode_subject`` (fixed during fine-tuning, as in the thesis).

@@ -22,6 +22,15 @@ PRESETS: dict[str, dict] = {
         "spade_hidden_channels": 32,
         "spade_shared_input_modulation": True,
     },
+    # The shipped default (lsr/weights/default): the cheapest preset that trains to a useful model on a
+    # 2-core CPU in a few hours at 128^2 (see MODEL_CARD.md for the recipe and BENCHMARKS.md for the choice).
+    "compact": {
+        "resolution": 128,
+        "width": 0.25,
+        "channel_multiple": 8,
+        "latent_dim": 64,
+        "max_channels": 256,
+    },
     "tiny": {
         "resolution": 64,
         "width": 0.125,

@@ -71,7 +71,7 @@ class LsrModelMethod:
     ``target_segmentations`` in ``reenact``."""
 
     def __init__(self, weights: str | os.PathLike, *, device: str = "cpu", finetune_steps: int = 0,
-                 finetune_lr: float = 1e-4, name: str | None = None, reenactor=None) -> None:  # fmt: skip
+                 finetune_lr: float = 1e-3, name: str | None = None, reenactor=None) -> None:  # fmt: skip
         """reenactor: a ready ``ReenactorBase`` (e.g. ``deploy.runtime.OnnxReenactor`` over the bundle at
         ``weights``); None = load the torch model from ``weights``."""
         self.weights = Path(weights)

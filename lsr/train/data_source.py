@@ -56,6 +56,7 @@ def episode_dataset(cfg, model_config: ModelConfig) -> torch.utils.data.Dataset:
         shots=cfg.k_shots,
         size=model_config.resolution,
         seed=cfg.seed,
+        shots_from=cfg.shots_from,
         with_segmentation=needs_segmentation,
     )
     if needs_segmentation:

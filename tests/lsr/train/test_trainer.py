@@ -180,3 +180,19 @@ def test_existing_checkpoints_need_resume(tmp_path):
     with pytest.raises(ConfigError, match="--resume"):
         again.run()
     again.close()
+
+
+@pytest.mark.parametrize("shots_from", ["video", "identity"])
+def test_shots_from_picks_the_episode_pool(tmp_path, shots_from):
+    """--shots-from video keeps an episode's shots in its target's video (FSTH episodes, the eval protocol)."""
+    from lsr.data.synth import generate_dataset
+    from lsr.train.data_source import episode_dataset
+    from lsr.train.trainer import model_config_for
+
+    root = tmp_path / "data"
+    generate_dataset(root, identities=2, videos_per_identity=2, frames=4, size=64, seed=0, test_fraction=0.0, progress=False)
+    cfg = tiny_train_config(tmp_path / "run", data=root, synthetic_identities=0, shots_from=shots_from)
+    dataset = episode_dataset(cfg, model_config_for(cfg))
+    assert dataset.shots_from == shots_from
+    pool_sizes = {len(pool) for pool in dataset._pools.values()}
+    assert pool_sizes == ({4} if shots_from == "video" else {8})
