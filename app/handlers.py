@@ -30,7 +30,8 @@ PANEL_TITLES = ("driving frame", "landmarks", "latent layout", "output")
 
 def how_to_get_weights() -> str:
     return (
-        "**No model loaded.** No trained LSR model ships yet. Train one, for example a small one on procedural "
+        "**No model loaded.** The default model is missing from this install (reinstall with `pip install -e .`), "
+        "or $LSR_WEIGHTS points at a folder without one. Or train one, for example a small one on procedural "
         "synthetic faces:\n\n"
         "`lsr train --synthetic-identities 16 --preset tiny --out runs/lsr` (writes `runs/lsr/weights`), then "
         "`lsr app --weights runs/lsr/weights`.\n\n"
@@ -49,12 +50,14 @@ class Limits:
 
 
 def default_weights() -> Path | None:
-    """$LSR_WEIGHTS, else ``runs/lsr/weights`` (where ``lsr train`` writes by default) when it exists."""
-    candidates = [os.environ.get("LSR_WEIGHTS"), "runs/lsr/weights"]
-    for candidate in candidates:
-        if candidate and (Path(candidate) / "config.json").is_file():
-            return Path(candidate)
-    return None
+    """$LSR_WEIGHTS, else the shipped default model (``lsr.weights``); None when neither holds a model."""
+    from lsr.weights import MissingWeightsError
+    from lsr.weights import default_weights as installed
+
+    try:
+        return installed()
+    except MissingWeightsError:
+        return None
 
 
 def random_init_weights(folder: Path, seed: int = 0) -> Path:
@@ -400,6 +403,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     from lsr import __version__
     from lsr.errors import LsrError
     from lsr.reenact import side_by_side_frame
+    from lsr.train.visualize import LayoutPCA
 
     reenactor = store.reenactor(runtime)  # first: without a model nothing else matters
     driving_paths = _paths(driving)
@@ -423,6 +427,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     audio = driving if info.kind == "video" and info.has_audio else None
     target_landmark_image = None
     encode_seconds = 0.0
+    pca = LayoutPCA()  # one colouring for the whole clip (fitted on its first frame)
     with store.finetuned(reenactor, int(finetune_steps)) as finetune_seconds:
         frames = reenactor.reenact(driving, mode=motion, smooth=smooth, paste_back=paste_back, with_layout=True, progress=True)
         with VideoWriter(output, info.fps, audio_from=audio, metadata=provenance_metadata(__version__, runtime)) as writer:
@@ -433,7 +438,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
                 encode_seconds += time.perf_counter() - tick
                 if target_landmark_image is None and frame.landmark_image is not None:
                     target_landmark_image = frame.landmark_image
-                write_image(panel_path(panels_dir, frame.index), side_by_side_frame(frame, kind, size))
+                write_image(panel_path(panels_dir, frame.index), side_by_side_frame(frame, kind, size, pca))
             stats = reenactor.last_stats
             if stats.frames != info.frames:
                 raise LsrError(f"{driving.name}: produced {stats.frames} frames for {info.frames} driver frames")

@@ -16,8 +16,10 @@ lsr version, opset. Opset is fixed (``ONNX_OPSET``) so that every bundle runs on
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -113,6 +115,41 @@ def export_graphs(model: LSRModel, out: str | os.PathLike, *, shots: int = 2) ->
     return ExportResult(out, [subject_path, frame_path], metadata)
 
 
+def onnx_cache_root() -> Path:
+    """``$XDG_CACHE_HOME/lsr/onnx`` (default ``~/.cache/lsr/onnx``): bundles exported on first use."""
+    cache = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(cache) / "lsr" / "onnx"
+
+
+def cached_bundle(weights: str | os.PathLike, cache_root: str | os.PathLike | None = None) -> Path:
+    """The fp32 ONNX bundle of a model folder, exported on first use into the cache and reused after.
+
+    The cache key is a hash of config.json + model.safetensors (new weights = new bundle). The export goes into a
+    temp folder that is renamed into place, so a crashed or concurrent first use never leaves a half bundle.
+    """
+    weights = Path(weights)
+    digest = hashlib.sha256()
+    for name in ("config.json", "model.safetensors"):
+        digest.update((weights / name).read_bytes())
+    root = Path(cache_root) if cache_root is not None else onnx_cache_root()
+    folder = root / digest.hexdigest()[:20]
+    if (folder / SUBJECT_ENCODER_FILE).is_file() and (folder / FRAME_GENERATOR_FILE).is_file():
+        return folder
+    root.mkdir(parents=True, exist_ok=True)
+    temp = Path(tempfile.mkdtemp(dir=root, prefix=f".{folder.name}.", suffix=".tmp"))
+    try:
+        print(f"exporting {weights} to ONNX once (cached in {folder})")
+        export_graphs(load_model(weights), temp)
+        try:
+            os.replace(temp, folder)
+        except OSError:  # another process finished first: keep its bundle
+            if not (folder / FRAME_GENERATOR_FILE).is_file():
+                raise
+    finally:
+        shutil.rmtree(temp, ignore_errors=True)
+    return folder
+
+
 class _FrameCalibration:
     """onnxruntime CalibrationDataReader over frame-generator inputs (one frame per read)."""
 
@@ -196,7 +233,9 @@ def default_calibration_clip() -> Path | None:
 
 def run_export(cfg) -> ExportResult:
     """Entry point of ``lsr export`` (``lsr.config.ExportConfig``)."""
-    model = load_model(cfg.weights)
+    from lsr.weights import resolve_weights
+
+    model = load_model(resolve_weights(cfg.weights))
     result = export_graphs(model, cfg.out)
     print(f"wrote {', '.join(p.name for p in result.files)} to {result.folder} "
           f"(opset {ONNX_OPSET}, preset {result.metadata['preset']}, {result.metadata['resolution']}^2)")  # fmt: skip

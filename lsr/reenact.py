@@ -34,6 +34,7 @@ from landmarks.errors import LandmarksError
 from landmarks.imageio import IMAGE_SUFFIXES
 from lsr import __version__
 from lsr.errors import ConfigError, LsrError
+from lsr.weights import is_model_folder, resolve_weights
 
 
 class ReenactJobsError(LsrError):
@@ -125,54 +126,64 @@ def resolve_device(device: str) -> str:
 
 
 def onnx_bundle_folder(weights: Path) -> Path:
-    """--weights for --runtime onnx: an ``lsr export`` bundle, or a model folder holding one in ``onnx/``."""
+    """--weights for --runtime onnx: an ``lsr export`` bundle, a model folder holding one in ``onnx/``, or a model
+    folder without one (exported on first use into the cache, ``lsr.export_bundle.cached_bundle``)."""
     for folder in (weights, weights / "onnx"):
         if (folder / "subject_encoder.onnx").is_file():
             return folder
-    raise ConfigError(f"--runtime onnx: no subject_encoder.onnx in {weights} or {weights / 'onnx'}; "
-                      f"run `lsr export --weights {weights} --out {weights / 'onnx'}` first")  # fmt: skip
+    if is_model_folder(weights):
+        from lsr.export_bundle import cached_bundle
+
+        return cached_bundle(weights)
+    raise ConfigError(f"--runtime onnx: {weights} holds neither an ONNX bundle (subject_encoder.onnx) nor a model "
+                      "(config.json + model.safetensors)")  # fmt: skip
 
 
 def make_reenactor(cfg) -> ReenactorBase:
+    weights = resolve_weights(cfg.weights)
     if cfg.runtime == "onnx":
         from deploy.runtime import OnnxReenactor
 
-        return OnnxReenactor(onnx_bundle_folder(cfg.weights), int8=cfg.int8, threads=cfg.threads, detector=cfg.detector)
+        return OnnxReenactor(onnx_bundle_folder(weights), int8=cfg.int8, threads=cfg.threads, detector=cfg.detector)
     from lsr.pipeline import Reenactor
 
     if cfg.threads > 0:
         import torch
 
         torch.set_num_threads(cfg.threads)  # process-wide: torch has no per-model thread pool
-    return Reenactor(cfg.weights, device=resolve_device(cfg.device), precision=cfg.precision, detector=cfg.detector)
+    return Reenactor(weights, device=resolve_device(cfg.device), precision=cfg.precision, detector=cfg.detector)
 
 
 # ---- side-by-side -----------------------------------------------------------------------------------------
 
 
-def layout_panel(layout: np.ndarray | None, kind: str, size: int) -> np.ndarray:
-    """(C_l, S, S) layout -> (S, S, 3) uint8: argmax class colours for segmentations, else PCA of the channels."""
+def layout_panel(layout: np.ndarray | None, kind: str, size: int, pca=None) -> np.ndarray:
+    """(C_l, S, S) layout -> (S, S, 3) uint8: argmax class colours for segmentations, else PCA of the channels.
+
+    pca: a ``lsr.train.visualize.LayoutPCA`` kept over a video (fitted on its first frame) so colours stay put;
+    None fits one on this frame alone.
+    """
     if layout is None:
         return np.zeros((size, size, 3), np.uint8)
     import torch
 
-    from lsr.train.visualize import images_to_uint8, layout_argmax_rgb, layout_pca_rgb
+    from lsr.train.visualize import LayoutPCA, images_to_uint8, layout_argmax_rgb
 
     tensor = torch.from_numpy(layout)[None]
-    rgb = layout_argmax_rgb(tensor) if kind == "segmentation" else layout_pca_rgb(tensor)
+    rgb = layout_argmax_rgb(tensor) if kind == "segmentation" else (pca if pca is not None else LayoutPCA())(tensor)
     return images_to_uint8(rgb)[0]
 
 
 SIDE_BY_SIDE_MIN_PANEL = 256
 
 
-def side_by_side_frame(frame, kind: str, size: int) -> np.ndarray:
-    """driver | landmarks | latent layout | output, each an (S, S) panel."""
+def side_by_side_frame(frame, kind: str, size: int, pca=None) -> np.ndarray:
+    """driver | landmarks | latent layout | output, each an (S, S) panel (``pca``: see ``layout_panel``)."""
     blank = np.zeros((size, size, 3), np.uint8)
     driver = blank if frame.driver_frame is None else square_resize(frame.driver_frame, size)
     landmarks = blank if frame.landmark_image is None else frame.landmark_image
     output = frame.image if frame.image.shape[:2] == (size, size) else square_resize(frame.image, size)
-    panels = [driver, landmarks, layout_panel(frame.layout, kind, size), output]
+    panels = [driver, landmarks, layout_panel(frame.layout, kind, size, pca), output]
     if size < SIDE_BY_SIDE_MIN_PANEL:  # low-resolution models: enlarge so the panels stay legible
         panels = [cv2.resize(p, (SIDE_BY_SIDE_MIN_PANEL,) * 2, interpolation=cv2.INTER_NEAREST) for p in panels]
     return np.concatenate(panels, axis=1)
@@ -198,6 +209,9 @@ def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | Non
     with contextlib.ExitStack() as stack:
         writer = stack.enter_context(VideoWriter(job.output, info.fps, audio_from=audio, metadata=metadata))
         sbs_writer = None
+        from lsr.train.visualize import LayoutPCA
+
+        pca = LayoutPCA()  # fitted on the first frame, kept for the whole video
         if side_by_side is not None:
             sbs_writer = stack.enter_context(VideoWriter(side_by_side, info.fps, audio_from=audio, metadata=metadata))
         for frame in frames:
@@ -206,7 +220,7 @@ def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | Non
             writer.write(image)
             encode_seconds += time.perf_counter() - started
             if sbs_writer is not None:
-                panel = side_by_side_frame(frame, reenactor.backend.layout_kind, reenactor.resolution)
+                panel = side_by_side_frame(frame, reenactor.backend.layout_kind, reenactor.resolution, pca)
                 sbs_writer.write(draw_watermark(panel) if cfg.watermark else panel)
         stats = reenactor.last_stats
         if stats.frames != info.frames and info.kind != "video":
@@ -231,7 +245,7 @@ def _subject_for(reenactor: ReenactorBase, source: Path, cfg, cache: dict):
         reenactor.backend.model = copy.deepcopy(cache.setdefault("base_model", reenactor.backend.model))
     subject = reenactor.encode_subject(source, k=cfg.k)
     if cfg.finetune_steps > 0:
-        result = reenactor.finetune(cfg.finetune_steps, progress=cfg.progress)
+        result = reenactor.finetune(cfg.finetune_steps, lr=cfg.finetune_lr, progress=cfg.progress)
         print(f"fine-tuned on {len(subject.shots.frames)} shots of {source}: shot L1 {result.l1_before:.4f} -> {result.l1_after:.4f}")
         cache["backend_model"] = reenactor.backend.model
     cache.update(key=key, subject=subject, seconds=time.perf_counter() - started)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import socket
 from pathlib import Path
 
@@ -42,13 +43,23 @@ def tiny_app_weights(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
-def app_server(tiny_app_weights, tmp_path_factory):
+def app_server_weights(tiny_app_weights) -> Path:
+    """The served model: the shipped default (what `lsr app` serves), unless LSR_APP_TEST_TINY=1 asks for speed."""
+    from lsr.weights import DEFAULT_WEIGHTS, is_model_folder
+
+    if os.environ.get("LSR_APP_TEST_TINY") == "1" or not is_model_folder(DEFAULT_WEIGHTS):
+        return tiny_app_weights
+    return DEFAULT_WEIGHTS
+
+
+@pytest.fixture(scope="session")
+def app_server(app_server_weights, tmp_path_factory):
     """URL of a running app (build_app + launch without blocking); closed and cleaned after the session."""
     pytest.importorskip("gradio")
     from app.ui import build_app, launch
     from lsr.config import AppConfig
 
-    cfg = AppConfig(weights=tiny_app_weights, port=free_port(), device="cpu", max_upload_mb=5,
+    cfg = AppConfig(weights=app_server_weights, port=free_port(), device="cpu", max_upload_mb=5,
                     examples_dir=tmp_path_factory.mktemp("app_examples"))  # fmt: skip
     cfg.validate()
     demo, _, files = build_app(cfg)

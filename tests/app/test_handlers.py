@@ -64,8 +64,7 @@ def test_session_files_replace_runs_and_clean_up(tmp_path):
 
 
 def test_without_weights_the_page_explains_and_runs_refuse(tmp_path, monkeypatch):
-    monkeypatch.delenv("LSR_WEIGHTS", raising=False)
-    monkeypatch.chdir(tmp_path)  # no runs/lsr/weights here
+    monkeypatch.setenv("LSR_WEIGHTS", str(tmp_path / "missing"))  # a broken override hides the shipped model
     store = handlers.ModelStore(handlers.default_weights())
     assert store.weights is None and "lsr train" in store.problem and "--random-init" in store.problem
     with pytest.raises(WeightsError, match="lsr app --weights"):

@@ -125,10 +125,11 @@ def test_dirs_pairing_and_shards(tmp_path, monkeypatch):
         ("k_too_large", "K=5 is larger than the usable source frames"),
         ("nan_landmarks", "NaN"),
         ("unsupported", "unsupported driver"),
-        ("no_weights", "--weights DIR is required"),
+        ("no_weights", "no model (config.json + model.safetensors) in $LSR_WEIGHTS"),
     ],
 )
-def test_bad_input_exits_2_naming_the_problem_without_output(weights, inputs, tmp_path, capsys, case, message):
+def test_bad_input_exits_2_naming_the_problem_without_output(weights, inputs, tmp_path, capsys, monkeypatch, case,
+                                                            message):  # fmt: skip
     from landmarks.imageio import write_image
 
     source, driving = inputs / "alice.png", inputs / "drive.mp4"
@@ -159,6 +160,8 @@ def test_bad_input_exits_2_naming_the_problem_without_output(weights, inputs, tm
         driving = tmp_path / "drive.xyz"
         driving.write_text("?")
     weights_args = [] if case == "no_weights" else ["--weights", str(weights)]
+    if case == "no_weights":  # no --weights and an override that points nowhere: the default is not used
+        monkeypatch.setenv("LSR_WEIGHTS", str(tmp_path / "nowhere"))
     out = tmp_path / "result.mp4"
     code = main(["reenact", *weights_args, "--source", str(source), "--driving", str(driving), "--out", str(out),
                  "--no-progress", *extra])  # fmt: skip
@@ -177,6 +180,22 @@ def test_export_then_onnx_runtime_job(weights, inputs, tmp_path):
     code = main(["reenact", "--weights", str(bundle), "--runtime", "onnx", "--source", str(inputs / "alice.png"),
                  "--driving", str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])  # fmt: skip
     assert code == 0 and probe(out)[:3] == (5, 20.0, True)
+
+
+@pytest.mark.slow
+def test_onnx_runtime_exports_a_model_folder_once_into_the_cache(weights, inputs, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    args = ["reenact", "--weights", str(weights), "--runtime", "onnx", "--source", str(inputs / "alice.png"),
+            "--driving", str(inputs / "drive.mp4"), "--no-progress"]  # fmt: skip
+    assert main([*args, "--out", str(tmp_path / "a.mp4")]) == 0
+    assert "exporting" in capsys.readouterr().out
+    bundles = list((tmp_path / "cache" / "lsr" / "onnx").iterdir())
+    assert len(bundles) == 1 and (bundles[0] / "frame_generator.onnx").is_file()
+    stamp = (bundles[0] / "frame_generator.onnx").stat().st_mtime_ns
+    assert main([*args, "--out", str(tmp_path / "b.mp4")]) == 0  # second use: the cached bundle, no export
+    assert "exporting" not in capsys.readouterr().out
+    assert (bundles[0] / "frame_generator.onnx").stat().st_mtime_ns == stamp
+    assert probe(tmp_path / "b.mp4")[:3] == (5, 20.0, True)
 
 
 @pytest.mark.slow

@@ -1,0 +1,69 @@
+"""Copy a training run's weights into the package as the default model: ``python -m lsr.weights.ship RUN/weights``.
+
+Copies config.json, model.safetensors and (when present) discriminator.safetensors into ``lsr/weights/default``
+through a temp folder renamed into place, checks that the copy loads, and prints sizes and SHA-256 sums for
+MODEL_CARD.md. Only weights trained on synthetic data may be shipped (see ../shared/data/README.md).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from lsr.weights import DEFAULT_WEIGHTS, MissingWeightsError, is_model_folder
+
+FILES = ("config.json", "model.safetensors", "discriminator.safetensors")
+MAX_MB = 25.0
+
+
+def ship(run_weights: str | os.PathLike, target: str | os.PathLike = DEFAULT_WEIGHTS) -> list[tuple[str, int, str]]:
+    """Copy ``run_weights`` to ``target`` atomically; returns (file, bytes, sha256) per shipped file."""
+    from models_def import LSRModel
+
+    source, target = Path(run_weights), Path(target)
+    if not is_model_folder(source):
+        raise MissingWeightsError(f"{source} is not a model folder (config.json + model.safetensors)")
+    names = [name for name in FILES if (source / name).is_file()]
+    total_mb = sum((source / name).stat().st_size for name in names) / 2**20
+    if total_mb > MAX_MB:
+        raise MissingWeightsError(f"{source} holds {total_mb:.1f} MB of weights; the package ships at most {MAX_MB} MB")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    temp = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp"))
+    try:
+        for name in names:
+            shutil.copyfile(source / name, temp / name)
+        LSRModel.from_pretrained(temp)  # refuse to ship what does not load
+        old = target.with_name(f".{target.name}.old")
+        shutil.rmtree(old, ignore_errors=True)
+        if target.exists():
+            os.replace(target, old)
+        os.replace(temp, target)
+        shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(temp, ignore_errors=True)
+    return [(name, (target / name).stat().st_size, hashlib.sha256((target / name).read_bytes()).hexdigest())
+            for name in names]  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) != 1:
+        print("usage: python -m lsr.weights.ship RUN/weights", file=sys.stderr)
+        return 2
+    try:
+        rows = ship(argv[0])
+    except MissingWeightsError as exc:
+        print(f"lsr.weights.ship: {exc}", file=sys.stderr)
+        return 2
+    print(f"shipped to {DEFAULT_WEIGHTS}:")
+    for name, size, digest in rows:
+        print(f"  {name:28s} {size / 2**20:7.2f} MB  sha256 {digest}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
