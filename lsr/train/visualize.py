@@ -24,27 +24,60 @@ def images_to_uint8(images: Tensor) -> np.ndarray:
     return array.permute(0, 2, 3, 1).cpu().numpy()
 
 
+class LayoutPCA:
+    """Colours a layout map by its 3 principal components, with the basis fitted once and then kept.
+
+    Fitted on the first call (a batch, or a video's first frame) and reused after, so a colour keeps its meaning
+    from frame to frame: refitting per frame flips eigenvector signs and swaps colours. Each component is scaled
+    by its robust (99th percentile) range at fit time. C < 3 is zero-padded.
+    """
+
+    def __init__(self) -> None:
+        self.mean: Tensor | None = None
+        self.basis: Tensor | None = None
+        self.scale: Tensor | None = None
+
+    @staticmethod
+    def _pixels(layout: Tensor) -> Tensor:
+        if layout.ndim != 4:
+            raise ValueError(f"layout must be (B, C, H, W); got {tuple(layout.shape)}")
+        return layout.detach().float().permute(0, 2, 3, 1).reshape(-1, layout.shape[1])  # (B*H*W, C)
+
+    def fit(self, layout: Tensor) -> LayoutPCA:
+        pixels = self._pixels(layout)
+        self.mean = pixels.mean(dim=0, keepdim=True)
+        centred = pixels - self.mean
+        channels = centred.shape[1]
+        # Principal axes from the C x C covariance (cheap: C is small), largest variance first.
+        covariance = centred.T @ centred / max(1, centred.shape[0] - 1)
+        _, eigenvectors = torch.linalg.eigh(covariance.double())
+        basis = eigenvectors[:, -min(3, channels):].flip(1).float()  # (C, <=3)
+        # Fix each axis' sign (eigh's is arbitrary): its largest-magnitude entry is positive.
+        signs = torch.sign(basis.gather(0, basis.abs().argmax(dim=0, keepdim=True)))
+        self.basis = basis * torch.where(signs == 0, torch.ones_like(signs), signs)
+        self.scale = (centred @ self.basis).abs().quantile(0.99, dim=0).clamp_min(1e-6)
+        return self
+
+    def __call__(self, layout: Tensor) -> Tensor:
+        """(B, C, H, W) -> (B, 3, H, W) in [-1, 1]; fits on this layout first when not fitted yet."""
+        if self.basis is None:
+            self.fit(layout)
+        batch, channels, height, width = layout.shape
+        if channels != self.basis.shape[0]:
+            raise ValueError(f"layout has {channels} channels; this LayoutPCA was fitted on {self.basis.shape[0]}")
+        projected = ((self._pixels(layout) - self.mean) @ self.basis / self.scale).clamp(-1, 1)
+        if projected.shape[1] < 3:
+            projected = torch.cat([projected, projected.new_zeros(projected.shape[0], 3 - projected.shape[1])], dim=1)
+        return projected.reshape(batch, height, width, 3).permute(0, 3, 1, 2)  # (B, 3, H, W)
+
+
 def layout_pca_rgb(layout: Tensor) -> Tensor:
     """Project a layout map's channels onto their 3 principal components -> (B, 3, H, W) in [-1, 1].
 
     layout: (B, C, H, W) float. One PCA basis is fitted on the whole batch so colours are comparable
-    across the row; each component is scaled by its robust range. C < 3 is zero-padded.
+    across the row (``LayoutPCA`` keeps a basis across calls, e.g. over a video).
     """
-    if layout.ndim != 4:
-        raise ValueError(f"layout must be (B, C, H, W); got {tuple(layout.shape)}")
-    batch, channels, height, width = layout.shape
-    pixels = layout.detach().float().permute(0, 2, 3, 1).reshape(-1, channels)  # (B*H*W, C)
-    pixels = pixels - pixels.mean(dim=0, keepdim=True)
-    if channels < 3:
-        pixels = torch.cat([pixels, pixels.new_zeros(pixels.shape[0], 3 - channels)], dim=1)
-    # Principal axes from the C x C covariance (cheap: C is small), largest variance first.
-    covariance = pixels.T @ pixels / max(1, pixels.shape[0] - 1)
-    _, eigenvectors = torch.linalg.eigh(covariance.double())
-    basis = eigenvectors[:, -3:].flip(1).float()  # (C, 3)
-    projected = pixels @ basis  # (B*H*W, 3)
-    scale = projected.abs().quantile(0.99, dim=0).clamp_min(1e-6)
-    projected = (projected / scale).clamp(-1, 1)
-    return projected.reshape(batch, height, width, 3).permute(0, 3, 1, 2)  # (B, 3, H, W)
+    return LayoutPCA()(layout)
 
 
 def layout_argmax_rgb(layout: Tensor) -> Tensor:
