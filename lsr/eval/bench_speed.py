@@ -47,8 +47,9 @@ RUNTIME_LABELS = {
 }
 TORCH_RUNTIMES = ("eager", "channels_last", "compile")
 ENCODER_KS = (1, 32)
-# The default synthetic test split: unseen identities (training renders with seed 0), fixed seed.
-SYNTH_SEED, SYNTH_IDENTITIES, SYNTH_VIDEOS, SYNTH_FRAMES = 1234, 6, 2, 16
+# The default synthetic test split: unseen identities (training renders with other seeds), fixed seed. One
+# 64-frame video per person, so the 32 inputs and 32 hold-outs share background and light as in FSTH's test set.
+SYNTH_SEED, SYNTH_IDENTITIES, SYNTH_VIDEOS, SYNTH_FRAMES = 1234, 12, 1, 64
 METRICS = {"psnr": ("PSNR", True), "ssim": ("SSIM", True), "nmke": ("NMKE", False)}  # name -> (label, higher is better)
 
 
@@ -94,7 +95,8 @@ def synthetic_split(cfg, size: int) -> Path:
     from lsr.data.synth import generate_dataset
 
     cache = Path(cfg.cache_dir) if cfg.cache_dir is not None else Path.home() / ".cache" / "lsr" / "bench_speed"
-    root = cache / f"synth_test_{size}_seed{SYNTH_SEED}"
+    # aligned: the framing lsr synth uses by default
+    root = cache / f"synth_test_{size}_seed{SYNTH_SEED}_{SYNTH_IDENTITIES}x{SYNTH_VIDEOS}x{SYNTH_FRAMES}_aligned"
     if not (root / "manifest.json").is_file():
         generate_dataset(root, SYNTH_IDENTITIES, SYNTH_VIDEOS, SYNTH_FRAMES, size=size, seed=SYNTH_SEED,
                          test_fraction=0.5, progress=cfg.progress, overwrite=True)  # fmt: skip
@@ -385,20 +387,20 @@ def section_markdown(cfg, rows: list[dict], peak: float, provenance: dict[str, s
     return "\n".join(lines) + "\n"
 
 
-def replace_section(path: Path, section: str) -> Path:
-    """Put ``section`` (markers included) into ``path`` between the markers, replacing the old one in place
-    and keeping every other line; appended when the file has none. Atomic."""
+def replace_section(path: Path, section: str, start: str = SECTION_START, end: str = SECTION_END) -> Path:
+    """Put ``section`` (markers included) into ``path`` between the markers ``start`` / ``end``, replacing the old
+    one in place and keeping every other line; appended when the file has none. Atomic."""
     from landmarks.imageio import atomic_output
 
     path = Path(path)
     text = path.read_text() if path.is_file() else "# Benchmarks\n\nEvery section is written by the command it names.\n"
-    starts, ends = text.count(SECTION_START), text.count(SECTION_END)
+    starts, ends = text.count(start), text.count(end)
     if starts != ends or starts > 1:
-        raise ConfigError(f"{path}: the markers {SECTION_START} / {SECTION_END} are unbalanced or repeated; "
+        raise ConfigError(f"{path}: the markers {start} / {end} are unbalanced or repeated; "
                           "fix them by hand (one pair) and re-run")  # fmt: skip
     if starts:
-        before, rest = text.split(SECTION_START, 1)
-        _, after = rest.split(SECTION_END, 1)
+        before, rest = text.split(start, 1)
+        _, after = rest.split(end, 1)
         after = after[1:] if after.startswith("\n") else after
         text = before + section + after
     else:
@@ -414,11 +416,11 @@ def _json_ready(rows: list[dict]) -> list[dict]:
     return json_safe([{k: ({str(kk): vv for kk, vv in v.items()} if isinstance(v, dict) else v) for k, v in row.items()} for row in rows])
 
 
-def command_line(cfg) -> str:
-    """The ``lsr bench speed`` command that reproduces ``cfg`` (fields that differ from the defaults)."""
+def command_line(cfg, prog: str = "lsr bench speed") -> str:
+    """The ``prog`` command that reproduces ``cfg`` (fields that differ from the defaults)."""
     import dataclasses
 
-    parts = ["lsr bench speed"]
+    parts = [prog]
     defaults = type(cfg)()
     for field in dataclasses.fields(cfg):
         value = getattr(cfg, field.name)

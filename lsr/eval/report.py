@@ -280,7 +280,8 @@ def run_eval(cfg: Any) -> dict[str, Any]:
     if cfg.weights:
         from lsr.eval.model_method import LsrModelMethod
 
-        models = [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps) for folder in cfg.weights]
+        models = [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps,
+                                 finetune_lr=cfg.finetune_lr) for folder in cfg.weights]
         methods += label_by_variant(models, cfg.weights)
     if not methods:
         raise ConfigError("no method to evaluate: pass --methods nearest_shot tps and/or --weights MODEL_DIR")
@@ -316,4 +317,24 @@ def run_eval(cfg: Any) -> dict[str, Any]:
     markdown_path, json_path = write_report(Path(cfg.out), summary, text)
     print(text)
     print(f"report written to {markdown_path} and {json_path}")
+    if cfg.out_md is not None:
+        print(f"section eval:{cfg.section} written to {write_section(cfg, text)}")
     return summary
+
+
+def write_section(cfg: Any, text: str) -> Path:
+    """Put the report ``text`` into ``cfg.out_md`` between ``<!-- eval:SECTION:start/end -->`` with its command."""
+    import datetime
+
+    from lsr.eval.bench_speed import command_line, replace_section
+
+    start, end = f"<!-- eval:{cfg.section}:start -->", f"<!-- eval:{cfg.section}:end -->"
+    body = text.split("\n", 1)[1] if text.startswith("# ") else text  # the report's own title becomes the heading
+    body = body.replace("\n## ", "\n### ")
+    lines = [start, f"## {cfg.title or f'Evaluation on {cfg.resolved_data().name} (`lsr eval`)'}", "",
+             f"_Written by the command below on {datetime.datetime.now().astimezone():%Y-%m-%d %H:%M %Z}; "
+             "do not edit the numbers by hand, re-run it._", "", f"```\n{command_line(cfg, 'lsr eval')}\n```", ""]  # fmt: skip
+    if cfg.note:
+        lines += [f"**Note:** {cfg.note}", ""]
+    lines += [body.strip("\n"), "", end]
+    return replace_section(Path(cfg.out_md), "\n".join(lines) + "\n", start, end)

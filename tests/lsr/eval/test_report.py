@@ -41,6 +41,16 @@ def test_report_on_synthetic_identities(tmp_path):
     assert "not computed" in stored["lpips"]
     warp = stored["counts"]["warp_methods"]["tps"]["K=1 self"]
     assert sum(warp.values()) == 8
+    # --out-md: the report becomes a named section of a markdown file; other sections survive re-runs.
+    md = tmp_path / "BENCHMARKS.md"
+    md.write_text("# Benchmarks\n\nintro\n\n<!-- bench:speed:start -->\nspeed\n<!-- bench:speed:end -->\n")
+    cfg = EvalConfig(data=root, out_md=md, section="synthetic", k=(1,), note="a note")
+    report.write_section(cfg, text)
+    report.write_section(cfg, text.replace("| tps | 1 | 8 |", "| tps | 1 | 9 |"))
+    written = md.read_text()
+    assert written.count("<!-- eval:synthetic:start -->") == 1 and "| tps | 1 | 9 |" in written
+    assert "intro" in written and "<!-- bench:speed:start -->\nspeed" in written and "**Note:** a note" in written
+    assert f"lsr eval --data {root}" in written and "--k 1" in written and "--section synthetic" in written
 
 
 @pytest.mark.slow
