@@ -22,8 +22,8 @@ PRESETS: dict[str, dict] = {
         "spade_hidden_channels": 32,
         "spade_shared_input_modulation": True,
     },
-    # The shipped default (lsr/weights/default): the cheapest preset that trains to a useful model on a
-    # 2-core CPU in a few hours at 128^2 (see MODEL_CARD.md for the recipe and BENCHMARKS.md for the choice).
+    # The shipped default (lsr/weights/default): sized to train on a 2-core CPU in under 1.5 hours at 128^2
+    # (MODEL_CARD.md). Its error against a trained paper-width model is not measured yet: that needs a GPU.
     "compact": {
         "resolution": 128,
         "width": 0.25,
