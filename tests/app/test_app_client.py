@@ -31,7 +31,9 @@ def decode(path):
     return streams, frames, comment
 
 
-def test_reenact_returns_playable_video_with_every_frame(app_server, app_inputs):
+def test_reenact_returns_playable_video_with_every_frame(app_server, app_server_weights, app_inputs):
+    import json
+
     from landmarks.video import probe_video
 
     driver_frames = probe_video(app_inputs["driving"]).frames
@@ -43,7 +45,8 @@ def test_reenact_returns_playable_video_with_every_frame(app_server, app_inputs)
     streams, frames, comment = decode(path)
     assert streams["video"] == "h264" and streams.get("audio") == "aac"  # the driver's audio is kept
     assert len(frames) == driver_frames
-    assert frames[0].shape == (64, 64, 3)  # the tiny model's crop (no paste-back)
+    resolution = json.loads((app_server_weights / "config.json").read_text())["resolution"]
+    assert frames[0].shape == (resolution, resolution, 3)  # the served model's crop (no paste-back)
     assert float(np.std(frames[0])) > 1.0  # a picture, not a blank frame
     assert "synthetic" in comment  # provenance metadata
     assert f"{driver_frames} frame(s)" in summary and "audio kept" in summary
