@@ -18,6 +18,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchModelsConfig,
     BenchSpeedConfig,
     BenchReenactConfig,
+    EvalConfig,
 )
 from lsr.errors import ConfigError
 
@@ -357,108 +358,6 @@ class FinetuneConfig:
                 raise ConfigError(f"shot input not found: {path}")
         if self.k < 1 or self.steps < 0 or not self.lr > 0 or self.batch_size < 1:
             raise ConfigError("--k >= 1, --steps >= 0, --lr > 0 and --batch-size >= 1 are required")
-
-
-@dataclasses.dataclass
-class EvalConfig:
-    """Evaluate re-enactment with the thesis protocol (§4.4): K shots from the inputs, metrics on hold-out frames."""
-
-    data: Path | None = None
-    """LSR-release folder ({train,test}/<id>/<video>/combined/*_rgb.png) or an lsr dataset root (manifest.json);
-    default: the shared FSTH sample (../shared/data/fsth_eval_sample, or $LSR_SHARED_DATA/fsth_eval_sample)."""
-    out: Path = Path("out/eval")
-    """Output folder: eval_report.md, eval_report.json, examples/, cache/ (detected landmarks)."""
-    k: tuple[int, ...] = (1, 4, 8, 32)
-    """K values (shots per identity), thesis Table 4.4."""
-    methods: tuple[Literal["nearest_shot", "tps"], ...] = ("nearest_shot", "tps")
-    """Methods to evaluate (the no-learning baselines of lsr.eval.baselines)."""
-    weights: tuple[Path, ...] = ()
-    """Trained LSR model folders (config.json + model.safetensors) to evaluate beside the baselines."""
-    finetune_steps: int = 0
-    """> 0: also evaluate each model fine-tuned on the K shots of each identity for this many steps (thesis §4.3.5)."""
-    finetune_lr: float = 1e-3
-    """Adam lr of that fine-tuning (G^l, G^s, D)."""
-    device: str = "cpu"
-    """Torch device of the models (cpu, cuda, cuda:1, ...)."""
-    split: str = "test"
-    """Split of an lsr dataset to evaluate on."""
-    inputs: int = 32
-    """lsr dataset: first N frames of an identity are the inputs ..."""
-    holdouts: int = 32
-    """... and the next N frames the hold-outs."""
-    max_holdouts: int = 0
-    """Use only the first N hold-out frames per identity (0 = all)."""
-    max_identities: int = 0
-    """Use only the first N identities (0 = all)."""
-    seed: int = 0
-    """Seed of the K-shot sampling."""
-    detector: Literal["hog", "cnn"] = "hog"
-    """dlib face detector for ground-truth and output landmarks."""
-    detector_upsample: int = 1
-    """dlib pyramid upsampling; 1 finds the faces of 224-px crops at 1/4 the cost of 2."""
-    bucket_thresholds: tuple[float, ...] = ()
-    """Two pose-distance thresholds (low/medium, medium/high); empty = terciles per K."""
-    cross_identity: bool = True
-    """Also drive each identity with the next identity's landmarks (ID-SIM to the source)."""
-    tps_regularization: float = 1e-3
-    """lambda of the TPS baseline (unit-spread coordinates)."""
-    examples: int = 4
-    """Frames per (method, K, identity) written to OUT/examples (output above ground truth); 0 = none."""
-    lpips_weights: Path | None = None
-    """LPIPS (AlexNet v0.1) weights file, .pth or .safetensors (see lsr/eval/lpips.py); unset = LPIPS not computed."""
-    fid_weights: Path | None = None
-    """FID feature extractor, TorchScript (.pt) or .onnx (see lsr/eval/fid.py); unset = FID not computed."""
-    out_md: Path | None = None
-    """Also put the report into this markdown file (e.g. BENCHMARKS.md) as the section named by --section,
-    with the command that wrote it; other sections are kept."""
-    section: str = "eval"
-    """Name of that section: its markers are <!-- eval:NAME:start --> / <!-- eval:NAME:end -->."""
-    title: str = ""
-    """Heading of that section (default: the data folder)."""
-    note: str = ""
-    """A note printed under the command in that section (e.g. how the weights were trained)."""
-    progress: bool = True
-
-    def resolved_data(self) -> Path:
-        """--data, or the shared FSTH sample; ConfigError when neither exists."""
-        import os
-
-        if self.data is not None:
-            return Path(self.data)
-        repo_root = Path(__file__).resolve().parents[1]
-        shared = Path(os.environ.get("LSR_SHARED_DATA", repo_root.parent / "shared" / "data")) / "fsth_eval_sample"
-        if not shared.is_dir():
-            raise ConfigError(f"no --data given and the shared FSTH sample {shared} is absent; pass --data FOLDER")
-        return shared
-
-    def validate(self) -> None:
-        if self.data is not None and not Path(self.data).is_dir():
-            raise ConfigError(f"--data {self.data} is not a folder")
-        if not self.k or min(self.k) < 1:
-            raise ConfigError(f"--k needs values >= 1, got {self.k}")
-        if not self.methods and not self.weights:
-            raise ConfigError("--methods needs at least one of nearest_shot, tps (or give --weights)")
-        for folder in self.weights:
-            if not Path(folder).is_dir():
-                raise ConfigError(f"--weights {folder} is not a model folder (config.json + model.safetensors)")
-        if self.finetune_steps < 0 or not self.finetune_lr > 0:
-            raise ConfigError(f"--finetune-steps must be >= 0 and --finetune-lr > 0, got {self.finetune_steps}, {self.finetune_lr}")
-        if self.inputs < 1 or self.holdouts < 1 or self.max_holdouts < 0 or self.max_identities < 0 or self.examples < 0:
-            raise ConfigError("--inputs, --holdouts >= 1 and --max-holdouts, --max-identities, --examples >= 0 are required")
-        if self.detector_upsample < 0:
-            raise ConfigError(f"--detector-upsample must be >= 0, got {self.detector_upsample}")
-        if self.bucket_thresholds and (len(self.bucket_thresholds) != 2 or self.bucket_thresholds[0] > self.bucket_thresholds[1]):
-            raise ConfigError(f"--bucket-thresholds needs two increasing values (or none for terciles), got {self.bucket_thresholds}")
-        if self.tps_regularization < 0:
-            raise ConfigError(f"--tps-regularization must be >= 0, got {self.tps_regularization}")
-        if not self.section.replace("_", "").replace("-", "").isalnum():
-            raise ConfigError(f"--section must be letters, digits, '-' or '_', got {self.section!r}")
-        for flag, path in (("--lpips-weights", self.lpips_weights), ("--fid-weights", self.fid_weights)):
-            if path is not None and not Path(path).is_file():
-                raise ConfigError(f"{flag} {path} is not a file; pass an existing weights file or leave {flag} unset")
-
-
-# ---- re-enactment and deployment (lsr.reenact, lsr.export_bundle) ------------------------------------------
 
 
 @dataclasses.dataclass

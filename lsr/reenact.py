@@ -195,6 +195,7 @@ def side_by_side_frame(frame, kind: str, size: int, pca=None) -> np.ndarray:
 def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | None = None) -> ReenactStats:
     """Re-enact one job into ``job.output`` (atomic). The subject must already be encoded."""
     from landmarks.video import VideoWriter
+    from lsr.train.visualize import LayoutPCA
 
     info = describe_driver(job.driving, fps=cfg.fps)
     mode = "relative" if cfg.relative else "absolute" if cfg.absolute else "auto"
@@ -209,8 +210,6 @@ def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | Non
     with contextlib.ExitStack() as stack:
         writer = stack.enter_context(VideoWriter(job.output, info.fps, audio_from=audio, metadata=metadata))
         sbs_writer = None
-        from lsr.train.visualize import LayoutPCA
-
         pca = LayoutPCA()  # fitted on the first frame, kept for the whole video
         if side_by_side is not None:
             sbs_writer = stack.enter_context(VideoWriter(side_by_side, info.fps, audio_from=audio, metadata=metadata))
