@@ -6,7 +6,7 @@ nearest_shot  copies the source shot whose landmarks are closest to the target's
               distance). Raw, because the copied pixels keep their position: a shot whose head
               sits elsewhere in the frame is a worse copy even if the pose matches.
 tps           warps that nearest shot onto the target landmarks with a regularised thin-plate
-              spline (``lsr.eval.tps``), frame corners and edge midpoints fixed. Counts how often
+              spline (``landmarks.tps``), frame corners and edge midpoints fixed. Counts how often
               each warp method (tps / tps_stronger / similarity / identity) was used.
 """
 
@@ -16,7 +16,7 @@ import collections
 
 import numpy as np
 
-from lsr.eval import tps
+from landmarks import tps
 from lsr.eval.metrics import nmke
 
 

@@ -1,11 +1,11 @@
-"""Regularised TPS warping (lsr.eval.tps) and the TPS baseline's fallback counting."""
+"""Regularised TPS warping (landmarks.tps) and the TPS baseline's fallback counting."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lsr.eval import tps
+from landmarks import tps
 from lsr.eval.baselines import NearestShot, TpsWarp
 
 

@@ -1,4 +1,8 @@
-"""Regularised thin-plate-spline image warping (numpy + OpenCV) for the TPS baseline.
+"""Regularised thin-plate-spline image warping (numpy + OpenCV): the one warp of the project.
+
+Used by the ``tps`` / ``tps_mean3`` baselines of ``lsr eval``, by the warp-guided generator's references
+(``warp_references``: training episodes, fine-tuning and the per-frame runtime) and, through the dense
+maps it returns, by the torch path of training (``lsr.data.warp``).
 
 Backward mapping: a TPS f is solved from *target* points to *source* points, evaluated on
 every output pixel, and the source image is sampled there with ``cv2.remap``.
@@ -24,6 +28,8 @@ import dataclasses
 
 import cv2
 import numpy as np
+
+from landmarks.parts import LEFT_EYE, RIGHT_EYE
 
 DEFAULT_REGULARIZATION = 1e-3
 DEFAULT_MERGE_DISTANCE = 1.0  # pixels
@@ -172,6 +178,26 @@ def fit_similarity(control_points: np.ndarray, values: np.ndarray) -> np.ndarray
 
 
 @dataclasses.dataclass
+class WarpMap:
+    """A dense backward map: output pixel (y, x) samples the source at (map_x[y, x], map_y[y, x]).
+
+    map_x, map_y: (H, W) float32 source pixel coordinates; method: one of WARP_METHODS; regularization:
+    lambda used (TPS only); folded_fraction of the accepted map; reason: why earlier options were
+    rejected ('' if none)."""
+
+    map_x: np.ndarray
+    map_y: np.ndarray
+    method: str
+    regularization: float
+    folded_fraction: float
+    reason: str
+
+    def valid(self, source_height: int, source_width: int) -> np.ndarray:
+        """(H, W) bool: the map samples inside the source image (elsewhere the warp only repeats its border)."""
+        return (self.map_x >= 0) & (self.map_x <= source_width - 1) & (self.map_y >= 0) & (self.map_y <= source_height - 1)
+
+
+@dataclasses.dataclass
 class WarpResult:
     """image: (H, W, 3) uint8; method: one of WARP_METHODS; regularization: lambda used (TPS only);
     folded_fraction of the accepted map; reason: why earlier options were rejected ('' if none)."""
@@ -188,9 +214,92 @@ def _pixel_grid(height: int, width: int) -> np.ndarray:
     return np.stack([grid_x.ravel(), grid_y.ravel()], axis=1).astype(np.float64)  # (H*W, 2) x, y
 
 
+def _interpolation_matrix(size: int, coarse: np.ndarray) -> np.ndarray:
+    """(size, len(coarse)) linear interpolation weights from samples at ``coarse`` (increasing, ends 0 and size-1)."""
+    positions = np.arange(size, dtype=np.float64)
+    upper = np.clip(np.searchsorted(coarse, positions, side="right"), 1, len(coarse) - 1)
+    lower = upper - 1
+    fraction = (positions - coarse[lower]) / (coarse[upper] - coarse[lower])
+    matrix = np.zeros((size, len(coarse)))
+    matrix[np.arange(size), lower] = 1.0 - fraction
+    matrix[np.arange(size), upper] += fraction
+    return matrix
+
+
+def _evaluate_dense(function, height: int, width: int, grid_step: int) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth R^2 -> R^2 function on every pixel -> (map_x, map_y), each (H, W) float64.
+
+    grid_step > 1 evaluates it on a coarse grid (every ``grid_step`` pixels, ends included) and interpolates
+    bilinearly: a TPS is smooth, so at step 4 the maps differ by far less than a pixel (tests/landmarks/test_tps.py)
+    at about 1/16 of the cost.
+    """
+    if grid_step <= 1:
+        mapped = function(_pixel_grid(height, width))
+        return mapped[:, 0].reshape(height, width), mapped[:, 1].reshape(height, width)
+    coarse_y = np.unique(np.append(np.arange(0, height, grid_step, dtype=np.float64), height - 1.0))
+    coarse_x = np.unique(np.append(np.arange(0, width, grid_step, dtype=np.float64), width - 1.0))
+    grid_y, grid_x = np.meshgrid(coarse_y, coarse_x, indexing="ij")
+    mapped = function(np.stack([grid_x.ravel(), grid_y.ravel()], axis=1))  # (h*w, 2)
+    rows, cols = _interpolation_matrix(height, coarse_y), _interpolation_matrix(width, coarse_x)
+    shape = (len(coarse_y), len(coarse_x))
+    return rows @ mapped[:, 0].reshape(shape) @ cols.T, rows @ mapped[:, 1].reshape(shape) @ cols.T
+
+
 def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
     return cv2.remap(image, map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+
+
+def tps_map(
+    source_points: np.ndarray,
+    target_points: np.ndarray,
+    height: int,
+    width: int,
+    *,
+    regularization: float = DEFAULT_REGULARIZATION,
+    merge_distance: float = DEFAULT_MERGE_DISTANCE,
+    max_condition: float = DEFAULT_MAX_CONDITION,
+    max_folded_fraction: float = DEFAULT_MAX_FOLDED_FRACTION,
+    fix_border: bool = True,
+    grid_step: int = 1,
+) -> WarpMap:
+    """The backward map of the warp that moves ``source_points`` onto ``target_points`` in an (H, W) frame.
+
+    source_points, target_points: (N, 2) x, y pixels (rows with NaN in either are ignored). grid_step: see
+    ``_evaluate_dense`` (1 = exact). Never raises for degenerate point sets (falls back, see the module docstring).
+    """
+    source_points = np.asarray(source_points, np.float64)
+    target_points = np.asarray(target_points, np.float64)
+    if source_points.shape != target_points.shape or source_points.ndim != 2 or source_points.shape[1] != 2:
+        raise ValueError(f"point sets must both be (N, 2), got {source_points.shape}, {target_points.shape}")
+    valid = np.all(np.isfinite(source_points), axis=1) & np.all(np.isfinite(target_points), axis=1)
+    landmark_targets, landmark_sources = target_points[valid], source_points[valid]
+    control, values = landmark_targets, landmark_sources
+    if fix_border:
+        fixed = border_points(height, width)
+        control, values = np.concatenate([control, fixed]), np.concatenate([values, fixed])
+    control, values = merge_close_points(control, values, merge_distance)
+    reasons: list[str] = []
+    for attempt, factor in enumerate(RETRY_FACTORS):
+        try:
+            spline = fit_tps(control, values, regularization * factor, max_condition)
+        except DegenerateTpsError as exc:
+            reasons.append(str(exc))
+            break  # more regularisation does not help a system without spread / affine rank
+        map_x, map_y = _evaluate_dense(spline, height, width, grid_step)  # source x, y per output pixel
+        folds = folded_fraction(map_x, map_y)
+        if np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)) and folds <= max_folded_fraction:
+            method = "tps" if attempt == 0 else "tps_stronger"
+            return WarpMap(map_x.astype(np.float32), map_y.astype(np.float32), method, regularization * factor,
+                           folds, "; ".join(reasons))  # fmt: skip
+        reasons.append(f"lambda {regularization * factor:.3g}: {folds:.2%} of pixels folded")
+    matrix = fit_similarity(landmark_targets, landmark_sources) if len(landmark_targets) >= 2 else None
+    if matrix is not None:
+        map_x, map_y = _evaluate_dense(lambda p: p @ matrix[:, :2].T + matrix[:, 2], height, width, 1)
+        return WarpMap(map_x.astype(np.float32), map_y.astype(np.float32), "similarity", 0.0, 0.0, "; ".join(reasons))
+    reasons.append("no similarity: landmarks have no spread")
+    grid_y, grid_x = np.mgrid[0:height, 0:width].astype(np.float32)
+    return WarpMap(grid_x, grid_y, "identity", 0.0, 0.0, "; ".join(reasons))
 
 
 def warp_tps(
@@ -203,45 +312,76 @@ def warp_tps(
     max_condition: float = DEFAULT_MAX_CONDITION,
     max_folded_fraction: float = DEFAULT_MAX_FOLDED_FRACTION,
     fix_border: bool = True,
+    grid_step: int = 1,
 ) -> WarpResult:
-    """Warp ``image`` so that ``source_points`` land on ``target_points``.
+    """Warp ``image`` so that ``source_points`` land on ``target_points`` (``tps_map``, then ``cv2.remap``).
 
     image: (H, W, 3) uint8; source_points, target_points: (N, 2) x, y pixels (rows with NaN in
     either are ignored). Returns a WarpResult; never raises for degenerate point sets (falls back).
     """
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"image must be (H, W, 3) uint8, got {image.shape} {image.dtype}")
-    source_points = np.asarray(source_points, np.float64)
-    target_points = np.asarray(target_points, np.float64)
-    if source_points.shape != target_points.shape or source_points.ndim != 2 or source_points.shape[1] != 2:
-        raise ValueError(f"point sets must both be (N, 2), got {source_points.shape}, {target_points.shape}")
     height, width = image.shape[:2]
-    valid = np.all(np.isfinite(source_points), axis=1) & np.all(np.isfinite(target_points), axis=1)
-    landmark_targets, landmark_sources = target_points[valid], source_points[valid]
-    control, values = landmark_targets, landmark_sources
-    if fix_border:
-        fixed = border_points(height, width)
-        control, values = np.concatenate([control, fixed]), np.concatenate([values, fixed])
-    control, values = merge_close_points(control, values, merge_distance)
-    grid = _pixel_grid(height, width)
-    reasons: list[str] = []
-    for attempt, factor in enumerate(RETRY_FACTORS):
-        try:
-            spline = fit_tps(control, values, regularization * factor, max_condition)
-        except DegenerateTpsError as exc:
-            reasons.append(str(exc))
-            break  # more regularisation does not help a system without spread / affine rank
-        mapped = spline(grid)  # (H*W, 2) source x, y for each output pixel (backward map)
-        map_x, map_y = mapped[:, 0].reshape(height, width), mapped[:, 1].reshape(height, width)
-        folds = folded_fraction(map_x, map_y)
-        if np.all(np.isfinite(mapped)) and folds <= max_folded_fraction:
-            method = "tps" if attempt == 0 else "tps_stronger"
-            return WarpResult(_remap(image, map_x, map_y), method, regularization * factor, folds, "; ".join(reasons))
-        reasons.append(f"lambda {regularization * factor:.3g}: {folds:.2%} of pixels folded")
-    matrix = fit_similarity(landmark_targets, landmark_sources) if len(landmark_targets) >= 2 else None
-    if matrix is not None:
-        mapped = grid @ matrix[:, :2].T + matrix[:, 2]
-        map_x, map_y = mapped[:, 0].reshape(height, width), mapped[:, 1].reshape(height, width)
-        return WarpResult(_remap(image, map_x, map_y), "similarity", 0.0, 0.0, "; ".join(reasons))
-    reasons.append("no similarity: landmarks have no spread")
-    return WarpResult(image.copy(), "identity", 0.0, 0.0, "; ".join(reasons))
+    warp = tps_map(source_points, target_points, height, width, regularization=regularization,
+                   merge_distance=merge_distance, max_condition=max_condition,
+                   max_folded_fraction=max_folded_fraction, fix_border=fix_border, grid_step=grid_step)  # fmt: skip
+    image = image.copy() if warp.method == "identity" else _remap(image, warp.map_x, warp.map_y)
+    return WarpResult(image, warp.method, warp.regularization, warp.folded_fraction, warp.reason)
+
+
+# ---- references for the warp-guided generator and the tps_mean3 baseline ------------------------------------
+
+
+def landmark_distance(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Mean point distance over ``second``'s eye-centre distance (NMKE without alignment).
+
+    first, second: (..., 68, 2) broadcastable -> (...) float64; NaN where either has NaN rows or no eye distance.
+    """
+    first, second = np.asarray(first, np.float64), np.asarray(second, np.float64)
+    mean_distance = np.linalg.norm(first - second, axis=-1).mean(axis=-1)
+    eyes = np.linalg.norm(second[..., LEFT_EYE, :].mean(axis=-2) - second[..., RIGHT_EYE, :].mean(axis=-2), axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(eyes > 0, mean_distance / np.where(eyes > 0, eyes, 1.0), np.nan)
+
+
+def nearest_shots(shot_landmarks: np.ndarray, target_landmarks: np.ndarray, count: int) -> np.ndarray:
+    """Indices of the ``count`` shots nearest to the target (``landmark_distance``, ties by index).
+
+    shot_landmarks: (K, 68, 2) (NaN rows = shot without a face; chosen last); target_landmarks: (68, 2)
+    -> (min(count, K),) int. Raw landmarks, not aligned: the warped pixels keep their position, so a shot
+    whose head sits elsewhere in the frame is a worse reference even if the pose matches.
+    """
+    distances = landmark_distance(shot_landmarks, np.asarray(target_landmarks)[None])
+    distances = np.where(np.isnan(distances), np.inf, distances)
+    return np.argsort(distances, kind="stable")[: max(1, min(count, len(shot_landmarks)))]
+
+
+def warp_references(
+    shots: np.ndarray,
+    shot_landmarks: np.ndarray,
+    target_landmarks: np.ndarray,
+    count: int,
+    *,
+    grid_step: int = 4,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``count`` nearest shots, each TPS-warped onto the target landmarks, with validity masks.
+
+    shots: (K, S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (68, 2), all in the shots' pixels.
+    -> (warped (count, S, S, 3) uint8, masks (count, S, S) float32 in {0, 1}, indices (count,) int). With
+    fewer than ``count`` shots the nearest ones repeat (the network always sees ``count`` references).
+    """
+    shots = np.asarray(shots)
+    if shots.ndim != 4 or shots.shape[-1] != 3 or shots.dtype != np.uint8:
+        raise ValueError(f"shots must be (K, S, S, 3) uint8, got {shots.shape} {shots.dtype}")
+    if count < 1:
+        raise ValueError(f"count must be >= 1, got {count}")
+    indices = nearest_shots(shot_landmarks, target_landmarks, count)
+    indices = np.resize(indices, count)  # repeat the nearest when K < count
+    height, width = shots.shape[1:3]
+    warped = np.empty((count, height, width, 3), np.uint8)
+    masks = np.empty((count, height, width), np.float32)
+    for slot, index in enumerate(indices):
+        warp = tps_map(shot_landmarks[index], target_landmarks, height, width, grid_step=grid_step)
+        warped[slot] = shots[index] if warp.method == "identity" else _remap(shots[index], warp.map_x, warp.map_y)
+        masks[slot] = warp.valid(height, width)
+    return warped, masks, indices
