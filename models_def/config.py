@@ -15,10 +15,12 @@ from typing import Literal
 # equal len(lsr.data.classes.SEG_CLASSES); models_def may not import lsr, so the number is repeated here.
 NUM_SEG_CLASSES = 19
 
-Variant = Literal["baseline", "spade_landmarks", "learned_seg", "latent_layout", "oracle_seg"]
-VARIANTS: tuple[str, ...] = ("baseline", "spade_landmarks", "learned_seg", "latent_layout", "oracle_seg")
+Variant = Literal["baseline", "spade_landmarks", "learned_seg", "latent_layout", "oracle_seg", "warp_guided"]
+VARIANTS: tuple[str, ...] = ("baseline", "spade_landmarks", "learned_seg", "latent_layout", "oracle_seg", "warp_guided")
 # Variants whose per-frame path runs the layout predictor G^l (the others have no layout latent to use).
-LAYOUT_PREDICTOR_VARIANTS: tuple[str, ...] = ("learned_seg", "latent_layout")
+LAYOUT_PREDICTOR_VARIANTS: tuple[str, ...] = ("learned_seg", "latent_layout", "warp_guided")
+# Fields added after models were first saved, with the value that keeps an older config.json's behaviour.
+LATER_FIELDS: dict[str, object] = {"warp_references": 3}
 
 
 class ModelConfigError(ValueError):
@@ -30,7 +32,9 @@ class ModelConfig:
     """Sizes and switches of the LSR networks. Channel counts are thesis values before ``width`` scaling."""
 
     variant: Variant = "latent_layout"
-    """Ablation variant (thesis Table 4.2): baseline | spade_landmarks | learned_seg | latent_layout | oracle_seg."""
+    """Ablation variant (thesis Table 4.2): baseline | spade_landmarks | learned_seg | latent_layout | oracle_seg;
+    or warp_guided: latent_layout whose G^s also sees the nearest shots TPS-warped to the target and blends them
+    with its own output (thesis §4.5.6, "borrow from the warping-based approaches")."""
     resolution: int = 256
     """Square image resolution (power of two)."""
     width: float = 1.0
@@ -69,6 +73,8 @@ class ModelConfig:
     """Discriminator sees the landmark image concatenated to the RGB image."""
     mbstd_group_size: int = 4
     norm_eps: float = 1e-5
+    warp_references: int = 3
+    """warp_guided only: how many of the nearest shots, TPS-warped to the target, G^s sees and blends."""
 
     def __post_init__(self) -> None:
         def fail(message: str) -> None:
@@ -82,7 +88,7 @@ class ModelConfig:
             "resolution", "channel_multiple", "landmark_channels", "layout_channels", "latent_dim",
             "encoder_base_channels", "encoder_downsamplings", "max_channels", "layout_base_channels",
             "layout_levels", "generator_last_channels", "spade_hidden_channels", "generator_upsamplings",
-            "discriminator_base_channels", "mbstd_group_size",
+            "discriminator_base_channels", "mbstd_group_size", "warp_references",
         ):  # fmt: skip
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
@@ -123,11 +129,23 @@ class ModelConfig:
         return self.variant in LAYOUT_PREDICTOR_VARIANTS
 
     @property
+    def uses_references(self) -> bool:
+        """The frame generator takes warped shots (variant warp_guided)."""
+        return self.variant == "warp_guided"
+
+    @property
     def spade_condition_channels(self) -> int:
-        """Channels of the SPADE condition map: layout (predicted or oracle) + landmark image (§4.6)."""
+        """Channels of the SPADE condition map: layout (predicted or oracle) + landmark image (§4.6)
+        [+ per warped reference its RGB and validity mask, warp_guided]."""
         if self.variant == "spade_landmarks":
             return self.landmark_channels
-        return self.layout_channels + self.landmark_channels
+        references = 4 * self.warp_references if self.uses_references else 0
+        return self.layout_channels + self.landmark_channels + references
+
+    @property
+    def generator_output_channels(self) -> int:
+        """RGB [+ one blend logit per warped reference and one for the generated image, warp_guided]."""
+        return 3 + (self.warp_references + 1 if self.uses_references else 0)
 
     @property
     def encoder_input_channels(self) -> int:
@@ -141,6 +159,7 @@ class ModelConfig:
     def from_dict(cls, values: dict) -> ModelConfig:
         """Build from a config.json dict; unknown or missing keys are an error (no silent defaults)."""
         names = {field.name for field in dataclasses.fields(cls)}
+        values = {**{k: v for k, v in LATER_FIELDS.items() if k not in values}, **values}
         unknown, missing = sorted(set(values) - names), sorted(names - set(values))
         if unknown or missing:
             raise ModelConfigError(

@@ -72,7 +72,8 @@ def condition_pyramid(condition: torch.Tensor, levels: int) -> list[torch.Tensor
 
 
 class SpadeGenerator(nn.Module):
-    """G^s. forward(condition: (B, cond_channels, H, W), style_latent: (B, D)) -> image (B, 3, H, W) in [-1, 1].
+    """G^s. forward(condition: (B, cond_channels, H, W), style_latent: (B, D)) -> image (B, 3, H, W) in [-1, 1]
+    (warp_guided: (B, 3 + N + 1, H, W), the RGB in [-1, 1] then N + 1 raw blend logits).
 
     Blocks (SPADE 'normal', thesis widths x ``width``): fc(z^s) -> 512 @ H/32 -> head -> up -> middle x2 -> up
     -> 512->256 -> up -> 256->128 -> up -> 128->64 -> up -> 64->32 -> conv3x3 -> tanh.
@@ -100,7 +101,7 @@ class SpadeGenerator(nn.Module):
         self.middle_2 = SpadeResBlock(top, top, **spade)  # at H/16 (SPADE's G_middle_1)
         widths = [top] + tail[1:]  # after the middle blocks, ups - 1 more upsampling blocks
         self.up_blocks = nn.ModuleList(SpadeResBlock(a, b, **spade) for a, b in zip(widths[:-1], widths[1:]))
-        self.to_rgb = EqualConv2d(widths[-1], 3, 3, gain=LEAKY_GAIN)
+        self.to_rgb = EqualConv2d(widths[-1], config.generator_output_channels, 3, gain=LEAKY_GAIN)
 
     def forward(self, condition: torch.Tensor, style_latent: torch.Tensor) -> torch.Tensor:
         pyramid = condition_pyramid(condition, self.upsamplings)  # index i: resolution H / 2**i
@@ -113,4 +114,6 @@ class SpadeGenerator(nn.Module):
         for index, block in enumerate(self.up_blocks):
             x = F.interpolate(x, scale_factor=2.0, mode="nearest")
             x = block(x, pyramid[self.upsamplings - 2 - index])
-        return torch.tanh(self.to_rgb(leaky_relu(x)))  # (B, 3, H, W)
+        output = self.to_rgb(leaky_relu(x))  # (B, 3 [+ N + 1 blend logits], H, W)
+        rgb = torch.tanh(output[:, :3])
+        return rgb if output.shape[1] == 3 else torch.cat([rgb, output[:, 3:]], dim=1)

@@ -11,8 +11,10 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
+from models_def.composite import blend_references
 from models_def.config import NUM_SEG_CLASSES, ModelConfig
 from models_def.encoder import SubjectEncoder
 from models_def.generator import SpadeGenerator
@@ -32,13 +34,20 @@ class FrameOutputs(NamedTuple):
     """(B, C_l, H, W) raw G^l output, for the segmentation cross-entropy of eq. 4.2."""
     aux_rgb: torch.Tensor | None
     """(B, 3, H, W) in [-1, 1], G^l's auxiliary reconstruction R_t (eq. 4.1); only when requested."""
+    blend_weights: torch.Tensor | None = None
+    """warp_guided: (B, N + 1, H_ref, W_ref) per-pixel weights of the N warped references and the generated image."""
+    generated: torch.Tensor | None = None
+    """warp_guided: (B, 3, H, W) in [-1, 1], G^s's own image before the blend."""
 
 
 class FrameGenerator(nn.Module):
     """Per-frame synthesis for the configured variant.
 
     forward(landmark_image: (B, C_lm, H, W) in [-1, 1], layout_latent: (B, D), style_latent: (B, D),
-            oracle_segmentation: (B, 19, H, W) one-hot, only for variant 'oracle_seg') -> image (B, 3, H, W).
+            oracle_segmentation: (B, 19, H, W) one-hot, only for variant 'oracle_seg',
+            references: (B, N, 3, H', W') in [-1, 1] and reference_masks: (B, N, 1, H', W') in [0, 1], only for
+            variant 'warp_guided' (the nearest shots warped onto the target; H' >= H: the blend runs at H'))
+            -> image (B, 3, H', W') (H' = H without references).
     Inputs outside their range ([-1, 1]; [0, 1] for the segmentation) are clamped.
     Variant 'baseline' and 'spade_landmarks' ignore layout_latent (their encoder still produces it).
     """
@@ -56,8 +65,13 @@ class FrameGenerator(nn.Module):
         layout_latent: torch.Tensor,
         style_latent: torch.Tensor,
         oracle_segmentation: torch.Tensor | None = None,
+        references: torch.Tensor | None = None,
+        reference_masks: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        return self.synthesize(landmark_image, layout_latent, style_latent, oracle_segmentation).image
+        return self.synthesize(
+            landmark_image, layout_latent, style_latent, oracle_segmentation,
+            references=references, reference_masks=reference_masks,
+        ).image  # fmt: skip
 
     def predict_layout(
         self, landmark_image: torch.Tensor, layout_latent: torch.Tensor, with_aux_rgb: bool = False
@@ -75,6 +89,8 @@ class FrameGenerator(nn.Module):
         style_latent: torch.Tensor,
         oracle_segmentation: torch.Tensor | None = None,
         with_aux_rgb: bool = False,
+        references: torch.Tensor | None = None,
+        reference_masks: torch.Tensor | None = None,
     ) -> FrameOutputs:
         """All outputs of one frame (see ``FrameOutputs``). ``with_aux_rgb`` runs G^l's RGB head (stage 1 only)."""
         batch = self._check_inputs(landmark_image, layout_latent, style_latent)
@@ -103,8 +119,39 @@ class FrameGenerator(nn.Module):
             layout = oracle_segmentation.clamp(0.0, 1.0)
         # §4.6: each SPADE block sees the layout concatenated with the landmark image.
         condition = landmark_image if layout is None else torch.cat([layout, landmark_image], dim=1)
-        image = self.image_generator(condition, style_latent)  # eq. 4.3: I_t = G^s(y^l, z^s)
-        return FrameOutputs(image, layout, layout_logits, aux_rgb)
+        if not self.config.uses_references:
+            image = self.image_generator(condition, style_latent)  # eq. 4.3: I_t = G^s(y^l, z^s)
+            return FrameOutputs(image, layout, layout_logits, aux_rgb)
+        # warp_guided (§4.5.6): G^s also sees the warped shots and predicts how to blend them with its image.
+        references, reference_masks = self._check_references(references, reference_masks, batch)
+        size = self.config.resolution
+        small_references = references.flatten(1, 2)  # (B, 3N, H', W')
+        small_masks = reference_masks.flatten(1, 2)  # (B, N, H', W')
+        if references.shape[-1] % size == 0 and references.shape[-1] > size:  # integer factor (ONNX-friendly)
+            factor = references.shape[-1] // size
+            small_references, small_masks = F.avg_pool2d(small_references, factor), F.avg_pool2d(small_masks, factor)
+        elif references.shape[-1] != size:
+            small_references = F.interpolate(small_references, size=(size, size), mode="area")
+            small_masks = F.interpolate(small_masks, size=(size, size), mode="area")
+        output = self.image_generator(torch.cat([condition, small_references, small_masks], dim=1), style_latent)
+        generated, blend_logits = output[:, :3], output[:, 3:]  # (B, 3, H, W), (B, N + 1, H, W)
+        image, weights = blend_references(references, reference_masks, generated, blend_logits)
+        return FrameOutputs(image, layout, layout_logits, aux_rgb, weights, generated)
+
+    def _check_references(
+        self, references: torch.Tensor | None, reference_masks: torch.Tensor | None, batch: int
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        if references is None or reference_masks is None:
+            raise ValueError(
+                f"variant 'warp_guided' needs references (B, {self.config.warp_references}, 3, H, W) and "
+                "reference_masks (B, N, 1, H, W): the nearest shots warped onto the target (landmarks.tps.warp_references)"
+            )
+        count = self.config.warp_references
+        dims = check_shape("references", references, (batch, count, 3, "H", "W"))
+        if dims["H"] != dims["W"] or dims["H"] < self.config.resolution:
+            raise ValueError(f"references must be square and at least {self.config.resolution} pixels, got {tuple(references.shape)}")
+        check_shape("reference_masks", reference_masks, (batch, count, 1, dims["H"], dims["W"]))
+        return references.clamp(-1.0, 1.0), reference_masks.clamp(0.0, 1.0)
 
     def _check_inputs(
         self, landmark_image: torch.Tensor, layout_latent: torch.Tensor, style_latent: torch.Tensor
@@ -129,7 +176,7 @@ class LSRModel(PretrainedMixin, nn.Module):
 
     forward(shots: (B, K, 3, H, W) in [-1, 1], shot_landmark_images: (B, K, C_lm, H, W) in [-1, 1],
             landmark_image: (B, C_lm, H, W) target landmarks, oracle_segmentation: (B, 19, H, W) or None,
-            with_aux_rgb=False) -> LSROutputs
+            with_aux_rgb=False, references / reference_masks (warp_guided, see FrameGenerator)) -> LSROutputs
     """
 
     def __init__(self, config: ModelConfig) -> None:
@@ -145,9 +192,11 @@ class LSRModel(PretrainedMixin, nn.Module):
         landmark_image: torch.Tensor,
         oracle_segmentation: torch.Tensor | None = None,
         with_aux_rgb: bool = False,
+        references: torch.Tensor | None = None,
+        reference_masks: torch.Tensor | None = None,
     ) -> LSROutputs:
         layout_latent, style_latent = self.subject_encoder(shots, shot_landmark_images)
         frame = self.frame_generator.synthesize(
-            landmark_image, layout_latent, style_latent, oracle_segmentation, with_aux_rgb
+            landmark_image, layout_latent, style_latent, oracle_segmentation, with_aux_rgb, references, reference_masks
         )
         return LSROutputs(frame, layout_latent, style_latent)

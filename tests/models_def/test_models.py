@@ -62,6 +62,10 @@ def _inputs(config: ModelConfig, batch: int = 2, shots: int = 3, seed: int = 0) 
     if config.variant == "oracle_seg":
         labels = torch.randint(0, 19, (batch, size, size), generator=g)
         inputs["oracle_segmentation"] = torch.nn.functional.one_hot(labels, 19).permute(0, 3, 1, 2).float()
+    if config.uses_references:
+        count = config.warp_references
+        inputs["references"] = torch.rand(batch, count, 3, size, size, generator=g) * 2 - 1
+        inputs["reference_masks"] = torch.ones(batch, count, 1, size, size)
     return inputs
 
 

@@ -1,0 +1,41 @@
+"""The warp-guided composite: G^s's output blended with the nearest shots warped onto the target (thesis §4.5.6).
+
+A per-pixel softmax over N + 1 candidates (the N warped references and the generated image) gives each its
+weight, so the network chooses, pixel by pixel, which reference is best aligned and where only synthesis
+helps (an open mouth no shot shows, the region a warp leaves empty). Invalid reference pixels (the warp
+sampled outside the shot) are pushed out of the softmax. The blend runs at the references' resolution:
+the network may run lower (its RGB and logits are upsampled), so that detail comes from the shots.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from models_def.shapes import check_shape
+
+# Added to the logit of an invalid reference pixel: e^-30 ~ 1e-13 of the weight, finite in fp16 and ONNX.
+INVALID_LOGIT_PENALTY = 30.0
+
+
+def blend_references(
+    references: torch.Tensor,
+    reference_masks: torch.Tensor,
+    generated: torch.Tensor,
+    blend_logits: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """references: (B, N, 3, H, W) in [-1, 1]; reference_masks: (B, N, 1, H, W) in [0, 1] (1 = valid);
+    generated: (B, 3, h, w) in [-1, 1]; blend_logits: (B, N + 1, h, w), the last one the generated image's
+    -> (image (B, 3, H, W), weights (B, N + 1, H, W) summing to 1). h, w may be lower than H, W (bilinear)."""
+    batch, count, _, height, width = references.shape
+    check_shape("reference_masks", reference_masks, (batch, count, 1, height, width))
+    check_shape("blend_logits", blend_logits, (batch, count + 1, "h", "w"))
+    check_shape("generated", generated, (batch, 3, blend_logits.shape[2], blend_logits.shape[3]))
+    if blend_logits.shape[2:] != (height, width):
+        blend_logits = F.interpolate(blend_logits, size=(height, width), mode="bilinear", align_corners=False)
+        generated = F.interpolate(generated, size=(height, width), mode="bilinear", align_corners=False)
+    masks = reference_masks[:, :, 0].clamp(0.0, 1.0)  # (B, N, H, W)
+    reference_logits = blend_logits[:, :count] + INVALID_LOGIT_PENALTY * (masks - 1.0)
+    weights = torch.cat([reference_logits, blend_logits[:, count:]], dim=1).softmax(dim=1)  # (B, N + 1, H, W)
+    image = (weights[:, :count, None] * references).sum(dim=1) + weights[:, count:] * generated  # (B, 3, H, W)
+    return image, weights

@@ -1,0 +1,137 @@
+"""The warp-guided variant (thesis §4.5.6): its composite, its inputs, the warm start and its ONNX graph."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from models_def import LSRModel, ModelConfig, preset_config
+from models_def.composite import blend_references
+
+
+def _inputs(config: ModelConfig, crop: int, seed: int = 0):
+    generator = torch.Generator().manual_seed(seed)
+    size, count = config.resolution, config.warp_references
+    landmark_image = torch.rand(2, 3, size, size, generator=generator) * 2 - 1
+    latent = torch.randn(2, config.latent_dim, generator=generator)
+    references = torch.rand(2, count, 3, crop, crop, generator=generator) * 2 - 1
+    masks = (torch.rand(2, count, 1, crop, crop, generator=generator) > 0.2).float()
+    return landmark_image, latent, references, masks
+
+
+def test_blend_picks_the_reference_its_logit_favours():
+    references = torch.stack([torch.full((3, 8, 8), -0.5), torch.full((3, 8, 8), 0.5)])[None]  # (1, 2, 3, 8, 8)
+    masks = torch.ones(1, 2, 1, 8, 8)
+    generated = torch.zeros(1, 3, 8, 8)
+    logits = torch.tensor([0.0, 40.0, 0.0]).view(1, 3, 1, 1).expand(1, 3, 8, 8)
+    image, weights = blend_references(references, masks, generated, logits)
+    torch.testing.assert_close(image, references[:, 1], atol=1e-6, rtol=0)
+    torch.testing.assert_close(weights.sum(dim=1), torch.ones(1, 8, 8))
+
+
+def test_invalid_reference_pixels_get_no_weight():
+    references = torch.ones(1, 1, 3, 4, 4)
+    masks = torch.zeros(1, 1, 1, 4, 4)  # the warp left the shot everywhere
+    generated = -torch.ones(1, 3, 4, 4)
+    image, weights = blend_references(references, masks, generated, torch.zeros(1, 2, 4, 4))
+    assert weights[:, 0].max() < 1e-12
+    torch.testing.assert_close(image, generated)
+
+
+def test_low_resolution_logits_are_upsampled_to_the_references():
+    references = torch.rand(1, 2, 3, 16, 16)
+    image, weights = blend_references(references, torch.ones(1, 2, 1, 16, 16), torch.zeros(1, 3, 8, 8), torch.zeros(1, 3, 8, 8))
+    assert image.shape == (1, 3, 16, 16) and weights.shape == (1, 3, 16, 16)
+    torch.testing.assert_close(image, references.sum(dim=1) / 3)  # uniform weights
+
+
+def test_blend_gradcheck():
+    generator = torch.Generator().manual_seed(0)
+    args = [torch.rand(1, 2, 3, 4, 4, generator=generator, dtype=torch.float64), torch.ones(1, 2, 1, 4, 4, dtype=torch.float64),
+            torch.rand(1, 3, 2, 2, generator=generator, dtype=torch.float64), torch.rand(1, 3, 2, 2, generator=generator, dtype=torch.float64)]  # fmt: skip
+    for index in (0, 2, 3):
+        args[index].requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda *a: blend_references(*a)[0], args)
+
+
+@pytest.mark.parametrize("crop_factor", [1, 2])
+def test_frame_generator_shapes_and_weights(crop_factor):
+    config = preset_config("tiny", variant="warp_guided")
+    model = LSRModel(config).eval()
+    crop = config.resolution * crop_factor
+    landmark_image, latent, references, masks = _inputs(config, crop)
+    with torch.no_grad():
+        outputs = model.frame_generator.synthesize(landmark_image, latent, latent, references=references, reference_masks=masks)
+    assert outputs.image.shape == (2, 3, crop, crop) and outputs.generated.shape == (2, 3, config.resolution, config.resolution)
+    assert outputs.blend_weights.shape == (2, config.warp_references + 1, crop, crop)
+    assert outputs.layout.shape[1] == config.layout_channels and torch.isfinite(outputs.image).all()
+    assert outputs.image.min() >= -1 - 1e-5 and outputs.image.max() <= 1 + 1e-5
+
+
+def test_references_are_required_and_checked():
+    config = preset_config("tiny", variant="warp_guided")
+    model = LSRModel(config)
+    landmark_image, latent, references, masks = _inputs(config, config.resolution)
+    with pytest.raises(ValueError, match="needs references"):
+        model.frame_generator(landmark_image, latent, latent)
+    with pytest.raises(ValueError, match="references"):
+        model.frame_generator(landmark_image, latent, latent, references=references[:, :1], reference_masks=masks)
+
+
+def test_configs_saved_before_warp_references_existed_still_load():
+    values = preset_config("tiny").to_dict()
+    del values["warp_references"]
+    assert ModelConfig.from_dict(values) == preset_config("tiny")
+
+
+def test_warm_start_keeps_the_old_generator_and_starts_with_a_uniform_blend(tmp_path):
+    from lsr.train.warm_start import warm_start
+    from models_def import Discriminator
+
+    torch.manual_seed(0)
+    old = LSRModel(preset_config("tiny")).save_pretrained(tmp_path / "old")
+    config = preset_config("tiny", variant="warp_guided")
+    model, discriminator = LSRModel(config).eval(), Discriminator(config)
+    widened = warm_start(model, discriminator, old)
+    assert any("to_rgb" in name for name in widened) and any("projection" in name for name in widened)
+    base = LSRModel.from_pretrained(old).eval()
+    landmark_image, latent, references, masks = _inputs(config, config.resolution * 2)
+    with torch.no_grad():
+        expected = base.frame_generator(landmark_image, latent, latent)
+        outputs = model.frame_generator.synthesize(landmark_image, latent, latent, references=references, reference_masks=masks)
+    torch.testing.assert_close(outputs.generated, expected, atol=1e-4, rtol=0)
+    valid = masks[:, :, 0].sum(dim=1) == config.warp_references  # where every reference is valid: all weights equal
+    torch.testing.assert_close(outputs.blend_weights.permute(0, 2, 3, 1)[valid], torch.full((int(valid.sum()), 4), 0.25),
+                               atol=1e-5, rtol=0)  # fmt: skip
+
+
+def test_warm_start_rejects_another_preset(tmp_path):
+    from lsr.errors import WeightsError
+    from lsr.train.warm_start import warm_start
+    from models_def import Discriminator
+
+    old = LSRModel(preset_config("tiny", width=0.25)).save_pretrained(tmp_path / "old")
+    config = preset_config("tiny", variant="warp_guided")
+    with pytest.raises(WeightsError, match="init-from"):
+        warm_start(LSRModel(config), Discriminator(config), old)
+
+
+def test_onnx_frame_graph_matches_torch(tmp_path):
+    pytest.importorskip("onnxruntime")
+    from deploy.runtime import OnnxBackend
+    from lsr.export_bundle import export_graphs
+
+    torch.manual_seed(0)
+    config = preset_config("tiny", variant="warp_guided")
+    model = LSRModel(config).eval()
+    export_graphs(model, tmp_path)
+    backend = OnnxBackend(tmp_path, threads=1)
+    assert backend.warp_references == config.warp_references and backend.crop_size == 2 * config.resolution
+    landmark_image, latent, references, masks = _inputs(config, backend.crop_size, seed=1)
+    with torch.no_grad():
+        expected = model.frame_generator.synthesize(landmark_image, latent, latent, references=references, reference_masks=masks)
+    image, layout = backend.synthesize(landmark_image.numpy(), latent.numpy(), latent.numpy(), True,
+                                       references.numpy(), masks.numpy())  # fmt: skip
+    assert np.abs(image - expected.image.numpy()).max() <= 1e-4
+    assert np.abs(layout - expected.layout.numpy()).max() <= 1e-4
