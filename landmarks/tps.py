@@ -226,23 +226,33 @@ def _interpolation_matrix(size: int, coarse: np.ndarray) -> np.ndarray:
     return matrix
 
 
-def _evaluate_dense(function, height: int, width: int, grid_step: int) -> tuple[np.ndarray, np.ndarray]:
-    """A smooth R^2 -> R^2 function on every pixel -> (map_x, map_y), each (H, W) float64.
+class _Grid:
+    """Where a smooth R^2 -> R^2 map is evaluated: every pixel (step 1), or every ``step`` pixels with the last
+    row and column included, then interpolated bilinearly (``densify``). A TPS is smooth, so at step 4 the maps
+    differ from the exact ones by a fraction of a pixel (tests/landmarks/test_tps_references.py) at ~1/16 of the cost."""
 
-    grid_step > 1 evaluates it on a coarse grid (every ``grid_step`` pixels, ends included) and interpolates
-    bilinearly: a TPS is smooth, so at step 4 the maps differ by far less than a pixel (tests/landmarks/test_tps.py)
-    at about 1/16 of the cost.
-    """
-    if grid_step <= 1:
-        mapped = function(_pixel_grid(height, width))
-        return mapped[:, 0].reshape(height, width), mapped[:, 1].reshape(height, width)
-    coarse_y = np.unique(np.append(np.arange(0, height, grid_step, dtype=np.float64), height - 1.0))
-    coarse_x = np.unique(np.append(np.arange(0, width, grid_step, dtype=np.float64), width - 1.0))
-    grid_y, grid_x = np.meshgrid(coarse_y, coarse_x, indexing="ij")
-    mapped = function(np.stack([grid_x.ravel(), grid_y.ravel()], axis=1))  # (h*w, 2)
-    rows, cols = _interpolation_matrix(height, coarse_y), _interpolation_matrix(width, coarse_x)
-    shape = (len(coarse_y), len(coarse_x))
-    return rows @ mapped[:, 0].reshape(shape) @ cols.T, rows @ mapped[:, 1].reshape(shape) @ cols.T
+    def __init__(self, height: int, width: int, step: int) -> None:
+        self.height, self.width, self.step = height, width, max(1, int(step))
+        if self.step == 1:
+            self.points = _pixel_grid(height, width)
+            self.shape = (height, width)
+            return
+        self.ys = np.unique(np.append(np.arange(0, height, self.step, dtype=np.float64), height - 1.0))
+        self.xs = np.unique(np.append(np.arange(0, width, self.step, dtype=np.float64), width - 1.0))
+        grid_y, grid_x = np.meshgrid(self.ys, self.xs, indexing="ij")
+        self.points = np.stack([grid_x.ravel(), grid_y.ravel()], axis=1)  # (h*w, 2) x, y
+        self.shape = (len(self.ys), len(self.xs))
+        self._rows, self._cols = _interpolation_matrix(height, self.ys), _interpolation_matrix(width, self.xs)
+
+    def evaluate(self, function) -> tuple[np.ndarray, np.ndarray]:
+        """function on the grid points -> (map_x, map_y) on the grid, each ``self.shape``."""
+        mapped = function(self.points)
+        return mapped[:, 0].reshape(self.shape), mapped[:, 1].reshape(self.shape)
+
+    def densify(self, values: np.ndarray) -> np.ndarray:
+        """Grid values -> (H, W) float32 at every pixel."""
+        dense = values if self.step == 1 else self._rows @ values @ self._cols.T
+        return dense.astype(np.float32)
 
 
 def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
@@ -266,7 +276,7 @@ def tps_map(
     """The backward map of the warp that moves ``source_points`` onto ``target_points`` in an (H, W) frame.
 
     source_points, target_points: (N, 2) x, y pixels (rows with NaN in either are ignored). grid_step: see
-    ``_evaluate_dense`` (1 = exact). Never raises for degenerate point sets (falls back, see the module docstring).
+    ``_Grid`` (1 = exact; > 1 evaluates and checks folds on a coarse grid). Never raises for degenerate point sets (falls back, see the module docstring).
     """
     source_points = np.asarray(source_points, np.float64)
     target_points = np.asarray(target_points, np.float64)
@@ -279,6 +289,7 @@ def tps_map(
         fixed = border_points(height, width)
         control, values = np.concatenate([control, fixed]), np.concatenate([values, fixed])
     control, values = merge_close_points(control, values, merge_distance)
+    grid = _Grid(height, width, grid_step)
     reasons: list[str] = []
     for attempt, factor in enumerate(RETRY_FACTORS):
         try:
@@ -286,17 +297,19 @@ def tps_map(
         except DegenerateTpsError as exc:
             reasons.append(str(exc))
             break  # more regularisation does not help a system without spread / affine rank
-        map_x, map_y = _evaluate_dense(spline, height, width, grid_step)  # source x, y per output pixel
+        map_x, map_y = grid.evaluate(spline)  # source x, y per output pixel (on the grid)
+        # folds are judged on the grid: only an accepted map is made dense
         folds = folded_fraction(map_x, map_y)
         if np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)) and folds <= max_folded_fraction:
             method = "tps" if attempt == 0 else "tps_stronger"
-            return WarpMap(map_x.astype(np.float32), map_y.astype(np.float32), method, regularization * factor,
-                           folds, "; ".join(reasons))  # fmt: skip
+            return WarpMap(grid.densify(map_x), grid.densify(map_y), method, regularization * factor, folds,
+                           "; ".join(reasons))  # fmt: skip
         reasons.append(f"lambda {regularization * factor:.3g}: {folds:.2%} of pixels folded")
     matrix = fit_similarity(landmark_targets, landmark_sources) if len(landmark_targets) >= 2 else None
     if matrix is not None:
-        map_x, map_y = _evaluate_dense(lambda p: p @ matrix[:, :2].T + matrix[:, 2], height, width, 1)
-        return WarpMap(map_x.astype(np.float32), map_y.astype(np.float32), "similarity", 0.0, 0.0, "; ".join(reasons))
+        dense = _Grid(height, width, 1)
+        map_x, map_y = dense.evaluate(lambda p: p @ matrix[:, :2].T + matrix[:, 2])
+        return WarpMap(dense.densify(map_x), dense.densify(map_y), "similarity", 0.0, 0.0, "; ".join(reasons))
     reasons.append("no similarity: landmarks have no spread")
     grid_y, grid_x = np.mgrid[0:height, 0:width].astype(np.float32)
     return WarpMap(grid_x, grid_y, "identity", 0.0, 0.0, "; ".join(reasons))
@@ -385,3 +398,43 @@ def warp_references(
         warped[slot] = shots[index] if warp.method == "identity" else _remap(shots[index], warp.map_x, warp.map_y)
         masks[slot] = warp.valid(height, width)
     return warped, masks, indices
+
+
+def jittered_copy(image: np.ndarray, points: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A small random similarity of an image and its landmarks (rotation <= 5 deg, scale +-5 %, shift <= 4 %).
+
+    The stand-in reference of a single shot (K = 1): warping it back onto the shot's landmarks is imperfect
+    the way a real other shot is, instead of an identity copy the network would learn to trust blindly.
+    image: (S, S, 3) uint8; points: (68, 2) -> (image, points) of the same shapes.
+    """
+    size = image.shape[0]
+    angle, scale = rng.uniform(-5.0, 5.0), rng.uniform(0.95, 1.05)
+    shift = rng.uniform(-0.04, 0.04, size=2) * size
+    matrix = cv2.getRotationMatrix2D(((size - 1) / 2, (size - 1) / 2), angle, scale)
+    matrix[:, 2] += shift
+    moved = cv2.warpAffine(image, matrix, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return moved, np.asarray(points, np.float64) @ matrix[:, :2].T + matrix[:, 2]
+
+
+def leave_one_out_references(
+    shots: np.ndarray, shot_landmarks: np.ndarray, count: int, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """For each shot as a target, the ``count`` nearest *other* shots warped onto it (subject fine-tuning).
+
+    shots: (K, S, S, 3) uint8; shot_landmarks: (K, 68, 2) -> (warped (K, count, S, S, 3) uint8, masks
+    (K, count, S, S) float32). With K = 1 the other shot is a jittered copy of the shot (``jittered_copy``).
+    """
+    shots = np.asarray(shots)
+    rng = np.random.default_rng(seed)
+    warped, masks = [], []
+    for index in range(len(shots)):
+        others = [i for i in range(len(shots)) if i != index]
+        if others:
+            pool, pool_points = shots[others], np.asarray(shot_landmarks)[others]
+        else:
+            moved, moved_points = jittered_copy(shots[index], shot_landmarks[index], rng)
+            pool, pool_points = moved[None], moved_points[None]
+        images, valid, _ = warp_references(pool, pool_points, shot_landmarks[index], count)
+        warped.append(images)
+        masks.append(valid)
+    return np.stack(warped), np.stack(masks)

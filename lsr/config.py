@@ -264,12 +264,14 @@ class TrainConfig:
     """Run folder: checkpoints/, tensorboard/, weights/ (inference safetensors + config.json)."""
     preset: Literal["paper", "small", "fast", "compact", "tiny"] = "paper"
     """Model size preset (models_def.presets)."""
-    variant: Literal["baseline", "spade_landmarks", "learned_seg", "latent_layout", "oracle_seg"] = "latent_layout"
-    """Ablation variant (thesis Table 4.2)."""
+    variant: Literal["baseline", "spade_landmarks", "learned_seg", "latent_layout", "oracle_seg", "warp_guided"] = "latent_layout"
+    """Ablation variant (thesis Table 4.2), or warp_guided (latent layout + the nearest shots warped and blended)."""
     resolution: int = 0
     """Image resolution; 0 = the preset's."""
     synthetic_identities: int = 0
-    """Train on this many procedural synthetic identities instead of --data (smoke runs, tests, benches)."""
+    """Train on this many procedural synthetic identities: alone, or mixed with --data (real clips)."""
+    init_from: Path | None = None
+    """Start from this model folder (same preset) instead of random weights; channels a variant adds start at zero."""
     k_shots: int = 4
     """K: shots per training episode."""
     shots_from: Literal["video", "identity"] = "video"

@@ -16,6 +16,9 @@ Conventions (shape contracts of every item):
   (-1) everywhere when the clip has no maps (use ``cross_entropy(..., ignore_index=-1)``).
 * ``shot_landmarks`` (K, 68, 2), ``target_landmarks`` (68, 2): float32 x, y pixels at S.
 * ``identity``: int64 index into ``dataset.identities``; ``index``: the episode index.
+* with ``warp_references = N > 0`` (the warp-guided generator): ``references`` (N, 3, S, S) in [-1, 1], the
+  N shots nearest to the target TPS-warped onto its landmarks (``landmarks.tps.warp_references``, after
+  augmentation), and ``reference_masks`` (N, 1, S, S) in {0, 1}, where each warp sampled inside its shot.
 
 Sampling: frames with NaN landmarks are never chosen. ``shots_from="identity"`` (default) draws the
 shots from any video of the target's identity (appearance across videos, as at test time);
@@ -146,8 +149,12 @@ class EpisodeDataset(Dataset):
         shots_from: Literal["identity", "video"] = "identity",
         augment: AugmentConfig | None = None,
         with_segmentation: bool = True,
+        warp_references: int = 0,
     ) -> None:
         _check_shots(shots)
+        if warp_references < 0:
+            raise ConfigError(f"warp_references must be >= 0, got {warp_references}")
+        self.warp_references = warp_references
         if shots_from not in ("identity", "video"):
             raise ConfigError(f"shots_from must be 'identity' or 'video', got {shots_from!r}")
         if augment is not None:
@@ -219,7 +226,26 @@ class EpisodeDataset(Dataset):
         }
         if segmentation is not None:
             item["target_segmentation"] = segmentation.contiguous()
+        if self.warp_references:
+            item.update(reference_tensors(images[:-1], points[:-1], points[-1], self.warp_references))
         return item
+
+
+def reference_tensors(shots: torch.Tensor, shot_landmarks: torch.Tensor, target_landmarks: torch.Tensor,
+                      count: int) -> dict[str, torch.Tensor]:  # fmt: skip
+    """The ``count`` nearest shots warped onto the target (``landmarks.tps.warp_references``) as network inputs.
+
+    shots: (K, 3, S, S) in [-1, 1]; shot_landmarks: (K, 68, 2); target_landmarks: (68, 2)
+    -> {"references": (count, 3, S, S) in [-1, 1], "reference_masks": (count, 1, S, S) in {0, 1}}.
+    """
+    from landmarks.tps import warp_references
+
+    frames = ((shots.permute(0, 2, 3, 1) + 1.0) * 127.5).round().clamp(0, 255).to(torch.uint8).numpy()  # (K, S, S, 3)
+    warped, masks, _ = warp_references(frames, shot_landmarks.numpy(), target_landmarks.numpy(), count)
+    return {
+        "references": _to_unit(warped) * 2.0 - 1.0,
+        "reference_masks": torch.from_numpy(masks)[:, None].contiguous(),
+    }
 
 
 class CrossIdentityDataset(Dataset):

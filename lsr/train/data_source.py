@@ -1,8 +1,9 @@
-"""Where ``lsr train`` gets its episodes: a prepared dataset (``--data``) or a procedural one.
+"""Where ``lsr train`` gets its episodes: a prepared dataset (``--data``), a procedural one, or both mixed.
 
 The procedural dataset (``--synthetic-identities N``) is rendered once by ``lsr.data.synth`` into
 ``OUT/synthetic_data`` with exact segmentation maps, so every variant (including X-ent supervision and
-``oracle_seg``) can train without real data.
+``oracle_seg``) can train without real data. Given both, episodes come from both (``MixedEpisodes``): real
+clips close the domain gap, synthetic heads keep exact ground truth.
 """
 
 from __future__ import annotations
@@ -16,7 +17,15 @@ from models_def import ModelConfig
 
 SYNTHETIC_VIDEOS_PER_IDENTITY = 2
 SYNTHETIC_FRAMES_PER_VIDEO = 16
-SEGMENTATION_VARIANTS = ("latent_layout", "learned_seg", "oracle_seg")
+SEGMENTATION_VARIANTS = ("latent_layout", "learned_seg", "oracle_seg", "warp_guided")
+
+
+class MixedEpisodes(torch.utils.data.ConcatDataset):
+    """Episodes of several ``EpisodeDataset``s in one index space; ``set_epoch`` reaches each of them."""
+
+    def set_epoch(self, epoch: int) -> None:
+        for dataset in self.datasets:
+            dataset.set_epoch(epoch)
 
 
 def synthetic_root(cfg, model_config: ModelConfig) -> Path:
@@ -45,25 +54,31 @@ def synthetic_root(cfg, model_config: ModelConfig) -> Path:
 
 
 def episode_dataset(cfg, model_config: ModelConfig) -> torch.utils.data.Dataset:
-    """``EpisodeDataset`` over ``cfg.data`` (split 'train') or the synthetic dataset, at the model's resolution."""
+    """``EpisodeDataset`` over ``cfg.data`` (split 'train') and/or the synthetic dataset, at the model's resolution."""
     from lsr.data.episodes import EpisodeDataset
 
-    root = Path(cfg.data) if cfg.data is not None else synthetic_root(cfg, model_config)
+    roots = [Path(cfg.data)] if cfg.data is not None else []
+    if cfg.synthetic_identities > 0:
+        roots.append(synthetic_root(cfg, model_config))
     needs_segmentation = model_config.variant in SEGMENTATION_VARIANTS
-    dataset = EpisodeDataset(
-        root,
-        split="train",
-        shots=cfg.k_shots,
-        size=model_config.resolution,
-        seed=cfg.seed,
-        shots_from=cfg.shots_from,
-        with_segmentation=needs_segmentation,
-    )
-    if needs_segmentation:
-        probe = dataset[0]
-        if "target_segmentation" not in probe or bool((probe["target_segmentation"] < 0).all()):
-            raise DatasetError(
-                f"variant {model_config.variant!r} needs segmentation maps but {root} has none; add oracle maps "
-                "(lsr.data.oracle_seg / `lsr prepare`) or train --variant baseline / spade_landmarks"
-            )
-    return dataset
+    datasets = []
+    for root in roots:
+        dataset = EpisodeDataset(
+            root,
+            split="train",
+            shots=cfg.k_shots,
+            size=model_config.resolution,
+            seed=cfg.seed,
+            shots_from=cfg.shots_from,
+            with_segmentation=needs_segmentation,
+            warp_references=model_config.warp_references if model_config.uses_references else 0,
+        )
+        if needs_segmentation:
+            probe = dataset[0]
+            if "target_segmentation" not in probe or bool((probe["target_segmentation"] < 0).all()):
+                raise DatasetError(
+                    f"variant {model_config.variant!r} needs segmentation maps but {root} has none; add oracle maps "
+                    "(lsr.data.oracle_seg / `lsr prepare`) or train --variant baseline / spade_landmarks"
+                )
+        datasets.append(dataset)
+    return datasets[0] if len(datasets) == 1 else MixedEpisodes(datasets)

@@ -2,9 +2,10 @@
 
 z^l and z^s are computed once from the K shots and kept fixed; G^l, G^s and D are fine-tuned by
 reconstructing the shots from their own landmarks with the objective of eq. 4.4 (the same
-generator/discriminator steps as ``lsr train``). Output: the subject's model folder
-(safetensors + config.json) and ``latents.safetensors`` (layout_latent, style_latent), ready for
-the pipeline.
+generator/discriminator steps as ``lsr train``). A warp-guided model reconstructs each shot from the other
+shots warped onto it (``landmarks.tps.leave_one_out_references``; with one shot, a jittered copy of it).
+Output: the subject's model folder (safetensors + config.json) and ``latents.safetensors`` (layout_latent,
+style_latent), ready for the pipeline.
 """
 
 from __future__ import annotations
@@ -77,13 +78,25 @@ def load_discriminator(weights: Path, model: LSRModel) -> tuple[Discriminator, b
     return discriminator, True
 
 
+def shot_references(shots: SubjectShots, count: int, seed: int = 0) -> tuple[Tensor, Tensor]:
+    """Warp-guided fine-tuning inputs: per shot, the nearest other shots warped onto it.
+
+    -> (references (K, count, 3, S, S) in [-1, 1], reference_masks (K, count, 1, S, S) in {0, 1})."""
+    from landmarks.tps import leave_one_out_references
+
+    warped, masks = leave_one_out_references(shots.frames, shots.landmarks, count, seed)
+    references = torch.from_numpy(warped).permute(0, 1, 4, 2, 3).float() / 127.5 - 1
+    return references, torch.from_numpy(masks)[:, :, None]
+
+
 @torch.no_grad()
 def reconstruction_l1(model: LSRModel, images: Tensor, landmark_images: Tensor, latents: tuple[Tensor, Tensor],
-                      oracle: Tensor | None) -> float:
+                      oracle: Tensor | None, references: tuple[Tensor, Tensor] | None = None) -> float:
     """Mean L1 of reconstructing every shot from its own landmarks with the fixed latents."""
     count = images.shape[0]
     layout_latent, style_latent = (z.expand(count, -1) for z in latents)
-    fake = model.frame_generator(landmark_images, layout_latent, style_latent, oracle)
+    warped, masks = references if references is not None else (None, None)
+    fake = model.frame_generator(landmark_images, layout_latent, style_latent, oracle, warped, masks)
     return (fake - images).abs().mean().item()
 
 
@@ -114,6 +127,9 @@ def finetune_subject(
     size = model.config.resolution
     images, landmark_imgs = (t.to(device) for t in shots_to_tensors(shots, size))
     oracle = _oracle_one_hot(shots).to(device) if model.config.variant == "oracle_seg" else None
+    references = None
+    if model.config.uses_references:
+        references = tuple(t.to(device) for t in shot_references(shots, model.config.warp_references, seed))
     model.to(device).train()
     discriminator.to(device).train()
     with torch.no_grad():  # z^l, z^s = 1/K sum_i E(I_i): computed once, then frozen (§4.3.5)
@@ -127,7 +143,7 @@ def finetune_subject(
     g_optimizer = make_adam([p for p in model.frame_generator.parameters() if p.requires_grad], lr, (0.0, 0.999))
     d_optimizer = make_adam(discriminator.parameters(), lr, (0.0, 0.999))
     latents = (layout_latent, style_latent)
-    l1_before = reconstruction_l1(model, images, landmark_imgs, latents, oracle)
+    l1_before = reconstruction_l1(model, images, landmark_imgs, latents, oracle, references)
 
     rng = np.random.default_rng(seed)
     count = images.shape[0]
@@ -147,6 +163,8 @@ def finetune_subject(
             target=images[picks],
             target_landmark_image=landmark_imgs[picks],
             target_segmentation=None if oracle is None else oracle[picks].argmax(1),
+            references=None if references is None else references[0][picks],
+            reference_masks=None if references is None else references[1][picks],
         )
         fixed = (layout_latent.expand(batch_size, -1), style_latent.expand(batch_size, -1))
         result = generator_step(model, discriminator, g_optimizer, batch, FINETUNE_PLAN, weights, latents=fixed)
@@ -158,7 +176,7 @@ def finetune_subject(
     seconds = time.perf_counter() - started
     model.eval()
     model.requires_grad_(False)
-    l1_after = reconstruction_l1(model, images, landmark_imgs, latents, oracle)
+    l1_after = reconstruction_l1(model, images, landmark_imgs, latents, oracle, references)
     return FinetuneResult(model, layout_latent.cpu(), style_latent.cpu(), l1_before, l1_after, skipped, seconds)
 
 

@@ -50,7 +50,7 @@ class StagePlan:
 
 def stages_for_variant(variant: str) -> list[StagePlan]:
     """The stages a variant runs (Table 4.2): only layout-predicting variants pre-train G^l and use X-ent."""
-    if variant == "latent_layout":
+    if variant in ("latent_layout", "warp_guided"):
         return [StagePlan(1, True), StagePlan(2, True), StagePlan(3, False)]
     if variant == "learned_seg":  # the predicted layout stays a segmentation: X-ent on in every stage
         return [StagePlan(1, True), StagePlan(2, True), StagePlan(3, True)]
@@ -64,7 +64,8 @@ class Batch:
 
     shots: (B, K, 3, S, S) in [-1, 1]; shot_landmark_images: (B, K, C_lm, S, S) in [-1, 1];
     target: (B, 3, S, S) in [-1, 1]; target_landmark_image: (B, C_lm, S, S);
-    target_segmentation: (B, S, S) int64 class ids, ``IGNORE_INDEX`` where unknown, or None.
+    target_segmentation: (B, S, S) int64 class ids, ``IGNORE_INDEX`` where unknown, or None;
+    references: (B, N, 3, S, S) in [-1, 1] and reference_masks: (B, N, 1, S, S), warp_guided only.
     """
 
     shots: Tensor
@@ -72,6 +73,8 @@ class Batch:
     target: Tensor
     target_landmark_image: Tensor
     target_segmentation: Tensor | None = None
+    references: Tensor | None = None
+    reference_masks: Tensor | None = None
 
     @classmethod
     def from_dict(cls, raw: Mapping[str, Tensor], device: torch.device) -> Batch:
@@ -85,6 +88,8 @@ class Batch:
             target=raw["target"].to(device, torch.float32),
             target_landmark_image=raw["target_landmark_image"].to(device, torch.float32),
             target_segmentation=None if segmentation is None else segmentation.to(device, torch.int64),
+            references=_optional(raw, "references", device),
+            reference_masks=_optional(raw, "reference_masks", device),
         )
 
     def oracle_one_hot(self) -> Tensor:
@@ -246,7 +251,8 @@ def generator_step(
             fake, layout = aux_rgb, layout_logits
         else:  # stages 2-3, eqs. 4.3-4.4
             oracle = batch.oracle_one_hot() if model.config.variant == "oracle_seg" else None
-            frame = generator.synthesize(batch.target_landmark_image, layout_latent, style_latent, oracle)
+            frame = generator.synthesize(batch.target_landmark_image, layout_latent, style_latent, oracle,
+                                         references=batch.references, reference_masks=batch.reference_masks)  # fmt: skip
             fake, layout = frame.image.float(), frame.layout
             total, rec_terms = reconstruction_loss(fake, batch.target, weights, perceptual)
             scalars.update({k: v.item() for k, v in rec_terms.items()})
@@ -323,6 +329,10 @@ def discriminator_step(
         optimizer.step()
     optimizer.zero_grad(set_to_none=True)
     return StepResult(finite, scalars)
+
+
+def _optional(raw: Mapping[str, Tensor], key: str, device: torch.device) -> Tensor | None:
+    return raw[key].to(device, torch.float32) if key in raw else None
 
 
 def _segmentation(batch: Batch) -> Tensor:

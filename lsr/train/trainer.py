@@ -111,6 +111,10 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.model = LSRModel(self.model_config)
         self.discriminator = Discriminator(self.model_config)
+        if cfg.init_from is not None:
+            from lsr.train.warm_start import warm_start
+
+            warm_start(self.model, self.discriminator, cfg.init_from)
         self.model.to(self.device).train()
         self.discriminator.to(self.device).train()
         self.ema = EMA(self.model, cfg.optim.ema_decay)

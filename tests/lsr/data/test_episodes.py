@@ -151,3 +151,20 @@ class TestAugmentation:
         assert out.min() >= 0.0 and out.max() <= 1.0
         with pytest.raises(ValueError):
             augment_frames(images, torch.rand(2, 68, 2), None, generator, AugmentConfig())
+
+
+def test_warp_references_are_the_nearest_shots_warped_onto_the_target(dataset_root: Path):
+    from landmarks.tps import warp_references
+
+    dataset = EpisodeDataset(dataset_root, split=None, shots=4, seed=3, warp_references=2)
+    item = dataset[5]
+    assert item["references"].shape == (2, 3, SIZE, SIZE) and item["reference_masks"].shape == (2, 1, SIZE, SIZE)
+    assert item["references"].min() >= -1 and item["references"].max() <= 1
+    frames = ((item["shots"].permute(0, 2, 3, 1) + 1) * 127.5).round().to(torch.uint8).numpy()
+    expected, masks, _ = warp_references(frames, item["shot_landmarks"].numpy(), item["target_landmarks"].numpy(), 2)
+    np.testing.assert_array_equal(((item["references"].permute(0, 2, 3, 1) + 1) * 127.5).round().numpy(), expected)
+    np.testing.assert_array_equal(item["reference_masks"][:, 0].numpy(), masks)
+    # a warp of a shot of the same identity is closer to the target than the raw shot, on average
+    target = item["target"]
+    raw_error = (item["shots"] - target).abs().mean(dim=(1, 2, 3)).min()
+    assert (item["references"][0] - target).abs().mean() < raw_error + 0.05
