@@ -334,27 +334,27 @@ def labelled_panel(panel: np.ndarray, tiles: int = 4) -> np.ndarray:
     return np.concatenate([strip, np.concatenate(tiles_big, axis=1)], axis=0)
 
 
-def latent_averaging(reenactor, shots, target_landmark_image: np.ndarray) -> list[tuple[np.ndarray, str]]:
+def latent_averaging(reenactor, shots, target_landmarks: np.ndarray) -> list[tuple[np.ndarray, str]]:
     """Each shot encoded alone, then all K averaged, synthesised at one target pose (thesis Fig. 4.10, eq. 4.3).
 
-    target_landmark_image: (S, S, 3) uint8 rasterised landmarks (the first driven frame's target).
+    target_landmarks: (68, 2) crop pixels (the first driven frame's target). A warp-guided model warps the same
+    nearest shots for every panel, so the panels differ by the latents only.
     """
-    from deploy.engine import from_network, to_network
+    from deploy.engine import resize_shots, to_network
     from landmarks.raster import draw_landmarks
 
     size = reenactor.resolution
-    landmark_images = np.stack([draw_landmarks(points, size) for points in shots.landmarks])  # (K, S, S, 3)
-    target = to_network(target_landmark_image)[None]  # (1, 3, S, S)
+    small = resize_shots(shots, size)
+    landmark_images = np.stack([draw_landmarks(points, size) for points in small.landmarks])  # (K, S, S, 3)
     items = []
     for i in range(len(shots.frames)):
-        layout_latent, style_latent = reenactor.backend.encode_subject(
-            to_network(shots.frames[i : i + 1])[None], to_network(landmark_images[i : i + 1])[None]  # (1, 1, 3, S, S)
+        latents = reenactor.backend.encode_subject(
+            to_network(small.frames[i : i + 1])[None], to_network(landmark_images[i : i + 1])[None]  # (1, 1, 3, S, S)
         )
-        image, _ = reenactor.backend.synthesize(target, layout_latent, style_latent, False)
-        items.append((enlarge(from_network(image[0])), f"shot {i + 1} alone"))
-    subject = reenactor.subject
-    image, _ = reenactor.backend.synthesize(target, subject.layout_latent, subject.style_latent, False)
-    items.append((enlarge(from_network(image[0])), f"average of K={len(shots.frames)}"))
+        image, _, _ = reenactor.synthesize_crop(target_landmarks, latents=latents)
+        items.append((enlarge(image), f"shot {i + 1} alone"))
+    image, _, _ = reenactor.synthesize_crop(target_landmarks)
+    items.append((enlarge(image), f"average of K={len(shots.frames)}"))
     return items
 
 
@@ -416,16 +416,16 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
         raise InputFileError(f"fine-tuning steps must be in 0..1000, got {finetune_steps}")
     info = check_driver(driving, limits)
     started = time.perf_counter()
-    shots, notes = load_shots(source_files, k, reenactor.resolution, store.detector, limits)
+    shots, notes = load_shots(source_files, k, reenactor.crop_size, store.detector, limits)
     extra = {"shot detection": time.perf_counter() - started}
     reenactor.encode_subject(shots)
     extra["subject_encoding"] = reenactor.last_stats.seconds["subject_encoding"]
-    kind, size = reenactor.backend.layout_kind, reenactor.resolution
+    kind, size = reenactor.backend.layout_kind, reenactor.crop_size
     output = run_dir / "reenacted.mp4"
     panels_dir = run_dir / "panels"
     panels_dir.mkdir()
     audio = driving if info.kind == "video" and info.has_audio else None
-    target_landmark_image = None
+    target_landmarks = None
     encode_seconds = 0.0
     pca = LayoutPCA()  # one colouring for the whole clip (fitted on its first frame)
     with store.finetuned(reenactor, int(finetune_steps)) as finetune_seconds:
@@ -436,19 +436,17 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
                 tick = time.perf_counter()
                 writer.write(image)
                 encode_seconds += time.perf_counter() - tick
-                if target_landmark_image is None and frame.landmark_image is not None:
-                    target_landmark_image = frame.landmark_image
+                if target_landmarks is None and frame.landmarks is not None:
+                    target_landmarks = frame.landmarks
                 write_image(panel_path(panels_dir, frame.index), side_by_side_frame(frame, kind, size, pca))
             stats = reenactor.last_stats
             if stats.frames != info.frames:
                 raise LsrError(f"{driving.name}: produced {stats.frames} frames for {info.frames} driver frames")
         stats.add("encode", encode_seconds)
         tick = time.perf_counter()
-        if target_landmark_image is None:  # no face anywhere in the driver: show the averaging at the first shot's pose
-            from landmarks.raster import draw_landmarks
-
-            target_landmark_image = draw_landmarks(shots.landmarks[0], size)
-        averaging = latent_averaging(reenactor, shots, target_landmark_image)
+        if target_landmarks is None:  # no face anywhere in the driver: show the averaging at the first shot's pose
+            target_landmarks = shots.landmarks[0]
+        averaging = latent_averaging(reenactor, shots, target_landmarks)
         extra["latent averaging"] = time.perf_counter() - tick
     if finetune_seconds is not None:
         extra["fine-tuning"] = finetune_seconds

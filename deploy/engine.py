@@ -56,15 +56,20 @@ class SynthesisBackend(Protocol):
     """Crop side S of the model."""
     layout_kind: LayoutKind
     """What the layout output is: 'none' (variant has none), 'latent' (C_l latent maps), 'segmentation' (19 classes)."""
+    warp_references: int
+    """N > 0: a warp-guided model; ``synthesize`` also takes the N nearest shots warped onto the target (0 = none)."""
 
     def encode_subject(self, shots: np.ndarray, shot_landmark_images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """shots, shot_landmark_images: (1, K, 3, S, S) float32 in [-1, 1] -> (layout_latent, style_latent), (1, D) each."""
         ...
 
     def synthesize(
-        self, landmark_image: np.ndarray, layout_latent: np.ndarray, style_latent: np.ndarray, with_layout: bool
+        self, landmark_image: np.ndarray, layout_latent: np.ndarray, style_latent: np.ndarray, with_layout: bool,
+        references: np.ndarray | None = None, reference_masks: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """landmark_image (1, 3, S, S) in [-1, 1], latents (1, D) -> (image (1, 3, S, S) in [-1, 1], layout (1, C_l, S, S) or None)."""
+        """landmark_image (1, 3, S, S) in [-1, 1], latents (1, D) [, references (1, N, 3, C, C) in [-1, 1] and
+        reference_masks (1, N, 1, C, C), warp-guided models, C >= S] -> (image (1, 3, C, C) in [-1, 1] (C = S
+        without references), layout (1, C_l, S, S) or None)."""
         ...
 
 
@@ -103,6 +108,8 @@ class ReenactedFrame:
     """(S, S, 3) uint8: the synthesised crop (None without a face)."""
     layout: np.ndarray | None
     """(C_l, S, S) float32: the generator's layout (only when asked for and the variant has one)."""
+    landmarks: np.ndarray | None = None
+    """(68, 2) float64: the target landmarks in crop pixels (after retargeting; None without a face)."""
 
 
 @dataclasses.dataclass
@@ -182,8 +189,9 @@ class ReenactorBase:
     backend: a ``SynthesisBackend``. detector: "hog" | "cnn" or a ``landmarks.detect.FaceDetector``.
     """
 
-    def __init__(self, backend: SynthesisBackend, *, detector: str | object = "hog") -> None:
+    def __init__(self, backend: SynthesisBackend, *, detector: str | object = "hog", crop_size: int | None = None) -> None:
         self.backend = backend
+        self.crop_size = crop_size or default_crop_size(backend)
         self._detector_spec = detector
         self._detector = None
         self.subject: Subject | None = None
@@ -191,7 +199,27 @@ class ReenactorBase:
 
     @property
     def resolution(self) -> int:
+        """Side of the network's input (the model resolution)."""
         return int(self.backend.resolution)
+
+    @property
+    def warp_references(self) -> int:
+        return int(getattr(self.backend, "warp_references", 0))
+
+    @property
+    def crop_size(self) -> int:
+        """Side of the face crop the shots, the target landmarks and the output live in (>= ``resolution``)."""
+        return self._crop_size
+
+    @crop_size.setter
+    def crop_size(self, size: int) -> None:
+        size = int(size)
+        fixed = getattr(self.backend, "crop_size", None)  # an ONNX graph takes its references at one side
+        if size < self.resolution or (size != self.resolution and not self.warp_references) or (fixed and size != fixed):
+            raise InputFileError(f"crop size {size} must equal the model resolution {self.resolution} "
+                                 f"(or be larger, for a warp-guided torch model; {fixed or 'any'} for this backend)")  # fmt: skip
+        self._crop_size = size
+        self.subject = None  # shots are cropped at this side: encode again
 
     @property
     def detector(self):
@@ -210,7 +238,7 @@ class ReenactorBase:
         """
         started = time.perf_counter()
         shots = source if isinstance(source, SubjectShots) else load_subject_shots(
-            source, self.resolution, k=k, detector=self.detector
+            source, self.crop_size, k=k, detector=self.detector
         )
         self.subject = self._encode(shots, _source_key(source))
         self.last_stats = ReenactStats()
@@ -220,26 +248,41 @@ class ReenactorBase:
     def _encode(self, shots: SubjectShots, source_key: str | None) -> Subject:
         from landmarks.raster import draw_landmarks
 
-        size = self.resolution
-        if shots.frames.ndim != 4 or shots.frames.shape[1:] != (size, size, 3):
-            raise InputFileError(f"subject shots must be (K, {size}, {size}, 3) uint8 crops, got {shots.frames.shape}")
-        landmark_images = np.stack([draw_landmarks(points, size) for points in shots.landmarks])  # (K, S, S, 3)
+        size, crop = self.resolution, self.crop_size
+        if shots.frames.ndim != 4 or shots.frames.shape[1:] != (crop, crop, 3):
+            raise InputFileError(f"subject shots must be (K, {crop}, {crop}, 3) uint8 crops, got {shots.frames.shape}")
+        small = resize_shots(shots, size)
+        landmark_images = np.stack([draw_landmarks(p, size) for p in small.landmarks])  # (K, S, S, 3)
         layout_latent, style_latent = self.backend.encode_subject(
-            to_network(shots.frames)[None], to_network(landmark_images)[None]  # (1, K, 3, S, S) each
+            to_network(small.frames)[None], to_network(landmark_images)[None]  # (1, K, 3, S, S) each
         )
         return Subject(shots, np.asarray(layout_latent, np.float32), np.asarray(style_latent, np.float32), source_key)
 
     # ---- frames ----------------------------------------------------------------------------------------
     def synthesize_crop(
-        self, crop_landmarks: np.ndarray, with_layout: bool = False
+        self, crop_landmarks: np.ndarray, with_layout: bool = False, latents: tuple[np.ndarray, np.ndarray] | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Target landmarks (68, 2) in crop pixels -> (synthesis (S, S, 3) uint8, landmark image (S, S, 3) uint8, layout)."""
+        """Target landmarks (68, 2) in crop pixels -> (synthesis (C, C, 3) uint8, landmark image (S, S, 3) uint8, layout).
+
+        C is ``crop_size``, S the model resolution. A warp-guided model also gets the nearest shots TPS-warped
+        onto the target at C (``landmarks.tps.warp_references``) and blends them with its own image at C.
+        latents: (layout_latent, style_latent), (1, D) each, in place of the subject's (e.g. one shot's alone).
+        """
         from landmarks.raster import draw_landmarks
 
         subject = self._require_subject()
-        landmark_image = draw_landmarks(crop_landmarks, self.resolution)
+        landmark_image = draw_landmarks(scale_points(crop_landmarks, self.resolution / self.crop_size), self.resolution)
+        references = masks = None
+        if self.warp_references:
+            from landmarks.tps import warp_references
+
+            warped, valid, _ = warp_references(subject.shots.frames, subject.shots.landmarks, crop_landmarks,
+                                               self.warp_references)  # fmt: skip
+            references, masks = to_network(warped)[None], valid[None, :, None]  # (1, N, 3, C, C), (1, N, 1, C, C)
+        layout_latent, style_latent = latents if latents is not None else (subject.layout_latent, subject.style_latent)
         image, layout = self.backend.synthesize(
-            to_network(landmark_image)[None], subject.layout_latent, subject.style_latent, with_layout
+            to_network(landmark_image)[None], layout_latent, style_latent, with_layout,
+            *(() if references is None else (references, masks)),
         )
         return from_network(image[0]), landmark_image, None if layout is None else np.asarray(layout[0], np.float32)
 
@@ -305,9 +348,9 @@ class ReenactorBase:
             started = time.perf_counter()
             points = one_euro(points) if one_euro is not None else points
             if space == "frame":
-                crop_landmarks = transform_landmarks(points, crop_transform(points, self.resolution))
+                crop_landmarks = transform_landmarks(points, crop_transform(points, self.crop_size))
             else:
-                crop_landmarks = points.astype(np.float64) * (self.resolution / float(size or self.resolution))
+                crop_landmarks = points.astype(np.float64) * (self.crop_size / float(size or self.resolution))
             reference = crop_landmarks if reference is None else reference
             target = self._retarget(crop_landmarks, reference, relative)
             stats.add("landmarks", time.perf_counter() - started)
@@ -315,7 +358,7 @@ class ReenactorBase:
             synthesis, landmark_image, layout = self.synthesize_crop(target, with_layout)
             stats.add("synthesis", time.perf_counter() - started)
             stats.frames += 1
-            yield ReenactedFrame(index, synthesis, True, None, landmark_image, synthesis, layout)
+            yield ReenactedFrame(index, synthesis, True, None, landmark_image, synthesis, layout, target)
 
     def _frame_driver(self, info: DriverInfo, relative: bool, smooth: bool, paste_back: bool, with_layout: bool,
                       stats: ReenactStats) -> Iterator[ReenactedFrame]:  # fmt: skip
@@ -323,7 +366,7 @@ class ReenactorBase:
         from landmarks.smooth import OneEuroFilter
         from landmarks.track import LandmarkTracker
 
-        size = self.resolution
+        size = self.crop_size
         tracker = LandmarkTracker(self.detector)
         one_euro = OneEuroFilter(info.fps) if smooth else None
         reference = None
@@ -365,13 +408,35 @@ class ReenactorBase:
                 output = paste(frame, synthesis, matrix, mask="ellipse", feather=size * PASTE_FEATHER_FRACTION)
                 stats.add("paste_back", time.perf_counter() - started)
             stats.frames += 1
-            yield ReenactedFrame(index, output, True, frame, landmark_image, synthesis, layout)
+            yield ReenactedFrame(index, output, True, frame, landmark_image, synthesis, layout, crop_landmarks)
             index += 1
 
     def _require_subject(self) -> Subject:
         if self.subject is None:
             raise NoFaceError("no subject encoded yet: call encode_subject(source) before re-enacting")
         return self.subject
+
+
+def default_crop_size(backend: SynthesisBackend) -> int:
+    """The crop (and output) side for a backend: twice the model resolution for a warp-guided model (detail comes
+    from the warped shots, the network runs at its own resolution), else the model resolution."""
+    return int(backend.resolution) * (2 if getattr(backend, "warp_references", 0) else 1)
+
+
+def scale_points(points: np.ndarray, scale: float) -> np.ndarray:
+    """Landmarks between crop sides, pixel centres at integers: (p + 0.5) * scale - 0.5."""
+    points = np.asarray(points, np.float64)
+    return points if scale == 1 else (points + 0.5) * scale - 0.5
+
+
+def resize_shots(shots: SubjectShots, size: int) -> SubjectShots:
+    """Shots cropped at another side -> (K, size, size, 3) crops with their landmarks scaled (the same shots)."""
+    crop = shots.frames.shape[1]
+    if crop == size:
+        return shots
+    interpolation = cv2.INTER_AREA if crop > size else cv2.INTER_LINEAR
+    frames = np.stack([cv2.resize(frame, (size, size), interpolation=interpolation) for frame in shots.frames])
+    return dataclasses.replace(shots, frames=frames, landmarks=scale_points(shots.landmarks, size / crop).astype(np.float32))
 
 
 def _source_key(source) -> str | None:

@@ -64,6 +64,8 @@ class OnnxBackend:
             self.resolution = int(self.metadata["resolution"])
             self.layout_kind = self.metadata["layout_kind"]
             self.config = json.loads(self.metadata.get("model_config", "{}"))
+            self.warp_references = int(self.metadata.get("warp_references", 0))
+            self.crop_size = int(self.metadata.get("crop_size", self.resolution))
         except (KeyError, ValueError) as exc:
             raise BundleError(f"{folder / frame_name} lacks LSR metadata ({exc}); re-run `lsr export`") from exc
         self.frame_outputs = [output.name for output in self.frame_session.get_outputs()]
@@ -76,11 +78,19 @@ class OnnxBackend:
         return layout_latent, style_latent
 
     def synthesize(self, landmark_image: np.ndarray, layout_latent: np.ndarray, style_latent: np.ndarray,
-                   with_layout: bool) -> tuple[np.ndarray, np.ndarray | None]:  # fmt: skip
-        """(B, 3, S, S) + (B, D) latents -> (image (B, 3, S, S) in [-1, 1], layout (B, C_l, S, S) or None)."""
+                   with_layout: bool, references: np.ndarray | None = None,
+                   reference_masks: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:  # fmt: skip
+        """(B, 3, S, S) + (B, D) latents [+ references, reference_masks at ``crop_size``, warp-guided bundles]
+        -> (image (B, 3, C, C) in [-1, 1], layout (B, C_l, S, S) or None); see ``deploy.engine.SynthesisBackend``."""
         feed = {"landmark_image": np.ascontiguousarray(landmark_image, np.float32),
                 "layout_latent": np.ascontiguousarray(layout_latent, np.float32),
                 "style_latent": np.ascontiguousarray(style_latent, np.float32)}  # fmt: skip
+        if self.warp_references:
+            if references is None or reference_masks is None or references.shape[-1] != self.crop_size:
+                raise BundleError(f"{self.folder}: a warp-guided bundle needs references at {self.crop_size}^2 "
+                                  "(run it through OnnxReenactor, which warps the shots)")  # fmt: skip
+            feed["references"] = np.ascontiguousarray(references, np.float32)
+            feed["reference_masks"] = np.ascontiguousarray(reference_masks, np.float32)
         wanted = ["image", "layout"] if with_layout and "layout" in self.frame_outputs else ["image"]
         outputs = self.frame_session.run(wanted, feed)
         return outputs[0], outputs[1] if len(outputs) > 1 else None
@@ -95,7 +105,8 @@ class OnnxReenactor(ReenactorBase):
 
     def __init__(self, folder: str | os.PathLike, *, int8: bool = False, providers: list[str] | None = None,
                  threads: int = 0, detector: str | object = "hog") -> None:  # fmt: skip
-        super().__init__(OnnxBackend(folder, int8=int8, providers=providers, threads=threads), detector=detector)
+        backend = OnnxBackend(folder, int8=int8, providers=providers, threads=threads)
+        super().__init__(backend, detector=detector, crop_size=backend.crop_size)
 
     @property
     def metadata(self) -> dict[str, str]:

@@ -23,9 +23,11 @@ from models_def import FrameGenerator
 
 
 class FrameGeneratorGraph(nn.Module):
-    """Per-frame ONNX graph: (landmark_image, layout_latent, style_latent[, oracle_segmentation]) -> image[, layout].
+    """Per-frame ONNX graph: (landmark_image, layout_latent, style_latent[, oracle_segmentation]
+    [, references, reference_masks]) -> image[, layout].
 
     Variants without G^l (baseline, spade_landmarks, oracle_seg) take no layout_latent; see ``frame_graph_io``.
+    A warp_guided graph takes its references at one fixed crop side (the export's ``crop_size``).
 
     ``with_layout`` adds SPADE's layout input as a second output (for display); it needs a variant that has one.
     """
@@ -43,7 +45,12 @@ class FrameGeneratorGraph(nn.Module):
             # unused slot, which only needs the right shape.
             landmark_image, style_latent, *rest = inputs
             inputs = (landmark_image, style_latent, style_latent, *rest)
-        outputs = self.frame_generator.synthesize(*inputs)
+        if self.frame_generator.config.uses_references:
+            landmark_image, layout_latent, style_latent, references, reference_masks = inputs
+            outputs = self.frame_generator.synthesize(landmark_image, layout_latent, style_latent,
+                                                      references=references, reference_masks=reference_masks)  # fmt: skip
+        else:
+            outputs = self.frame_generator.synthesize(*inputs)
         return (outputs.image, outputs.layout) if self.with_layout else outputs.image
 
 
@@ -54,6 +61,8 @@ def frame_graph_io(frame_generator: FrameGenerator, with_layout: bool) -> tuple[
         inputs.remove("layout_latent")
     if frame_generator.config.variant == "oracle_seg":
         inputs.append("oracle_segmentation")
+    if frame_generator.config.uses_references:
+        inputs += ["references", "reference_masks"]
     outputs = ["image", "layout"] if with_layout else ["image"]
     return inputs, outputs, {name: {0: "batch"} for name in inputs + outputs}
 

@@ -57,7 +57,8 @@ def preset_name_of(config: ModelConfig) -> str:
     return "custom"
 
 
-def bundle_metadata(config: ModelConfig) -> dict[str, str]:
+def bundle_metadata(config: ModelConfig, crop_size: int | None = None) -> dict[str, str]:
+    warp_references = config.warp_references if config.uses_references else 0
     return {
         "lsr_version": __version__,
         "preset": preset_name_of(config),
@@ -69,6 +70,9 @@ def bundle_metadata(config: ModelConfig) -> dict[str, str]:
         "landmark_format": LANDMARK_FORMAT,
         "opset": str(ONNX_OPSET),
         "model_config": json.dumps(config.to_dict(), sort_keys=True),
+        "warp_references": str(warp_references),
+        # the side of the references a warp_guided graph takes (and of its image); the model resolution otherwise
+        "crop_size": str(crop_size or config.resolution * (2 if warp_references else 1)),
     }
 
 
@@ -107,9 +111,12 @@ def export_graphs(model: LSRModel, out: str | os.PathLike, *, shots: int = 2) ->
     graph = FrameGeneratorGraph(model.frame_generator, with_layout=with_layout)
     latents = model.subject_encoder(example_shots, example_landmarks)
     frame_inputs = (example_landmarks[:, 0], *latents)
+    metadata = bundle_metadata(config)
+    if config.uses_references:
+        crop, count = int(metadata["crop_size"]), config.warp_references
+        frame_inputs += (torch.rand(1, count, 3, crop, crop, generator=generator) * 2 - 1, torch.ones(1, count, 1, crop, crop))
     frame_path = export_onnx(graph, frame_inputs, out / FRAME_GENERATOR_FILE,
                              *frame_graph_io(model.frame_generator, with_layout), opset=ONNX_OPSET)  # fmt: skip
-    metadata = bundle_metadata(config)
     for path in (subject_path, frame_path):
         set_metadata(path, metadata)
     return ExportResult(out, [subject_path, frame_path], metadata)

@@ -35,7 +35,7 @@ _DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
 
 def layout_kind_of(variant: str) -> LayoutKind:
     """What the frame generator's layout output is for a variant (thesis Table 4.2)."""
-    if variant == "latent_layout":
+    if variant in ("latent_layout", "warp_guided"):
         return "latent"
     if variant in ("learned_seg", "oracle_seg"):
         return "segmentation"
@@ -74,6 +74,7 @@ class TorchBackend:
         self.model.to(self.device)
         self.resolution = model.config.resolution
         self.layout_kind = layout_kind_of(model.config.variant)
+        self.warp_references = model.config.warp_references if model.config.uses_references else 0
 
     def _autocast(self):
         # bf16 via autocast keeps norms/softmax in fp32 where torch deems it necessary (fp32 is the default).
@@ -92,16 +93,21 @@ class TorchBackend:
     @torch.inference_mode()
     def synthesize(
         self, landmark_image: np.ndarray, layout_latent: np.ndarray, style_latent: np.ndarray, with_layout: bool,
+        references: np.ndarray | None = None, reference_masks: np.ndarray | None = None,
         oracle_segmentation: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """(B, 3, S, S) + (B, D) latents -> (image (B, 3, S, S) in [-1, 1], layout (B, C_l, S, S) or None).
 
-        oracle_segmentation: (B, 19, S, S) one-hot ground truth, for ``oracle_seg`` models only (evaluation).
+        references / reference_masks: warp-guided models (``deploy.engine.SynthesisBackend``); the image is then at
+        their side. oracle_segmentation: (B, 19, S, S) one-hot ground truth, for ``oracle_seg`` models only (evaluation).
         """
         oracle = None if oracle_segmentation is None else self._tensor(oracle_segmentation)
+        warped = None if references is None else self._tensor(references)
+        masks = None if reference_masks is None else self._tensor(reference_masks)
         with self._autocast():
             outputs = self.model.frame_generator.synthesize(
-                self._tensor(landmark_image), self._tensor(layout_latent), self._tensor(style_latent), oracle
+                self._tensor(landmark_image), self._tensor(layout_latent), self._tensor(style_latent), oracle,
+                references=warped, reference_masks=masks,
             )
         layout = outputs.layout.float().cpu().numpy() if with_layout and outputs.layout is not None else None
         return outputs.image.float().cpu().numpy(), layout
@@ -125,7 +131,8 @@ class Reenactor(ReenactorBase):
     """Torch re-enactment (inference only). API: ``encode_subject``, ``reenact`` / ``__call__`` (``ReenactorBase``).
 
     weights: model folder (config.json + model.safetensors). device: "cpu", "cuda", ... precision: "fp32"
-    (default) or "bf16". detector: "hog" | "cnn" (dlib) for the source shots and the driver.
+    (default) or "bf16". detector: "hog" | "cnn" (dlib) for the source shots and the driver. crop_size: the
+    crop and output side (``deploy.engine.default_crop_size``: 2x the model resolution for warp-guided models).
     """
 
     def __init__(
@@ -135,10 +142,11 @@ class Reenactor(ReenactorBase):
         device: str | torch.device = "cpu",
         precision: Precision = "fp32",
         detector: str | object = "hog",
+        crop_size: int | None = None,
     ) -> None:
         model = weights if isinstance(weights, LSRModel) else load_model(weights)
         self.weights_path = None if isinstance(weights, LSRModel) else Path(weights)
-        super().__init__(TorchBackend(model, device, precision), detector=detector)
+        super().__init__(TorchBackend(model, device, precision), detector=detector, crop_size=crop_size)
 
     @property
     def model(self) -> LSRModel:
@@ -158,8 +166,10 @@ class Reenactor(ReenactorBase):
             discriminator, _ = load_discriminator(self.weights_path, model)
         else:
             discriminator = Discriminator(model.config)
+        from deploy.engine import resize_shots
+
         result = finetune_subject(
-            model, discriminator, subject.shots,
+            model, discriminator, resize_shots(subject.shots, self.resolution),  # trained at the model resolution
             steps=steps, lr=lr, batch_size=batch_size, device=self.backend.device, seed=seed, progress=progress,
         )  # fmt: skip
         self.backend.model = result.model.eval().requires_grad_(False)

@@ -183,7 +183,9 @@ def side_by_side_frame(frame, kind: str, size: int, pca=None) -> np.ndarray:
     driver = blank if frame.driver_frame is None else square_resize(frame.driver_frame, size)
     landmarks = blank if frame.landmark_image is None else frame.landmark_image
     output = frame.image if frame.image.shape[:2] == (size, size) else square_resize(frame.image, size)
-    panels = [driver, landmarks, layout_panel(frame.layout, kind, size, pca), output]
+    panels = [driver, landmarks, layout_panel(frame.layout, kind, landmarks.shape[0], pca), output]
+    # the network's panels (landmarks, layout) are at the model resolution, the crop may be larger (warp_guided)
+    panels = [p if p.shape[0] == size else cv2.resize(p, (size, size), interpolation=cv2.INTER_NEAREST) for p in panels]
     if size < SIDE_BY_SIDE_MIN_PANEL:  # low-resolution models: enlarge so the panels stay legible
         panels = [cv2.resize(p, (SIDE_BY_SIDE_MIN_PANEL,) * 2, interpolation=cv2.INTER_NEAREST) for p in panels]
     return np.concatenate(panels, axis=1)
@@ -219,7 +221,7 @@ def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | Non
             writer.write(image)
             encode_seconds += time.perf_counter() - started
             if sbs_writer is not None:
-                panel = side_by_side_frame(frame, reenactor.backend.layout_kind, reenactor.resolution, pca)
+                panel = side_by_side_frame(frame, reenactor.backend.layout_kind, reenactor.crop_size, pca)
                 sbs_writer.write(draw_watermark(panel) if cfg.watermark else panel)
         stats = reenactor.last_stats
         if stats.frames != info.frames and info.kind != "video":

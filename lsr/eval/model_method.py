@@ -94,10 +94,17 @@ class LsrModelMethod:
             self.finetune = None  # type: ignore[assignment]  # the runner then evaluates the meta-learned model only
 
     def _encode(self, shots: list[np.ndarray], shot_landmarks: np.ndarray) -> float:
-        """Encode the K shots at the model resolution (once per distinct shot set); returns R / S."""
-        from lsr.pipeline import subject_shots_from_training
+        """Encode the K shots at the crop side (once per distinct shot set); returns C / S.
 
-        size = self.reenactor.resolution
+        A warp-guided torch model crops at the evaluation side itself (its blend runs at any side >= its
+        resolution), so the shots and the outputs are never resampled; other models crop at their resolution."""
+        from lsr.pipeline import TorchBackend, subject_shots_from_training
+
+        if self.reenactor.warp_references and isinstance(self.reenactor.backend, TorchBackend):
+            if self.reenactor.crop_size != max(shots[0].shape[0], self.reenactor.resolution):
+                self.reenactor.crop_size = max(shots[0].shape[0], self.reenactor.resolution)
+                self._encoded = None
+        size = self.reenactor.crop_size
         scale = size / shots[0].shape[0]
         key = hashlib.blake2b(b"".join(s.tobytes() for s in shots) + shot_landmarks.tobytes(), digest_size=16).digest()
         if key != self._encoded:

@@ -39,11 +39,9 @@ def test_latent_average_of_one_shot_is_that_shot(tiny_app_weights, app_inputs):
     """K=1: the 'average' panel must equal the shot encoded alone (thesis eq. 4.3 with K=1)."""
     store = handlers.ModelStore(tiny_app_weights, "cpu")
     reenactor = store.reenactor("torch")
-    shots, _ = handlers.load_shots([app_inputs["source"]], 1, reenactor.resolution, store.detector, handlers.Limits())
+    shots, _ = handlers.load_shots([app_inputs["source"]], 1, reenactor.crop_size, store.detector, handlers.Limits())
     reenactor.encode_subject(shots)
-    from landmarks.raster import draw_landmarks
-
-    items = handlers.latent_averaging(reenactor, shots, draw_landmarks(shots.landmarks[0], reenactor.resolution))
+    items = handlers.latent_averaging(reenactor, shots, shots.landmarks[0])
     assert [caption for _, caption in items] == ["shot 1 alone", "average of K=1"]
     assert items[0][0].shape == (handlers.DISPLAY_SIDE, handlers.DISPLAY_SIDE, 3)
     np.testing.assert_allclose(items[0][0].astype(int), items[1][0].astype(int), atol=1)
