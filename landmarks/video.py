@@ -2,10 +2,20 @@
 
 ``probe_video`` and ``iter_frames`` turn every decoding problem (missing, corrupt,
 no video stream, zero frames) into an ``InputFileError`` naming the file.
+
+Both honour the stream's rotation, as a player does: phones store portrait clips
+as landscape frames plus a rotation, either the display matrix (side data; what
+FFmpeg reads from an MP4/MOV ``tkhd`` matrix) or, in files from older tools, a
+legacy ``rotate`` stream tag (degrees clockwise). Frames come out upright and
+``probe_video`` reports the upright size; flips in a display matrix are not
+applied (phones do not write them).
+
 ``VideoWriter`` encodes libx264 / yuv420p into a temp file beside the target and
 moves it into place only when the ``with`` block ends without an error; it can
 carry the audio of a source video (copied when the codec fits MP4, otherwise
-transcoded to AAC) and container metadata tags.
+transcoded to AAC) and container metadata tags. It writes upright frames with no
+display matrix and drops a ``rotate`` tag from the metadata it is given, so no
+stale rotation turns the output again.
 """
 
 from __future__ import annotations
@@ -19,6 +29,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+import cv2
 import numpy as np
 
 from landmarks.errors import InputFileError
@@ -36,6 +47,36 @@ class VideoInfo:
     height: int
     has_audio: bool
     duration: float  # seconds
+    rotation: int = 0  # degrees counter-clockwise applied on decode (0, 90, 180, 270); width/height are upright
+
+
+def _tag_rotation(stream: Any) -> int:
+    """The legacy ``rotate`` tag (degrees clockwise, any case) as degrees counter-clockwise; 0 when absent."""
+    for key, value in stream.metadata.items():
+        if key.lower() == "rotate":
+            try:
+                return -round(float(value))
+            except ValueError:  # a garbled tag: play it as stored, like FFmpeg does
+                return 0
+    return 0
+
+
+def _quarter_turns(frame: Any, tag_rotation: int) -> int:
+    """Counter-clockwise quarter turns (0..3) that make ``frame`` upright.
+
+    The display matrix on the frame wins over the legacy tag (FFmpeg attaches the stream's matrix to every
+    decoded frame). ``VideoFrame.rotation`` is the counter-clockwise angle in [-180, 180].
+    """
+    degrees = frame.rotation or tag_rotation
+    return round(degrees / 90) % 4
+
+
+_CV2_TURNS = {1: cv2.ROTATE_90_COUNTERCLOCKWISE, 2: cv2.ROTATE_180, 3: cv2.ROTATE_90_CLOCKWISE}
+
+
+def _upright(image: np.ndarray, turns: int) -> np.ndarray:
+    """(H, W, 3) stored frame -> the displayed (upright) frame after ``turns`` counter-clockwise quarter turns."""
+    return image if turns == 0 else cv2.rotate(image, _CV2_TURNS[turns])
 
 
 def _open_input(path: Path) -> Any:
@@ -57,8 +98,28 @@ def _open_input(path: Path) -> Any:
     return container
 
 
+def _scan(container: Any, stream: Any, *, count_packets: bool) -> tuple[int, int]:
+    """(packets with data, quarter turns of the first decodable frame) in one demux pass.
+
+    Decodes only until the first frame comes out (the display matrix travels on decoded frames); counts
+    every packet only when ``count_packets`` (containers that store no frame count). Turns fall back to the
+    legacy tag when no frame decodes (``iter_frames`` then reports the file).
+    """
+    packets, turns = 0, None
+    tag_rotation = _tag_rotation(stream)
+    for packet in container.demux(stream):
+        packets += int(packet.size > 0)
+        if turns is None:
+            decoded = packet.decode()  # the empty packet at the end flushes a decoder that held frames back
+            if decoded:
+                turns = _quarter_turns(decoded[0], tag_rotation)
+        if turns is not None and not count_packets:
+            break
+    return packets, turns if turns is not None else round(tag_rotation / 90) % 4
+
+
 def probe_video(path: str | os.PathLike[str]) -> VideoInfo:
-    """Frame count, frame rate, size, audio presence and duration of a video file."""
+    """Frame count, frame rate, upright size, rotation, audio presence and duration of a video file."""
     import av
 
     path = Path(path)
@@ -66,11 +127,14 @@ def probe_video(path: str | os.PathLike[str]) -> VideoInfo:
     try:
         stream = container.streams.video[0]
         frames = int(stream.frames or 0)
-        if frames == 0:  # some containers do not store a count: count packets (no decoding)
-            frames = sum(1 for packet in container.demux(stream) if packet.size > 0)
+        # some containers do not store a count: count packets (decoding only the first frame, for its rotation)
+        packets, turns = _scan(container, stream, count_packets=frames == 0)
+        frames = frames or packets
         rate = stream.average_rate or stream.guessed_rate or stream.base_rate
         fps = float(rate) if rate else 25.0
         width, height = int(stream.codec_context.width), int(stream.codec_context.height)
+        if turns % 2:  # a quarter turn swaps the sides: report what iter_frames yields
+            width, height = height, width
         has_audio = bool(container.streams.audio)
         duration = container.duration / 1e6 if container.duration else frames / fps
     except av.FFmpegError as exc:
@@ -79,11 +143,13 @@ def probe_video(path: str | os.PathLike[str]) -> VideoInfo:
         container.close()
     if frames == 0 or width == 0 or height == 0:
         raise InputFileError(f"{path} contains no video frames; give a video with at least one frame")
-    return VideoInfo(frames=frames, fps=fps, width=width, height=height, has_audio=has_audio, duration=duration)
+    return VideoInfo(
+        frames=frames, fps=fps, width=width, height=height, has_audio=has_audio, duration=duration, rotation=90 * turns
+    )
 
 
 def iter_frames(path: str | os.PathLike[str]) -> Iterator[np.ndarray]:
-    """Decode frames one at a time: each (H, W, 3) uint8 RGB."""
+    """Decode frames one at a time: each (H, W, 3) uint8 RGB, upright (the stream's rotation applied)."""
     import av
 
     path = Path(path)
@@ -92,9 +158,10 @@ def iter_frames(path: str | os.PathLike[str]) -> Iterator[np.ndarray]:
     try:
         stream = container.streams.video[0]
         stream.thread_type = "AUTO"
+        tag_rotation = _tag_rotation(stream)
         for frame in container.decode(stream):
             count += 1
-            yield frame.to_ndarray(format="rgb24")
+            yield _upright(frame.to_ndarray(format="rgb24"), _quarter_turns(frame, tag_rotation))
     except av.FFmpegError as exc:
         raise InputFileError(f"decoding {path} failed after {count} frame(s) (corrupt video?): {exc}") from exc
     finally:
@@ -156,13 +223,15 @@ class VideoWriter:
         self._temp = Path(name)
         self._container = av.open(name, mode="w", format="mp4")
         for key, value in self.metadata.items():
-            self._container.metadata[key] = str(value)
+            if key.lower() != "rotate":  # frames are written upright: a copied rotation would turn them again
+                self._container.metadata[key] = str(value)
         return self
 
     def _start(self, height: int, width: int) -> None:
         stream = self._container.add_stream("libx264", rate=self.fps)
         stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
         stream.options = {"crf": str(self.crf), "preset": self.preset}
+        stream.set_display_matrix(None)  # upright frames, identity display: players must not rotate them
         self._stream, self._size = stream, (height, width)
         if self.audio_from is not None:
             # Every stream must exist before the first packet is muxed (that writes the header).
