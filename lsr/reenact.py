@@ -11,6 +11,8 @@ Jobs come from exactly one of
 Outputs keep the driving video's frame count, fps and audio, and carry container metadata marking them as
 synthetic (``deploy.engine.provenance_metadata``); ``--watermark`` adds a visible "SYNTHETIC" mark. Each output
 appears only once complete (temp file + rename), so a rerun skips finished jobs (resume) and redoes the rest.
+Output paths are checked before any model loads: one that cannot be written (a read-only or missing-and-uncreatable
+folder, a parent that is a file) or a ``--side-by-side`` equal to ``--out`` is a one-line error naming the path.
 ``--shard i/n`` (or RANK/WORLD_SIZE under torchrun) takes every n-th job of the sorted list. A failing job leaves
 no file, the others still run, and the command exits non-zero naming each failed job.
 """
@@ -22,6 +24,7 @@ import copy
 import csv
 import dataclasses
 import os
+import tempfile
 import time
 from pathlib import Path
 
@@ -39,6 +42,10 @@ from lsr.weights import is_model_folder, resolve_weights
 
 class ReenactJobsError(LsrError):
     """Some jobs of a batch failed (each is named with its problem); the finished outputs are kept."""
+
+
+class OutputPathError(LsrError):
+    """An output video cannot be written where asked (found before any model loads)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,6 +119,48 @@ def collect_jobs(cfg) -> list[Job]:
     if cfg.source_dir is not None:
         return jobs_from_dirs(cfg.source_dir, cfg.driving_dir, cfg.out_dir, cfg.pairing)
     return [Job(cfg.source, cfg.driving, cfg.out)]
+
+
+# ---- output paths -----------------------------------------------------------------------------------------
+
+
+def check_output_path(path: Path, label: str = "--out") -> None:
+    """Raise ``OutputPathError`` unless a video can be written at ``path`` (``label`` names it in the message).
+
+    Runs before any model loads, so a typo costs no waiting. The writer creates missing folders, so the test
+    is a real temp file in the nearest existing folder (permission bits alone do not tell: root, /proc,
+    read-only mounts); nothing is left behind.
+    """
+    if path.is_dir():
+        raise OutputPathError(f"{label} {path} is a folder; give a file path ending in .mp4")
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise OutputPathError(
+            f"{label} {path} cannot be written: {folder} is a file, not a folder; "
+            "choose another folder or move that file"
+        )
+    try:
+        handle, probe = tempfile.mkstemp(dir=folder, prefix=".lsr-write-check.")
+    except OSError as exc:
+        raise OutputPathError(
+            f"{label} {path} cannot be written: cannot create files in {folder} ({exc.strerror}); "
+            "choose a writable folder or fix its permissions"
+        ) from None
+    os.close(handle)
+    os.unlink(probe)
+
+
+def check_job_outputs(job: Job, side_by_side: Path | None, label: str) -> None:
+    """The job's output (and side-by-side) are writable and distinct; see ``check_output_path``."""
+    check_output_path(job.output, label)
+    if side_by_side is not None:
+        if side_by_side.resolve() == job.output.resolve():
+            raise OutputPathError(
+                f"--side-by-side and {label} are the same file ({job.output}); give the side-by-side its own path"
+            )
+        check_output_path(side_by_side, "--side-by-side")
 
 
 # ---- runtimes ---------------------------------------------------------------------------------------------
@@ -279,22 +328,36 @@ def run_reenact(cfg) -> ReenactStats:
     skipped = len(jobs) - len(pending)
     total = ReenactStats()
     failures: list[str] = []
+
+    def fail(job: Job, exc: Exception) -> None:
+        if len(jobs) == 1:  # a single job: its error is the one line the CLI prints
+            if isinstance(exc, (LsrError, LandmarksError)):
+                raise exc
+            raise LsrError(f"{job.source} -> {job.output}: {exc}") from exc
+        failures.append(f"{job.source} -> {job.output}: {exc}")
+        print(f"lsr reenact: job failed: {failures[-1]}")
+
+    runnable = []
+    for job in pending:  # output paths first: before the model loads, and a bad row does not stop the batch
+        try:
+            check_job_outputs(job, cfg.side_by_side, "--out" if cfg.out is not None else "output")
+            runnable.append(job)
+        except OutputPathError as exc:
+            fail(job, exc)
     started = time.perf_counter()
-    if pending:
+    if runnable:
         reenactor = make_reenactor(cfg)
         cache: dict = {}
-        for job in tqdm(pending, desc=f"jobs (shard {index}/{count})", unit="job", disable=not cfg.progress or len(pending) < 2):
+        quiet = not cfg.progress or len(runnable) < 2
+        for job in tqdm(runnable, desc=f"jobs (shard {index}/{count})", unit="job", disable=quiet):
             try:
                 _subject_for(reenactor, job.source, cfg, cache)
                 if cache.get("counted") != cache["key"]:
                     total.add("subject_encoding", cache["seconds"])
                     cache["counted"] = cache["key"]
                 total.merge(run_job(reenactor, job, cfg, side_by_side=cfg.side_by_side))
-            except (LsrError, LandmarksError) as exc:
-                if len(jobs) == 1:
-                    raise
-                failures.append(f"{job.source} -> {job.output}: {exc}")
-                print(f"lsr reenact: job failed: {failures[-1]}")
+            except (LsrError, LandmarksError, OSError) as exc:  # OSError: e.g. the disk filled while writing
+                fail(job, exc)
     wall = time.perf_counter() - started
     print(summary_table(len(pending) - len(failures), skipped, len(failures), total, wall))
     if failures:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import importlib.util
+import os
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,11 @@ _helpers_spec = importlib.util.spec_from_file_location("pipeline_tests", Path(__
 pipeline_tests = importlib.util.module_from_spec(_helpers_spec)
 _helpers_spec.loader.exec_module(pipeline_tests)
 face_frame, write_clip = pipeline_tests.face_frame, pipeline_tests.write_clip
+_video_spec = importlib.util.spec_from_file_location(
+    "video_tests", Path(__file__).parents[1] / "landmarks" / "test_video.py"
+)
+video_tests = importlib.util.module_from_spec(_video_spec)
+_video_spec.loader.exec_module(video_tests)
 
 
 @pytest.fixture(scope="module")
@@ -169,6 +175,94 @@ def test_bad_input_exits_2_naming_the_problem_without_output(weights, inputs, tm
     assert code == 2
     assert message in error and error.startswith("lsr: error:")
     assert not out.exists() and not any(p.name.startswith(".result") for p in tmp_path.iterdir())
+
+
+def test_phone_portrait_clip_works_as_source_and_driver(weights, tmp_path, capsys):
+    """A clip stored lying on its side with a phone's display matrix: faces are found in every frame."""
+    from landmarks.video import probe_video
+
+    upright = [np.ascontiguousarray(skimage_data.astronaut()[0:320, 100 - shift : 340 - shift]) for shift in (0, 4, 8)]
+    clip = video_tests.write_rotated_clip(tmp_path / "phone.mp4", "phone", 0, upright)
+    out = tmp_path / "out.mp4"
+    code = main(["reenact", "--weights", str(weights), "--source", str(clip), "--driving", str(clip), "--out", str(out),
+                 "--paste-back", "--no-progress"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    assert "| 1 | 0 | 0 | 3 | 0 |" in capsys.readouterr().out  # 3 frames, none without a face
+    info = probe_video(out)
+    assert (info.frames, info.width, info.height, info.rotation) == (3, 240, 320, 0)  # upright, no stale rotation
+
+
+def _forbid_model_load(monkeypatch):
+    import lsr.reenact as reenact_module
+
+    def no_model(cfg):
+        raise AssertionError("the model was loaded before the output paths were checked")
+
+    monkeypatch.setattr(reenact_module, "make_reenactor", no_model)
+
+
+@pytest.mark.parametrize("case", ["proc", "parent_is_file", "read_only", "out_is_folder", "sbs_equals_out",
+                                  "sbs_parent_is_file"])  # fmt: skip
+def test_unwritable_output_exits_2_with_one_line_before_the_model_loads(weights, inputs, tmp_path, capsys,
+                                                                       monkeypatch, case):  # fmt: skip
+    _forbid_model_load(monkeypatch)
+    out, extra, named = tmp_path / "out.mp4", [], None
+    if case == "proc":
+        if not Path("/proc").is_dir():
+            pytest.skip("no /proc on this system")
+        out = Path("/proc/x.mp4")
+    elif case == "parent_is_file":
+        (tmp_path / "blocker").write_text("a file, not a folder")
+        out, named = tmp_path / "blocker" / "sub" / "out.mp4", tmp_path / "blocker"
+    elif case == "read_only":
+        if os.geteuid() == 0:
+            pytest.skip("root writes into read-only folders")
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        out = locked / "out.mp4"
+    elif case == "out_is_folder":
+        out.mkdir()
+        extra = ["--overwrite"]  # an existing output is otherwise skipped (resume)
+    elif case == "sbs_equals_out":
+        extra = ["--side-by-side", str(tmp_path / "." / "out.mp4")]
+    elif case == "sbs_parent_is_file":
+        (tmp_path / "blocker").write_text("a file, not a folder")
+        extra, named = ["--side-by-side", str(tmp_path / "blocker" / "sbs.mp4")], tmp_path / "blocker"
+    code = main(["reenact", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
+                 str(inputs / "drive.mp4"), "--out", str(out), "--no-progress", *extra])  # fmt: skip
+    error = capsys.readouterr().err
+    assert code == 2
+    assert error.startswith("lsr: error:") and error.count("\n") == 1, error  # one line
+    assert str(named or out) in error
+    option = "--side-by-side" if case.startswith("sbs") else "--out"
+    assert option in error
+    assert any(advice in error for advice in ("choose", "give")), error  # says what to do
+    leftovers = [p.name for p in tmp_path.rglob("*") if p.name.startswith(".")]
+    assert leftovers == []  # the write check leaves nothing behind
+
+
+def test_batch_with_bad_output_paths_runs_the_other_jobs_and_lists_the_failures(weights, inputs, tmp_path, capsys):
+    (tmp_path / "blocker").write_text("a file, not a folder")
+    bad = ["blocker/x.mp4"] + (["/proc/x.mp4"] if Path("/proc").is_dir() else [])
+    jobs = tmp_path / "jobs.csv"
+    with open(jobs, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["source", "driving", "output"])
+        for output in ["out/a.mp4", *bad]:
+            writer.writerow([inputs / "alice.png", inputs / "drive.mp4", output])
+    args = ["reenact", "--weights", str(weights), "--jobs", str(jobs), "--no-progress"]
+    assert main(args) == 2
+    captured = capsys.readouterr()
+    assert (tmp_path / "out" / "a.mp4").is_file() and probe(tmp_path / "out" / "a.mp4")[0] == 5
+    assert captured.out.count("lsr reenact: job failed:") == len(bad)
+    assert f"| 1 | 0 | {len(bad)} | 5 |" in captured.out  # 1 done, 0 skipped, the bad ones failed
+    summary = captured.err.strip()
+    assert "\n" not in summary and summary.startswith(f"lsr: error: {len(bad)} of {1 + len(bad)} job(s) failed")
+    assert all(str(Path(output) if output.startswith("/") else tmp_path / output) in summary for output in bad)
+    finished = (tmp_path / "out" / "a.mp4").stat().st_mtime_ns
+    assert main(args) == 2  # rerun: the finished job is skipped (resume), the bad ones still reported
+    assert f"| 0 | 1 | {len(bad)} |" in capsys.readouterr().out
+    assert (tmp_path / "out" / "a.mp4").stat().st_mtime_ns == finished
 
 
 @pytest.mark.slow
