@@ -188,7 +188,7 @@ class EvalConfig:
     """Output folder: eval_report.md, eval_report.json, examples/, cache/ (detected landmarks)."""
     k: tuple[int, ...] = (1, 4, 8, 32)
     """K values (shots per identity), thesis Table 4.4."""
-    methods: tuple[Literal["nearest_shot", "tps"], ...] = ("nearest_shot", "tps")
+    methods: tuple[Literal["nearest_shot", "tps", "tps_mean3"], ...] = ("nearest_shot", "tps", "tps_mean3")
     """Methods to evaluate (the no-learning baselines of lsr.eval.baselines)."""
     weights: tuple[Path, ...] = ()
     """Trained LSR model folders (config.json + model.safetensors) to evaluate beside the baselines."""
@@ -219,7 +219,7 @@ class EvalConfig:
     cross_identity: bool = True
     """Also drive each identity with the next identity's landmarks (ID-SIM to the source)."""
     tps_regularization: float = 1e-3
-    """lambda of the TPS baseline (unit-spread coordinates)."""
+    """lambda of the TPS baselines, tps and tps_mean3 (unit-spread coordinates)."""
     examples: int = 4
     """Frames per (method, K, identity) written to OUT/examples (output above ground truth); 0 = none."""
     lpips_weights: Path | None = None
@@ -255,7 +255,7 @@ class EvalConfig:
         if not self.k or min(self.k) < 1:
             raise ConfigError(f"--k needs values >= 1, got {self.k}")
         if not self.methods and not self.weights:
-            raise ConfigError("--methods needs at least one of nearest_shot, tps (or give --weights)")
+            raise ConfigError("--methods needs at least one of nearest_shot, tps, tps_mean3 (or give --weights)")
         for folder in self.weights:
             if not Path(folder).is_dir():
                 raise ConfigError(f"--weights {folder} is not a model folder (config.json + model.safetensors)")

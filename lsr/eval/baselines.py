@@ -2,12 +2,17 @@
 (``lsr.eval.protocol.Method``) as a trained model.
 
 nearest_shot  copies the source shot whose landmarks are closest to the target's. Distance:
-              NMKE of the raw landmarks (no alignment; mean point distance over the target's eye
-              distance). Raw, because the copied pixels keep their position: a shot whose head
-              sits elsewhere in the frame is a worse copy even if the pose matches.
+              ``landmarks.tps.landmark_distance``, the NMKE of the raw landmarks (no alignment; mean
+              point distance over the target's eye distance); the choice is ``landmarks.tps.nearest_shots``,
+              the one the warp-guided generator's references use. Raw, because the copied pixels keep
+              their position: a shot whose head sits elsewhere in the frame is a worse copy even if the
+              pose matches.
 tps           warps that nearest shot onto the target landmarks with a regularised thin-plate
               spline (``landmarks.tps``), frame corners and edge midpoints fixed. Counts how often
               each warp method (tps / tps_stronger / similarity / identity) was used.
+tps_mean3     the per-pixel mean of the 3 nearest shots (fewer when K < 3; no shot twice), each warped
+              as by ``tps``, rounded to uint8. Averaging buys PSNR/SSIM at the cost of blur (the
+              ``sharpness`` metric shows it): the bar a warp-guided model must clear without blurring.
 """
 
 from __future__ import annotations
@@ -17,7 +22,6 @@ import collections
 import numpy as np
 
 from landmarks import tps
-from lsr.eval.metrics import nmke
 
 
 def check_method_inputs(shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray) -> None:
@@ -35,17 +39,16 @@ def check_method_inputs(shots: list[np.ndarray], shot_landmarks: np.ndarray, tar
 
 
 def nearest_shot_indices(shot_landmarks: np.ndarray, target_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per target, the shot with the smallest raw-landmark NMKE to it, and that NMKE.
+    """Per target, the shot ``landmarks.tps.nearest_shots`` picks first, and its raw-landmark NMKE.
 
     shot_landmarks: (K, 68, 2) (NaN rows = shot without a face; never chosen unless all are);
     target_landmarks: (T, 68, 2). Returns (T,) int indices, (T,) float distances (NaN when the
     target or every shot lacks landmarks; index 0 then).
     """
-    distances = nmke(shot_landmarks[None, :], target_landmarks[:, None])  # (T, K)
-    filled = np.where(np.isnan(distances), np.inf, distances)
-    indices = np.argmin(filled, axis=1)
-    best = filled[np.arange(len(indices)), indices]
-    return indices, np.where(np.isfinite(best), best, np.nan)
+    distances = tps.landmark_distance(shot_landmarks[None, :], target_landmarks[:, None])  # (T, K)
+    # one choice of "nearest" for the baselines, the pose buckets and the warp-guided references
+    indices = np.array([tps.nearest_shots(shot_landmarks, target, 1)[0] for target in target_landmarks], dtype=np.int64)
+    return indices, distances[np.arange(len(indices)), indices]
 
 
 class NearestShot:
@@ -87,11 +90,35 @@ class TpsWarp:
         -> (T, S, S, 3) uint8."""
         check_method_inputs(shots, shot_landmarks, target_landmarks)
         indices, _ = nearest_shot_indices(shot_landmarks, target_landmarks)
+        return np.stack([self.warp(shots[i], shot_landmarks[i], target) for i, target in zip(indices, target_landmarks)])
+
+    def warp(self, shot: np.ndarray, shot_points: np.ndarray, target_points: np.ndarray) -> np.ndarray:
+        """One shot (S, S, 3) uint8 warped from shot_points (68, 2) onto target_points (68, 2) -> (S, S, 3) uint8.
+
+        Exact map (grid_step 1): the baselines stay the exact TPS, not the coarse-grid one of the references."""
+        result = tps.warp_tps(shot, shot_points, target_points, regularization=self.regularization,
+                              merge_distance=self.merge_distance, max_folded_fraction=self.max_folded_fraction,
+                              fix_border=self.fix_border, grid_step=1)  # fmt: skip
+        self.warp_counts[result.method] += 1
+        return result.image
+
+
+class TpsMean3(TpsWarp):
+    """Per-pixel mean of the ``SHOTS`` nearest shots, each warped as by ``TpsWarp`` (see the module docstring).
+
+    ``warp_counts`` counts every warp, so a frame adds min(3, K) to it.
+    """
+
+    name = "tps_mean3"
+    SHOTS = 3
+
+    def reenact(self, shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray) -> np.ndarray:
+        """shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (T, 68, 2)
+        -> (T, S, S, 3) uint8."""
+        check_method_inputs(shots, shot_landmarks, target_landmarks)
         outputs = []
-        for index, target in zip(indices, target_landmarks):
-            result = tps.warp_tps(shots[index], shot_landmarks[index], target, regularization=self.regularization,
-                                  merge_distance=self.merge_distance, max_folded_fraction=self.max_folded_fraction,
-                                  fix_border=self.fix_border)  # fmt: skip
-            self.warp_counts[result.method] += 1
-            outputs.append(result.image)
+        for target in target_landmarks:
+            nearest = tps.nearest_shots(shot_landmarks, target, self.SHOTS)  # min(3, K) distinct shots, nearest first
+            warped = np.stack([self.warp(shots[i], shot_landmarks[i], target) for i in nearest])  # (n, S, S, 3)
+            outputs.append(np.rint(warped.mean(axis=0, dtype=np.float64)).astype(np.uint8))
         return np.stack(outputs)

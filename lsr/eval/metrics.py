@@ -10,6 +10,12 @@ Conventions (stated in every report):
   NMKE  (Bi-layer / LPD, [113, 114]): mean Euclidean distance of the 68 landmarks detected on
         the output to those on the ground truth, divided by the distance between the ground
         truth's eye centres (means of points 36-41 and 42-47).
+  sharpness  per frame, var(Laplacian(grey output)) / var(Laplacian(grey ground truth)):
+        ``cv2.cvtColor`` RGB2GRAY (uint8), ``cv2.Laplacian`` in CV_64F with ksize 1 (the 4-neighbour
+        kernel [[0, 1, 0], [1, -4, 1], [0, 1, 0]]), default reflect-101 border; variance over all pixels.
+        1.0 = as much fine detail as the real frame, < 1 blurrier, > 1 sharper or noisier. NaN where the
+        ground truth has zero Laplacian variance (a flat frame). Reported as the median over frames (NaN
+        ignored): a few noisy outputs would dominate a mean of ratios.
 ID-SIM lives in ``lsr.eval.idsim`` (dlib embeddings; needs the model file).
 """
 
@@ -17,6 +23,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 from landmarks.parts import NUM_LANDMARKS
@@ -25,6 +32,7 @@ from lsr.errors import ConfigError
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5  # kornia's fixed Gaussian sigma; only the window size is a parameter
 PIXEL_PEAK = 255.0
+LAPLACIAN_KSIZE = 1  # cv2.Laplacian's own default: the 4-neighbour kernel, the usual variance-of-Laplacian focus measure
 LEFT_EYE = slice(36, 42)  # iBUG-68 points 36-41 (subject's right eye, image left)
 RIGHT_EYE = slice(42, 48)
 
@@ -89,6 +97,40 @@ def ssim(output: np.ndarray, target: np.ndarray) -> np.ndarray:
         ssim_map = kornia.metrics.ssim(first, second, window_size=SSIM_WINDOW, max_val=1.0, eps=0.0)
     values = ssim_map.mean(dim=(1, 2, 3)).double().numpy()
     return values[0] if single else values
+
+
+def laplacian_variance(images: np.ndarray) -> np.ndarray:
+    """Variance of the Laplacian of the grey image (see the module docstring).
+
+    images: (..., H, W, 3) uint8 RGB -> (...) float64.
+    """
+    images = np.asarray(images)
+    if images.ndim < 3 or images.shape[-1] != 3 or images.dtype != np.uint8:
+        raise ConfigError(f"images must be (..., H, W, 3) uint8 RGB, got {images.shape} {images.dtype}")
+    flat = images.reshape(-1, *images.shape[-3:])  # (N, H, W, 3)
+    values = np.empty(len(flat))
+    for index, image in enumerate(flat):
+        grey = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
+        values[index] = cv2.Laplacian(grey, cv2.CV_64F, ksize=LAPLACIAN_KSIZE).var()
+    return values.reshape(images.shape[:-3])
+
+
+def sharpness(output: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Laplacian-variance ratio output / ground truth (1 = as sharp as the real frame; module docstring).
+
+    output, target: (..., H, W, 3) uint8 -> (...) float64; NaN where the target's variance is 0.
+    """
+    _check_image_pair(output, target)
+    reference = laplacian_variance(target)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(reference > 0, laplacian_variance(output) / np.where(reference > 0, reference, 1.0), np.nan)
+
+
+def median_sharpness(values: np.ndarray) -> float:
+    """Median of per-frame sharpness ratios, NaN frames ignored (NaN when none is finite)."""
+    values = np.asarray(values, np.float64)
+    finite = values[np.isfinite(values)]
+    return float(np.median(finite)) if finite.size else math.nan
 
 
 def check_landmarks(landmarks: np.ndarray, name: str = "landmarks") -> np.ndarray:

@@ -40,7 +40,7 @@ import numpy as np
 from lsr.errors import ConfigError, DatasetError
 from lsr.eval import idsim
 from lsr.eval.baselines import check_method_inputs, nearest_shot_indices
-from lsr.eval.metrics import mse, nmke, psnr_from_mse, ssim
+from lsr.eval.metrics import mse, nmke, psnr_from_mse, sharpness, ssim
 
 BUCKETS = ("low", "medium", "high")
 
@@ -251,7 +251,7 @@ class FaceAnalysis:
 @dataclasses.dataclass
 class EvalRun:
     """Everything a report needs. records: one dict per (method, K, identity, hold-out frame) with
-    keys method, k, identity, frame, mse, psnr, ssim, idsim, nmke, no_face, pose_distance, bucket.
+    keys method, k, identity, frame, mse, psnr, ssim, sharpness, idsim, nmke, no_face, pose_distance, bucket.
     cross_records: one per cross-identity frame with method, k, identity, driver, frame, idsim_source, no_face."""
 
     records: list[dict[str, Any]]
@@ -359,6 +359,7 @@ def run_protocol(
                 _check_outputs(outputs, len(targets), targets.shape[1:], name)
                 errors = mse(outputs, targets)
                 similarities = ssim(outputs, targets) if len(targets) else np.zeros(0)
+                sharpnesses = sharpness(outputs, targets)  # (T,) Laplacian-variance ratio, NaN for a flat ground truth
                 extra = {key: metric(outputs, targets) for key, metric in (frame_metrics or {}).items()}
                 for row, output in enumerate(outputs):
                     found = analysis.landmarks(output)
@@ -366,7 +367,7 @@ def run_protocol(
                     records.append({
                         "method": name, "k": int(k), "identity": identity.name, "frame": int(driveable[row]),
                         "mse": float(errors[row]), "psnr": float(psnr_from_mse(errors[row])),
-                        "ssim": float(similarities[row]),
+                        "ssim": float(similarities[row]), "sharpness": float(sharpnesses[row]),
                         "idsim": idsim.cosine_similarity(analysis.embedding(output, align), target_embeddings[row]),
                         "nmke": float(nmke(found, target_landmarks[row])) if found is not None else float("nan"),
                         "no_face": found is None, "pose_distance": float(pose_distances[row]),

@@ -1,9 +1,10 @@
 """``lsr eval``: run the protocol (``lsr.eval.protocol``) and write the report (markdown + JSON).
 
 The report lists, per method and K: PSNR (mean over finite frames, the count of identical
-frames = +inf, and PSNR of the mean MSE), SSIM, ID-SIM, NMKE and the count of outputs without a
-detected face; ID-SIM per pose-variance bucket (thesis §4.5.1); cross-identity ID-SIM to the
-source (§4.4.3); TPS warp-method counts; the thesis' Table 4.4 rows for reference; machine info.
+frames = +inf, and PSNR of the mean MSE), SSIM, sharpness (median Laplacian-variance ratio to the
+ground truth), ID-SIM, NMKE and the count of outputs without a detected face; ID-SIM per
+pose-variance bucket (thesis §4.5.1); cross-identity ID-SIM to the source (§4.4.3); TPS
+warp-method counts; the thesis' Table 4.4 rows for reference; machine info.
 """
 
 from __future__ import annotations
@@ -72,7 +73,9 @@ def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backb
             rows.append({
                 "method": name, "k": k, "frames": len(group),
                 "psnr": psnr["mean_finite"], "psnr_infinite": psnr["infinite"], "psnr_of_mean_mse": psnr["of_mean_mse"],
-                "ssim": _mean([r["ssim"] for r in group]), "idsim": _mean([r["idsim"] for r in group]),
+                "ssim": _mean([r["ssim"] for r in group]),
+                "sharpness": metrics.median_sharpness(np.array([r["sharpness"] for r in group])),
+                "idsim": _mean([r["idsim"] for r in group]),
                 "nmke": _mean([r["nmke"] for r in group]), "no_face": sum(r["no_face"] for r in group),
                 "lpips": _mean([r["lpips"] for r in group]) if "lpips" in group[0] else None,
                 "fid": fid[(name, k)].value if (name, k) in fid else None,
@@ -103,6 +106,10 @@ def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backb
                     "(excluded from that mean), 'PSNR(mean MSE)' = PSNR of the MSE averaged over all frames",
             "ssim": f"kornia.metrics.ssim, {metrics.SSIM_WINDOW}x{metrics.SSIM_WINDOW} Gaussian window, sigma "
                     f"{metrics.SSIM_SIGMA}, reflect padding, RGB in [0, 1], mean over pixels and channels",
+            "sharpness": f"per frame var(Laplacian(grey output)) / var(Laplacian(grey ground truth)) (cv2 RGB2GRAY, "
+                         f"cv2.Laplacian CV_64F ksize {metrics.LAPLACIAN_KSIZE}); median over frames, frames whose ground "
+                         "truth has zero variance ignored. 1 = as sharp as the real frame, < 1 blurrier (averaging "
+                         "baselines, regression to the mean), > 1 sharper or noisier",
             "idsim": f"cosine similarity, {idsim.EMBEDDER_NAME}; outputs without a detected face are aligned with "
                      "the ground-truth landmarks. dlib's embeddings are compressed towards 1: its same-person "
                      "threshold (distance 0.6 between unit vectors) is cosine 0.82",
@@ -139,23 +146,24 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
         "",
         "## Self re-enactment (hold-out frames)",
         "",
-        "| method | K | frames | PSNR ↑ | inf | PSNR(mean MSE) | SSIM ↑ | ID-SIM ↑ | NMKE ↓ | no face | LPIPS ↓ | FID ↓ |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| method | K | frames | PSNR ↑ | inf | PSNR(mean MSE) | SSIM ↑ | sharpness →1 | ID-SIM ↑ | NMKE ↓ | no face | LPIPS ↓ | FID ↓ |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in summary["rows"]:
         lines.append(
             f"| {row['method']} | {row['k']} | {row['frames']} | {_fmt(row['psnr'], 2)} | {row['psnr_infinite']} | "
-            f"{_fmt(row['psnr_of_mean_mse'], 2)} | {_fmt(row['ssim'])} | {_fmt(row['idsim'])} | {_fmt(row['nmke'])} | "
-            f"{row['no_face']} | {_fmt(row['lpips'])} | {_fmt(row['fid'], 2)} |"
+            f"{_fmt(row['psnr_of_mean_mse'], 2)} | {_fmt(row['ssim'])} | {_fmt(row['sharpness'], 2)} | {_fmt(row['idsim'])} | "
+            f"{_fmt(row['nmke'])} | {row['no_face']} | {_fmt(row['lpips'])} | {_fmt(row['fid'], 2)} |"
         )
     lines += ["", f"LPIPS: {summary['lpips']}.", "", f"FID: {summary['fid']}.", "",
               "## Thesis Table 4.4 (reference; VoxCeleb2, 50 ids, ID-SIM from VGGFace: compare trends, not absolute ID-SIM)", "",
-              "| method | K | fine-tuned | PSNR ↑ | SSIM ↑ | LPIPS ↓ | ID-SIM ↑ | NMKE ↓ | FID ↓ |",
-              "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+              "| method | K | fine-tuned | PSNR ↑ | SSIM ↑ | sharpness →1 | LPIPS ↓ | ID-SIM ↑ | NMKE ↓ | FID ↓ |",
+              "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     shown_ks = set(settings["ks"])
     for (method, k, tuned), values in THESIS_TABLE_4_4.items():
         if k in shown_ks:
-            cells = " | ".join(_fmt(v, 2 if i == 0 or i == 5 else 3) for i, v in enumerate(values))
+            shown = (*values[:2], None, *values[2:])  # the thesis reports no sharpness
+            cells = " | ".join(_fmt(v, 2 if i == 0 or i == 6 else 3) for i, v in enumerate(shown))
             lines.append(f"| {method} | {k} | {'yes' if tuned else 'no'} | {cells} |")
     lines += ["", "## ID-SIM per pose-variance bucket (thesis §4.5.1)", ""]
     lines.append("thresholds (pose distance, " + settings["bucket_thresholds"] + "): "
@@ -171,8 +179,8 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
             lines.append(f"| {row['method']} | {row['k']} | {row['frames']} | {_fmt(row['idsim_source'])} | {row['no_face']} |")
     warp = summary["counts"].get("warp_methods", {})
     if warp:
-        lines += ["", "## TPS warp methods used (frames)", "", "| method | run | tps | tps_stronger | similarity | identity |",
-                  "|---|---|---|---|---|---|"]  # fmt: skip
+        lines += ["", "## TPS warp methods used (warps: one per frame for tps, up to 3 for tps_mean3)", "",
+                  "| method | run | tps | tps_stronger | similarity | identity |", "|---|---|---|---|---|---|"]  # fmt: skip
         for name, table in warp.items():
             for run_name, used in table.items():
                 lines.append(f"| {name} | {run_name} | {used.get('tps', 0)} | {used.get('tps_stronger', 0)} | "
@@ -262,7 +270,7 @@ def label_by_variant(models: Sequence[Any], folders: Sequence[Any]) -> list[Any]
 def run_eval(cfg: Any) -> dict[str, Any]:
     """Run ``lsr eval`` (cfg: lsr.config.EvalConfig): load, evaluate the baselines, write and print the report."""
     from landmarks.detect import FaceDetector
-    from lsr.eval.baselines import NearestShot, TpsWarp
+    from lsr.eval.baselines import NearestShot, TpsMean3, TpsWarp
     from lsr.eval.protocol import FaceAnalysis, detect_layout, load_fsth_sample, load_lsr_split, run_protocol
     from lsr.machine import machine_markdown
 
@@ -275,7 +283,8 @@ def run_eval(cfg: Any) -> dict[str, Any]:
         identities = load_lsr_split(data, cfg.split, cfg.inputs, cfg.holdouts)
     if cfg.max_identities:
         identities = identities[: cfg.max_identities]
-    available = {"nearest_shot": NearestShot, "tps": lambda: TpsWarp(regularization=cfg.tps_regularization)}
+    available = {"nearest_shot": NearestShot, "tps": lambda: TpsWarp(regularization=cfg.tps_regularization),
+                 "tps_mean3": lambda: TpsMean3(regularization=cfg.tps_regularization)}  # fmt: skip
     methods = [available[name]() for name in cfg.methods]
     if cfg.weights:
         from lsr.eval.model_method import LsrModelMethod
@@ -284,7 +293,7 @@ def run_eval(cfg: Any) -> dict[str, Any]:
                                  finetune_lr=cfg.finetune_lr) for folder in cfg.weights]
         methods += label_by_variant(models, cfg.weights)
     if not methods:
-        raise ConfigError("no method to evaluate: pass --methods nearest_shot tps and/or --weights MODEL_DIR")
+        raise ConfigError("no method to evaluate: pass --methods nearest_shot tps tps_mean3 and/or --weights MODEL_DIR")
     thresholds = tuple(cfg.bucket_thresholds) if cfg.bucket_thresholds else None
     frame_metrics, backbones, on_outputs = {}, {}, _example_writer(Path(cfg.out), cfg.examples)
     if cfg.lpips_weights is not None:

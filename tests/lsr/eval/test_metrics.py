@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -60,6 +61,52 @@ class TestSsim:
         value = metrics.ssim(noisy, image)
         assert 0.0 < value < 0.99
         assert metrics.ssim(image, noisy) == pytest.approx(value, abs=1e-6)
+
+
+def _smooth_image(rng: np.random.Generator, size: int = 64) -> np.ndarray:
+    """Blurred noise stretched to 10..245: natural-image-like detail, room for added noise without clipping."""
+    noise = rng.normal(0.0, 1.0, size=(size, size, 3))
+    smooth = cv2.GaussianBlur(noise, (0, 0), 1.5)
+    smooth = (smooth - smooth.min()) / (smooth.max() - smooth.min())
+    return np.rint(10 + 235 * smooth).astype(np.uint8)
+
+
+class TestSharpness:
+    def test_image_against_itself_is_one(self, rng):
+        images = np.stack([_smooth_image(rng), _smooth_image(rng)])
+        np.testing.assert_array_equal(metrics.sharpness(images, images), [1.0, 1.0])
+
+    def test_blur_lowers_and_noise_raises_it(self, rng):
+        image = _smooth_image(rng)
+        blurred = cv2.GaussianBlur(image, (0, 0), 1.5)
+        noisy = np.clip(image + rng.normal(0.0, 8.0, size=image.shape), 0, 255).round().astype(np.uint8)
+        assert metrics.sharpness(blurred, image) < 0.5
+        assert metrics.sharpness(noisy, image) > 1.0
+        assert metrics.sharpness(image, blurred) > 2.0  # the ratio is output over ground truth
+
+    def test_flat_ground_truth_is_nan_and_ignored_by_the_median(self, rng):
+        image = _smooth_image(rng)
+        flat = np.full_like(image, 128)
+        assert np.isnan(metrics.sharpness(image, flat))
+        values = metrics.sharpness(np.stack([image, image, image]), np.stack([image, flat, cv2.GaussianBlur(image, (0, 0), 1.5)]))
+        assert np.isnan(values[1]) and values[2] > 1.0
+        assert metrics.median_sharpness(values) == pytest.approx((1.0 + values[2]) / 2)
+        assert np.isnan(metrics.median_sharpness(np.array([np.nan])))
+
+    def test_matches_opencv_definition(self, rng):
+        output, target = _smooth_image(rng), _smooth_image(rng)
+
+        def laplacian_variance(image):
+            return cv2.Laplacian(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), cv2.CV_64F, ksize=metrics.LAPLACIAN_KSIZE).var()
+
+        expected = laplacian_variance(output) / laplacian_variance(target)
+        assert metrics.sharpness(output, target) == pytest.approx(expected, rel=1e-12)
+
+    def test_bad_inputs_raise(self):
+        with pytest.raises(ConfigError):
+            metrics.sharpness(np.zeros((8, 8, 3), np.uint8), np.zeros((8, 9, 3), np.uint8))
+        with pytest.raises(ConfigError):
+            metrics.laplacian_variance(np.zeros((8, 8), np.uint8))
 
 
 class TestNmke:

@@ -101,6 +101,8 @@ def test_runner_never_shows_holdouts_to_the_method(rng):
     assert all(r["no_face"] and np.isnan(r["nmke"]) for r in run.records)
     assert len(run.cross_records) == 2 * 2 * 2 * 3  # variants x K x identities x frames
     assert all(r["bucket"] in protocol.BUCKETS for r in run.records)
+    # noise against noise: about as much fine detail as the ground truth
+    assert all(0.5 < r["sharpness"] < 2.0 for r in run.records)
 
 
 def test_k_beyond_usable_inputs_is_capped_and_reported(rng):

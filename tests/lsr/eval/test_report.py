@@ -10,7 +10,7 @@ import pytest
 
 from lsr.config import EvalConfig
 from lsr.eval import report
-from lsr.eval.baselines import NearestShot, TpsWarp
+from lsr.eval.baselines import NearestShot, TpsMean3, TpsWarp
 from lsr.eval.protocol import FaceAnalysis, load_lsr_split, run_protocol
 
 
@@ -28,19 +28,32 @@ def test_report_on_synthetic_identities(tmp_path):
     generate_dataset(root, identities=4, videos_per_identity=1, frames=10, size=64, test_fraction=0.5, progress=False)
     identities = load_lsr_split(root, "test", inputs=6, holdouts=4)
     assert len(identities) == 2 and all(len(i.input_frames) == 6 and len(i.holdout_frames) == 4 for i in identities)
-    run = run_protocol([NearestShot(), TpsWarp()], identities, [1], FaceAnalysis(_NoFaceDetector()), progress=False)
+    run = run_protocol([NearestShot(), TpsWarp(), TpsMean3()], identities, [1], FaceAnalysis(_NoFaceDetector()),
+                       progress=False)  # fmt: skip
     run.settings["data"] = str(root)
     summary = report.summarise(run)
     text = report.markdown(summary, "| machine | |")
     markdown_path, json_path = report.write_report(tmp_path / "out", summary, text)
-    assert "| tps | 1 | 8 |" in markdown_path.read_text()
+    written = markdown_path.read_text()
+    assert "| tps | 1 | 8 |" in written and "| tps_mean3 | 1 | 8 |" in written
+    header = next(line for line in written.splitlines() if line.startswith("| method | K | frames | PSNR"))
+    assert "SSIM ↑ | sharpness →1 | ID-SIM" in header
+    assert "| FSTH | 1 | no | 16.80 | 0.570 | – | 0.259 |" in written  # the thesis table has the column, empty
     stored = json.loads(json_path.read_text())
-    assert {row["method"] for row in stored["rows"]} == {"nearest_shot", "tps"}
-    no_face = {row["method"]: row["no_face"] for row in stored["rows"]}
-    assert no_face == {"nearest_shot": 0, "tps": 8}  # copies of inputs reuse their landmarks; warps meet the fake detector
+    rows = {row["method"]: row for row in stored["rows"]}
+    assert set(rows) == {"nearest_shot", "tps", "tps_mean3"}
+    no_face = {name: row["no_face"] for name, row in rows.items()}
+    assert no_face == {"nearest_shot": 0, "tps": 8, "tps_mean3": 8}  # copies of inputs reuse their landmarks; warps meet the fake detector
+    sharpness = {name: row["sharpness"] for name, row in rows.items()}
+    assert all(isinstance(value, float) and value > 0 for value in sharpness.values())
+    assert sharpness["tps_mean3"] == sharpness["tps"]  # K = 1: the mean of one warped shot is that shot
+    per_frame = [r["sharpness"] for r in run.records if r["method"] == "tps"]
+    assert sharpness["tps"] == pytest.approx(float(np.median(per_frame)))
+    assert "median" in stored["conventions"]["sharpness"] and "- sharpness: " in written
     assert "not computed" in stored["lpips"]
-    warp = stored["counts"]["warp_methods"]["tps"]["K=1 self"]
-    assert sum(warp.values()) == 8
+    for name in ("tps", "tps_mean3"):
+        warp = stored["counts"]["warp_methods"][name]["K=1 self"]
+        assert sum(warp.values()) == 8
     # --out-md: the report becomes a named section of a markdown file; other sections survive re-runs.
     md = tmp_path / "BENCHMARKS.md"
     md.write_text("# Benchmarks\n\nintro\n\n<!-- bench:speed:start -->\nspeed\n<!-- bench:speed:end -->\n")
@@ -72,7 +85,8 @@ def test_lsr_eval_on_two_real_identities(shared_data, tmp_path, capsys):
     assert "## Self re-enactment" in printed and "| machine |" in printed
     assert (tmp_path / "out" / "eval_report.md").is_file()
     rows = {row["method"]: row for row in summary["rows"]}
-    assert set(rows) == {"nearest_shot", "tps"}
+    assert set(rows) == {"nearest_shot", "tps", "tps_mean3"}
     assert all(np.isfinite(row["ssim"]) and 0 < row["ssim"] < 1 for row in rows.values())
+    assert all(np.isfinite(row["sharpness"]) and row["sharpness"] > 0 for row in rows.values())
     assert rows["tps"]["nmke"] < rows["nearest_shot"]["nmke"]  # warping onto the target landmarks fixes the pose
     assert list((tmp_path / "out" / "examples").glob("tps_k1_*.png"))
