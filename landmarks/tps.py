@@ -194,7 +194,9 @@ class WarpMap:
 
     def valid(self, source_height: int, source_width: int) -> np.ndarray:
         """(H, W) bool: the map samples inside the source image (elsewhere the warp only repeats its border)."""
-        return (self.map_x >= 0) & (self.map_x <= source_width - 1) & (self.map_y >= 0) & (self.map_y <= source_height - 1)
+        slack = 1e-3  # border pixels of an exact identity map come out at -1e-15: still inside
+        return ((self.map_x >= -slack) & (self.map_x <= source_width - 1 + slack)
+                & (self.map_y >= -slack) & (self.map_y <= source_height - 1 + slack))  # fmt: skip
 
 
 @dataclasses.dataclass

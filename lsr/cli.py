@@ -136,6 +136,12 @@ def _run_bench_reenact(cfg: config.BenchReenactConfig) -> None:
     run_bench_reenact(cfg)
 
 
+def _run_bench_finetune(cfg: config.BenchFinetuneConfig) -> None:
+    from lsr.eval.bench_finetune import run_bench_finetune
+
+    run_bench_finetune(cfg)
+
+
 # name -> (config dataclass, runner). Groups (like "bench") nest one level.
 COMMANDS: dict[str, tuple[type, Callable[[Any], None]]] = {
     "landmarks": (config.LandmarksConfig, _run_landmarks),
@@ -156,6 +162,7 @@ GROUPS: dict[str, dict[str, tuple[type, Callable[[Any], None]]]] = {
         "reenact": (config.BenchReenactConfig, _run_bench_reenact),
         "models": (config.BenchModelsConfig, _run_bench_models),
         "speed": (config.BenchSpeedConfig, _run_bench_speed),
+        "finetune": (config.BenchFinetuneConfig, _run_bench_finetune),
     },
 }
 

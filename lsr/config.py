@@ -18,6 +18,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchModelsConfig,
     BenchSpeedConfig,
     BenchReenactConfig,
+    BenchFinetuneConfig,
     EvalConfig,
 )
 from lsr.errors import ConfigError

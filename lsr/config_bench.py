@@ -177,6 +177,19 @@ class BenchReenactConfig:
             raise ConfigError("--frames >= 2, --k >= 1 and --resolution >= 32 are required")
 
 
+def evaluation_data(data: Path | None) -> Path:
+    """``data``, or the shared FSTH sample (../shared/data/fsth_eval_sample or $LSR_SHARED_DATA/fsth_eval_sample)."""
+    import os
+
+    if data is not None:
+        return Path(data)
+    repo_root = Path(__file__).resolve().parents[1]
+    shared = Path(os.environ.get("LSR_SHARED_DATA", repo_root.parent / "shared" / "data")) / "fsth_eval_sample"
+    if not shared.is_dir():
+        raise ConfigError(f"no --data given and the shared FSTH sample {shared} is absent; pass --data FOLDER")
+    return shared
+
+
 @dataclasses.dataclass
 class EvalConfig:
     """Evaluate re-enactment with the thesis protocol (§4.4): K shots from the inputs, metrics on hold-out frames."""
@@ -239,15 +252,7 @@ class EvalConfig:
 
     def resolved_data(self) -> Path:
         """--data, or the shared FSTH sample; ConfigError when neither exists."""
-        import os
-
-        if self.data is not None:
-            return Path(self.data)
-        repo_root = Path(__file__).resolve().parents[1]
-        shared = Path(os.environ.get("LSR_SHARED_DATA", repo_root.parent / "shared" / "data")) / "fsth_eval_sample"
-        if not shared.is_dir():
-            raise ConfigError(f"no --data given and the shared FSTH sample {shared} is absent; pass --data FOLDER")
-        return shared
+        return evaluation_data(self.data)
 
     def validate(self) -> None:
         if self.data is not None and not Path(self.data).is_dir():
@@ -274,6 +279,42 @@ class EvalConfig:
         for flag, path in (("--lpips-weights", self.lpips_weights), ("--fid-weights", self.fid_weights)):
             if path is not None and not Path(path).is_file():
                 raise ConfigError(f"{flag} {path} is not a file; pass an existing weights file or leave {flag} unset")
+
+
+@dataclasses.dataclass
+class BenchFinetuneConfig:
+    """Print subject fine-tuning's steps-vs-error curve beside the TPS baselines (lsr.eval.bench_finetune)."""
+
+    weights: Path | None = None
+    """Model folder; default: $LSR_WEIGHTS, else the shipped default model."""
+    data: Path | None = None
+    """As `lsr eval --data`; default: the shared FSTH sample."""
+    out: Path = Path("out/bench_finetune")
+    """Folder for the landmark cache of the evaluation frames."""
+    k: int = 8
+    """Shots per identity (drawn as `lsr eval` draws them)."""
+    steps: tuple[int, ...] = (0, 10, 25, 50, 100)
+    """Fine-tuning budgets (0 = the model as trained)."""
+    finetune_lr: float = 1e-3
+    max_identities: int = 0
+    max_holdouts: int = 0
+    seed: int = 0
+    threads: int = 1
+    """CPU threads for torch (timings are per subject; 0 = torch's default)."""
+    out_md: Path | None = None
+    """Also write the table as the 'finetune_curve' section of this markdown file (e.g. BENCHMARKS.md)."""
+    progress: bool = True
+
+    def resolved_data(self) -> Path:
+        return evaluation_data(self.data)
+
+    def validate(self) -> None:
+        if self.k < 1 or not self.steps or min(self.steps) < 0 or not self.finetune_lr > 0:
+            raise ConfigError("--k >= 1, --steps values >= 0 (at least one) and --finetune-lr > 0 are required")
+        if self.max_identities < 0 or self.max_holdouts < 0 or self.threads < 0:
+            raise ConfigError("--max-identities, --max-holdouts and --threads must be >= 0")
+        if self.weights is not None and not Path(self.weights).is_dir():
+            raise ConfigError(f"--weights {self.weights} is not a model folder (config.json + model.safetensors)")
 
 
 # ---- re-enactment and deployment (lsr.reenact, lsr.export_bundle) ------------------------------------------
