@@ -418,6 +418,10 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     started = time.perf_counter()
     shots, notes = load_shots(source_files, k, reenactor.crop_size, store.detector, limits)
     extra = {"shot detection": time.perf_counter() - started}
+    if runtime == "onnx" and int(finetune_steps) > 0:  # the ONNX runtime cannot train: run without, and say so
+        notes.append(f"the ONNX runtime cannot fine-tune: ran without the {int(finetune_steps)} fine-tuning steps "
+                     "(choose runtime 'torch' for them)")  # fmt: skip
+        finetune_steps = 0
     reenactor.encode_subject(shots)
     extra["subject_encoding"] = reenactor.last_stats.seconds["subject_encoding"]
     kind, size = reenactor.backend.layout_kind, reenactor.crop_size

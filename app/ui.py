@@ -20,6 +20,7 @@ import gradio as gr
 
 from app import examples as ex
 from app import handlers
+from lsr.config import DEFAULT_FINETUNE_STEPS
 from lsr.config import AppConfig
 
 MODEL_EVENTS = "model"  # one concurrency group: the model and the dlib detector serve one request at a time
@@ -153,8 +154,9 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                     smooth = gr.Checkbox(True, label="Smooth the driving landmarks (One-Euro)")
                     paste_back = gr.Checkbox(False, label="Paste the head back into the driving frame",
                                              info="video drivers only; otherwise the output is the face crop")  # fmt: skip
-                    finetune_steps = gr.Slider(0, 200, value=0, step=1, label="Fine-tuning steps on the source",
-                                               info="thesis §4.3.5; slower, torch runtime only")  # fmt: skip
+                    finetune_steps = gr.Slider(0, 200, value=DEFAULT_FINETUNE_STEPS, step=1,
+                                               label="Fine-tuning steps on the source",
+                                               info="thesis §4.3.5; torch runtime only (ONNX skips it)")  # fmt: skip
                     runtime = gr.Radio(["torch", "onnx"], value="torch", label="Runtime",
                                        info="onnx needs an `lsr export` bundle in WEIGHTS/onnx")  # fmt: skip
                     watermark = gr.Checkbox(True, label="Visible 'SYNTHETIC' watermark")

@@ -23,6 +23,10 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
 )
 from lsr.errors import ConfigError
 
+# Subject fine-tuning steps used by `lsr reenact`, `lsr demo` and the app unless told otherwise (thesis §4.3.5),
+# chosen from the steps-vs-error curve of `lsr bench finetune` on the shipped default (BENCHMARKS.md).
+DEFAULT_FINETUNE_STEPS = 50
+
 
 @dataclasses.dataclass
 class LandmarksConfig:
@@ -66,7 +70,7 @@ class DemoConfig:
     """Frames of the driving clip (25 fps)."""
     k: int = 8
     """Source shots to average (1..32)."""
-    finetune_steps: int = 100
+    finetune_steps: int = DEFAULT_FINETUNE_STEPS
     """Subject fine-tuning steps on the K shots before re-enacting (thesis §4.3.5; 0 = the meta-learned model)."""
     threads: int = 0
     """CPU threads for the networks; 0 = the library default."""
@@ -396,8 +400,9 @@ class ReenactConfig:
     """One-Euro smoothing of the driving landmarks."""
     paste_back: bool = False
     """Paste the synthesised head back into the full driving frame; otherwise output the crop-sized synthesis."""
-    finetune_steps: int = 0
-    """Fine-tune the generators on the source shots first (thesis §4.3.5; torch runtime only)."""
+    finetune_steps: int | None = None
+    """Fine-tune the generators on the source shots first (thesis §4.3.5; torch runtime only). Default:
+    DEFAULT_FINETUNE_STEPS with --runtime torch (see `lsr bench finetune`), 0 with --runtime onnx."""
     finetune_lr: float = 1e-3
     """Adam lr of that fine-tuning (G^l, G^s, D)."""
     runtime: Literal["torch", "onnx"] = "torch"
@@ -426,6 +431,13 @@ class ReenactConfig:
     detector: Literal["hog", "cnn"] = "hog"
     progress: bool = True
 
+    @property
+    def resolved_finetune_steps(self) -> int:
+        """--finetune-steps, or its default for the runtime (the ONNX runtime cannot train)."""
+        if self.finetune_steps is not None:
+            return self.finetune_steps
+        return DEFAULT_FINETUNE_STEPS if self.runtime == "torch" else 0
+
     def validate(self) -> None:
         if self.threads < 0:
             raise ConfigError(f"--threads must be >= 0, got {self.threads}")
@@ -448,7 +460,7 @@ class ReenactConfig:
             raise ConfigError("--relative and --absolute exclude each other")
         if self.k is not None and not 1 <= self.k <= 32:
             raise ConfigError(f"--k must be in 1..32, got {self.k}")
-        if self.finetune_steps < 0 or not self.finetune_lr > 0:
+        if (self.finetune_steps or 0) < 0 or not self.finetune_lr > 0:
             raise ConfigError(f"--finetune-steps must be >= 0 and --finetune-lr > 0, got {self.finetune_steps}, {self.finetune_lr}")
         if self.finetune_steps and self.runtime != "torch":
             raise ConfigError("--finetune-steps needs --runtime torch (fine-tuning trains the torch model)")

@@ -56,7 +56,7 @@ def write_still(video: Path, out: Path, count: int = STILL_FRAMES) -> Path:
     return out
 
 
-def run_demo(out: Path, *, weights: Path | None = None, frames: int = 100, k: int = 8, finetune_steps: int = 100,
+def run_demo(out: Path, *, weights: Path | None = None, frames: int = 100, k: int = 8, finetune_steps: int | None = None,
              threads: int = 0, progress: bool = True) -> dict[str, Path]:  # fmt: skip
     """Render the inputs, re-enact, write the side-by-side still; returns the output paths."""
     from lsr.config import ReenactConfig

@@ -291,11 +291,12 @@ def _subject_for(reenactor: ReenactorBase, source: Path, cfg, cache: dict):
             reenactor.backend.model = cache["backend_model"]
         return
     started = time.perf_counter()
-    if cfg.finetune_steps > 0:
+    steps = cfg.resolved_finetune_steps
+    if steps > 0:
         reenactor.backend.model = copy.deepcopy(cache.setdefault("base_model", reenactor.backend.model))
     subject = reenactor.encode_subject(source, k=cfg.k)
-    if cfg.finetune_steps > 0:
-        result = reenactor.finetune(cfg.finetune_steps, lr=cfg.finetune_lr, progress=cfg.progress)
+    if steps > 0:
+        result = reenactor.finetune(steps, lr=cfg.finetune_lr, progress=cfg.progress)
         print(f"fine-tuned on {len(subject.shots.frames)} shots of {source}: shot L1 {result.l1_before:.4f} -> {result.l1_after:.4f}")
         cache["backend_model"] = reenactor.backend.model
     cache.update(key=key, subject=subject, seconds=time.perf_counter() - started)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from lsr.cli import main
+from lsr.errors import ConfigError
 
 skimage_data = pytest.importorskip("skimage.data")
 _helpers_spec = importlib.util.spec_from_file_location("pipeline_tests", Path(__file__).with_name("test_pipeline.py"))
@@ -56,7 +57,7 @@ def probe(path):
 
 def test_single_job_keeps_frames_fps_audio_and_marks_provenance(weights, inputs, tmp_path, capsys):
     out, sbs = tmp_path / "out.mp4", tmp_path / "sbs.mp4"
-    code = main(["reenact", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
                  str(inputs / "drive.mp4"), "--out", str(out), "--paste-back", "--side-by-side", str(sbs),
                  "--watermark", "--no-progress"])  # fmt: skip
     assert code == 0
@@ -91,7 +92,7 @@ def test_batch_resume_after_interrupted_job(weights, inputs, tmp_path, monkeypat
         return original(image, text)
 
     monkeypatch.setattr(reenact_module, "draw_watermark", crash_in_second_job)
-    args = ["reenact", "--weights", str(weights), "--jobs", str(jobs), "--watermark", "--no-progress"]
+    args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--jobs", str(jobs), "--watermark", "--no-progress"]
     assert main(args) == 130
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.mp4"]  # no partial b.mp4, no temp file
     finished = (tmp_path / "out" / "a.mp4").stat().st_mtime_ns
@@ -169,7 +170,7 @@ def test_bad_input_exits_2_naming_the_problem_without_output(weights, inputs, tm
     if case == "no_weights":  # no --weights and an override that points nowhere: the default is not used
         monkeypatch.setenv("LSR_WEIGHTS", str(tmp_path / "nowhere"))
     out = tmp_path / "result.mp4"
-    code = main(["reenact", *weights_args, "--source", str(source), "--driving", str(driving), "--out", str(out),
+    code = main(["reenact", "--finetune-steps", "0", *weights_args, "--source", str(source), "--driving", str(driving), "--out", str(out),
                  "--no-progress", *extra])  # fmt: skip
     error = capsys.readouterr().err
     assert code == 2
@@ -184,7 +185,7 @@ def test_phone_portrait_clip_works_as_source_and_driver(weights, tmp_path, capsy
     upright = [np.ascontiguousarray(skimage_data.astronaut()[0:320, 100 - shift : 340 - shift]) for shift in (0, 4, 8)]
     clip = video_tests.write_rotated_clip(tmp_path / "phone.mp4", "phone", 0, upright)
     out = tmp_path / "out.mp4"
-    code = main(["reenact", "--weights", str(weights), "--source", str(clip), "--driving", str(clip), "--out", str(out),
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(clip), "--driving", str(clip), "--out", str(out),
                  "--paste-back", "--no-progress"])  # fmt: skip
     assert code == 0, capsys.readouterr().err
     assert "| 1 | 0 | 0 | 3 | 0 |" in capsys.readouterr().out  # 3 frames, none without a face
@@ -228,7 +229,7 @@ def test_unwritable_output_exits_2_with_one_line_before_the_model_loads(weights,
     elif case == "sbs_parent_is_file":
         (tmp_path / "blocker").write_text("a file, not a folder")
         extra, named = ["--side-by-side", str(tmp_path / "blocker" / "sbs.mp4")], tmp_path / "blocker"
-    code = main(["reenact", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
                  str(inputs / "drive.mp4"), "--out", str(out), "--no-progress", *extra])  # fmt: skip
     error = capsys.readouterr().err
     assert code == 2
@@ -250,7 +251,7 @@ def test_batch_with_bad_output_paths_runs_the_other_jobs_and_lists_the_failures(
         writer.writerow(["source", "driving", "output"])
         for output in ["out/a.mp4", *bad]:
             writer.writerow([inputs / "alice.png", inputs / "drive.mp4", output])
-    args = ["reenact", "--weights", str(weights), "--jobs", str(jobs), "--no-progress"]
+    args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--jobs", str(jobs), "--no-progress"]
     assert main(args) == 2
     captured = capsys.readouterr()
     assert (tmp_path / "out" / "a.mp4").is_file() and probe(tmp_path / "out" / "a.mp4")[0] == 5
@@ -271,7 +272,7 @@ def test_export_then_onnx_runtime_job(weights, inputs, tmp_path):
     assert main(["export", "--weights", str(weights), "--out", str(bundle)]) == 0
     assert {p.name for p in bundle.iterdir()} >= {"subject_encoder.onnx", "frame_generator.onnx"}
     out = tmp_path / "onnx.mp4"
-    code = main(["reenact", "--weights", str(bundle), "--runtime", "onnx", "--source", str(inputs / "alice.png"),
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(bundle), "--runtime", "onnx", "--source", str(inputs / "alice.png"),
                  "--driving", str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])  # fmt: skip
     assert code == 0 and probe(out)[:3] == (5, 20.0, True)
 
@@ -279,7 +280,7 @@ def test_export_then_onnx_runtime_job(weights, inputs, tmp_path):
 @pytest.mark.slow
 def test_onnx_runtime_exports_a_model_folder_once_into_the_cache(weights, inputs, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    args = ["reenact", "--weights", str(weights), "--runtime", "onnx", "--source", str(inputs / "alice.png"),
+    args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--runtime", "onnx", "--source", str(inputs / "alice.png"),
             "--driving", str(inputs / "drive.mp4"), "--no-progress"]  # fmt: skip
     assert main([*args, "--out", str(tmp_path / "a.mp4")]) == 0
     assert "exporting" in capsys.readouterr().out
@@ -309,7 +310,7 @@ def test_real_clip_end_to_end(weights, shared_data, tmp_path):
                 break
             writer.write(frame)
     out = tmp_path / "real.mp4"
-    code = main(["reenact", "--weights", str(weights), "--source", str(short), "--driving", str(short), "--out",
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(short), "--driving", str(short), "--out",
                  str(out), "--k", "2", "--paste-back", "--no-progress"])  # fmt: skip
     assert code == 0
     frames, fps, has_audio, metadata = probe(out)
@@ -338,3 +339,14 @@ def test_pipeline_finetune_changes_generator_not_latents(weights, inputs):
     after = reenactor.model.frame_generator.state_dict()
     assert any(not (before[k] == after[k]).all() for k in before)
     assert reenactor.subject is subject and np.isfinite(result.l1_after)
+
+
+def test_default_finetune_steps_follow_the_runtime():
+    """Fine-tuning is on by default where it can run (torch), off for the ONNX runtime, which cannot train."""
+    from lsr.config import DEFAULT_FINETUNE_STEPS, ReenactConfig
+
+    assert ReenactConfig().resolved_finetune_steps == DEFAULT_FINETUNE_STEPS > 0
+    assert ReenactConfig(runtime="onnx").resolved_finetune_steps == 0
+    assert ReenactConfig(finetune_steps=0).resolved_finetune_steps == 0
+    with pytest.raises(ConfigError, match="--runtime torch"):
+        ReenactConfig(source=Path("a.png"), driving=Path("b.mp4"), out=Path("c.mp4"), runtime="onnx", finetune_steps=5).validate()
