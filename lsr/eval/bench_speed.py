@@ -1,7 +1,8 @@
 """``lsr bench speed``: one table that puts speed beside error, per preset x resolution x runtime.
 
 Per row: parameters (subject encoder E / per-frame path G^l + G^s), GFLOP per frame, ms/frame of the per-frame
-path and ms of subject encoding at K = 1 and K = 32 (medians of warm runs, batch 1), the fraction of this
+path (a warp-guided model's also warps its nearest shots in numpy first: ``warp ms``, and the blend runs at the
+crop side, twice the resolution; ``total ms`` is both) and ms of subject encoding at K = 1 and K = 32 (medians of warm runs, batch 1), the fraction of this
 machine's conv peak measured in the same run (``lsr.eval.bench_models``), and the error of the trained weights
 of that preset through the thesis protocol (§4.4, ``lsr.eval.protocol``; meta-learned, no fine-tuning) on a
 synthetic test split (and on the FSTH sample with ``--fsth``).
@@ -183,6 +184,31 @@ def random_calibration(model, count: int = 8) -> list[dict[str, np.ndarray]]:
     return feeds
 
 
+def time_warps(config, identities, runs: int, warmup: int) -> float | None:
+    """Median ms of ``landmarks.tps.warp_references`` for one frame of a warp-guided model at its default crop side:
+    the nearest of 8 input shots of the first identity warped onto its other input frames (None for other models)."""
+    import time
+
+    import cv2
+
+    from landmarks.tps import warp_references
+
+    if not config.uses_references or not identities:
+        return None
+    identity, crop = identities[0], 2 * config.resolution
+    usable = np.flatnonzero(np.isfinite(identity.input_landmarks).all(axis=(1, 2)))
+    scale = crop / identity.input_frames.shape[1]
+    shots = np.stack([cv2.resize(identity.input_frames[i], (crop, crop), interpolation=cv2.INTER_LINEAR) for i in usable[:8]])
+    points = scale_points(identity.input_landmarks[usable], scale)
+    targets = points[8:] if len(points) > 8 else points
+    times = []
+    for index in range(warmup + runs):
+        started = time.perf_counter()
+        warp_references(shots, points[:8], targets[index % len(targets)], config.warp_references)
+        times.append((time.perf_counter() - started) * 1e3)
+    return float(np.median(times[warmup:]))
+
+
 # ---- error ----------------------------------------------------------------------------------------------
 
 
@@ -304,6 +330,7 @@ def bench_rows(cfg, weights: dict[str, Path], splits: dict[str, list], detector,
             for split, identities in splits.items():
                 errors[split] = protocol_errors(methods, identities, cfg.k, detector, cfg.max_holdouts, cfg.progress)
         encoder_session = None
+        base["warp_ms"] = time_warps(model.config, splits["synthetic"], cfg.runs, cfg.warmup)
         for runtime in cfg.runtimes:
             row = {**base, "runtime": runtime, "runtime_label": RUNTIME_LABELS[runtime]}
             if runtime in TORCH_RUNTIMES:
@@ -313,6 +340,7 @@ def bench_rows(cfg, weights: dict[str, Path], splits: dict[str, list], detector,
                 row["frame_ms"] = time_onnx_frame(bundle / frame_file, model.config, cfg.threads, cfg.runs, cfg.warmup)
                 encoder_session = encoder_session or onnx_session(bundle / "subject_encoder.onnx", cfg.threads)
             row["peak_fraction"] = gflop / (row["frame_ms"] / 1e3) / peak if isinstance(row["frame_ms"], float) else None
+            row["total_ms"] = row["frame_ms"] + (row["warp_ms"] or 0.0) if isinstance(row["frame_ms"], float) else row["frame_ms"]
             row["encode_ms"] = {}
             for k in ENCODER_KS:
                 previous = next((r for r in rows if r["preset"] == preset and r["resolution"] == resolution
@@ -337,10 +365,10 @@ def pareto_points(rows: list[dict], metric: str, k: int) -> tuple[list[tuple[flo
     points, labels, groups, indices = [], [], [], []
     for index, row in enumerate(rows):
         errors = row.get("error_synthetic")
-        if isinstance(row["frame_ms"], float) and isinstance(errors, dict) and k in errors:
+        if isinstance(row["total_ms"], float) and isinstance(errors, dict) and k in errors:
             value = errors[k][metric]
             if value is not None and math.isfinite(value):
-                points.append((row["frame_ms"], float(value)))
+                points.append((row["total_ms"], float(value)))
                 labels.append(f"{row['preset']}/{row['resolution']}/{row['runtime']}")
                 groups.append(row["runtime_label"])
                 indices.append(index)
@@ -351,7 +379,7 @@ def section_markdown(cfg, rows: list[dict], peak: float, provenance: dict[str, s
                      front_labels: list[str], machine: str, command: str) -> str:  # fmt: skip
     """The BENCHMARKS.md section (markers included)."""
     splits = [s for s in ("synthetic", "fsth") if any(f"error_{s}" in r for r in rows)]
-    header = ["preset", "res", "runtime", "params E / G", "GFLOP/frame", "ms/frame", "% conv peak",
+    header = ["preset", "res", "runtime", "params E / G", "GFLOP/frame", "ms/frame", "% conv peak", "warp ms", "total ms",
               "encode K=1 ms", "encode K=32 ms"]  # fmt: skip
     header += [f"{'synthetic' if s == 'synthetic' else 'FSTH'} K={k}: PSNR / SSIM / NMKE" for s in splits for k in cfg.k]
     lines = [SECTION_START, "## Speed vs error (`lsr bench speed`)", "",
@@ -363,7 +391,8 @@ def section_markdown(cfg, rows: list[dict], peak: float, provenance: dict[str, s
         lines.append(f"- {name}: {text}")
     lines += [
         f"- ms: median of {cfg.runs} warm runs, batch 1 (encode K=32: median of {cfg.encoder_runs}); the per-frame path is "
-        "G^l + G^s (``FrameGeneratorGraph``); % conv peak = GFLOP/frame ÷ time ÷ the fp32 conv peak "
+        "G^l + G^s (``FrameGeneratorGraph``; warp_guided: with the blend at the crop side, 2x the resolution); warp ms: "
+        "a warp-guided model's TPS warps of its nearest shots (numpy, one thread); total = both; % conv peak = GFLOP/frame ÷ time ÷ the fp32 conv peak "
         f"measured in this run ({peak:.0f} GFLOP/s; int8 rows against the same fp32 peak).",
         "- GFLOP = 2 × multiply-accumulates of convs/matmuls (``FlopCounterMode``).",
         f"- error: thesis protocol (§4.4), meta-learned (no fine-tuning), K = {', '.join(map(str, cfg.k))}; PSNR / SSIM "
@@ -377,7 +406,8 @@ def section_markdown(cfg, rows: list[dict], peak: float, provenance: dict[str, s
         peak_cell = f"{100 * row['peak_fraction']:.0f}%" if row["peak_fraction"] is not None else "–"
         cells = [row["preset"], str(row["resolution"]), row["runtime_label"],
                  f"{row['params_encoder'] / 1e6:.2f}M / {row['params_frame'] / 1e6:.2f}M", f"{row['gflop']:.2f}",
-                 _ms(row["frame_ms"]), peak_cell, _ms(row["encode_ms"][1]), _ms(row["encode_ms"][32])]  # fmt: skip
+                 _ms(row["frame_ms"]), peak_cell, "–" if row["warp_ms"] is None else _ms(row["warp_ms"]),
+                 _ms(row["total_ms"]), _ms(row["encode_ms"][1]), _ms(row["encode_ms"][32])]  # fmt: skip
         cells += [_error_cell(row.get(f"error_{s}"), k) for s in splits for k in cfg.k]
         lines.append("| " + " | ".join(cells) + " |")
     label, _ = METRICS[cfg.pareto_metric]
