@@ -278,7 +278,8 @@ def tps_map(
     """The backward map of the warp that moves ``source_points`` onto ``target_points`` in an (H, W) frame.
 
     source_points, target_points: (N, 2) x, y pixels (rows with NaN in either are ignored). grid_step: see
-    ``_Grid`` (1 = exact; > 1 evaluates and checks folds on a coarse grid). Never raises for degenerate point sets (falls back, see the module docstring).
+    ``_Grid`` (1 = exact; > 1 evaluates and checks folds on a coarse grid). Never raises for degenerate point
+    sets (falls back, see the module docstring).
     """
     source_points = np.asarray(source_points, np.float64)
     target_points = np.asarray(target_points, np.float64)
@@ -317,29 +318,18 @@ def tps_map(
     return WarpMap(grid_x, grid_y, "identity", 0.0, 0.0, "; ".join(reasons))
 
 
-def warp_tps(
-    image: np.ndarray,
-    source_points: np.ndarray,
-    target_points: np.ndarray,
-    *,
-    regularization: float = DEFAULT_REGULARIZATION,
-    merge_distance: float = DEFAULT_MERGE_DISTANCE,
-    max_condition: float = DEFAULT_MAX_CONDITION,
-    max_folded_fraction: float = DEFAULT_MAX_FOLDED_FRACTION,
-    fix_border: bool = True,
-    grid_step: int = 1,
-) -> WarpResult:
+def warp_tps(image: np.ndarray, source_points: np.ndarray, target_points: np.ndarray, **settings) -> WarpResult:
     """Warp ``image`` so that ``source_points`` land on ``target_points`` (``tps_map``, then ``cv2.remap``).
 
     image: (H, W, 3) uint8; source_points, target_points: (N, 2) x, y pixels (rows with NaN in
-    either are ignored). Returns a WarpResult; never raises for degenerate point sets (falls back).
+    either are ignored); settings: the keyword options of ``tps_map`` (regularization, merge_distance,
+    max_condition, max_folded_fraction, fix_border, grid_step). Returns a WarpResult; never raises for
+    degenerate point sets (falls back).
     """
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"image must be (H, W, 3) uint8, got {image.shape} {image.dtype}")
     height, width = image.shape[:2]
-    warp = tps_map(source_points, target_points, height, width, regularization=regularization,
-                   merge_distance=merge_distance, max_condition=max_condition,
-                   max_folded_fraction=max_folded_fraction, fix_border=fix_border, grid_step=grid_step)  # fmt: skip
+    warp = tps_map(source_points, target_points, height, width, **settings)
     image = image.copy() if warp.method == "identity" else _remap(image, warp.map_x, warp.map_y)
     return WarpResult(image, warp.method, warp.regularization, warp.folded_fraction, warp.reason)
 

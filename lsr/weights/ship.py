@@ -2,7 +2,9 @@
 
 Copies config.json, model.safetensors and (when present) discriminator.safetensors into ``lsr/weights/default``
 through a temp folder renamed into place, checks that the copy loads, and prints sizes and SHA-256 sums for
-MODEL_CARD.md. Only weights trained on synthetic data may be shipped (see ../shared/data/README.md).
+MODEL_CARD.md. Weights may be trained on synthetic heads and on the shared real training clips
+(``real_talking_heads``, whose provenance MODEL_CARD.md must list); never on the evaluation people
+(see ../shared/data/README.md).
 """
 
 from __future__ import annotations
