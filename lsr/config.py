@@ -210,6 +210,9 @@ class LossConfig:
 
     l1: float = 1.0
     """L1 reconstruction weight (colour fidelity, §4.3.3)."""
+    l2: float = 0.0
+    """Mean squared error weight (0 = off). Where the warped references disagree, L1 picks one (sharp, a median);
+    L2 pays for hedging between them (a mean), which is what PSNR rewards."""
     ssim: float = 1.0
     """(1 - SSIM)/2 reconstruction weight."""
     feature_matching: float = 1.0
@@ -232,7 +235,7 @@ class LossConfig:
     """Lazy R1: apply the penalty every N discriminator steps, scaled by N."""
 
     def validate(self) -> None:
-        weights = [self.l1, self.ssim, self.feature_matching, self.vgg, self.adversarial, self.latent_l2,
+        weights = [self.l1, self.l2, self.ssim, self.feature_matching, self.vgg, self.adversarial, self.latent_l2,
                    self.cross_entropy, self.aux_rgb, self.r1_gamma]  # fmt: skip
         if min(weights) < 0:
             raise ConfigError("loss weights must be >= 0")

@@ -19,6 +19,11 @@ def l1_loss(fake: Tensor, real: Tensor) -> Tensor:
     return (fake - real).abs().mean()
 
 
+def l2_loss(fake: Tensor, real: Tensor) -> Tensor:
+    """Mean squared error: the loss PSNR measures (a mean of the plausible values, where L1 takes their median)."""
+    return (fake - real).square().mean()
+
+
 def ssim_loss(fake: Tensor, real: Tensor, window_size: int = 11) -> Tensor:
     """(1 - SSIM) / 2 on images mapped from [-1, 1] to [0, 1] (kornia's structural similarity)."""
     from kornia.losses import ssim_loss as kornia_ssim_loss

@@ -189,13 +189,16 @@ class StepResult:
 
 
 def reconstruction_loss(fake: Tensor, real: Tensor, weights: LossWeights, perceptual: nn.Module | None) -> tuple[Tensor, dict[str, Tensor]]:
-    """L_rec of eq. 4.4: L1 + SSIM (+ VGG perceptual when weights were given)."""
+    """L_rec of eq. 4.4: L1 + SSIM (+ L2 when weighted, + VGG perceptual when weights were given)."""
     terms = {"l1": losses.l1_loss(fake, real)}
+    if weights.l2 > 0:
+        terms["l2"] = losses.l2_loss(fake, real)
     if weights.ssim > 0:
         terms["ssim"] = losses.ssim_loss(fake, real)
     if perceptual is not None and weights.vgg > 0:
         terms["vgg"] = perceptual(fake, real)
-    total = weights.l1 * terms["l1"] + weights.ssim * terms.get("ssim", 0.0) + weights.vgg * terms.get("vgg", 0.0)
+    total = (weights.l1 * terms["l1"] + weights.l2 * terms.get("l2", 0.0) + weights.ssim * terms.get("ssim", 0.0)
+             + weights.vgg * terms.get("vgg", 0.0))  # fmt: skip
     return total, terms
 
 

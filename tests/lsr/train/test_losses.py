@@ -23,6 +23,19 @@ def test_l1_and_ssim_are_zero_on_identical_images_and_positive_otherwise():
     assert 0.0 < losses.ssim_loss(fake, real).item() <= 1.0
 
 
+def test_l2_prefers_the_mean_where_l1_accepts_any_point_between():
+    """Two equally likely targets: L2 is lowest at their mean (what PSNR rewards), L1 is flat between them."""
+    low, high = torch.full((1, 3, 4, 4), -0.5), torch.full((1, 3, 4, 4), 0.5)
+    middle, near_low = torch.zeros(1, 3, 4, 4), torch.full((1, 3, 4, 4), -0.4)
+
+    def both(loss, guess):
+        return (loss(guess, low) + loss(guess, high)).item()
+
+    assert both(losses.l2_loss, middle) < both(losses.l2_loss, near_low)
+    assert both(losses.l1_loss, middle) == pytest.approx(both(losses.l1_loss, near_low))
+    assert losses.l2_loss(low, low).item() == 0.0
+
+
 def test_feature_matching_detaches_real_features():
     real = [torch.randn(2, 4, 8, 8, requires_grad=True), torch.randn(2, 8, 4, 4, requires_grad=True)]
     fake = [torch.randn(2, 4, 8, 8, requires_grad=True), torch.randn(2, 8, 4, 4, requires_grad=True)]
