@@ -51,8 +51,19 @@ def model_summary(weights: Path | None, random_init: bool) -> str:
         config = json.loads((weights / "config.json").read_text())
     except (OSError, ValueError):
         return f"Model: `{weights}` (its config.json is unreadable; the first run will say more)"
-    line = (f"Model: `{weights}` (variant `{config.get('variant', '?')}`, {config.get('resolution', '?')}x"
-            f"{config.get('resolution', '?')} crops)")  # fmt: skip
+    from lsr.weights import DEFAULT_WEIGHTS
+
+    name = "the shipped default model" if Path(weights).resolve() == DEFAULT_WEIGHTS.resolve() else f"`{Path(weights).name}`"
+    size = config.get("resolution", "?")
+    line = f"Model: {name} (variant `{config.get('variant', '?')}`, {size}x{size} network)"
+    if config.get("variant") == "warp_guided":
+        output = f"{2 * size}x{2 * size}" if isinstance(size, int) else "twice that size"
+        line += (f". It warps the source shots nearest to each driving pose onto it and blends them with its own "
+                 f"synthesis at {output}, so detail comes from your shots; fine-tuning on them (on by default) "
+                 "adapts it to the person")  # fmt: skip
+    if name == "the shipped default model":
+        line += ". Trained on real talking-face clips and synthetic heads (MODEL_CARD.md)"
+    line += "."
     if random_init:
         line = ("**Untrained demo model (`--random-init`)**: the output is noise. It shows how the app works; "
                 "for real results train a model (`lsr train ...`) and start `lsr app --weights DIR`.\n\n" + line)

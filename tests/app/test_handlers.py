@@ -115,3 +115,15 @@ def test_finetuning_is_per_run_and_leaves_the_served_model_untouched(tiny_app_we
     assert result.frames == 5 and "fine-tuning" in result.timing
     assert store.reenactor("torch").model is base
     assert all(torch.equal(before[name], tensor) for name, tensor in base.state_dict().items())
+
+
+def test_model_summary_names_the_model_and_says_what_a_warp_guided_one_does(tmp_path):
+    from app.ui import model_summary
+    from lsr.weights import DEFAULT_WEIGHTS
+    from models_def import LSRModel, preset_config
+
+    folder = LSRModel(preset_config("tiny", variant="warp_guided")).save_pretrained(tmp_path / "my_model")
+    line = model_summary(folder, False)
+    assert "`my_model`" in line and str(tmp_path) not in line  # the folder's name, not a machine path
+    assert "warp_guided" in line and "128x128" in line
+    assert "the shipped default model" in model_summary(DEFAULT_WEIGHTS, False)
