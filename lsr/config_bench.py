@@ -235,6 +235,10 @@ class EvalConfig:
     """lambda of the TPS baselines, tps and tps_mean3 (unit-spread coordinates)."""
     examples: int = 4
     """Frames per (method, K, identity) written to OUT/examples (output above ground truth); 0 = none."""
+    figure: Path | None = None
+    """Also write one picture comparing the methods: a hold-out frame per identity, methods side by side (PNG)."""
+    figure_k: int = 8
+    """K of that picture (one of --k)."""
     lpips_weights: Path | None = None
     """LPIPS (AlexNet v0.1) weights file, .pth or .safetensors (see lsr/eval/lpips.py); unset = LPIPS not computed."""
     fid_weights: Path | None = None
@@ -270,6 +274,8 @@ class EvalConfig:
             raise ConfigError("--inputs, --holdouts >= 1 and --max-holdouts, --max-identities, --examples >= 0 are required")
         if self.detector_upsample < 0:
             raise ConfigError(f"--detector-upsample must be >= 0, got {self.detector_upsample}")
+        if self.figure is not None and self.figure_k not in self.k:
+            raise ConfigError(f"--figure-k {self.figure_k} is not among --k {' '.join(map(str, self.k))}")
         if self.bucket_thresholds and (len(self.bucket_thresholds) != 2 or self.bucket_thresholds[0] > self.bucket_thresholds[1]):
             raise ConfigError(f"--bucket-thresholds needs two increasing values (or none for terciles), got {self.bucket_thresholds}")
         if self.tps_regularization < 0:

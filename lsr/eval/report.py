@@ -223,17 +223,45 @@ def json_safe(value: Any) -> Any:
     return value
 
 
-def _example_writer(out_dir: Path, count: int):
-    from landmarks.imageio import write_image
+class ExampleWriter:
+    """``on_outputs`` callback: per (method, K, identity), the first ``count`` outputs above their ground truth
+    (OUT/examples/<method>_k<K>_<identity>.png); it also keeps each first frame for ``comparison``."""
 
-    def write(name: str, k: int, identity: EvalIdentity, outputs: np.ndarray, targets: np.ndarray) -> None:
-        if count <= 0 or not len(outputs):
+    def __init__(self, out_dir: Path, count: int) -> None:
+        self.out_dir, self.count = Path(out_dir), count
+        self.first: dict[tuple[str, int, str], tuple[np.ndarray, np.ndarray]] = {}
+
+    def __call__(self, name: str, k: int, identity: EvalIdentity, outputs: np.ndarray, targets: np.ndarray) -> None:
+        from landmarks.imageio import write_image
+
+        if not len(outputs):
             return
-        strip = np.concatenate([np.concatenate(list(outputs[:count]), axis=1),
-                                np.concatenate(list(targets[:count]), axis=1)], axis=0)  # fmt: skip
-        write_image(out_dir / "examples" / f"{name}_k{k}_{identity.name}.png", strip)  # top: output, bottom: truth
+        self.first[(name, k, identity.name)] = (outputs[0], targets[0])
+        if self.count <= 0:
+            return
+        strip = np.concatenate([np.concatenate(list(outputs[: self.count]), axis=1),
+                                np.concatenate(list(targets[: self.count]), axis=1)], axis=0)  # fmt: skip
+        write_image(self.out_dir / "examples" / f"{name}_k{k}_{identity.name}.png", strip)  # top: output, bottom: truth
 
-    return write
+    def comparison(self, k: int) -> np.ndarray:
+        """One row per identity (its first hold-out frame), one column per method in run order, then the ground
+        truth; method names above the columns. (rows * S + title, columns * S, 3) uint8."""
+        import cv2
+
+        methods = list(dict.fromkeys(name for name, at_k, _ in self.first if at_k == k))
+        identities = list(dict.fromkeys(who for _, at_k, who in self.first if at_k == k))
+        if not methods:
+            raise ConfigError(f"no outputs at K={k} to compare; pick a K that was evaluated")
+        rows = []
+        for who in identities:
+            cells = [self.first[(name, k, who)][0] for name in methods]
+            rows.append(np.concatenate([*cells, self.first[(methods[0], k, who)][1]], axis=1))
+        side = rows[0].shape[0]
+        title = np.full((28, side * (len(methods) + 1), 3), 255, np.uint8)
+        for column, label in enumerate([*methods, "ground truth"]):
+            scale = min(0.5, 0.9 * side / max(1, cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 1.0, 1)[0][0]))
+            cv2.putText(title, label, (column * side + 4, 19), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 1, cv2.LINE_AA)
+        return np.concatenate([title, *rows], axis=0)
 
 
 def _fid_collector(weights: Path, device: str, then: Any) -> tuple[dict[tuple[str, int], tuple[list, list]], Any]:
@@ -295,7 +323,8 @@ def run_eval(cfg: Any) -> dict[str, Any]:
     if not methods:
         raise ConfigError("no method to evaluate: pass --methods nearest_shot tps tps_mean3 and/or --weights MODEL_DIR")
     thresholds = tuple(cfg.bucket_thresholds) if cfg.bucket_thresholds else None
-    frame_metrics, backbones, on_outputs = {}, {}, _example_writer(Path(cfg.out), cfg.examples)
+    examples = ExampleWriter(Path(cfg.out), cfg.examples)
+    frame_metrics, backbones, on_outputs = {}, {}, examples
     if cfg.lpips_weights is not None:
         from lsr.eval.lpips import load_lpips, lpips_distance
 
@@ -322,6 +351,11 @@ def run_eval(cfg: Any) -> dict[str, Any]:
     run.settings.update({"data": str(data), "layout": layout, "detector": f"{cfg.detector}, upsample {cfg.detector_upsample}",
                          "tps_regularization": cfg.tps_regularization})  # fmt: skip
     summary = summarise(run, fid=fid_results, backbones=backbones)
+    if cfg.figure is not None:
+        from landmarks.imageio import write_image
+
+        write_image(cfg.figure, examples.comparison(cfg.figure_k))
+        print(f"comparison figure (K={cfg.figure_k}: one hold-out frame per identity, methods side by side) written to {cfg.figure}")
     text = markdown(summary, machine_markdown())
     markdown_path, json_path = write_report(Path(cfg.out), summary, text)
     print(text)

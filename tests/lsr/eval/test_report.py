@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from lsr.config import EvalConfig
+from lsr.errors import ConfigError
 from lsr.eval import report
 from lsr.eval.baselines import NearestShot, TpsMean3, TpsWarp
 from lsr.eval.protocol import FaceAnalysis, load_lsr_split, run_protocol
@@ -78,7 +79,8 @@ def test_lsr_eval_on_two_real_identities(shared_data, tmp_path, capsys):
                 target = small / frame.relative_to(source)
                 target.parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy(frame, target)
-    cfg = EvalConfig(data=small, out=tmp_path / "out", k=(1,), max_holdouts=4, progress=False, examples=2)
+    cfg = EvalConfig(data=small, out=tmp_path / "out", k=(1,), max_holdouts=4, progress=False, examples=2,
+                     figure=tmp_path / "compare.png", figure_k=1)  # fmt: skip
     cfg.validate()
     summary = report.run_eval(cfg)
     printed = capsys.readouterr().out
@@ -90,3 +92,9 @@ def test_lsr_eval_on_two_real_identities(shared_data, tmp_path, capsys):
     assert all(np.isfinite(row["sharpness"]) and row["sharpness"] > 0 for row in rows.values())
     assert rows["tps"]["nmke"] < rows["nearest_shot"]["nmke"]  # warping onto the target landmarks fixes the pose
     assert list((tmp_path / "out" / "examples").glob("tps_k1_*.png"))
+    from landmarks.imageio import read_image
+
+    figure = read_image(tmp_path / "compare.png")  # 2 identities x (3 methods + ground truth), under a title strip
+    assert figure.shape == (28 + 2 * 224, 4 * 224, 3)
+    with pytest.raises(ConfigError, match="--figure-k"):
+        EvalConfig(data=small, k=(1,), figure=tmp_path / "x.png", figure_k=8).validate()
