@@ -303,6 +303,9 @@ class TrainConfig:
     keep_checkpoints: int = 3
     resume: bool = False
     """Continue exactly from the newest checkpoint in OUT/checkpoints."""
+    stop_at_step: int = 0
+    """Stop after this global step and export the weights (0 = the end of the schedule). The schedule (stages, lr
+    decay) stays that of the whole run, so a later --resume continues it as if it had never stopped."""
     log_every: int = 50
     """TensorBoard scalars every N steps."""
     image_every: int = 500
@@ -330,6 +333,8 @@ class TrainConfig:
             raise ConfigError("--checkpoint-every, --keep-checkpoints, --log-every must be >= 1; --image-every >= 0")
         if self.max_consecutive_nonfinite < 1 or self.max_recoveries < 0:
             raise ConfigError("--max-consecutive-nonfinite must be >= 1 and --max-recoveries >= 0")
+        if self.stop_at_step < 0:
+            raise ConfigError(f"--stop-at-step must be >= 0 (0 = the end of the schedule), got {self.stop_at_step}")
 
 
 @dataclasses.dataclass

@@ -411,7 +411,7 @@ def run_train(cfg) -> dict[str, Any]:
     """Entry point of ``lsr train`` (and of each torchrun process)."""
     trainer = Trainer(cfg)
     try:
-        summary = trainer.run()
+        summary = trainer.run(until_step=cfg.stop_at_step or None)
     finally:
         trainer.close()
     if trainer.context.is_main:

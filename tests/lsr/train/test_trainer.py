@@ -93,6 +93,15 @@ def test_full_run_writes_checkpoints_weights_and_tensorboard(tmp_path):
     assert {"loss/l1", "loss/cross_entropy", "train/lr", "train/skipped_steps", "grad/g_grad_norm"} <= set(scalars)
 
 
+def test_stop_at_step_exports_the_weights_of_that_step(tmp_path):
+    from lsr.train.trainer import run_train
+
+    cfg = dataclasses.replace(tiny_train_config(tmp_path), stop_at_step=3)
+    cfg.validate()
+    summary = run_train(cfg)
+    assert summary["steps"] == 3 and (tmp_path / "weights" / "model.safetensors").is_file()
+
+
 def test_tiny_model_overfits_one_identity(tmp_path):
     dataset = DrawnEpisodes(identities=1, episodes=4, k=2)
     stages = StagesConfig(pretrain_epochs=0, full_epochs=0, latent_epochs=40, steps_per_epoch=1)
