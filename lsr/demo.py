@@ -75,7 +75,7 @@ def run_demo(out: Path, *, weights: Path | None = None, frames: int = 100, k: in
     cfg.validate()
     run_reenact(cfg)
     paths["still"] = write_still(paths["side_by_side"], out / "demo_side_by_side.png")
-    print(f"demo: model {weights} (trained on synthetic heads only; see MODEL_CARD.md)")
+    print(f"demo: model {weights} (see MODEL_CARD.md for its training data and metrics)")
     print(f"demo: re-enacted video  -> {paths['video']}")
     print(f"demo: side-by-side      -> {paths['side_by_side']} (driver | landmarks | latent layout | output)")
     print(f"demo: still of it       -> {paths['still']}")

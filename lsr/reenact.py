@@ -295,11 +295,13 @@ def _subject_for(reenactor: ReenactorBase, source: Path, cfg, cache: dict):
     if steps > 0:
         reenactor.backend.model = copy.deepcopy(cache.setdefault("base_model", reenactor.backend.model))
     subject = reenactor.encode_subject(source, k=cfg.k)
+    encoded = time.perf_counter()
     if steps > 0:
         result = reenactor.finetune(steps, lr=cfg.finetune_lr, progress=cfg.progress)
-        print(f"fine-tuned on {len(subject.shots.frames)} shots of {source}: shot L1 {result.l1_before:.4f} -> {result.l1_after:.4f}")
+        print(f"fine-tuned on {len(subject.shots.frames)} shots of {source} ({steps} steps): "
+              f"shot L1 {result.l1_before:.4f} -> {result.l1_after:.4f}")  # fmt: skip
         cache["backend_model"] = reenactor.backend.model
-    cache.update(key=key, subject=subject, seconds=time.perf_counter() - started)
+    cache.update(key=key, subject=subject, seconds=encoded - started, finetune_seconds=time.perf_counter() - encoded)
 
 
 def summary_table(done: int, skipped: int, failed: int, stats: ReenactStats, wall: float) -> str:
@@ -312,9 +314,9 @@ def summary_table(done: int, skipped: int, failed: int, stats: ReenactStats, wal
         "| stage | seconds | fps (frames / stage seconds) |",
         "|---|---|---|",
     ]
-    for stage in (*STAGES, "encode"):
+    for stage in (*STAGES[:3], "finetune", *STAGES[3:], "encode"):
         seconds = stats.seconds.get(stage, 0.0)
-        per_frame = seconds > 0 and stage != "subject_encoding"  # subject encoding runs once, not per frame
+        per_frame = seconds > 0 and stage not in ("subject_encoding", "finetune")  # once per subject, not per frame
         rows.append(f"| {stage} | {seconds:.2f} | {f'{stats.frames / seconds:.1f}' if per_frame else '–'} |")
     return "\n".join(rows)
 
@@ -355,6 +357,7 @@ def run_reenact(cfg) -> ReenactStats:
                 _subject_for(reenactor, job.source, cfg, cache)
                 if cache.get("counted") != cache["key"]:
                     total.add("subject_encoding", cache["seconds"])
+                    total.add("finetune", cache["finetune_seconds"])
                     cache["counted"] = cache["key"]
                 total.merge(run_job(reenactor, job, cfg, side_by_side=cfg.side_by_side))
             except (LsrError, LandmarksError, OSError) as exc:  # OSError: e.g. the disk filled while writing

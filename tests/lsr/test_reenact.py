@@ -325,7 +325,8 @@ def test_finetune_steps_then_reenact(weights, inputs, tmp_path, capsys):
     code = main(["reenact", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
                  str(inputs / "drive.mp4"), "--out", str(out), "--finetune-steps", "2", "--no-progress"])  # fmt: skip
     assert code == 0 and probe(out)[0] == 5
-    assert "fine-tuned on 1 shots" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "fine-tuned on 1 shots" in printed and "| finetune |" in printed
 
 
 @pytest.mark.slow
