@@ -25,7 +25,7 @@ from lsr.errors import ConfigError
 
 # Subject fine-tuning steps used by `lsr reenact`, `lsr demo` and the app unless told otherwise (thesis §4.3.5),
 # chosen from the steps-vs-error curve of `lsr bench finetune` on the shipped default (BENCHMARKS.md).
-DEFAULT_FINETUNE_STEPS = 50
+DEFAULT_FINETUNE_STEPS = 10
 
 
 @dataclasses.dataclass

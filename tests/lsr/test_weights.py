@@ -13,7 +13,7 @@ from lsr.weights.ship import MAX_MB, ship
 # People the default model never saw: training used dataset seed 2026 (identity seeds are SeedSequence
 # hashes of (2026, index)); these plain identity seeds are other people.
 HELD_OUT_SEEDS = (101, 102, 103, 104)
-FINETUNE_STEPS = 100  # the demo's default; measured (MODEL_CARD.md): 50 steps win SSIM by 0.009, 100 by 0.022
+FINETUNE_STEPS = 10  # a short fine-tuning, as the one-shot cases of MODEL_CARD.md
 
 
 def test_default_is_the_shipped_folder_unless_overridden(monkeypatch, tmp_path):
@@ -34,7 +34,7 @@ def test_shipped_weights_load_and_fit_the_package_budget():
     model = LSRModel.from_pretrained(DEFAULT_WEIGHTS)
     config = json.loads((DEFAULT_WEIGHTS / "config.json").read_text())
     assert model.config.resolution == config["resolution"] == 128
-    assert model.config.variant == "latent_layout"  # the paper's method: stage 3 ends with a learned layout
+    assert model.config.variant == "warp_guided"  # LSR (latent layout) with the warp path of thesis §4.5.6
     for tensor in model.state_dict().values():
         assert bool(tensor.isfinite().all())
 
@@ -90,8 +90,8 @@ def test_shipped_model_beats_nearest_shot_on_held_out_synthetic_people(tmp_path)
     The model is fine-tuned on that one shot (thesis §4.3.5, FINETUNE_STEPS steps at the default lr); the targets
     are never seen. Full frames, as in the thesis: copying the shot keeps the static background exact, which is
     why warping methods win single-shot PSNR/SSIM in the thesis (§4.5.3.1, FOMM); the model has to win on the head.
-    Control: the same architecture with random weights, fine-tuned the same way, scores far lower,
-    so the margin over the baseline comes from the trained weights.
+    Control: the same architecture with random weights, fine-tuned the same way, scores lower (it still
+    blends warped shots), so the margin comes from the trained weights, not from the warp path alone.
     """
     from lsr.eval.baselines import NearestShot
     from lsr.eval.model_method import LsrModelMethod
@@ -105,5 +105,5 @@ def test_shipped_model_beats_nearest_shot_on_held_out_synthetic_people(tmp_path)
     random = LSRModel(LSRModel.from_pretrained(DEFAULT_WEIGHTS).config).save_pretrained(tmp_path / "random")
     random_psnr, random_ssim = scores(LsrModelMethod(random, finetune_steps=FINETUNE_STEPS), cases[:2])
     first = len(random_psnr)  # the control runs on the first two people only (it costs as much as the model)
-    assert random_psnr.mean() < model_psnr[:first].mean() - 2, (random_psnr.mean(), model_psnr[:first].mean())
+    assert random_psnr.mean() < model_psnr[:first].mean() - 1, (random_psnr.mean(), model_psnr[:first].mean())
     assert random_ssim.mean() < model_ssim[:first].mean(), (random_ssim.mean(), model_ssim[:first].mean())
