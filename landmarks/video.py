@@ -11,7 +11,8 @@ legacy ``rotate`` stream tag (degrees clockwise). Frames come out upright and
 applied (phones do not write them).
 
 ``VideoWriter`` encodes libx264 / yuv420p into a temp file beside the target and
-moves it into place only when the ``with`` block ends without an error; it can
+moves it into place only when the ``with`` block ends without an error (temp files
+of killed earlier writers of the same target are swept first); it can
 carry the audio of a source video (copied when the codec fits MP4, otherwise
 transcoded to AAC) and container metadata tags. It writes upright frames with no
 display matrix and drops a ``rotate`` tag from the metadata it is given, so no
@@ -21,7 +22,9 @@ stale rotation turns the output again.
 from __future__ import annotations
 
 import dataclasses
+import glob
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from fractions import Fraction
@@ -149,7 +152,10 @@ def probe_video(path: str | os.PathLike[str]) -> VideoInfo:
 
 
 def iter_frames(path: str | os.PathLike[str]) -> Iterator[np.ndarray]:
-    """Decode frames one at a time: each (H, W, 3) uint8 RGB, upright (the stream's rotation applied)."""
+    """Decode frames one at a time: each (H, W, 3) uint8 RGB, upright (the stream's rotation applied).
+
+    A file cut short (a stopped download) yields the frames before the damage and stops: fewer than
+    ``probe_video`` declares, which callers report. Nothing decodable is an ``InputFileError``."""
     import av
 
     path = Path(path)
@@ -163,11 +169,41 @@ def iter_frames(path: str | os.PathLike[str]) -> Iterator[np.ndarray]:
             count += 1
             yield _upright(frame.to_ndarray(format="rgb24"), _quarter_turns(frame, tag_rotation))
     except av.FFmpegError as exc:
-        raise InputFileError(f"decoding {path} failed after {count} frame(s) (corrupt video?): {exc}") from exc
+        if count == 0:
+            raise InputFileError(f"decoding {path} failed before its first frame (corrupt video?): {exc}") from exc
+        # a cut file (stopped download): keep the frames that decoded; callers compare with probe_video's count
     finally:
         container.close()
     if count == 0:
         raise InputFileError(f"{path} contains no decodable video frames; give a valid video")
+
+
+def _process_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    return True
+
+
+def sweep_stale_temps(path: str | os.PathLike[str]) -> list[Path]:
+    """Delete the temp files that writers of ``path`` left when they were killed (SIGKILL, power loss).
+
+    A writer's temp name carries its process id (``.<stem>.lsr<pid>-<random>.tmp.mp4``); only files whose
+    process is gone are removed, so a concurrent writer is never disturbed. Returns the removed paths."""
+    path = Path(path)
+    pattern = re.compile(rf"^\.{re.escape(path.stem)}\.lsr(\d+)-\w+\.tmp\.mp4$")
+    removed = []
+    for candidate in path.parent.glob(f".{glob.escape(path.stem)}.lsr*.tmp.mp4"):
+        match = pattern.match(candidate.name)
+        if match and not _process_alive(int(match.group(1))):
+            candidate.unlink(missing_ok=True)
+            removed.append(candidate)
+    return removed
 
 
 def _even(frame: np.ndarray) -> np.ndarray:
@@ -218,7 +254,8 @@ class VideoWriter:
         import av
 
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        handle, name = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.stem}.", suffix=".tmp.mp4")
+        sweep_stale_temps(self.path)
+        handle, name = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.stem}.lsr{os.getpid()}-", suffix=".tmp.mp4")
         os.close(handle)
         self._temp = Path(name)
         self._container = av.open(name, mode="w", format="mp4")

@@ -7,6 +7,7 @@ that tells a player how to turn it back.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -121,3 +122,22 @@ class TestWriterCarriesNoRotation:
         assert (info.width, info.height, info.rotation) == (WIDTH, HEIGHT, 0)
         for frame in iter_frames(out):
             assert_upright(frame)
+
+
+def test_writer_sweeps_temp_files_of_killed_writers_only(tmp_path):
+    import subprocess
+    import sys
+
+    from landmarks.video import VideoWriter
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead_pid = int(gone.stdout)  # that process has exited
+    stale = tmp_path / f".out.lsr{dead_pid}-abc123.tmp.mp4"
+    live = tmp_path / f".out.lsr{os.getppid()}-def456.tmp.mp4"  # a running process: a concurrent writer
+    other = tmp_path / f".other.lsr{dead_pid}-abc123.tmp.mp4"  # another target's file
+    for path in (stale, live, other):
+        path.write_bytes(b"half a video")
+    with VideoWriter(tmp_path / "out.mp4", 10) as writer:
+        writer.write(np.zeros((32, 32, 3), np.uint8))
+    assert not stale.exists() and live.exists() and other.exists()
+    assert (tmp_path / "out.mp4").is_file()
