@@ -6,7 +6,9 @@ Heavy modules are imported only inside the runner of the chosen sub-command, so
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -174,6 +176,14 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     return (LsrError, LandmarksError)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the process is: temp files are removed and checkpoints kept as for Ctrl-C."""
+
+
+def _raise_terminated(signum: int, frame: Any) -> None:
+    raise Terminated()
+
+
 GROUP_HELP = {"bench": "benchmarks; each prints a markdown table with machine info"}
 
 
@@ -194,15 +204,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     cfg = tyro.extras.subcommand_cli_from_dict(choices, args=args, prog=prog, description=description)
     runners = {cls: run for cls, run in table.values()}
     user_errors = _user_errors()
+    previous = None
+    if threading.current_thread() is threading.main_thread():  # SIGTERM cleans up as Ctrl-C does
+        previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         cfg.validate()
         runners[type(cfg)](cfg)
     except user_errors as exc:
         print(f"lsr: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("lsr: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        terminated = isinstance(exc, Terminated)
+        print("lsr: terminated" if terminated else "lsr: interrupted", file=sys.stderr)
+        return 128 + (signal.SIGTERM if terminated else signal.SIGINT)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0
 
 
