@@ -11,8 +11,10 @@ Jobs come from exactly one of
 Outputs keep the driving video's frame count, fps and audio, and carry container metadata marking them as
 synthetic (``deploy.engine.provenance_metadata``); ``--watermark`` adds a visible "SYNTHETIC" mark. Each output
 appears only once complete (temp file + rename), so a rerun skips finished jobs (resume) and redoes the rest.
-Output paths are checked before any model loads: one that cannot be written (a read-only or missing-and-uncreatable
-folder, a parent that is a file) or a ``--side-by-side`` equal to ``--out`` is a one-line error naming the path.
+Output paths and inputs are checked before any model loads: an output that cannot be written (a read-only or
+missing-and-uncreatable folder, a parent that is a file), a ``--side-by-side`` equal to ``--out``, a missing source
+or an unreadable driver is a one-line error naming the path. A driver with no face in any frame is an error; a
+truncated driver video (fewer frames decode than it declares) is a warning with both counts.
 ``--shard i/n`` (or RANK/WORLD_SIZE under torchrun) takes every n-th job of the sorted list. A failing job leaves
 no file, the others still run, and the command exits non-zero naming each failed job.
 """
@@ -33,7 +35,7 @@ import numpy as np
 
 from deploy.engine import STAGES, ReenactorBase, ReenactStats, draw_watermark, provenance_metadata, square_resize
 from deploy.sources import LANDMARK_SUFFIXES, describe_driver
-from landmarks.errors import LandmarksError
+from landmarks.errors import InputFileError, LandmarksError, NoFaceError
 from landmarks.imageio import IMAGE_SUFFIXES
 from lsr import __version__
 from lsr.errors import ConfigError, LsrError
@@ -150,6 +152,13 @@ def check_output_path(path: Path, label: str = "--out") -> None:
         ) from None
     os.close(handle)
     os.unlink(probe)
+
+
+def check_job_inputs(job: Job) -> None:
+    """The job's source exists and its driver can be read (kind, frame count): before any model loads."""
+    if not job.source.exists():
+        raise InputFileError(f"source not found: {job.source}; give an image, a folder of images or a video")
+    describe_driver(job.driving)  # raises a one-line InputFileError naming the file
 
 
 def check_job_outputs(job: Job, side_by_side: Path | None, label: str) -> None:
@@ -275,8 +284,14 @@ def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | Non
         stats = reenactor.last_stats
         if stats.frames != info.frames and info.kind != "video":
             raise LsrError(f"{job.driving}: produced {stats.frames} frames for {info.frames} driver frames")
+        if stats.frames and stats.no_face == stats.frames:  # raised inside the writers: no file is left
+            raise NoFaceError(f"no face found in any of the {stats.frames} frame(s) of the driver {job.driving}; "
+                              "give a driver that shows a face (or its landmarks as .npy/.json)")  # fmt: skip
         started = time.perf_counter()
     stats.add("encode", encode_seconds + time.perf_counter() - started)  # includes the final flush and audio mux
+    if info.kind == "video" and stats.frames < info.frames:
+        print(f"lsr reenact: warning: {job.driving}: decoded {stats.frames} of its {info.frames} declared frames "
+              "(truncated file?); the output has the decoded ones")  # fmt: skip
     if stats.no_face:
         print(f"lsr reenact: {job.driving}: {stats.no_face} of {stats.frames} frame(s) had no face and were passed through")
     return stats
@@ -329,6 +344,10 @@ def run_reenact(cfg) -> ReenactStats:
     jobs = shard_jobs(collect_jobs(cfg), index, count)
     pending = [job for job in jobs if cfg.overwrite or not job.output.exists()]
     skipped = len(jobs) - len(pending)
+    if skipped == 1 and len(jobs) == 1:
+        print(f"lsr reenact: {jobs[0].output} exists, skipped; --overwrite to redo")
+    elif skipped:
+        print(f"lsr reenact: {skipped} of {len(jobs)} output(s) exist (finished earlier), skipped; --overwrite to redo")
     total = ReenactStats()
     failures: list[str] = []
 
@@ -341,11 +360,12 @@ def run_reenact(cfg) -> ReenactStats:
         print(f"lsr reenact: job failed: {failures[-1]}")
 
     runnable = []
-    for job in pending:  # output paths first: before the model loads, and a bad row does not stop the batch
+    for job in pending:  # paths and inputs first: before the model loads, and a bad row does not stop the batch
         try:
             check_job_outputs(job, cfg.side_by_side, "--out" if cfg.out is not None else "output")
+            check_job_inputs(job)
             runnable.append(job)
-        except OutputPathError as exc:
+        except (LsrError, LandmarksError) as exc:
             fail(job, exc)
     started = time.perf_counter()
     if runnable:

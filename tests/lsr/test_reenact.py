@@ -271,6 +271,7 @@ def test_export_then_onnx_runtime_job(weights, inputs, tmp_path):
     bundle = tmp_path / "bundle"
     assert main(["export", "--weights", str(weights), "--out", str(bundle)]) == 0
     assert {p.name for p in bundle.iterdir()} >= {"subject_encoder.onnx", "frame_generator.onnx"}
+    assert all(p.stat().st_mode & 0o044 == 0o044 for p in bundle.iterdir())  # readable by others (mkstemp gives 0600)
     out = tmp_path / "onnx.mp4"
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(bundle), "--runtime", "onnx", "--source", str(inputs / "alice.png"),
                  "--driving", str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])  # fmt: skip
@@ -351,3 +352,117 @@ def test_default_finetune_steps_follow_the_runtime():
     assert ReenactConfig(finetune_steps=0).resolved_finetune_steps == 0
     with pytest.raises(ConfigError, match="--runtime torch"):
         ReenactConfig(source=Path("a.png"), driving=Path("b.mp4"), out=Path("c.mp4"), runtime="onnx", finetune_steps=5).validate()
+
+
+def test_existing_single_output_says_skipped(weights, inputs, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "out.mp4"
+    out.write_bytes(b"an earlier result")
+    _forbid_model_load(monkeypatch)
+    code = main(["reenact", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
+                 str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])  # fmt: skip
+    assert code == 0
+    assert f"{out} exists, skipped; --overwrite to redo" in capsys.readouterr().out
+    assert out.read_bytes() == b"an earlier result"
+
+
+@pytest.mark.parametrize("case", ["missing_source", "corrupt_driver", "missing_driver"])
+def test_bad_inputs_fail_before_the_model_loads(weights, inputs, tmp_path, capsys, monkeypatch, case):
+    _forbid_model_load(monkeypatch)
+    source, driving = inputs / "alice.png", inputs / "drive.mp4"
+    if case == "missing_source":
+        source = tmp_path / "nobody.png"
+    elif case == "corrupt_driver":
+        driving = tmp_path / "cut.mp4"
+        driving.write_bytes(b"\x00garbage" * 100)
+    else:
+        driving = tmp_path / "nothing.mp4"
+    code = main(["reenact", "--weights", str(weights), "--source", str(source), "--driving", str(driving), "--out",
+                 str(tmp_path / "out.mp4"), "--no-progress"])  # fmt: skip
+    error = capsys.readouterr().err
+    assert code == 2 and error.count("\n") == 1 and error.startswith("lsr: error:")
+    assert str(source if case == "missing_source" else driving) in error
+
+
+def test_driver_without_any_face_is_an_error_and_writes_nothing(weights, inputs, tmp_path, capsys):
+    driving = write_clip(tmp_path / "wall.mp4", [np.full((128, 128, 3), 90, np.uint8)] * 3, fps=10, audio=False)
+    out = tmp_path / "out.mp4"
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"),
+                 "--driving", str(driving), "--out", str(out), "--no-progress"])  # fmt: skip
+    error = capsys.readouterr().err
+    assert code == 2 and "no face found in any of the 3 frame(s) of the driver" in error and str(driving) in error
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["wall.mp4"]  # no output, no temp file
+
+
+def test_truncated_driver_video_warns_with_decoded_and_declared_counts(weights, inputs, tmp_path, capsys):
+    import av
+
+    from landmarks.video import iter_frames, probe_video
+
+    whole = tmp_path / "whole.mp4"
+    with av.open(str(whole), mode="w", options={"movflags": "faststart"}) as container:  # index first, as downloads
+        stream = container.add_stream("libx264", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 256, 256, "yuv420p"
+        for shift in range(16):
+            frame = np.roll(face_frame(shift % 4), 6 * shift, axis=1)  # moving: every frame costs bytes
+            for packet in stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")):
+                container.mux(packet)
+        for packet in stream.encode(None):
+            container.mux(packet)
+    cut = tmp_path / "cut.mp4"
+    with av.open(str(whole)) as container:  # a download stopped inside the 9th packet (the key frame is most bytes)
+        stop = [packet.pos for packet in container.demux(container.streams.video[0]) if packet.size][8] + 20
+    cut.write_bytes(whole.read_bytes()[:stop])
+    decoded = sum(1 for _ in iter_frames(cut))
+    assert probe_video(cut).frames == 16 and 0 < decoded < 16  # the fixture is what the test needs
+    out = tmp_path / "out.mp4"
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"),
+                 "--driving", str(cut), "--out", str(out), "--no-progress"])  # fmt: skip
+    assert code == 0
+    assert f"decoded {decoded} of its 16 declared frames (truncated file?)" in capsys.readouterr().out
+    assert probe(out)[0] == decoded
+
+
+def _start_batch(weights, inputs, tmp_path, jobs: int):
+    """A reenact batch in a child process, stopped by the test once its first output exists."""
+    import subprocess
+    import sys
+    import time
+
+    table = tmp_path / "jobs.csv"
+    drive = write_clip(tmp_path / "long.mp4", [face_frame(s % 12) for s in range(40)], fps=20, audio=False)
+    with open(table, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["source", "driving", "output"])
+        for index in range(jobs):
+            writer.writerow([inputs / "alice.png", drive, f"out/{index}.mp4"])
+    args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--jobs", str(table), "--no-progress"]
+    child = subprocess.Popen([sys.executable, "-m", "lsr.cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True, cwd=Path(__file__).parents[2])  # fmt: skip
+    while not (tmp_path / "out" / "0.mp4").exists():
+        if child.poll() is not None:
+            raise AssertionError(f"the batch ended before it was stopped: {child.communicate()}")
+        time.sleep(0.05)
+    return child, args
+
+
+def test_killed_batch_resumes_without_redoing_finished_jobs(weights, inputs, tmp_path, capsys):
+    import signal
+
+    child, args = _start_batch(weights, inputs, tmp_path, jobs=3)
+    child.send_signal(signal.SIGKILL)
+    child.communicate()
+    first = (tmp_path / "out" / "0.mp4").stat().st_mtime_ns
+    assert main(args) == 0
+    assert (tmp_path / "out" / "0.mp4").stat().st_mtime_ns == first  # finished before the kill: not redone
+    assert all(probe(tmp_path / "out" / f"{i}.mp4")[0] == 40 for i in range(3))
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["0.mp4", "1.mp4", "2.mp4"]  # temp files swept
+
+
+def test_sigterm_stops_like_ctrl_c_and_leaves_no_temp_file(weights, inputs, tmp_path):
+    import signal
+
+    child, _ = _start_batch(weights, inputs, tmp_path, jobs=3)
+    child.send_signal(signal.SIGTERM)
+    _, err = child.communicate()
+    assert child.returncode == 128 + signal.SIGTERM and "lsr: terminated" in err, err
+    assert not [p.name for p in (tmp_path / "out").iterdir() if p.name.startswith(".")]
