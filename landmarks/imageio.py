@@ -92,10 +92,10 @@ def read_image(path: str | os.PathLike[str]) -> np.ndarray:
 
 
 def make_readable(path: Path) -> None:
-    """Give a temp file (mkstemp makes it 0600) the permissions a normally created file would get."""
+    """Give a temp file or folder (mkstemp makes 0600, mkdtemp 0700) the mode a plain open()/mkdir() would."""
     umask = os.umask(0)
     os.umask(umask)
-    os.chmod(path, 0o666 & ~umask)
+    os.chmod(path, (0o777 if Path(path).is_dir() else 0o666) & ~umask)
 
 
 @contextlib.contextmanager

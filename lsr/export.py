@@ -10,8 +10,6 @@ example batch, and handles the shape-derived reshapes of K-shot folding without 
 
 from __future__ import annotations
 
-import os
-import tempfile
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -19,6 +17,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from landmarks.imageio import atomic_output
 from models_def import FrameGenerator
 
 
@@ -92,13 +91,11 @@ def export_onnx(
     import onnx
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(handle)
     was_training = module.training
     module.eval()
     try:
-        with torch.no_grad(), warnings.catch_warnings():
+        with atomic_output(path) as temp, torch.no_grad(), warnings.catch_warnings():
+            temp_name = str(temp)
             # Tracer and exporter chatter (shape checks are constant per trace; instance_norm "train=True" is
             # how InstanceNorm with input statistics exports) would bury the caller's output.
             warnings.simplefilter("ignore")
@@ -112,11 +109,7 @@ def export_onnx(
                 opset_version=opset,
                 dynamo=False,
             )
-        onnx.checker.check_model(temp_name)
-        os.replace(temp_name, path)
-    except BaseException:
-        Path(temp_name).unlink(missing_ok=True)
-        raise
+            onnx.checker.check_model(temp_name)
     finally:
         module.train(was_training)
     return path

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from landmarks.imageio import atomic_output, make_readable
 from lsr import __version__
 from lsr.errors import ConfigError, WeightsError
 from lsr.export import SUBJECT_GRAPH_IO, FrameGeneratorGraph, export_onnx, frame_graph_io
@@ -85,14 +86,8 @@ def set_metadata(path: Path, metadata: dict[str, str]) -> None:
     for key, value in metadata.items():
         entry = model.metadata_props.add()
         entry.key, entry.value = key, str(value)
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(handle)
-    try:
-        onnx.save(model, temp)
-        os.replace(temp, path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise
+    with atomic_output(path) as temp:
+        onnx.save(model, str(temp))
 
 
 def export_graphs(model: LSRModel, out: str | os.PathLike, *, shots: int = 2) -> ExportResult:
@@ -147,6 +142,7 @@ def cached_bundle(weights: str | os.PathLike, cache_root: str | os.PathLike | No
     try:
         print(f"exporting {weights} to ONNX once (cached in {folder})")
         export_graphs(load_model(weights), temp)
+        make_readable(temp)  # mkdtemp makes 0700
         try:
             os.replace(temp, folder)
         except OSError:  # another process finished first: keep its bundle
@@ -180,18 +176,12 @@ def quantize_frame_generator(fp32_path: Path, int8_path: Path, calibration: Sequ
 
     if not calibration:
         raise ConfigError("int8 quantisation needs calibration frames (landmark images + latents); none were given")
-    handle, temp = tempfile.mkstemp(dir=int8_path.parent, prefix=f".{int8_path.name}.", suffix=".tmp.onnx")
-    os.close(handle)
-    try:
+    with atomic_output(int8_path) as temp:
         quantize_static(
-            str(fp32_path), temp, _FrameCalibration(calibration), quant_format=QuantFormat.QDQ,
+            str(fp32_path), str(temp), _FrameCalibration(calibration), quant_format=QuantFormat.QDQ,
             activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
             calibrate_method=CalibrationMethod.MinMax,
         )  # fmt: skip
-        os.replace(temp, int8_path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise
     import onnx
 
     metadata = {p.key: p.value for p in onnx.load(str(fp32_path), load_external_data=False).metadata_props}

@@ -31,6 +31,9 @@ def _atomic_write(path: Path, write) -> None:
     os.close(handle)
     try:
         write(temp_name)
+        umask = os.umask(0)  # mkstemp makes 0600: give the file the mode a plain open() would
+        os.umask(umask)
+        os.chmod(temp_name, 0o666 & ~umask)
         os.replace(temp_name, path)
     except BaseException:
         Path(temp_name).unlink(missing_ok=True)

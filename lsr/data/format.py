@@ -47,6 +47,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from landmarks.imageio import atomic_output, make_readable
 from landmarks.parts import NUM_LANDMARKS
 from lsr.data.classes import NUM_SEG_CLASSES
 from lsr.errors import DatasetError
@@ -84,14 +85,8 @@ def _json_default(value: Any) -> Any:
 
 
 def _write_json_atomic(path: Path, data: Any) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            json.dump(data, handle, indent=1, default=_json_default)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_output(path) as temp, open(temp, "w") as handle:
+        json.dump(data, handle, indent=1, default=_json_default)
 
 
 def _check_frame(index: int, frame: np.ndarray, size: int | None) -> int:
@@ -174,6 +169,7 @@ def write_clip(
         if len(full_meta["crop_transforms"]) != num_frames:
             raise DatasetError(f"{clip_dir}: meta crop_transforms needs {num_frames} entries (2x3 lists or None)")
         _write_json_atomic(tmp / META_NAME, full_meta)
+        make_readable(tmp)  # mkdtemp makes 0700
         if clip_dir.exists():
             shutil.rmtree(clip_dir)
         os.replace(tmp, clip_dir)

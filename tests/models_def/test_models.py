@@ -262,3 +262,17 @@ class TestMinibatchStddev:
         with pytest.raises(ValueError, match="landmark_image"):
             conditioned(torch.randn(2, 3, 64, 64))
         assert conditioned(torch.randn(2, 3, 64, 64), torch.randn(2, 3, 64, 64)).shape == (2,)
+
+
+def test_saved_files_get_the_mode_of_a_plain_open(tmp_path):
+    """Atomic writes go through mkstemp (0600); the files must still be readable by others, as open() makes them."""
+    import os
+    import stat
+
+    previous = os.umask(0o022)
+    try:
+        folder = LSRModel(preset_config("tiny")).save_pretrained(tmp_path / "model")
+    finally:
+        os.umask(previous)
+    modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in folder.iterdir()}
+    assert modes == {"config.json": 0o644, "model.safetensors": 0o644}
