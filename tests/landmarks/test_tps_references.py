@@ -115,3 +115,38 @@ def test_bad_references_requests_raise():
         tps.warp_references(_flat_shots([10])[0], target[None], target, 1)  # (S, S, 3), not (K, S, S, 3)
     with pytest.raises(ValueError):
         tps.warp_references(_flat_shots([10]), target[None], target, 0)
+
+
+@pytest.mark.parametrize("step", [1, 4])
+def test_shared_maps_equal_one_map_per_set_including_the_fallbacks(step):
+    """tps_maps (one system for every set warped onto the same target) gives tps_map's maps and methods, also for
+    a set with a missing point and a set that folds (both go through tps_map alone)."""
+    rng = np.random.default_rng(7)
+    size = 96
+    target = _face(8.0, -4.0, size=size)
+    sets = [_deformed(_face(size=size), rng, 2.0, size) for _ in range(3)]
+    missing = sets[0].copy()
+    missing[40] = np.nan
+    folded = target.copy()
+    folded[[36, 45]] = folded[[45, 36]]  # the eye corners swapped: the map must fold
+    sets += [missing, folded]
+    shared = tps.tps_maps(sets, target, size, size, grid_step=step)
+    for points, got in zip(sets, shared, strict=True):
+        expected = tps.tps_map(points, target, size, size, grid_step=step)
+        assert got.method == expected.method
+        np.testing.assert_allclose(got.map_x, expected.map_x, atol=2e-3)
+        np.testing.assert_allclose(got.map_y, expected.map_y, atol=2e-3)
+    assert shared[-1].method != "tps"  # the folding set really went through the fallbacks
+
+
+def test_dense_evaluation_agrees_with_float64_to_a_hundredth_of_a_pixel():
+    rng = np.random.default_rng(3)
+    size = 256
+    for _ in range(5):
+        target = _deformed(_face(rng.uniform(-20, 20), rng.uniform(-10, 10), size=size), rng, 3.0, size)
+        source = _deformed(_face(size=size), rng, 3.0, size)
+        control = np.concatenate([target, tps.border_points(size, size)])
+        values = np.concatenate([source, tps.border_points(size, size)])
+        spline = tps.fit_tps(control, values)
+        points = tps._Grid(size, size, 4).points
+        assert np.abs(spline.dense(points) - spline(points)).max() < 0.01
