@@ -13,6 +13,7 @@ import copy
 import dataclasses
 import logging
 import os
+import re
 import shutil
 import tempfile
 import threading
@@ -186,13 +187,22 @@ def readable_errors(what: str) -> Iterator[None]:
     except gr.Error:
         raise
     except NoFaceError as exc:
-        raise gr.Error(str(exc), title="No face found", print_exception=False) from exc
+        raise gr.Error(user_facing(str(exc)), title="No face found", print_exception=False) from exc
     except (LsrError, LandmarksError) as exc:
-        raise gr.Error(str(exc), title=f"Cannot {what}", print_exception=False) from exc
+        raise gr.Error(user_facing(str(exc)), title=f"Cannot {what}", print_exception=False) from exc
     except Exception as exc:  # a bug, not user input: keep the page usable, log the traceback
         LOG.exception("unexpected error while trying to %s", what)
-        raise gr.Error(f"{type(exc).__name__}: {exc} (an internal error; the server log has the details)",
-                       title=f"Cannot {what}") from exc  # fmt: skip
+        raise gr.Error(f"{type(exc).__name__}: {user_facing(str(exc))} (an internal error; the server log has the "
+                       "details)", title=f"Cannot {what}") from exc  # fmt: skip
+
+
+_SERVER_PATH = re.compile(r"(?:/[^\s/:;,'\"()]+)+/([^\s/:;,'\"()]+)")
+
+
+def user_facing(message: str) -> str:
+    """A message for the page: server paths (upload temp folders, the cache) shortened to the file's own name,
+    which is the name the user uploaded."""
+    return _SERVER_PATH.sub(r"\1", message)
 
 
 # ---- inputs ----------------------------------------------------------------------------------------------
@@ -271,16 +281,23 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
     if len(paths) > 32:
         raise InputFileError(f"{len(paths)} images uploaded; give at most 32 shots (K <= 32)")
     frames, points, names, notes = [], [], [], []
-    for path in paths:  # one image = one candidate shot; a face-less one is skipped, not fatal
+    unreadable = []
+    for path in paths:  # one image = one candidate shot; a face-less or unreadable one is skipped, not fatal
         try:
             one = load_subject_shots(path, size, detector=detector)
         except NoFaceError:
             notes.append(f"no face in {path.name}: skipped")
             continue
+        except InputFileError as exc:
+            unreadable.append(exc)
+            notes.append(f"cannot read {path.name} as an image: skipped")
+            continue
         frames.append(one.frames[0])
         points.append(one.landmarks[0])
         names.append(path.name)
     if not frames:
+        if len(unreadable) == len(paths):
+            raise unreadable[0]
         raise NoFaceError(f"no face found in the {len(paths)} uploaded image(s); upload frontal, well-lit photos of one person")
     shots = _take(SubjectShots(np.stack(frames), np.stack(points), names), int(k))
     notes.insert(0, f"using {len(shots.frames)} of {len(frames)} shot(s) with a face (K={k})")

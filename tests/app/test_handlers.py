@@ -127,3 +127,18 @@ def test_model_summary_names_the_model_and_says_what_a_warp_guided_one_does(tmp_
     assert "`my_model`" in line and str(tmp_path) not in line  # the folder's name, not a machine path
     assert "warp_guided" in line and "128x128" in line
     assert "the shipped default model" in model_summary(DEFAULT_WEIGHTS, False)
+
+
+def test_errors_name_the_uploaded_file_not_the_server_temp_path(app_inputs, tmp_path):
+    import gradio as gr
+
+    from landmarks.detect import FaceDetector
+
+    upload = tmp_path / "gradio" / "4f1c9e" / "holiday photo.png"  # where gradio keeps an upload
+    upload.parent.mkdir(parents=True)
+    upload.write_bytes(b"\x89PNG broken")
+    with pytest.raises(gr.Error) as caught, handlers.readable_errors("load the source"):
+        handlers.load_shots([upload], 4, 64, FaceDetector(), handlers.Limits())
+    assert "holiday photo.png" in caught.value.message and str(tmp_path) not in caught.value.message
+    shots, notes = handlers.load_shots([app_inputs["source"], upload], 4, 64, FaceDetector(), handlers.Limits())
+    assert len(shots.frames) == 1 and "cannot read holiday photo.png as an image: skipped" in notes
