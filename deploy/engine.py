@@ -231,14 +231,15 @@ class ReenactorBase:
         return self._detector
 
     # ---- subject ---------------------------------------------------------------------------------------
-    def encode_subject(self, source: SourceInput | SubjectShots, k: int | None = None) -> Subject:
+    def encode_subject(self, source: SourceInput | SubjectShots, k: int | None = None, face_index: int = 0) -> Subject:
         """Load the K shots of ``source`` (images, a folder, a video or arrays; see ``deploy.sources``), encode and cache.
 
-        k: shots to average (1..32); None = min(8, usable shots). Returns the cached ``Subject``.
+        k: shots to average (1..32); None = min(8, usable shots). face_index: which face of a frame with several
+        (0 = the largest). Returns the cached ``Subject`` (``subject.shots.notes``: what the loader skipped or chose).
         """
         started = time.perf_counter()
         shots = source if isinstance(source, SubjectShots) else load_subject_shots(
-            source, self.crop_size, k=k, detector=self.detector
+            source, self.crop_size, k=k, detector=self.detector, face_index=face_index
         )
         self.subject = self._encode(shots, _source_key(source))
         self.last_stats = ReenactStats()

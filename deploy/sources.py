@@ -57,6 +57,8 @@ class SubjectShots:
     frames: np.ndarray
     landmarks: np.ndarray
     names: list[str] = dataclasses.field(default_factory=list)
+    notes: list[str] = dataclasses.field(default_factory=list)
+    """What the loader decided for the user (unreadable images skipped, which of several faces was used)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,8 +104,9 @@ def list_images(folder: Path) -> list[Path]:
     return images
 
 
-def _source_candidates(source: SourceInput, k: int | None) -> Iterator[tuple[str, np.ndarray]]:
-    """(name, (H, W, 3) uint8 RGB) candidate frames of a source, streaming."""
+def _source_candidates(source: SourceInput, k: int | None) -> Iterator[tuple[str, np.ndarray | InputFileError]]:
+    """(name, (H, W, 3) uint8 RGB) candidate frames of a source, streaming; an image of a folder that cannot be
+    read comes as (name, its InputFileError), so one corrupt file does not sink the others."""
     items = [source] if isinstance(source, (str, os.PathLike, np.ndarray)) else list(source)
     if not items:
         raise InputFileError("no source given: pass image files, a folder of images or a video")
@@ -118,7 +121,12 @@ def _source_candidates(source: SourceInput, k: int | None) -> Iterator[tuple[str
             raise InputFileError(f"source not found: {path}")
         if path.is_dir():
             for image_path in list_images(path):
-                yield str(image_path), read_image(image_path)
+                try:
+                    image = read_image(image_path)
+                except InputFileError as exc:
+                    yield str(image_path), exc
+                    continue
+                yield str(image_path), image
         elif is_video(path):
             from landmarks.video import iter_frames, probe_video
 
@@ -135,33 +143,61 @@ def _source_candidates(source: SourceInput, k: int | None) -> Iterator[tuple[str
             )
 
 
-def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, detector=None) -> SubjectShots:
+def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, detector=None,
+                       face_index: int = 0) -> SubjectShots:  # fmt: skip
     """Detect, crop and pick the K shots of a subject (see the module docstring for the rules).
 
     size: crop side S (the model resolution). detector: a ``landmarks.detect.FaceDetector`` (default HOG).
+    face_index: which face of a frame with several (0 = the largest). Unreadable images of a folder are skipped
+    while another image is usable; what was skipped or chosen is in ``SubjectShots.notes``.
     Raises ``NoFaceError`` when no candidate has a face, ``InputFileError`` for unreadable input or K too large.
     """
     from landmarks.align import crop, transform_landmarks
     from landmarks.detect import FaceDetector
 
     _check_k(k)
+    if face_index < 0:
+        raise InputFileError(f"face index must be >= 0, got {face_index}")
     detector = detector if detector is not None else FaceDetector()
-    frames, points, names, tried = [], [], [], []
+    frames, points, names, tried, unreadable, crowded, too_few, min_faces = [], [], [], [], [], 0, 0, []
     for name, image in _source_candidates(source, k):
         tried.append(name)
+        if isinstance(image, InputFileError):
+            unreadable.append(image)
+            continue
         faces = detector.detect(np.ascontiguousarray(image))
         if not faces:
+            min_faces.append(detector.min_face_size(image.shape))
             continue
-        cropped, matrix = crop(image, faces[0].landmarks, size)
+        crowded += len(faces) > 1
+        if face_index >= len(faces):
+            too_few += 1
+            continue
+        face = faces[face_index]
+        cropped, matrix = crop(image, face.landmarks, size)
         frames.append(cropped)
-        points.append(transform_landmarks(faces[0].landmarks, matrix).astype(np.float32))
+        points.append(transform_landmarks(face.landmarks, matrix).astype(np.float32))
         names.append(name)
     files = sorted({name.split("#")[0] for name in tried})
     where = files[0] if len(files) == 1 else f"{len(files)} source files"
     if not frames:
+        if unreadable and len(unreadable) == len(tried):
+            raise unreadable[0]
+        if too_few:
+            raise NoFaceError(f"face index {face_index} asked for, but no source frame of {where} shows more than "
+                              f"{face_index} face(s); lower --face-index (0 = the largest face)")  # fmt: skip
+        smallest = min(min_faces, default=0)
         raise NoFaceError(
-            f"no face found in the source ({where}, {len(tried)} frame(s) tried); use frontal, well-lit shots of one person"
+            f"no face found in the source ({where}, {len(tried)} frame(s) tried); use frontal, well-lit shots of one "
+            f"person, with the face at least about {smallest} px wide (detection works on a copy at most "
+            f"{detector.max_side} px on its longer side): crop a large photo closer to the face"
         )
+    notes = [f"skipped {exc}" for exc in unreadable]
+    if crowded:
+        which = "the largest" if face_index == 0 else f"face {face_index} by size (0 = the largest)"
+        notes.append(f"{crowded} source frame(s) show more than one face: used {which}; --face-index picks another")
+    if too_few:
+        notes.append(f"{too_few} source frame(s) had fewer than {face_index + 1} faces and were not used")
     if k is not None and k > len(frames):
         raise InputFileError(
             f"K={k} is larger than the usable source frames: only {len(frames)} of {len(tried)} tried frame(s) of "
@@ -169,7 +205,7 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
         )
     chosen = _spread(len(frames), k or DEFAULT_K)
     return SubjectShots(
-        np.stack([frames[i] for i in chosen]), np.stack([points[i] for i in chosen]), [names[i] for i in chosen]
+        np.stack([frames[i] for i in chosen]), np.stack([points[i] for i in chosen]), [names[i] for i in chosen], notes
     )
 
 

@@ -12,6 +12,7 @@ Outputs in ``out`` (all written atomically):
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +21,7 @@ from tqdm import tqdm
 
 from landmarks.detect import DetectorKind, FaceDetector
 from landmarks.errors import InputFileError, NoFaceError
-from landmarks.imageio import IMAGE_SUFFIXES, read_image, write_image, write_json, write_npy
+from landmarks.imageio import IMAGE_SUFFIXES, check_output_path, read_image, write_image, write_json, write_npy
 from landmarks.parts import NUM_LANDMARKS
 from landmarks.pose import estimate_head_pose
 from landmarks.raster import draw_landmarks
@@ -182,18 +183,32 @@ def annotate_path(
 ) -> dict[str, Any]:
     """Landmarks of an image, a folder of images or a video into ``out``; returns the summary dict.
 
-    Raises InputFileError (missing/corrupt input), NoFaceError (no face at all).
+    Raises InputFileError (missing/corrupt input), OutputPathError (``out`` cannot be written; checked first),
+    NoFaceError (no face at all). A failed run leaves no folder or overlay it created.
     """
     input_path, out = Path(input), Path(out)
     kind = input_kind(input_path)
+    check_output_path(out, "--out", folder=True)
     face_detector = FaceDetector(kind=detector)
+    created = out  # the topmost folder this call creates: removed again if the work fails
+    while not created.parent.exists():
+        created = created.parent
+    created = None if created.exists() else created
     out.mkdir(parents=True, exist_ok=True)
-    if kind == "image":
-        details = _annotate_image(input_path, out, face_detector, face_index, overlay)
-    elif kind == "folder":
-        details = _annotate_folder(input_path, out, face_detector, face_index, overlay)
-    else:
-        details = _annotate_video(input_path, out, face_detector, face_index, smooth, min_cutoff, beta, overlay)
+    overlays_existed = (out / "overlays").exists()
+    try:
+        if kind == "image":
+            details = _annotate_image(input_path, out, face_detector, face_index, overlay)
+        elif kind == "folder":
+            details = _annotate_folder(input_path, out, face_detector, face_index, overlay)
+        else:
+            details = _annotate_video(input_path, out, face_detector, face_index, smooth, min_cutoff, beta, overlay)
+    except BaseException:  # leave nothing of a failed run: no empty folders, no half a set of overlays
+        if created is not None:
+            shutil.rmtree(created, ignore_errors=True)
+        elif not overlays_existed:
+            shutil.rmtree(out / "overlays", ignore_errors=True)
+        raise
     summary = {
         "input": str(input_path.resolve()),
         "kind": kind,

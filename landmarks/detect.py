@@ -105,6 +105,18 @@ class FaceDetector:
         # mmod confidences are already thresholded at 0.
         self.min_score = (0.2 if kind == "hog" else 0.0) if min_score is None else min_score
 
+    def min_face_size(self, shape: tuple[int, ...]) -> int:
+        """About the smallest face width (pixels of an image of ``shape``) this detector finds: dlib's 80-px
+        window, halved per pyramid upsampling, in the copy scaled to ``max_side``."""
+        longer = max(shape[:2])
+        scale = min(1.0, self.max_side / longer)
+        upsample = self.upsample
+        if upsample is None:
+            upsample = auto_upsample(round(longer * scale))
+            if self.kind == "cnn":
+                upsample = max(0, upsample - 1)
+        return int(np.ceil(80 / 2**upsample / scale))
+
     def detect_boxes(
         self, image: np.ndarray, upsample: int | None = None, min_score: float | None = None
     ) -> list[tuple[np.ndarray, float]]:

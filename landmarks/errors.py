@@ -9,6 +9,10 @@ class InputFileError(LandmarksError):
     """A file is missing, unreadable, corrupt, empty or of an unsupported kind."""
 
 
+class OutputPathError(LandmarksError):
+    """An output cannot be written where asked (checked before the work starts)."""
+
+
 class NoFaceError(LandmarksError):
     """No face was found where one is needed."""
 

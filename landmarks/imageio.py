@@ -22,7 +22,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from landmarks.errors import InputFileError
+from landmarks.errors import InputFileError, OutputPathError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
 
@@ -89,6 +89,36 @@ def read_image(path: str | os.PathLike[str]) -> np.ndarray:
     if oriented is None:
         raise InputFileError(f"cannot decode {path} as a colour image; use a PNG or JPEG")
     return to_rgb_uint8(cv2.cvtColor(oriented, cv2.COLOR_BGR2RGB))
+
+
+def check_output_path(path: str | os.PathLike[str], label: str = "--out", *, folder: bool = False) -> None:
+    """Raise ``OutputPathError`` unless an output file (``folder``: an output folder) can be created at ``path``.
+
+    Runs before the work, so a typo costs no waiting. Writers create missing folders, so the test is a real temp
+    file in the nearest existing folder (permission bits alone do not tell: root, /proc, read-only mounts);
+    nothing is left behind. ``label`` names the option in the one-line message.
+    """
+    path = Path(path)
+    if folder and path.exists() and not path.is_dir():
+        raise OutputPathError(f"{label} {path} is a file, not a folder; give a folder path")
+    if not folder and path.is_dir():
+        raise OutputPathError(f"{label} {path} is a folder; give a file path")
+    existing = path if folder else path.parent
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise OutputPathError(
+            f"{label} {path} cannot be written: {existing} is a file, not a folder; choose another folder or move that file"
+        )
+    try:
+        handle, probe = tempfile.mkstemp(dir=existing, prefix=".lsr-write-check.")
+    except OSError as exc:
+        raise OutputPathError(
+            f"{label} {path} cannot be written: cannot create files in {existing} ({exc.strerror}); "
+            "choose a writable folder or fix its permissions"
+        ) from None
+    os.close(handle)
+    os.unlink(probe)
 
 
 def make_readable(path: Path) -> None:

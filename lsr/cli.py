@@ -213,6 +213,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except user_errors as exc:
         print(f"lsr: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # the file system refused (disk full, permissions changed mid-run): one line, not a traceback
+        print(f"lsr: error: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt as exc:
         terminated = isinstance(exc, Terminated)
         print("lsr: terminated" if terminated else "lsr: interrupted", file=sys.stderr)

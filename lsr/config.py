@@ -347,8 +347,8 @@ class FinetuneConfig:
     """Model folder (config.json + model.safetensors); default: $LSR_WEIGHTS, else the shipped default model (MODEL_CARD.md)."""
     out: Path = Path("out/subject")
     """Output folder: subject model (safetensors + config.json) and latents.safetensors."""
-    k: int = 8
-    """Number of shots to use (sampled evenly from a folder or video)."""
+    k: int | None = None
+    """Number of shots to use (sampled evenly from a folder or video); default min(8, shots with a face)."""
     steps: int = 50
     """Fine-tuning steps (small preset at 128^2, batch 4: ~4.5 s/step on one loaded CPU core)."""
     lr: float = 1e-3
@@ -371,7 +371,7 @@ class FinetuneConfig:
         for path in self.shots:
             if not Path(path).exists():
                 raise ConfigError(f"shot input not found: {path}")
-        if self.k < 1 or self.steps < 0 or not self.lr > 0 or self.batch_size < 1:
+        if (self.k is not None and self.k < 1) or self.steps < 0 or not self.lr > 0 or self.batch_size < 1:
             raise ConfigError("--k >= 1, --steps >= 0, --lr > 0 and --batch-size >= 1 are required")
 
 
@@ -400,6 +400,8 @@ class ReenactConfig:
     """Batch dirs: every source x driving (<source>__<driving>.mp4), or same-stem pairs (<stem>.mp4)."""
     k: int | None = None
     """Shots of the source to average (1..32); default min(8, frames with a face). Larger than usable is an error."""
+    face_index: int = 0
+    """Which face of a source frame showing several people (0 = the largest; the output says when there were several)."""
     relative: bool = False
     """Force relative motion (driver's motion on the source's face shape). Default: relative unless source == driver."""
     absolute: bool = False
@@ -449,6 +451,8 @@ class ReenactConfig:
     def validate(self) -> None:
         if self.threads < 0:
             raise ConfigError(f"--threads must be >= 0, got {self.threads}")
+        if self.face_index < 0:
+            raise ConfigError(f"--face-index must be >= 0 (0 = the largest face), got {self.face_index}")
         if self.weights is not None and not Path(self.weights).is_dir():
             raise ConfigError(f"--weights {self.weights} is not a folder (config.json + model.safetensors)")
         single = [self.source, self.driving, self.out]

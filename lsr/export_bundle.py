@@ -230,8 +230,10 @@ def default_calibration_clip() -> Path | None:
 
 def run_export(cfg) -> ExportResult:
     """Entry point of ``lsr export`` (``lsr.config.ExportConfig``)."""
+    from landmarks.imageio import check_output_path
     from lsr.weights import resolve_weights
 
+    check_output_path(cfg.out, "--out", folder=True)  # before the model loads and traces
     model = load_model(resolve_weights(cfg.weights))
     result = export_graphs(model, cfg.out)
     print(f"wrote {', '.join(p.name for p in result.files)} to {result.folder} "

@@ -26,7 +26,6 @@ import copy
 import csv
 import dataclasses
 import os
-import tempfile
 import time
 from pathlib import Path
 
@@ -35,8 +34,8 @@ import numpy as np
 
 from deploy.engine import STAGES, ReenactorBase, ReenactStats, draw_watermark, provenance_metadata, square_resize
 from deploy.sources import LANDMARK_SUFFIXES, describe_driver
-from landmarks.errors import InputFileError, LandmarksError, NoFaceError
-from landmarks.imageio import IMAGE_SUFFIXES
+from landmarks.errors import InputFileError, LandmarksError, NoFaceError, OutputPathError
+from landmarks.imageio import IMAGE_SUFFIXES, check_output_path as check_writable
 from lsr import __version__
 from lsr.errors import ConfigError, LsrError
 from lsr.weights import is_model_folder, resolve_weights
@@ -44,10 +43,6 @@ from lsr.weights import is_model_folder, resolve_weights
 
 class ReenactJobsError(LsrError):
     """Some jobs of a batch failed (each is named with its problem); the finished outputs are kept."""
-
-
-class OutputPathError(LsrError):
-    """An output video cannot be written where asked (found before any model loads)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,31 +122,10 @@ def collect_jobs(cfg) -> list[Job]:
 
 
 def check_output_path(path: Path, label: str = "--out") -> None:
-    """Raise ``OutputPathError`` unless a video can be written at ``path`` (``label`` names it in the message).
-
-    Runs before any model loads, so a typo costs no waiting. The writer creates missing folders, so the test
-    is a real temp file in the nearest existing folder (permission bits alone do not tell: root, /proc,
-    read-only mounts); nothing is left behind.
-    """
+    """Raise ``OutputPathError`` unless a video can be written at ``path`` (``landmarks.imageio.check_output_path``)."""
     if path.is_dir():
         raise OutputPathError(f"{label} {path} is a folder; give a file path ending in .mp4")
-    folder = path.parent
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
-    if not folder.is_dir():
-        raise OutputPathError(
-            f"{label} {path} cannot be written: {folder} is a file, not a folder; "
-            "choose another folder or move that file"
-        )
-    try:
-        handle, probe = tempfile.mkstemp(dir=folder, prefix=".lsr-write-check.")
-    except OSError as exc:
-        raise OutputPathError(
-            f"{label} {path} cannot be written: cannot create files in {folder} ({exc.strerror}); "
-            "choose a writable folder or fix its permissions"
-        ) from None
-    os.close(handle)
-    os.unlink(probe)
+    check_writable(path, label)
 
 
 def check_job_inputs(job: Job) -> None:
@@ -309,7 +283,9 @@ def _subject_for(reenactor: ReenactorBase, source: Path, cfg, cache: dict):
     steps = cfg.resolved_finetune_steps
     if steps > 0:
         reenactor.backend.model = copy.deepcopy(cache.setdefault("base_model", reenactor.backend.model))
-    subject = reenactor.encode_subject(source, k=cfg.k)
+    subject = reenactor.encode_subject(source, k=cfg.k, face_index=cfg.face_index)
+    for note in subject.shots.notes:
+        print(f"lsr reenact: {source}: {note}")
     encoded = time.perf_counter()
     if steps > 0:
         result = reenactor.finetune(steps, lr=cfg.finetune_lr, progress=cfg.progress)

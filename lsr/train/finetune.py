@@ -220,13 +220,15 @@ def run_finetune(cfg) -> FinetuneResult:
     from landmarks.detect import FaceDetector
 
     shots = load_subject_shots(cfg.shots, model.config.resolution, k=cfg.k, detector=FaceDetector(cfg.detector))
+    for note in shots.notes:
+        print(f"lsr finetune: {note}")
     result = finetune_subject(
         model, discriminator, shots, steps=cfg.steps, lr=cfg.lr, batch_size=cfg.batch_size,
         weights=cfg.losses, device=device, seed=cfg.seed, progress=cfg.progress,
     )  # fmt: skip
     save_subject(result, cfg.out, {"shots": len(shots.frames), "steps": cfg.steps, "weights": str(weights)})
     print(
-        f"fine-tuned on {len(shots.frames)} shots in {result.seconds:.1f} s ({cfg.steps} steps, "
+        f"fine-tuned on {len(shots.frames)} shot(s) in {result.seconds:.1f} s ({cfg.steps} steps, "
         f"{result.skipped_steps} skipped): shot L1 {result.l1_before:.4f} -> {result.l1_after:.4f}; wrote {cfg.out}"
     )
     return result

@@ -74,10 +74,28 @@ def test_folder_marks_missing_images_without_failing(tmp_path, astronaut, rng):
     assert sorted(p.name for p in (tmp_path / "out" / "overlays").iterdir()) == ["a_noise.png", "b_face.png"]
 
 
-def test_folder_without_any_face_fails(tmp_path, rng):
+def test_folder_without_any_face_fails_and_leaves_no_folder(tmp_path, rng):
     write_image(tmp_path / "in" / "noise.png", rng.integers(0, 256, (64, 64, 3), dtype=np.uint8))
     with pytest.raises(NoFaceError, match="no face found in any of the 1 images"):
-        annotate_path(tmp_path / "in", tmp_path / "out")
+        annotate_path(tmp_path / "in", tmp_path / "out" / "deep")
+    assert not (tmp_path / "out").exists()  # neither the folders it made nor the overlays
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(NoFaceError):
+        annotate_path(tmp_path / "in", tmp_path / "kept")
+    assert (tmp_path / "kept").is_dir() and not any((tmp_path / "kept").iterdir())  # the user's folder stays, empty
+
+
+@pytest.mark.parametrize("case", ["proc", "parent_is_file"])
+def test_unwritable_out_is_one_line_before_any_work(tmp_path, astronaut, capsys, monkeypatch, case):
+    import landmarks.annotate as annotate_module
+
+    monkeypatch.setattr(annotate_module, "FaceDetector", None)  # any detection would fail loudly
+    write_image(tmp_path / "face.png", astronaut)
+    (tmp_path / "blocker").write_text("a file")
+    out = "/proc/x" if case == "proc" else str(tmp_path / "blocker" / "out")
+    assert main(["landmarks", str(tmp_path / "face.png"), "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("lsr: error: --out") and err.count("\n") == 1 and "cannot be written" in err
 
 
 @pytest.mark.parametrize(

@@ -466,3 +466,83 @@ def test_sigterm_stops_like_ctrl_c_and_leaves_no_temp_file(weights, inputs, tmp_
     _, err = child.communicate()
     assert child.returncode == 128 + signal.SIGTERM and "lsr: terminated" in err, err
     assert not [p.name for p in (tmp_path / "out").iterdir() if p.name.startswith(".")]
+
+
+def test_one_corrupt_image_in_a_source_folder_is_skipped_with_a_note(weights, inputs, tmp_path, capsys):
+    from landmarks.imageio import write_image
+
+    folder = tmp_path / "shots"
+    folder.mkdir()
+    write_image(folder / "a.png", face_frame(0))
+    write_image(folder / "b.png", face_frame(6))
+    (folder / "c.jpg").write_bytes(b"\xff\xd8 not really a jpeg")
+    out = tmp_path / "out.mp4"
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(folder), "--driving",
+                 str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    printed = capsys.readouterr().out
+    assert "skipped cannot decode" in printed and str(folder / "c.jpg") in printed
+    assert probe(out)[0] == 5
+
+
+def _two_faces() -> np.ndarray:
+    """The astronaut's face twice, side by side: at full size and at 3/4 size (so 'largest' is well defined)."""
+    import cv2
+
+    small = cv2.resize(face_frame(0), (192, 192), interpolation=cv2.INTER_AREA)
+    canvas = np.full((256, 512, 3), 200, np.uint8)
+    canvas[:, :256], canvas[32:224, 288:480] = face_frame(0), small
+    return canvas
+
+
+def test_a_source_with_two_faces_uses_the_largest_and_face_index_picks(weights, inputs, tmp_path, capsys):
+    from landmarks.imageio import write_image
+
+    source = tmp_path / "pair.png"
+    write_image(source, _two_faces())
+    args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(source), "--driving",
+            str(inputs / "drive.mp4"), "--no-progress"]  # fmt: skip
+    assert main([*args, "--out", str(tmp_path / "a.mp4")]) == 0
+    assert "1 source frame(s) show more than one face: used the largest; --face-index picks another" in capsys.readouterr().out
+    assert main([*args, "--out", str(tmp_path / "b.mp4"), "--face-index", "1"]) == 0
+    assert "used face 1 by size" in capsys.readouterr().out
+    assert main([*args, "--out", str(tmp_path / "c.mp4"), "--face-index", "2"]) == 2
+    error = capsys.readouterr().err
+    assert "face index 2 asked for" in error and "lower --face-index" in error
+    from landmarks.detect import FaceDetector
+
+    faces = FaceDetector().detect(_two_faces())
+    assert len(faces) == 2 and faces[0].box[0] < 256 <= faces[1].box[0]  # index 0 is the larger, left face
+
+
+def test_a_face_too_small_to_detect_says_the_size_needed(weights, inputs, tmp_path, capsys):
+    import cv2
+
+    from landmarks.imageio import write_image
+
+    photo = np.full((2400, 2400, 3), 180, np.uint8)
+    photo[1000:1080, 1000:1080] = cv2.resize(face_frame(0), (80, 80), interpolation=cv2.INTER_AREA)
+    source = tmp_path / "far.png"
+    write_image(source, photo)
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(source), "--driving",
+                 str(inputs / "drive.mp4"), "--out", str(tmp_path / "out.mp4"), "--no-progress"])  # fmt: skip
+    error = capsys.readouterr().err
+    assert code == 2 and "at least about 150 px wide" in error and "crop a large photo closer to the face" in error
+
+
+def test_finetune_on_a_single_photo_with_the_default_k(weights, inputs, tmp_path, capsys):
+    code = main(["finetune", str(inputs / "alice.png"), "--weights", str(weights), "--steps", "1", "--out",
+                 str(tmp_path / "subject"), "--no-progress"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    assert "fine-tuned on 1 shot(s)" in capsys.readouterr().out
+
+
+def test_export_to_an_unwritable_folder_is_one_line_before_the_model_loads(weights, tmp_path, capsys, monkeypatch):
+    import lsr.export_bundle as export_module
+
+    monkeypatch.setattr(export_module, "load_model", None)  # loading would fail loudly
+    (tmp_path / "blocker").write_text("a file")
+    for out in (tmp_path / "blocker", tmp_path / "blocker" / "bundle"):
+        assert main(["export", "--weights", str(weights), "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("lsr: error: --out") and err.count("\n") == 1 and str(tmp_path / "blocker") in err
