@@ -307,7 +307,8 @@ class ReenactorBase:
         smooth: One-Euro smoothing of the driver landmarks (and so of the crop framing).
         paste_back: put the synthesised head back into the driver frame (feathered ellipse blend); otherwise the
             output is the (S, S) synthesis. Raw landmark drivers have no frame and always give the synthesis.
-        Face-less driver frames pass through (the frame, or its centre square resized) and are counted.
+        Face-less driver frames pass through (the frame, or its centre square resized) and are counted; a driver
+        without a face in any frame raises ``NoFaceError`` after its last frame.
         """
         if mode not in ("auto", "relative", "absolute"):
             raise InputFileError(f"mode must be 'auto', 'relative' or 'absolute', got {mode!r}")
@@ -411,6 +412,9 @@ class ReenactorBase:
             stats.frames += 1
             yield ReenactedFrame(index, output, True, frame, landmark_image, synthesis, layout, crop_landmarks)
             index += 1
+        if stats.frames and stats.no_face == stats.frames:  # a writer that is still open discards its file
+            raise NoFaceError(f"no face found in any of the {stats.frames} frame(s) of the driver {info.path}; "
+                              "give a driver that shows a face (or its landmarks as .npy/.json)")  # fmt: skip
 
     def _require_subject(self) -> Subject:
         if self.subject is None:

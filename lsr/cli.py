@@ -144,6 +144,12 @@ def _run_bench_finetune(cfg: config.BenchFinetuneConfig) -> None:
     run_bench_finetune(cfg)
 
 
+def _run_bench_hard(cfg: config.BenchHardConfig) -> None:
+    from lsr.eval.bench_hard import run_bench_hard
+
+    run_bench_hard(cfg)
+
+
 # name -> (config dataclass, runner). Groups (like "bench") nest one level.
 COMMANDS: dict[str, tuple[type, Callable[[Any], None]]] = {
     "landmarks": (config.LandmarksConfig, _run_landmarks),
@@ -165,6 +171,7 @@ GROUPS: dict[str, dict[str, tuple[type, Callable[[Any], None]]]] = {
         "models": (config.BenchModelsConfig, _run_bench_models),
         "speed": (config.BenchSpeedConfig, _run_bench_speed),
         "finetune": (config.BenchFinetuneConfig, _run_bench_finetune),
+        "hard": (config.BenchHardConfig, _run_bench_hard),
     },
 }
 

@@ -19,6 +19,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchSpeedConfig,
     BenchReenactConfig,
     BenchFinetuneConfig,
+    BenchHardConfig,
     EvalConfig,
 )
 from lsr.errors import ConfigError

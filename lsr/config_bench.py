@@ -323,4 +323,58 @@ class BenchFinetuneConfig:
             raise ConfigError(f"--weights {self.weights} is not a model folder (config.json + model.safetensors)")
 
 
+def shared_real_clips() -> tuple[Path | None, Path | None]:
+    """Two clips of different people from the shared *training* clips (../shared/data/real_talking_heads or
+    $LSR_SHARED_DATA/real_talking_heads): the manifest's first clip and the first clip of the next person."""
+    import csv
+    import os
+
+    repo_root = Path(__file__).resolve().parents[1]
+    root = Path(os.environ.get("LSR_SHARED_DATA", repo_root.parent / "shared" / "data")) / "real_talking_heads"
+    manifest = root / "manifest.csv"
+    if not manifest.is_file():
+        return None, None
+    with open(manifest, newline="") as handle:
+        rows = [row for row in csv.DictReader(handle) if (root / row["file"]).is_file()]
+    if not rows:
+        return None, None
+    first = rows[0]
+    other = next((row for row in rows if row["identity"] != first["identity"]), None)
+    return root / first["file"], None if other is None else root / other["file"]
+
+
+@dataclasses.dataclass
+class BenchHardConfig:
+    """Hard inputs through the pipeline: the clear error, or finite outputs with faces, against an easy twin."""
+
+    weights: Path | None = None
+    """Model folder; default: $LSR_WEIGHTS, else the shipped default model."""
+    clip: Path | None = None
+    """Real clip the cases are built from; default: the first of the shared training clips (synthetic if absent)."""
+    other_clip: Path | None = None
+    """Clip of another person (the 'other face shape' driver); default: the next person of the shared clips."""
+    long_frames: int = 10000
+    """Length of the long landmark-sequence case."""
+    cases: tuple[str, ...] = ()
+    """Run only these cases (names as in the table; the easy twins always run)."""
+    threads: int = 1
+    """CPU threads for torch (0 = torch's default)."""
+    out_md: Path | None = None
+    """Also write the table as the 'hard_cases' section of this markdown file (e.g. BENCHMARKS.md)."""
+    progress: bool = True
+
+    def resolved_clips(self) -> tuple[Path | None, Path | None]:
+        shared = shared_real_clips() if self.clip is None or self.other_clip is None else (None, None)
+        return self.clip or shared[0], self.other_clip or shared[1]
+
+    def validate(self) -> None:
+        if self.long_frames < 1 or self.threads < 0:
+            raise ConfigError("--long-frames must be >= 1 and --threads >= 0")
+        for flag, path in (("--clip", self.clip), ("--other-clip", self.other_clip)):
+            if path is not None and not Path(path).is_file():
+                raise ConfigError(f"{flag} {path} is not a file; give a video")
+        if self.weights is not None and not Path(self.weights).is_dir():
+            raise ConfigError(f"--weights {self.weights} is not a model folder (config.json + model.safetensors)")
+
+
 # ---- re-enactment and deployment (lsr.reenact, lsr.export_bundle) ------------------------------------------

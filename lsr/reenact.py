@@ -34,7 +34,7 @@ import numpy as np
 
 from deploy.engine import STAGES, ReenactorBase, ReenactStats, draw_watermark, provenance_metadata, square_resize
 from deploy.sources import LANDMARK_SUFFIXES, describe_driver
-from landmarks.errors import InputFileError, LandmarksError, NoFaceError, OutputPathError
+from landmarks.errors import InputFileError, LandmarksError, OutputPathError
 from landmarks.imageio import IMAGE_SUFFIXES, check_output_path as check_writable
 from lsr import __version__
 from lsr.errors import ConfigError, LsrError
@@ -258,9 +258,6 @@ def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | Non
         stats = reenactor.last_stats
         if stats.frames != info.frames and info.kind != "video":
             raise LsrError(f"{job.driving}: produced {stats.frames} frames for {info.frames} driver frames")
-        if stats.frames and stats.no_face == stats.frames:  # raised inside the writers: no file is left
-            raise NoFaceError(f"no face found in any of the {stats.frames} frame(s) of the driver {job.driving}; "
-                              "give a driver that shows a face (or its landmarks as .npy/.json)")  # fmt: skip
         started = time.perf_counter()
     stats.add("encode", encode_seconds + time.perf_counter() - started)  # includes the final flush and audio mux
     if info.kind == "video" and stats.frames < info.frames:
