@@ -169,6 +169,9 @@ class PrepareConfig:
     """Put every identity into one split; auto: LSR release inputs -> test, others by --test-fraction."""
 
     def validate(self) -> None:
+        from landmarks.imageio import check_output_path
+
+        check_output_path(self.out, "--out", folder=True)  # before any video is read
         if self.size < 32:
             raise ConfigError(f"--size must be >= 32, got {self.size}")
         if self.frames_per_clip < 0:
@@ -364,7 +367,10 @@ class FinetuneConfig:
     progress: bool = True
 
     def validate(self) -> None:
+        from landmarks.imageio import check_output_path
+
         self.losses.validate()
+        check_output_path(self.out, "--out", folder=True)  # before the shots are loaded and the model tuned
         if self.weights is not None and not Path(self.weights).is_dir():
             raise ConfigError(f"--weights {self.weights} must be a model folder (config.json + .safetensors)")
         if not self.shots:

@@ -259,6 +259,9 @@ class EvalConfig:
         return evaluation_data(self.data)
 
     def validate(self) -> None:
+        from landmarks.imageio import check_output_path
+
+        check_output_path(self.out, "--out", folder=True)  # before the frames are loaded and scored
         if self.data is not None and not Path(self.data).is_dir():
             raise ConfigError(f"--data {self.data} is not a folder")
         if not self.k or min(self.k) < 1:
