@@ -120,7 +120,7 @@ class ModelStore:
                 return self._onnx
             if self._torch is None:
                 from lsr.pipeline import Reenactor
-                from lsr.reenact import resolve_device
+                from lsr.devices import resolve_device
 
                 self._torch = Reenactor(weights, device=resolve_device(self.device), detector=detector)
                 self._base_model = self._torch.backend.model

@@ -149,14 +149,6 @@ def check_job_outputs(job: Job, side_by_side: Path | None, label: str) -> None:
 # ---- runtimes ---------------------------------------------------------------------------------------------
 
 
-def resolve_device(device: str) -> str:
-    if device != "auto":
-        return device
-    import torch
-
-    return "cuda" if torch.cuda.is_available() else "cpu"
-
-
 def onnx_bundle_folder(weights: Path) -> Path:
     """--weights for --runtime onnx: an ``lsr export`` bundle, a model folder holding one in ``onnx/``, or a model
     folder without one (exported on first use into the cache, ``lsr.export_bundle.cached_bundle``)."""
@@ -183,6 +175,8 @@ def make_reenactor(cfg) -> ReenactorBase:
         import torch
 
         torch.set_num_threads(cfg.threads)  # process-wide: torch has no per-model thread pool
+    from lsr.devices import resolve_device
+
     return Reenactor(weights, device=resolve_device(cfg.device), precision=cfg.precision, detector=cfg.detector)
 
 

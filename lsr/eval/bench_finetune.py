@@ -110,19 +110,14 @@ def curve_markdown(rows: list[CurveRow], settings: dict[str, Any], machine: str)
 
 def run_bench_finetune(cfg: Any) -> list[CurveRow]:
     """Entry point of ``lsr bench finetune``: print the table (and write its BENCHMARKS.md section with --out-md)."""
-    import datetime
-
-    from lsr.eval.bench_speed import command_line, replace_section
+    from lsr.eval.sections import command_line, write_section
     from lsr.machine import machine_markdown
 
     rows, settings = finetune_curve(cfg)
     text = curve_markdown(rows, settings, machine_markdown())
     print(text)
     if cfg.out_md is not None:
-        start, end = f"<!-- eval:{SECTION}:start -->", f"<!-- eval:{SECTION}:end -->"
-        section = "\n".join([start, "## Subject fine-tuning: steps against error (`lsr bench finetune`)", "",
-                             f"_Written by the command below on {datetime.datetime.now().astimezone():%Y-%m-%d %H:%M %Z}; "
-                             "do not edit the numbers by hand, re-run it._", "",
-                             f"```\n{command_line(cfg, 'lsr bench finetune')}\n```", "", text, "", end]) + "\n"  # fmt: skip
-        print(f"section eval:{SECTION} written to {replace_section(Path(cfg.out_md), section, start, end)}")
+        path = write_section(cfg.out_md, SECTION, "Subject fine-tuning: steps against error (`lsr bench finetune`)",
+                             command_line(cfg, "lsr bench finetune"), text)  # fmt: skip
+        print(f"section eval:{SECTION} written to {path}")
     return rows

@@ -398,22 +398,16 @@ def hard_markdown(results: list[CaseResult], settings: dict[str, Any], machine: 
 
 def run_bench_hard(cfg: Any) -> list[CaseResult]:
     """Entry point of ``lsr bench hard``: print the table (and write its BENCHMARKS.md section with --out-md)."""
-    import datetime
-
     from lsr.errors import LsrError
-    from lsr.eval.bench_speed import command_line, replace_section
+    from lsr.eval.sections import command_line, write_section
     from lsr.machine import machine_markdown
 
     results, settings = hard_cases(cfg)
     text = hard_markdown(results, settings, machine_markdown())
     print(text)
     if cfg.out_md is not None:
-        start, end = f"<!-- eval:{SECTION}:start -->", f"<!-- eval:{SECTION}:end -->"
-        section = "\n".join([start, "## Hard inputs (`lsr bench hard`)", "",
-                             f"_Written by the command below on {datetime.datetime.now().astimezone():%Y-%m-%d %H:%M %Z}; "
-                             "do not edit the numbers by hand, re-run it._", "",
-                             f"```\n{command_line(cfg, 'lsr bench hard')}\n```", "", text, "", end]) + "\n"  # fmt: skip
-        print(f"section eval:{SECTION} written to {replace_section(Path(cfg.out_md), section, start, end)}")
+        path = write_section(cfg.out_md, SECTION, "Hard inputs (`lsr bench hard`)", command_line(cfg, "lsr bench hard"), text)
+        print(f"section eval:{SECTION} written to {path}")
     crashed = [r for r in results if r.traceback is not None]
     for r in crashed:
         print(r.traceback)

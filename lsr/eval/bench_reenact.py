@@ -68,7 +68,8 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
     from lsr.export_bundle import export_graphs
     from lsr.machine import machine_markdown
     from lsr.pipeline import Reenactor
-    from lsr.reenact import Job, resolve_device, run_job
+    from lsr.devices import resolve_device
+    from lsr.reenact import Job, run_job
     from models_def import LSRModel, preset_config
 
     video = cfg.video or default_video()

@@ -24,7 +24,6 @@ import datetime
 import math
 import os
 import re
-import shlex
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -33,6 +32,7 @@ import numpy as np
 import torch
 
 from lsr.errors import ConfigError
+from lsr.eval import sections
 from lsr.eval.bench_models import conv_peak_gflops, count_gflop, frame_inputs, median_ms, time_runtime
 from lsr.eval.model_method import LsrModelMethod, scale_points
 from lsr.eval.pareto import pareto_front, plot_speed_error, write_plot
@@ -418,52 +418,18 @@ def section_markdown(cfg, rows: list[dict], peak: float, provenance: dict[str, s
 
 
 def replace_section(path: Path, section: str, start: str = SECTION_START, end: str = SECTION_END) -> Path:
-    """Put ``section`` (markers included) into ``path`` between the markers ``start`` / ``end``, replacing the old
-    one in place and keeping every other line; appended when the file has none. Atomic."""
-    from landmarks.imageio import atomic_output
+    """``lsr.eval.sections.replace_section`` with this command's markers as the default."""
+    return sections.replace_section(path, section, start, end)
 
-    path = Path(path)
-    text = path.read_text() if path.is_file() else "# Benchmarks\n\nEvery section is written by the command it names.\n"
-    starts, ends = text.count(start), text.count(end)
-    if starts != ends or starts > 1:
-        raise ConfigError(f"{path}: the markers {start} / {end} are unbalanced or repeated; "
-                          "fix them by hand (one pair) and re-run")  # fmt: skip
-    if starts:
-        before, rest = text.split(start, 1)
-        _, after = rest.split(end, 1)
-        after = after[1:] if after.startswith("\n") else after
-        text = before + section + after
-    else:
-        text = text.rstrip("\n") + "\n\n" + section
-    with atomic_output(path) as temp:
-        temp.write_text(text)
-    return path
+
+def command_line(cfg, prog: str = "lsr bench speed") -> str:
+    return sections.command_line(cfg, prog)
 
 
 def _json_ready(rows: list[dict]) -> list[dict]:
     from lsr.eval.report import json_safe
 
     return json_safe([{k: ({str(kk): vv for kk, vv in v.items()} if isinstance(v, dict) else v) for k, v in row.items()} for row in rows])
-
-
-def command_line(cfg, prog: str = "lsr bench speed") -> str:
-    """The ``prog`` command that reproduces ``cfg`` (fields that differ from the defaults)."""
-    import dataclasses
-
-    parts = [prog]
-    defaults = type(cfg)()
-    for field in dataclasses.fields(cfg):
-        value = getattr(cfg, field.name)
-        if value == getattr(defaults, field.name):
-            continue
-        flag = "--" + field.name.replace("_", "-")
-        if isinstance(value, bool):
-            parts.append(flag if value else f"--no-{field.name.replace('_', '-')}")
-        elif isinstance(value, (tuple, list)):
-            parts.append(" ".join([flag, *(shlex.quote(str(v)) for v in value)]))
-        else:
-            parts.append(f"{flag} {shlex.quote(str(value))}")
-    return " ".join(parts)
 
 
 def run_bench_speed(cfg) -> dict[str, Any]:

@@ -367,17 +367,9 @@ def run_eval(cfg: Any) -> dict[str, Any]:
 
 def write_section(cfg: Any, text: str) -> Path:
     """Put the report ``text`` into ``cfg.out_md`` between ``<!-- eval:SECTION:start/end -->`` with its command."""
-    import datetime
+    from lsr.eval.sections import command_line, write_section as write
 
-    from lsr.eval.bench_speed import command_line, replace_section
-
-    start, end = f"<!-- eval:{cfg.section}:start -->", f"<!-- eval:{cfg.section}:end -->"
     body = text.split("\n", 1)[1] if text.startswith("# ") else text  # the report's own title becomes the heading
     body = body.replace("\n## ", "\n### ")
-    lines = [start, f"## {cfg.title or f'Evaluation on {cfg.resolved_data().name} (`lsr eval`)'}", "",
-             f"_Written by the command below on {datetime.datetime.now().astimezone():%Y-%m-%d %H:%M %Z}; "
-             "do not edit the numbers by hand, re-run it._", "", f"```\n{command_line(cfg, 'lsr eval')}\n```", ""]  # fmt: skip
-    if cfg.note:
-        lines += [f"**Note:** {cfg.note}", ""]
-    lines += [body.strip("\n"), "", end]
-    return replace_section(Path(cfg.out_md), "\n".join(lines) + "\n", start, end)
+    title = cfg.title or f"Evaluation on {cfg.resolved_data().name} (`lsr eval`)"
+    return write(Path(cfg.out_md), cfg.section, title, command_line(cfg, "lsr eval"), body, cfg.note)

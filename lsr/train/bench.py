@@ -58,7 +58,7 @@ def time_steps(preset: str, stage: int, resolution: int, batch_size: int, k: int
 
 
 def run_bench_train(cfg) -> None:
-    from lsr.train.trainer import resolve_device
+    from lsr.devices import resolve_device
 
     device = resolve_device(cfg.device)
     if cfg.threads:

@@ -21,6 +21,7 @@ import torch
 from lsr.errors import LsrError
 
 CHECKPOINT_PATTERN = re.compile(r"^step_(\d{9})\.pt$")
+DISCRIMINATOR_NAME = "discriminator.safetensors"  # D beside exported weights, for subject fine-tuning (§4.3.5)
 
 
 class CheckpointError(LsrError):

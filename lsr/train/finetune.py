@@ -21,12 +21,11 @@ from torch import Tensor
 
 from deploy.sources import SubjectShots, load_subject_shots  # one source loader for reenact, app and finetune
 from lsr.errors import DatasetError, WeightsError
-from lsr.train.checkpoint import nonfinite_entries
+from lsr.train.checkpoint import DISCRIMINATOR_NAME, nonfinite_entries
 from lsr.train.optim import make_adam
 from lsr.train.steps import Batch, LossWeights, StagePlan, discriminator_step, generator_step
 from models_def import Discriminator, LSRModel
 
-DISCRIMINATOR_NAME = "discriminator.safetensors"
 # Adam lr of subject fine-tuning: the training lr (thesis §4.6). On the default model, 50 steps at 1e-3 lift the
 # single-shot far-pose cases of tests/lsr/test_weights.py from PSNR/SSIM 19.45/0.652 to 21.24/0.736 (MODEL_CARD.md).
 FINETUNE_LR = 1e-3
@@ -184,7 +183,7 @@ def save_subject(result: FinetuneResult, out: Path, extra: dict | None = None) -
     """Write the subject model (safetensors + config.json), latents.safetensors and finetune.json. Never non-finite."""
     from safetensors.torch import save_file
 
-    from models_def.serialization import _atomic_write
+    from landmarks.imageio import atomic_output
 
     out = Path(out)
     bad = nonfinite_entries(result.model.state_dict()) + nonfinite_entries(
@@ -194,17 +193,18 @@ def save_subject(result: FinetuneResult, out: Path, extra: dict | None = None) -
         raise WeightsError(f"fine-tuning produced non-finite values ({', '.join(bad[:5])}); lower --lr and retry")
     result.model.cpu().save_pretrained(out)
     latents = {"layout_latent": result.layout_latent.contiguous(), "style_latent": result.style_latent.contiguous()}
-    _atomic_write(out / LATENTS_NAME, lambda temp: save_file(latents, temp))
+    with atomic_output(out / LATENTS_NAME) as temp:
+        save_file(latents, str(temp))
     summary = {"l1_before": result.l1_before, "l1_after": result.l1_after, "skipped_steps": result.skipped_steps,
                "seconds": result.seconds, **(extra or {})}  # fmt: skip
-    _atomic_write(out / "finetune.json", lambda temp: Path(temp).write_text(json.dumps(summary, indent=2) + "\n"))
+    with atomic_output(out / "finetune.json") as temp:
+        temp.write_text(json.dumps(summary, indent=2) + "\n")
     return out
 
 
 def run_finetune(cfg) -> FinetuneResult:
     """Entry point of ``lsr finetune``."""
-    from lsr.train.trainer import resolve_device
-
+    from lsr.devices import resolve_device
     from lsr.weights import resolve_weights
 
     device = resolve_device(cfg.device)

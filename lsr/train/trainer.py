@@ -17,6 +17,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from lsr.devices import resolve_device
 from lsr.train import checkpoint as ckpt
 from lsr.train.distributed import DistContext, ShardedBatchSampler, init_from_env, mean_over_ranks
 from lsr.train.guard import NonFiniteGuard
@@ -31,16 +32,6 @@ from lsr.train.steps import (
     stages_for_variant,
 )
 from models_def import Discriminator, LSRModel, ModelConfig, preset_config
-
-
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        from lsr.errors import ConfigError
-
-        raise ConfigError("--device cuda was asked for but no CUDA GPU is visible; use --device cpu or auto")
-    return torch.device(name)
 
 
 def model_config_for(cfg) -> ModelConfig:
@@ -238,13 +229,13 @@ class Trainer:
         if self.context.is_main:
             from safetensors.torch import save_file
 
-            from lsr.train.finetune import DISCRIMINATOR_NAME
-            from models_def.serialization import _atomic_write
+            from landmarks.imageio import atomic_output
 
             self.ema.module.save_pretrained(folder)
             # D beside the generators so that `lsr finetune` can fine-tune it too (§4.3.5).
             d_state = {k: v.detach().contiguous().cpu() for k, v in self.discriminator.state_dict().items()}
-            _atomic_write(folder / DISCRIMINATOR_NAME, lambda temp: save_file(d_state, temp))
+            with atomic_output(folder / ckpt.DISCRIMINATOR_NAME) as temp:
+                save_file(d_state, str(temp))
         return folder
 
     def _barrier(self) -> None:

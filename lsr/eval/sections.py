@@ -1,0 +1,80 @@
+"""Sections of BENCHMARKS.md: each is written, between its own markers, by the command it names.
+
+``section_text`` builds one (heading, timestamp, the command that reproduces it, its body); ``replace_section``
+puts it in place of the old one (or appends it), atomically; ``command_line`` rebuilds the command from a config.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import shlex
+from pathlib import Path
+from typing import Any
+
+from lsr.errors import ConfigError
+
+HEADER = "# Benchmarks\n\nEvery section is written by the command it names.\n"
+
+
+def markers(name: str, kind: str = "eval") -> tuple[str, str]:
+    """The start / end markers of section ``name`` (``<!-- eval:NAME:start -->``)."""
+    return f"<!-- {kind}:{name}:start -->", f"<!-- {kind}:{name}:end -->"
+
+
+def command_line(cfg: Any, prog: str) -> str:
+    """The ``prog`` command that reproduces ``cfg`` (the config dataclass' fields that differ from the defaults)."""
+    parts = [prog]
+    defaults = type(cfg)()
+    for field in dataclasses.fields(cfg):
+        value = getattr(cfg, field.name)
+        if value == getattr(defaults, field.name):
+            continue
+        flag = "--" + field.name.replace("_", "-")
+        if isinstance(value, bool):
+            parts.append(flag if value else f"--no-{field.name.replace('_', '-')}")
+        elif isinstance(value, (tuple, list)):
+            parts.append(" ".join([flag, *(shlex.quote(str(v)) for v in value)]))
+        else:
+            parts.append(f"{flag} {shlex.quote(str(value))}")
+    return " ".join(parts)
+
+
+def section_text(name: str, title: str, command: str, body: str, note: str | None = None) -> str:
+    """A whole section: markers, ``## title``, when and by which command it was written, the note, the body."""
+    start, end = markers(name)
+    stamp = f"{datetime.datetime.now().astimezone():%Y-%m-%d %H:%M %Z}"
+    lines = [start, f"## {title}", "", f"_Written by the command below on {stamp}; do not edit the numbers by hand, "
+             "re-run it._", "", f"```\n{command}\n```", ""]  # fmt: skip
+    if note:
+        lines += [f"**Note:** {note}", ""]
+    lines += [body.strip("\n"), "", end]
+    return "\n".join(lines) + "\n"
+
+
+def replace_section(path: Path, section: str, start: str, end: str) -> Path:
+    """Put ``section`` (markers included) into ``path`` between the markers ``start`` / ``end``, replacing the old
+    one in place and keeping every other line; appended when the file has none. Atomic."""
+    from landmarks.imageio import atomic_output
+
+    path = Path(path)
+    text = path.read_text() if path.is_file() else HEADER
+    starts, ends = text.count(start), text.count(end)
+    if starts != ends or starts > 1:
+        raise ConfigError(f"{path}: the markers {start} / {end} are unbalanced or repeated; "
+                          "fix them by hand (one pair) and re-run")  # fmt: skip
+    if starts:
+        before, rest = text.split(start, 1)
+        _, after = rest.split(end, 1)
+        after = after[1:] if after.startswith("\n") else after
+        text = before + section + after
+    else:
+        text = text.rstrip("\n") + "\n\n" + section
+    with atomic_output(path) as temp:
+        temp.write_text(text)
+    return path
+
+
+def write_section(path: Path, name: str, title: str, command: str, body: str, note: str | None = None) -> Path:
+    """``section_text`` put into ``path`` by ``replace_section``."""
+    return replace_section(Path(path), section_text(name, title, command, body, note), *markers(name))
