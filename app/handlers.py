@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from deploy import MAX_K
+
 LOG = logging.getLogger("lsr.app")
 DISPLAY_SIDE = 256  # shots, per-shot results and side-by-side tiles are shown at least this large
 PANEL_TITLES = ("driving frame", "landmarks", "latent layout", "output")
@@ -193,7 +195,7 @@ def readable_errors(what: str) -> Iterator[None]:
     except Exception as exc:  # a bug, not user input: keep the page usable, log the traceback
         LOG.exception("unexpected error while trying to %s", what)
         raise gr.Error(f"{type(exc).__name__}: {user_facing(str(exc))} (an internal error; the server log has the "
-                       "details)", title=f"Cannot {what}") from exc  # fmt: skip
+                       "details)", title=f"Cannot {what}") from exc
 
 
 _SERVER_PATH = re.compile(r"(?:/[^\s/:;,'\"()]+)+/([^\s/:;,'\"()]+)")
@@ -223,7 +225,7 @@ def check_upload_size(path: Path, limits: Limits) -> None:
     megabytes = path.stat().st_size / 1e6
     if megabytes > limits.max_upload_mb:
         raise InputFileError(f"{path.name} is {megabytes:.1f} MB; the limit is {limits.max_upload_mb:g} MB "
-                             "(a shorter or smaller file, or start the app with a larger --max-upload-mb)")  # fmt: skip
+                             "(a shorter or smaller file, or start the app with a larger --max-upload-mb)")
 
 
 def check_driver(driving: Path, limits: Limits):
@@ -236,10 +238,10 @@ def check_driver(driving: Path, limits: Limits):
     seconds = info.frames / info.fps
     if info.kind == "video" and seconds > limits.max_video_seconds:
         raise InputFileError(f"the driving video is {seconds:.1f} s long; this app accepts up to "
-                             f"{limits.max_video_seconds:g} s (trim it, or use `lsr reenact` for long videos)")  # fmt: skip
+                             f"{limits.max_video_seconds:g} s (trim it, or use `lsr reenact` for long videos)")
     if info.frames > limits.max_video_frames:
         raise InputFileError(f"the driver has {info.frames} frames; this app accepts up to {limits.max_video_frames} "
-                             "(trim it, or use `lsr reenact` for long inputs)")  # fmt: skip
+                             "(trim it, or use `lsr reenact` for long inputs)")
     return info
 
 
@@ -264,22 +266,22 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
     others = [p for p in paths if p.suffix.lower() not in VIDEO_SUFFIXES + IMAGE_SUFFIXES]
     if others:
         raise InputFileError(f"unsupported source file {others[0].name}: upload images ({', '.join(IMAGE_SUFFIXES)}) "
-                             f"or one video ({', '.join(VIDEO_SUFFIXES)})")  # fmt: skip
+                             f"or one video ({', '.join(VIDEO_SUFFIXES)})")
     if videos:
         if len(paths) > 1:
             raise InputFileError("upload either images or one video as the source, not both / several videos")
         info = probe_video(videos[0])
         if info.frames / info.fps > limits.max_video_seconds:
             raise InputFileError(f"the source video is {info.frames / info.fps:.1f} s long; the limit is "
-                                 f"{limits.max_video_seconds:g} s: trim it or upload a few photos instead")  # fmt: skip
+                                 f"{limits.max_video_seconds:g} s: trim it or upload a few photos instead")
         # Up to DEFAULT_K the engine samples min(8, usable) shots and we thin them to K; a larger K is asked
         # for explicitly (the engine then says how many frames had a face if there are too few).
         shots = load_subject_shots(videos[0], size, k=None if k <= DEFAULT_K else int(k), detector=detector)
         if len(shots.frames) > k:
             shots = _take(shots, int(k))
         return shots, [f"{len(shots.frames)} shot(s) sampled from {videos[0].name}"]
-    if len(paths) > 32:
-        raise InputFileError(f"{len(paths)} images uploaded; give at most 32 shots (K <= 32)")
+    if len(paths) > MAX_K:
+        raise InputFileError(f"{len(paths)} images uploaded; give at most {MAX_K} shots (K <= {MAX_K})")
     frames, points, names, notes = [], [], [], []
     unreadable = []
     for path in paths:  # one image = one candidate shot; a face-less or unreadable one is skipped, not fatal
@@ -411,7 +413,7 @@ def panel_path(panels_dir: str | os.PathLike, index: int) -> Path:
 
 def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_files, k: int, driving, *,
                     motion: str = "relative", smooth: bool = True, paste_back: bool = False, finetune_steps: int = 0,
-                    runtime: str = "torch", watermark: bool = True) -> RunResult:  # fmt: skip
+                    runtime: str = "torch", watermark: bool = True) -> RunResult:
     """Shots -> subject latents (K-shot average) -> one output frame per driver frame, written as the app shows them."""
     from deploy.engine import draw_watermark, provenance_metadata
     from landmarks.errors import InputFileError
@@ -437,7 +439,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     extra = {"shot detection": time.perf_counter() - started}
     if runtime == "onnx" and int(finetune_steps) > 0:  # the ONNX runtime cannot train: run without, and say so
         notes.append(f"the ONNX runtime cannot fine-tune: ran without the {int(finetune_steps)} fine-tuning steps "
-                     "(choose runtime 'torch' for them)")  # fmt: skip
+                     "(choose runtime 'torch' for them)")
         finetune_steps = 0
     reenactor.encode_subject(shots)
     extra["subject_encoding"] = reenactor.last_stats.seconds["subject_encoding"]
@@ -479,6 +481,6 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
         notes.append("landmark drivers have no frames to paste into: the output is the synthesised crop")
     notes.append(f"{stats.frames} frame(s) at {info.fps:g} fps"
                  + (f", {stats.no_face} without a face (passed through)" if stats.no_face else "")
-                 + (", audio kept" if audio is not None else ""))  # fmt: skip
+                 + (", audio kept" if audio is not None else ""))
     return RunResult(output, stats.frames, shot_gallery(shots), averaging, panels_dir, timing_table(stats, extra),
-                     "\n".join(f"- {note}" for note in notes))  # fmt: skip
+                     "\n".join(f"- {note}" for note in notes))

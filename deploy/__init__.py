@@ -4,3 +4,5 @@
 ``lsr.pipeline.Reenactor``; both run the frame loop of ``deploy.engine`` and load inputs with
 ``deploy.sources``. Nothing heavy is imported here.
 """
+
+MAX_K = 32  # most source shots averaged into a subject: the thesis evaluates K = 1..32 (Table 4.4)

@@ -33,6 +33,7 @@ from typing import Literal
 
 import numpy as np
 
+from deploy import MAX_K
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.imageio import IMAGE_SUFFIXES, read_image
 from landmarks.parts import NUM_LANDMARKS
@@ -40,7 +41,6 @@ from landmarks.video import VIDEO_SUFFIXES
 
 LANDMARK_SUFFIXES = (".npy", ".json")
 DEFAULT_K = 8
-MAX_K = 32  # the thesis evaluates K = 1..32 (Table 4.4)
 CANDIDATES_PER_SHOT = 4  # video sources: decode 4K evenly spread frames to find K with a face
 
 LandmarkSpace = Literal["frame", "crop"]
@@ -98,7 +98,7 @@ def list_images(folder: Path) -> list[Path]:
     images = sorted(
         p for p in folder.iterdir()
         if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.endswith(LSR_RELEASE_DRAWINGS)
-    )  # fmt: skip
+    )
     if not images:
         raise InputFileError(f"folder {folder} holds no images ({', '.join(IMAGE_SUFFIXES)}); give images or a video")
     return images
@@ -144,7 +144,7 @@ def _source_candidates(source: SourceInput, k: int | None) -> Iterator[tuple[str
 
 
 def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, detector=None,
-                       face_index: int = 0) -> SubjectShots:  # fmt: skip
+                       face_index: int = 0) -> SubjectShots:
     """Detect, crop and pick the K shots of a subject (see the module docstring for the rules).
 
     size: crop side S (the model resolution). detector: a ``landmarks.detect.FaceDetector`` (default HOG).
@@ -185,7 +185,7 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
             raise unreadable[0]
         if too_few:
             raise NoFaceError(f"face index {face_index} asked for, but no source frame of {where} shows more than "
-                              f"{face_index} face(s); lower --face-index (0 = the largest face)")  # fmt: skip
+                              f"{face_index} face(s); lower --face-index (0 = the largest face)")
         smallest = min(min_faces, default=0)
         raise NoFaceError(
             f"no face found in the source ({where}, {len(tried)} frame(s) tried); use frontal, well-lit shots of one "

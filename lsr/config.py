@@ -12,6 +12,7 @@ from typing import Literal
 
 import tyro
 
+from deploy import MAX_K  # deploy/__init__ imports nothing: --help stays instant
 from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command config is lsr.config.*
     BenchLandmarksConfig,
     BenchTrainConfig,
@@ -84,8 +85,8 @@ class DemoConfig:
             raise ConfigError(f"--finetune-steps must be >= 0, got {self.finetune_steps}")
         if self.frames < 1:
             raise ConfigError(f"--frames must be >= 1, got {self.frames}")
-        if not 1 <= self.k <= 32:
-            raise ConfigError(f"--k must be in 1..32, got {self.k}")
+        if not 1 <= self.k <= MAX_K:
+            raise ConfigError(f"--k must be in 1..{MAX_K}, got {self.k}")
         if self.threads < 0:
             raise ConfigError(f"--threads must be >= 0, got {self.threads}")
 
@@ -240,7 +241,7 @@ class LossConfig:
 
     def validate(self) -> None:
         weights = [self.l1, self.l2, self.ssim, self.feature_matching, self.vgg, self.adversarial, self.latent_l2,
-                   self.cross_entropy, self.aux_rgb, self.r1_gamma]  # fmt: skip
+                   self.cross_entropy, self.aux_rgb, self.r1_gamma]
         if min(weights) < 0:
             raise ConfigError("loss weights must be >= 0")
         if self.r1_every < 1:
@@ -477,8 +478,8 @@ class ReenactConfig:
             raise ConfigError("--side-by-side is for single jobs (--source/--driving/--out)")
         if self.relative and self.absolute:
             raise ConfigError("--relative and --absolute exclude each other")
-        if self.k is not None and not 1 <= self.k <= 32:
-            raise ConfigError(f"--k must be in 1..32, got {self.k}")
+        if self.k is not None and not 1 <= self.k <= MAX_K:
+            raise ConfigError(f"--k must be in 1..{MAX_K}, got {self.k}")
         if (self.finetune_steps or 0) < 0 or not self.finetune_lr > 0:
             raise ConfigError(f"--finetune-steps must be >= 0 and --finetune-lr > 0, got {self.finetune_steps}, {self.finetune_lr}")
         if self.finetune_steps and self.runtime != "torch":
@@ -535,7 +536,7 @@ class AppConfig:
     """Most driving frames accepted (video frames or landmark rows)."""
     max_upload_mb: float = 50.0
     """Largest single uploaded file (MB)."""
-    max_k: int = 32
+    max_k: int = MAX_K
     """Largest K (source shots) offered (1..32)."""
     queue_size: int = 8
     """Requests allowed to wait while one runs (one runs at a time); beyond that the page says the queue is full."""
@@ -551,5 +552,5 @@ class AppConfig:
             raise ConfigError(f"--port must be in 0..65535, got {self.port}")
         if self.max_video_seconds <= 0 or self.max_video_frames < 1 or self.max_upload_mb <= 0 or self.queue_size < 1:
             raise ConfigError("--max-video-seconds and --max-upload-mb must be > 0; --max-video-frames, --queue-size >= 1")
-        if not 1 <= self.max_k <= 32:
-            raise ConfigError(f"--max-k must be in 1..32, got {self.max_k}")
+        if not 1 <= self.max_k <= MAX_K:
+            raise ConfigError(f"--max-k must be in 1..{MAX_K}, got {self.max_k}")

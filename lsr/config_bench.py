@@ -111,7 +111,7 @@ class BenchSpeedConfig:
     encoder_runs: int = 3
     """Timed runs of subject encoding at K=32 (slow at 256^2)."""
     out_md: Path = Path("BENCHMARKS.md")
-    """Markdown file whose `bench:speed` section is replaced (created when missing); bench_speed.json goes beside it."""
+    """Markdown file whose `bench:speed` section is replaced (created when missing); bench_speed.json goes beside the plot."""
     plot: Path | None = None
     """PNG of ms/frame against the error with the Pareto front; default OUT_MD's folder/docs/bench_speed.png."""
     pareto_metric: Literal["psnr", "ssim", "nmke"] = "psnr"

@@ -14,7 +14,7 @@ synthetic test split (and on the FSTH sample with ``--fsth``).
 * Timing uses the trained weights when their resolution matches the row, else a randomly initialised model
   of the same config (speed does not depend on the weights).
 * Output: a markdown section between ``<!-- bench:speed:start -->`` / ``<!-- bench:speed:end -->`` in
-  ``--out-md`` (replaced in place, the rest of the file kept; atomic), ``bench_speed.json`` beside it and a
+  ``--out-md`` (replaced in place, the rest of the file kept; atomic), ``bench_speed.json`` beside the plot and a
   PNG of ms/frame against the error with the Pareto front (``lsr.eval.pareto``).
 """
 
@@ -100,7 +100,7 @@ def synthetic_split(cfg, size: int) -> Path:
     root = cache / f"synth_test_{size}_seed{SYNTH_SEED}_{SYNTH_IDENTITIES}x{SYNTH_VIDEOS}x{SYNTH_FRAMES}_aligned"
     if not (root / "manifest.json").is_file():
         generate_dataset(root, SYNTH_IDENTITIES, SYNTH_VIDEOS, SYNTH_FRAMES, size=size, seed=SYNTH_SEED,
-                         test_fraction=0.5, progress=cfg.progress, overwrite=True)  # fmt: skip
+                         test_fraction=0.5, progress=cfg.progress, overwrite=True)
     return root
 
 
@@ -243,7 +243,7 @@ def identity_calibration(method: LsrModelMethod, identities, frames: int = 32, k
             points = scale_points(identity.input_landmarks[index], scale)
             landmark_image = to_network(draw_landmarks(points, method.reenactor.resolution))[None]
             feeds.append({"landmark_image": landmark_image, "layout_latent": subject.layout_latent,
-                          "style_latent": subject.style_latent})  # fmt: skip
+                          "style_latent": subject.style_latent})
     return feeds[:frames]
 
 
@@ -253,7 +253,7 @@ def protocol_errors(methods: list, identities, ks: tuple[int, ...], detector, ma
     from lsr.eval.report import summarise
 
     run = run_protocol(methods, identities, ks, FaceAnalysis(detector), max_holdouts=max_holdouts,
-                       cross_identity=False, finetune=False, progress=progress)  # fmt: skip
+                       cross_identity=False, finetune=False, progress=progress)
     errors: dict[str, dict] = {}
     for row in summarise(run)["rows"]:
         errors.setdefault(row["method"], {})[int(row["k"])] = {
@@ -309,7 +309,7 @@ def bench_rows(cfg, weights: dict[str, Path], splits: dict[str, list], detector,
         gflop = count_gflop(graph, frame_inputs(model.config, names))
         base = {"preset": preset, "resolution": resolution, "weights": str(weights[preset]) if matches else None,
                 "params_encoder": sum(p.numel() for p in model.subject_encoder.parameters()),
-                "params_frame": sum(p.numel() for p in model.frame_generator.parameters()), "gflop": gflop}  # fmt: skip
+                "params_frame": sum(p.numel() for p in model.frame_generator.parameters()), "gflop": gflop}
 
         torch_method = LsrModelMethod(weights[preset], name=f"{preset}@{resolution}:torch") if matches else None
         bundle = None
@@ -344,12 +344,12 @@ def bench_rows(cfg, weights: dict[str, Path], splits: dict[str, list], detector,
             row["encode_ms"] = {}
             for k in ENCODER_KS:
                 previous = next((r for r in rows if r["preset"] == preset and r["resolution"] == resolution
-                                 and r["runtime"] == "onnxruntime"), None)  # fmt: skip
+                                 and r["runtime"] == "onnxruntime"), None)
                 if runtime == "int8" and previous is not None:  # the int8 bundle runs the same fp32 encoder graph
                     row["encode_ms"][k] = previous["encode_ms"][k]
                 else:
                     row["encode_ms"][k] = time_encoder(runtime, model, k, cfg.runs if k == 1 else cfg.encoder_runs,
-                                                       cfg.warmup if k == 1 else 1, encoder_session)  # fmt: skip
+                                                       cfg.warmup if k == 1 else 1, encoder_session)
             method_key = f"{preset}@{resolution}:{'torch' if runtime in TORCH_RUNTIMES else runtime}"
             for split in ("synthetic", "fsth"):
                 if split not in splits:
@@ -376,15 +376,15 @@ def pareto_points(rows: list[dict], metric: str, k: int) -> tuple[list[tuple[flo
 
 
 def section_markdown(cfg, rows: list[dict], peak: float, provenance: dict[str, str], plot_link: str,
-                     front_labels: list[str], machine: str, command: str) -> str:  # fmt: skip
+                     front_labels: list[str], machine: str, command: str) -> str:
     """The BENCHMARKS.md section (markers included)."""
     splits = [s for s in ("synthetic", "fsth") if any(f"error_{s}" in r for r in rows)]
     header = ["preset", "res", "runtime", "params E / G", "GFLOP/frame", "ms/frame", "% conv peak", "warp ms", "total ms",
-              "encode K=1 ms", "encode K=32 ms"]  # fmt: skip
+              "encode K=1 ms", "encode K=32 ms"]
     header += [f"{'synthetic' if s == 'synthetic' else 'FSTH'} K={k}: PSNR / SSIM / NMKE" for s in splits for k in cfg.k]
     lines = [SECTION_START, "## Speed vs error (`lsr bench speed`)", "",
              f"_Written by the command below on {datetime.datetime.now().astimezone():%Y-%m-%d %H:%M %Z}; "
-             "do not edit the numbers by hand, re-run it._", "", f"```\n{command}\n```", ""]  # fmt: skip
+             "do not edit the numbers by hand, re-run it._", "", f"```\n{command}\n```", ""]
     if cfg.note:
         lines += [f"**Note:** {cfg.note}", ""]
     for name, text in provenance.items():
@@ -401,19 +401,19 @@ def section_markdown(cfg, rows: list[dict], peak: float, provenance: dict[str, s
         "",
         "| " + " | ".join(header) + " |",
         "|" + "---|" * len(header),
-    ]  # fmt: skip
+    ]
     for row in rows:
         peak_cell = f"{100 * row['peak_fraction']:.0f}%" if row["peak_fraction"] is not None else "–"
         cells = [row["preset"], str(row["resolution"]), row["runtime_label"],
                  f"{row['params_encoder'] / 1e6:.2f}M / {row['params_frame'] / 1e6:.2f}M", f"{row['gflop']:.2f}",
                  _ms(row["frame_ms"]), peak_cell, "–" if row["warp_ms"] is None else _ms(row["warp_ms"]),
-                 _ms(row["total_ms"]), _ms(row["encode_ms"][1]), _ms(row["encode_ms"][32])]  # fmt: skip
+                 _ms(row["total_ms"]), _ms(row["encode_ms"][1]), _ms(row["encode_ms"][32])]
         cells += [_error_cell(row.get(f"error_{s}"), k) for s in splits for k in cfg.k]
         lines.append("| " + " | ".join(cells) + " |")
     label, _ = METRICS[cfg.pareto_metric]
     lines += ["", f"Pareto front (ms/frame vs synthetic {label} at K={max(cfg.k)}): "
               + (", ".join(front_labels) if front_labels else "no row has both a time and an error"), "",
-              f"![ms/frame vs {label}]({plot_link})", "", machine, "", SECTION_END]  # fmt: skip
+              f"![ms/frame vs {label}]({plot_link})", "", machine, "", SECTION_END]
     return "\n".join(lines) + "\n"
 
 
@@ -455,7 +455,7 @@ def run_bench_speed(cfg) -> dict[str, Any]:
     splits = {"synthetic": load_lsr_split(split_root, "test", cfg.inputs, cfg.holdouts)}
     first = splits["synthetic"][0]
     provenance = {"synthetic split": f"`{split_root}` (test identities {', '.join(i.name for i in splits['synthetic'])}; "
-                                     f"{len(first.input_frames)} input + {len(first.holdout_frames)} hold-out frames each)"}  # fmt: skip
+                                     f"{len(first.input_frames)} input + {len(first.holdout_frames)} hold-out frames each)"}
     if cfg.fsth:
         shared = Path(os.environ.get("LSR_SHARED_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
         fsth_root = Path(cfg.fsth_root) if cfg.fsth_root is not None else shared / "fsth_eval_sample"
@@ -477,16 +477,16 @@ def run_bench_speed(cfg) -> dict[str, Any]:
         rows[index]["pareto"] = position in front
     title = f"lsr bench speed: ms/frame vs synthetic {metric_label} (K={max(cfg.k)}), {machine_info()['cpu']}"
     write_plot(plot_path, plot_speed_error(points, labels, groups, y_label=f"{metric_label} (synthetic, K={max(cfg.k)})",
-                                           higher_y_is_better=higher, title=title))  # fmt: skip
+                                           higher_y_is_better=higher, title=title))
     command = command_line(cfg)
     section = section_markdown(cfg, rows, peak, provenance,
                                os.path.relpath(plot_path, out_md.parent), [labels[i] for i in front],
-                               machine_markdown(), command)  # fmt: skip
+                               machine_markdown(), command)
     replace_section(out_md, section)
-    json_path = out_md.with_name("bench_speed.json")
+    json_path = plot_path.with_suffix(".json")  # the numbers beside their plot
     result = {"command": command, "machine": machine_info(), "conv_peak_gflops": peak, "note": cfg.note,
               "ks": list(cfg.k), "pareto_metric": cfg.pareto_metric, "provenance": provenance,
-              "plot": str(plot_path), "rows": _json_ready(rows)}  # fmt: skip
+              "plot": str(plot_path), "rows": _json_ready(rows)}
     write_json(json_path, result)
     print(section)
     print(f"wrote the section to {out_md}, {json_path} and {plot_path}")

@@ -36,7 +36,7 @@ class TestParetoFront:
 
     def test_plot_is_an_rgb_image(self):
         image = plot_speed_error([(3.0, 20.0), (30.0, 22.0)], ["a", "b"], ["eager", "int8"],
-                                 y_label="PSNR", higher_y_is_better=True, title="t")  # fmt: skip
+                                 y_label="PSNR", higher_y_is_better=True, title="t")
         assert image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3
         assert (image < 255).any()
 
@@ -89,7 +89,7 @@ def test_end_to_end_writes_section_json_and_plot(tmp_path):
     out_md.write_text(f"# Benchmarks\n\nhand-written intro\n\n{SECTION_START}\nstale\n{SECTION_END}\n\n## Other\nkept\n")
     cfg = BenchSpeedConfig(presets=("tiny", "fast"), resolutions=(64,), runtimes=("eager", "onnxruntime", "int8"),
                            weights=(f"tiny={weights}",), k=(1, 2), runs=2, warmup=0, encoder_runs=1, out_md=out_md,
-                           synthetic_root=split, note="random weights (test)", threads=1, progress=False)  # fmt: skip
+                           synthetic_root=split, note="random weights (test)", threads=1, progress=False)
     cfg.validate()
     result = run_bench_speed(cfg)
 
@@ -111,7 +111,7 @@ def test_end_to_end_writes_section_json_and_plot(tmp_path):
     assert tiny["onnxruntime"]["error_synthetic"]["1"]["psnr"] == pytest.approx(tiny["eager"]["error_synthetic"]["1"]["psnr"], abs=0.05)
     assert tiny["int8"]["error_synthetic"]["1"]["psnr"] == pytest.approx(tiny["eager"]["error_synthetic"]["1"]["psnr"], abs=3.0)
 
-    stored = json.loads((tmp_path / "bench_speed.json").read_text())
+    stored = json.loads((tmp_path / "docs" / "bench_speed.json").read_text())  # beside its plot
     assert len(stored["rows"]) == 6 and stored["ks"] == [1, 2]
     png = tmp_path / "docs" / "bench_speed.png"
     assert png.is_file() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -133,7 +133,7 @@ def test_warp_guided_rows_time_the_warps_too(tmp_path):
     generate_dataset(split, identities=2, videos_per_identity=1, frames=12, size=64, seed=3, test_fraction=0.5, progress=False)
     cfg = BenchSpeedConfig(presets=("tiny",), resolutions=(64,), runtimes=("eager", "onnxruntime"), weights=(f"tiny={weights}",),
                            k=(2,), runs=2, warmup=0, encoder_runs=1, out_md=tmp_path / "B.md", synthetic_root=split,
-                           threads=1, progress=False)  # fmt: skip
+                           threads=1, progress=False)
     rows = run_bench_speed(cfg)["rows"]
     for row in rows:
         assert row["warp_ms"] > 0 and row["total_ms"] == pytest.approx(row["frame_ms"] + row["warp_ms"])
