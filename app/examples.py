@@ -103,7 +103,7 @@ def _generate(folder: Path) -> None:
     write_clip_with_tone(layout.driving_video, driver.frames)
     np.save(layout.driving_landmarks, driver.landmarks.astype(np.float32))
     manifest = {"version": EXAMPLES_VERSION, "source_seed": SOURCE_SEED, "driver_seed": DRIVER_SEED,
-                "size": EXAMPLE_SIZE, "fps": EXAMPLE_FPS, "landmark_space": "frame"}  # fmt: skip
+                "size": EXAMPLE_SIZE, "fps": EXAMPLE_FPS, "landmark_space": "frame"}
     (folder / "examples.json").write_text(json.dumps(manifest, indent=2))
 
 

@@ -60,7 +60,7 @@ def model_summary(weights: Path | None, random_init: bool) -> str:
         output = f"{2 * size}x{2 * size}" if isinstance(size, int) else "twice that size"
         line += (f". It warps the source shots nearest to each driving pose onto it and blends them with its own "
                  f"synthesis at {output}, so detail comes from your shots; fine-tuning on them (on by default) "
-                 "adapts it to the person")  # fmt: skip
+                 "adapts it to the person")
     if name == "the shipped default model":
         line += ". Trained on real talking-face clips and synthetic heads (MODEL_CARD.md)"
     line += "."
@@ -107,7 +107,7 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
         return str(path) if path is not None else gr.skip()
 
     def run(source_files, k, driving, motion, smooth, paste_back, finetune_steps, runtime, watermark,
-            request: gr.Request, progress=gr.Progress(track_tqdm=True)):  # fmt: skip
+            request: gr.Request, progress=gr.Progress(track_tqdm=True)):
         progress(0.0, desc="loading the model and the source shots")
         with handlers.readable_errors("re-enact"):
             run_dir = files.new_run(request.session_hash if request is not None else None)
@@ -115,12 +115,12 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                 store, limits, run_dir, source_files, int(k), driving, motion=motion, smooth=bool(smooth),
                 paste_back=bool(paste_back), finetune_steps=int(finetune_steps), runtime=runtime,
                 watermark=bool(watermark),
-            )  # fmt: skip
+            )
         first = show_frame(0, str(result.panels_dir))
         scrubber = gr.Slider(minimum=0, maximum=max(1, result.frames - 1), value=0, step=1, interactive=True,
-                             label=f"frame (0-{result.frames - 1})")  # fmt: skip
+                             label=f"frame (0-{result.frames - 1})")
         return (str(result.video), result.summary, result.shots, result.averaging, first, scrubber,
-                str(result.panels_dir), result.timing)  # fmt: skip
+                str(result.panels_dir), result.timing)
 
     def show_frame(index, panels_dir):
         if not panels_dir:
@@ -138,58 +138,58 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
     with gr.Blocks(title="LSR talking heads", delete_cache=DELETE_CACHE) as demo:
         gr.Markdown(INTRO)
         gr.Markdown(model_summary(weights, random_init), elem_id="model-status",
-                    elem_classes=["lsr-warning"] if weights is None or random_init else None)  # fmt: skip
+                    elem_classes=["lsr-warning"] if weights is None or random_init else None)
         panels_state = gr.State("")
         with gr.Row(equal_height=False):
             with gr.Column():
                 gr.Markdown("### 1. Source person (K shots)")
                 source_files = gr.File(file_count="multiple", file_types=["image", "video"], elem_id="source-files",
-                                       label="Photos of one person (1-32), or one short video")  # fmt: skip
+                                       label="Photos of one person (1-32), or one short video")
                 example_person = gr.Button("Use the example person (synthetic)", size="sm")
                 k = gr.Slider(1, cfg.max_k, value=min(4, cfg.max_k), step=1, label="K: shots to average",
-                              info="A video source is sampled to K frames; extra photos are thinned evenly.")  # fmt: skip
+                              info="A video source is sampled to K frames; extra photos are thinned evenly.")
                 shots = gr.Gallery(label="Shots used, with detected landmarks", columns=2, height=300,
-                                   object_fit="contain", elem_id="shots")  # fmt: skip
+                                   object_fit="contain", elem_id="shots")
                 source_notes = gr.Markdown()
             with gr.Column():
                 gr.Markdown("### 2. Driving motion")
                 driving = gr.File(file_types=[".mp4", ".mov", ".avi", ".mkv", ".webm", ".npy", ".json"],
                                   label="Driving video, or landmarks (.npy / .json, N x 68 x 2)",
-                                  elem_id="driving-file")  # fmt: skip
+                                  elem_id="driving-file")
                 driver_example = gr.Dropdown(list(ex.DRIVER_EXAMPLES), value=ex.DRIVER_EXAMPLE_NONE,
-                                             label="...or a bundled driving example", elem_id="driver-example")  # fmt: skip
+                                             label="...or a bundled driving example", elem_id="driver-example")
                 with gr.Accordion("Options", open=False):
                     motion = gr.Radio(["relative", "absolute"], value="relative", label="Motion",
                                       info="relative: the driver's motion on the source's face shape; "
-                                           "absolute: the driver's own landmarks")  # fmt: skip
+                                           "absolute: the driver's own landmarks")
                     smooth = gr.Checkbox(True, label="Smooth the driving landmarks (One-Euro)")
                     paste_back = gr.Checkbox(False, label="Paste the head back into the driving frame",
-                                             info="video drivers only; otherwise the output is the face crop")  # fmt: skip
+                                             info="video drivers only; otherwise the output is the face crop")
                     finetune_steps = gr.Slider(0, 200, value=DEFAULT_FINETUNE_STEPS, step=1,
                                                label="Fine-tuning steps on the source",
-                                               info="thesis §4.3.5; torch runtime only (ONNX skips it)")  # fmt: skip
+                                               info="thesis §4.3.5; torch runtime only (ONNX skips it)")
                     runtime = gr.Radio(["torch", "onnx"], value="torch", label="Runtime",
-                                       info="onnx needs an `lsr export` bundle in WEIGHTS/onnx")  # fmt: skip
+                                       info="onnx needs an `lsr export` bundle in WEIGHTS/onnx")
                     watermark = gr.Checkbox(True, label="Visible 'SYNTHETIC' watermark")
                 run_button = gr.Button("Re-enact" if store.weights is not None else "Re-enact (no model loaded: see the top)",
-                                       variant="primary", elem_id="run", interactive=store.weights is not None)  # fmt: skip
+                                       variant="primary", elem_id="run", interactive=store.weights is not None)
             with gr.Column():
                 gr.Markdown("### 3. Result")
                 video = gr.Video(label="Re-enacted video (H.264, with the driver's audio)", elem_id="result-video",
-                                 interactive=False, autoplay=False)  # fmt: skip
+                                 interactive=False, autoplay=False)
                 summary = gr.Markdown(elem_id="run-summary")
         gr.Markdown("### The latent layout, frame by frame\n" + LAYOUT_HELP)
         panel = gr.Image(label="driving frame | landmarks | latent layout | output", show_label=False,
-                         interactive=False, elem_id="layout-panel", format="png")  # fmt: skip (titles are in the picture)
+                         interactive=False, elem_id="layout-panel", format="png")  # titles are in the picture
         scrubber = gr.Slider(0, 1, value=0, step=1, label="frame", interactive=False, elem_id="frame-scrubber")
         gr.Markdown("### Latent averaging over the K shots\n" + AVERAGING_HELP)
         averaging = gr.Gallery(label="each shot alone | the K-shot average", columns=6, height=240,
-                               elem_id="averaging")  # fmt: skip
+                               elem_id="averaging")
         with gr.Accordion("Timing per stage", open=False):
             timing = gr.Markdown()
 
         preview_inputs = dict(fn=preview_source, inputs=[source_files, k], outputs=[shots, source_notes],
-                              concurrency_id=MODEL_EVENTS)  # fmt: skip
+                              concurrency_id=MODEL_EVENTS)
         preview_inputs["show_progress_on"] = [shots]
         source_files.change(**preview_inputs)
         k.release(**preview_inputs)
@@ -207,7 +207,7 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
             scroll_to_output=True,
         )
         scrubber.change(show_frame, inputs=[scrubber, panels_state], outputs=panel, concurrency_id="scrub",
-                        concurrency_limit=4, show_progress="hidden")  # fmt: skip
+                        concurrency_limit=4, show_progress="hidden")
         demo.unload(forget_session)
     demo.lsr_examples_dir = examples_dir  # launch() allows serving these files
     return demo, store, files
@@ -223,7 +223,7 @@ def launch(demo: gr.Blocks, cfg: AppConfig, files: handlers.SessionFiles, *, blo
         server_name=cfg.host, server_port=cfg.port, max_file_size=int(cfg.max_upload_mb * 1e6),
         allowed_paths=[str(files.root), str(examples_dir)], prevent_thread_lock=not block, share=False,
         quiet=not block, footer_links=["api"],
-    )  # fmt: skip
+    )
     return url
 
 

@@ -162,7 +162,7 @@ def draw_watermark(image: np.ndarray, text: str = "SYNTHETIC") -> np.ndarray:
     region = marked[y0 : height - pad, x0 : width - pad]
     region[:] = (region * 0.4).astype(np.uint8)
     cv2.putText(marked, text, (x0 + pad, height - base - 2 * pad), cv2.FONT_HERSHEY_SIMPLEX, scale,
-                (255, 255, 255), thickness, cv2.LINE_AA)  # fmt: skip
+                (255, 255, 255), thickness, cv2.LINE_AA)
     return marked
 
 
@@ -217,7 +217,7 @@ class ReenactorBase:
         fixed = getattr(self.backend, "crop_size", None)  # an ONNX graph takes its references at one side
         if size < self.resolution or (size != self.resolution and not self.warp_references) or (fixed and size != fixed):
             raise InputFileError(f"crop size {size} must equal the model resolution {self.resolution} "
-                                 f"(or be larger, for a warp-guided torch model; {fixed or 'any'} for this backend)")  # fmt: skip
+                                 f"(or be larger, for a warp-guided torch model; {fixed or 'any'} for this backend)")
         self._crop_size = size
         self.subject = None  # shots are cropped at this side: encode again
 
@@ -278,7 +278,7 @@ class ReenactorBase:
             from landmarks.tps import warp_references
 
             warped, valid, _ = warp_references(subject.shots.frames, subject.shots.landmarks, crop_landmarks,
-                                               self.warp_references)  # fmt: skip
+                                               self.warp_references)
             references, masks = to_network(warped)[None], valid[None, :, None]  # (1, N, 3, C, C), (1, N, 1, C, C)
         layout_latent, style_latent = latents if latents is not None else (subject.layout_latent, subject.style_latent)
         image, layout = self.backend.synthesize(
@@ -339,7 +339,7 @@ class ReenactorBase:
         return retarget_relative(crop_landmarks, reference, self._require_subject().reference_landmarks)
 
     def _landmark_driver(self, driver, info: DriverInfo, relative: bool, smooth: bool, with_layout: bool,
-                         landmark_space, landmark_size, stats: ReenactStats) -> Iterator[ReenactedFrame]:  # fmt: skip
+                         landmark_space, landmark_size, stats: ReenactStats) -> Iterator[ReenactedFrame]:
         from landmarks.align import crop_transform, transform_landmarks
         from landmarks.smooth import OneEuroFilter
 
@@ -363,7 +363,7 @@ class ReenactorBase:
             yield ReenactedFrame(index, synthesis, True, None, landmark_image, synthesis, layout, target)
 
     def _frame_driver(self, info: DriverInfo, relative: bool, smooth: bool, paste_back: bool, with_layout: bool,
-                      stats: ReenactStats) -> Iterator[ReenactedFrame]:  # fmt: skip
+                      stats: ReenactStats) -> Iterator[ReenactedFrame]:
         from landmarks.align import crop_transform, paste_back as paste, transform_landmarks
         from landmarks.smooth import OneEuroFilter
         from landmarks.track import LandmarkTracker
@@ -414,7 +414,7 @@ class ReenactorBase:
             index += 1
         if stats.frames and stats.no_face == stats.frames:  # a writer that is still open discards its file
             raise NoFaceError(f"no face found in any of the {stats.frames} frame(s) of the driver {info.path}; "
-                              "give a driver that shows a face (or its landmarks as .npy/.json)")  # fmt: skip
+                              "give a driver that shows a face (or its landmarks as .npy/.json)")
 
     def _require_subject(self) -> Subject:
         if self.subject is None:

@@ -49,7 +49,7 @@ class OnnxBackend:
     """``deploy.engine.SynthesisBackend`` over the two ONNX graphs of a bundle folder."""
 
     def __init__(self, folder: str | os.PathLike, *, int8: bool = False, providers: list[str] | None = None,
-                 threads: int = 0) -> None:  # fmt: skip
+                 threads: int = 0) -> None:
         folder = Path(folder)
         frame_name = FRAME_GENERATOR_INT8_FILE if int8 else FRAME_GENERATOR_FILE
         for name in (SUBJECT_ENCODER_FILE, frame_name):
@@ -73,22 +73,22 @@ class OnnxBackend:
     def encode_subject(self, shots: np.ndarray, shot_landmark_images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(1, K, 3, S, S) each, in [-1, 1] -> (layout_latent, style_latent), (1, D) float32 each."""
         feed = {"shots": np.ascontiguousarray(shots, np.float32),
-                "shot_landmark_images": np.ascontiguousarray(shot_landmark_images, np.float32)}  # fmt: skip
+                "shot_landmark_images": np.ascontiguousarray(shot_landmark_images, np.float32)}
         layout_latent, style_latent = self.subject_session.run(["layout_latent", "style_latent"], feed)
         return layout_latent, style_latent
 
     def synthesize(self, landmark_image: np.ndarray, layout_latent: np.ndarray, style_latent: np.ndarray,
                    with_layout: bool, references: np.ndarray | None = None,
-                   reference_masks: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:  # fmt: skip
+                   reference_masks: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """(B, 3, S, S) + (B, D) latents [+ references, reference_masks at ``crop_size``, warp-guided bundles]
         -> (image (B, 3, C, C) in [-1, 1], layout (B, C_l, S, S) or None); see ``deploy.engine.SynthesisBackend``."""
         feed = {"landmark_image": np.ascontiguousarray(landmark_image, np.float32),
                 "layout_latent": np.ascontiguousarray(layout_latent, np.float32),
-                "style_latent": np.ascontiguousarray(style_latent, np.float32)}  # fmt: skip
+                "style_latent": np.ascontiguousarray(style_latent, np.float32)}
         if self.warp_references:
             if references is None or reference_masks is None or references.shape[-1] != self.crop_size:
                 raise BundleError(f"{self.folder}: a warp-guided bundle needs references at {self.crop_size}^2 "
-                                  "(run it through OnnxReenactor, which warps the shots)")  # fmt: skip
+                                  "(run it through OnnxReenactor, which warps the shots)")
             feed["references"] = np.ascontiguousarray(references, np.float32)
             feed["reference_masks"] = np.ascontiguousarray(reference_masks, np.float32)
         wanted = ["image", "layout"] if with_layout and "layout" in self.frame_outputs else ["image"]
@@ -104,7 +104,7 @@ class OnnxReenactor(ReenactorBase):
     """
 
     def __init__(self, folder: str | os.PathLike, *, int8: bool = False, providers: list[str] | None = None,
-                 threads: int = 0, detector: str | object = "hog") -> None:  # fmt: skip
+                 threads: int = 0, detector: str | object = "hog") -> None:
         backend = OnnxBackend(folder, int8=int8, providers=providers, threads=threads)
         super().__init__(backend, detector=detector, crop_size=backend.crop_size)
 

@@ -160,7 +160,7 @@ def border_points(height: int, width: int) -> np.ndarray:
     """The 4 frame corners and 4 edge midpoints, (8, 2) x, y pixel centres."""
     right, bottom = width - 1.0, height - 1.0
     return np.array([[0, 0], [right / 2, 0], [right, 0], [right, bottom / 2],
-                     [right, bottom], [right / 2, bottom], [0, bottom], [0, bottom / 2]], np.float64)  # fmt: skip
+                     [right, bottom], [right / 2, bottom], [0, bottom], [0, bottom / 2]], np.float64)
 
 
 def folded_fraction(map_x: np.ndarray, map_y: np.ndarray) -> float:
@@ -211,7 +211,7 @@ class WarpMap:
         """(H, W) bool: the map samples inside the source image (elsewhere the warp only repeats its border)."""
         slack = 1e-3  # border pixels of an exact identity map come out at -1e-15: still inside
         return ((self.map_x >= -slack) & (self.map_x <= source_width - 1 + slack)
-                & (self.map_y >= -slack) & (self.map_y <= source_height - 1 + slack))  # fmt: skip
+                & (self.map_y >= -slack) & (self.map_y <= source_height - 1 + slack))
 
 
 @dataclasses.dataclass
@@ -277,7 +277,7 @@ class _Grid:
 
 def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
     return cv2.remap(image, map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+                     borderMode=cv2.BORDER_REPLICATE)
 
 
 def tps_map(
@@ -324,7 +324,7 @@ def tps_map(
         if np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)) and folds <= max_folded_fraction:
             method = "tps" if attempt == 0 else "tps_stronger"
             return WarpMap(grid.densify(map_x), grid.densify(map_y), method, regularization * factor, folds,
-                           "; ".join(reasons))  # fmt: skip
+                           "; ".join(reasons))
         reasons.append(f"lambda {regularization * factor:.3g}: {folds:.2%} of pixels folded")
     matrix = fit_similarity(landmark_targets, landmark_sources) if len(landmark_targets) >= 2 else None
     if matrix is not None:
@@ -358,12 +358,12 @@ def tps_maps(
     conditioned, folded), goes through ``tps_map`` alone (with its retries and fallbacks).
     """
     settings = dict(regularization=regularization, merge_distance=merge_distance, max_condition=max_condition,
-                    max_folded_fraction=max_folded_fraction, fix_border=fix_border, grid_step=grid_step)  # fmt: skip
+                    max_folded_fraction=max_folded_fraction, fix_border=fix_border, grid_step=grid_step)
     target = np.asarray(target_points, np.float64)
     sources = [np.asarray(points, np.float64) for points in source_sets]
     found = np.all(np.isfinite(target), axis=1) if target.ndim == 2 else None
     shared = [index for index, points in enumerate(sources) if found is not None and points.shape == target.shape
-              and np.array_equal(np.all(np.isfinite(points), axis=1) & found, found)]  # fmt: skip
+              and np.array_equal(np.all(np.isfinite(points), axis=1) & found, found)]
     maps: list[WarpMap | None] = [None] * len(sources)
     if shared and target.shape[1:] == (2,):
         control = target[found]
@@ -386,7 +386,7 @@ def tps_maps(
                 if np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)) and folds <= max_folded_fraction:
                     maps[index] = WarpMap(grid.densify(map_x), grid.densify(map_y), "tps", regularization, folds, "")
     return [found_map if found_map is not None else tps_map(sources[index], target, height, width, **settings)
-            for index, found_map in enumerate(maps)]  # fmt: skip
+            for index, found_map in enumerate(maps)]
 
 
 def warp_tps(image: np.ndarray, source_points: np.ndarray, target_points: np.ndarray, **settings) -> WarpResult:

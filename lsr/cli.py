@@ -34,7 +34,7 @@ def _run_demo(cfg: config.DemoConfig) -> None:
     from lsr.demo import run_demo
 
     run_demo(cfg.out, weights=cfg.weights, frames=cfg.frames, k=cfg.k, finetune_steps=cfg.finetune_steps,
-             threads=cfg.threads, progress=cfg.progress)  # fmt: skip
+             threads=cfg.threads, progress=cfg.progress)
 
 
 def _run_bench_landmarks(cfg: config.BenchLandmarksConfig) -> None:

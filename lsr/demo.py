@@ -57,7 +57,7 @@ def write_still(video: Path, out: Path, count: int = STILL_FRAMES) -> Path:
 
 
 def run_demo(out: Path, *, weights: Path | None = None, frames: int = 100, k: int = 8, finetune_steps: int | None = None,
-             threads: int = 0, progress: bool = True) -> dict[str, Path]:  # fmt: skip
+             threads: int = 0, progress: bool = True) -> dict[str, Path]:
     """Render the inputs, re-enact, write the side-by-side still; returns the output paths."""
     from lsr.config import ReenactConfig
     from lsr.reenact import run_reenact
@@ -71,7 +71,7 @@ def run_demo(out: Path, *, weights: Path | None = None, frames: int = 100, k: in
     paths = {"video": out / "demo.mp4", "side_by_side": out / "demo_side_by_side.mp4"}
     cfg = ReenactConfig(weights=weights, source=source, driving=driver, out=paths["video"], k=k,
                         finetune_steps=finetune_steps, side_by_side=paths["side_by_side"], overwrite=True,
-                        threads=threads, progress=progress)  # fmt: skip
+                        threads=threads, progress=progress)
     cfg.validate()
     run_reenact(cfg)
     paths["still"] = write_still(paths["side_by_side"], out / "demo_side_by_side.png")

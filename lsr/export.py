@@ -47,7 +47,7 @@ class FrameGeneratorGraph(nn.Module):
         if self.frame_generator.config.uses_references:
             landmark_image, layout_latent, style_latent, references, reference_masks = inputs
             outputs = self.frame_generator.synthesize(landmark_image, layout_latent, style_latent,
-                                                      references=references, reference_masks=reference_masks)  # fmt: skip
+                                                      references=references, reference_masks=reference_masks)
         else:
             outputs = self.frame_generator.synthesize(*inputs)
         return (outputs.image, outputs.layout) if self.with_layout else outputs.image

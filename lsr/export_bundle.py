@@ -101,7 +101,7 @@ def export_graphs(model: LSRModel, out: str | os.PathLike, *, shots: int = 2) ->
     example_shots = torch.rand(1, shots, 3, size, size, generator=generator) * 2 - 1
     example_landmarks = torch.rand(1, shots, config.landmark_channels, size, size, generator=generator) * 2 - 1
     subject_path = export_onnx(model.subject_encoder, (example_shots, example_landmarks), out / SUBJECT_ENCODER_FILE,
-                               *SUBJECT_GRAPH_IO, opset=ONNX_OPSET)  # fmt: skip
+                               *SUBJECT_GRAPH_IO, opset=ONNX_OPSET)
     with_layout = layout_kind_of(config.variant) != "none"
     graph = FrameGeneratorGraph(model.frame_generator, with_layout=with_layout)
     latents = model.subject_encoder(example_shots, example_landmarks)
@@ -111,7 +111,7 @@ def export_graphs(model: LSRModel, out: str | os.PathLike, *, shots: int = 2) ->
         crop, count = int(metadata["crop_size"]), config.warp_references
         frame_inputs += (torch.rand(1, count, 3, crop, crop, generator=generator) * 2 - 1, torch.ones(1, count, 1, crop, crop))
     frame_path = export_onnx(graph, frame_inputs, out / FRAME_GENERATOR_FILE,
-                             *frame_graph_io(model.frame_generator, with_layout), opset=ONNX_OPSET)  # fmt: skip
+                             *frame_graph_io(model.frame_generator, with_layout), opset=ONNX_OPSET)
     for path in (subject_path, frame_path):
         set_metadata(path, metadata)
     return ExportResult(out, [subject_path, frame_path], metadata)
@@ -181,7 +181,7 @@ def quantize_frame_generator(fp32_path: Path, int8_path: Path, calibration: Sequ
             str(fp32_path), str(temp), _FrameCalibration(calibration), quant_format=QuantFormat.QDQ,
             activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
             calibrate_method=CalibrationMethod.MinMax,
-        )  # fmt: skip
+        )
     import onnx
 
     metadata = {p.key: p.value for p in onnx.load(str(fp32_path), load_external_data=False).metadata_props}
@@ -203,7 +203,7 @@ def graph_error(reference_path: Path, other_path: Path, inputs: Sequence[dict[st
 
 
 def calibration_inputs(weights: str | os.PathLike | LSRModel, source, driving, *, k: int | None = None,
-                       frames: int = 32) -> list[dict[str, np.ndarray]]:  # fmt: skip
+                       frames: int = 32) -> list[dict[str, np.ndarray]]:
     """Frame-graph inputs of real frames: ``driving``'s first ``frames`` landmark images and ``source``'s latents."""
     from deploy.engine import to_network
     from lsr.pipeline import Reenactor
@@ -214,7 +214,7 @@ def calibration_inputs(weights: str | os.PathLike | LSRModel, source, driving, *
     for frame in reenactor(driving):
         if frame.landmark_image is not None:
             feeds.append({"landmark_image": to_network(frame.landmark_image)[None],
-                          "layout_latent": subject.layout_latent, "style_latent": subject.style_latent})  # fmt: skip
+                          "layout_latent": subject.layout_latent, "style_latent": subject.style_latent})
         if len(feeds) >= frames:
             break
     return feeds
@@ -237,7 +237,7 @@ def run_export(cfg) -> ExportResult:
     model = load_model(resolve_weights(cfg.weights))
     result = export_graphs(model, cfg.out)
     print(f"wrote {', '.join(p.name for p in result.files)} to {result.folder} "
-          f"(opset {ONNX_OPSET}, preset {result.metadata['preset']}, {result.metadata['resolution']}^2)")  # fmt: skip
+          f"(opset {ONNX_OPSET}, preset {result.metadata['preset']}, {result.metadata['resolution']}^2)")
     if cfg.int8:
         source = cfg.calibration_source or default_calibration_clip()
         driving = cfg.calibration_driving or source
@@ -245,9 +245,9 @@ def run_export(cfg) -> ExportResult:
             raise ConfigError("--int8 needs real calibration frames: pass --calibration-source (and --calibration-driving)")
         feeds = calibration_inputs(model, source, driving, k=cfg.calibration_k, frames=cfg.calibration_frames)
         int8_path = quantize_frame_generator(result.folder / FRAME_GENERATOR_FILE,
-                                             result.folder / FRAME_GENERATOR_INT8_FILE, feeds)  # fmt: skip
+                                             result.folder / FRAME_GENERATOR_INT8_FILE, feeds)
         result.files.append(int8_path)
         result.int8_error = graph_error(result.folder / FRAME_GENERATOR_FILE, int8_path, feeds)
         print(f"int8 frame generator vs fp32 over {len(feeds)} calibration frame(s): max abs error "
-              f"{result.int8_error[0]:.4g}, mean abs error {result.int8_error[1]:.4g} (images in [-1, 1])")  # fmt: skip
+              f"{result.int8_error[0]:.4g}, mean abs error {result.int8_error[1]:.4g} (images in [-1, 1])")
     return result

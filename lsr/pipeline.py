@@ -124,7 +124,7 @@ class PrecisionError:
 
     def __str__(self) -> str:
         return (f"{self.precision} vs fp32 over {self.frames} frame(s): max abs error {self.max_abs:.4g}, "
-                f"mean abs error {self.mean_abs:.4g} (images in [-1, 1])")  # fmt: skip
+                f"mean abs error {self.mean_abs:.4g} (images in [-1, 1])")
 
 
 class Reenactor(ReenactorBase):
@@ -171,7 +171,7 @@ class Reenactor(ReenactorBase):
         result = finetune_subject(
             model, discriminator, resize_shots(subject.shots, self.resolution),  # trained at the model resolution
             steps=steps, lr=lr, batch_size=batch_size, device=self.backend.device, seed=seed, progress=progress,
-        )  # fmt: skip
+        )
         self.backend.model = result.model.eval().requires_grad_(False)
         return result
 
@@ -190,7 +190,7 @@ class Reenactor(ReenactorBase):
 
             landmark_image = to_network(draw_landmarks(points, self.resolution))[None]
             outputs = [r.backend.synthesize(landmark_image, subject.layout_latent, subject.style_latent, False)[0]
-                       for r in (reference, other)]  # fmt: skip
+                       for r in (reference, other)]
             difference = np.abs(outputs[0] - outputs[1])
             max_abs, total, count = max(max_abs, float(difference.max())), total + float(difference.mean()), count + 1
         if count == 0:

@@ -160,7 +160,7 @@ def onnx_bundle_folder(weights: Path) -> Path:
 
         return cached_bundle(weights)
     raise ConfigError(f"--runtime onnx: {weights} holds neither an ONNX bundle (subject_encoder.onnx) nor a model "
-                      "(config.json + model.safetensors)")  # fmt: skip
+                      "(config.json + model.safetensors)")
 
 
 def make_reenactor(cfg) -> ReenactorBase:
@@ -233,7 +233,7 @@ def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | Non
     frames = reenactor.reenact(
         job.driving, mode=mode, smooth=cfg.smooth, paste_back=cfg.paste_back, with_layout=with_layout,
         landmark_space=cfg.landmark_space, landmark_size=cfg.landmark_size, progress=cfg.progress,
-    )  # fmt: skip
+    )
     encode_seconds = 0.0
     with contextlib.ExitStack() as stack:
         writer = stack.enter_context(VideoWriter(job.output, info.fps, audio_from=audio, metadata=metadata))
@@ -256,7 +256,7 @@ def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | Non
     stats.add("encode", encode_seconds + time.perf_counter() - started)  # includes the final flush and audio mux
     if info.kind == "video" and stats.frames < info.frames:
         print(f"lsr reenact: warning: {job.driving}: decoded {stats.frames} of its {info.frames} declared frames "
-              "(truncated file?); the output has the decoded ones")  # fmt: skip
+              "(truncated file?); the output has the decoded ones")
     if stats.no_face:
         print(f"lsr reenact: {job.driving}: {stats.no_face} of {stats.frames} frame(s) had no face and were passed through")
     return stats
@@ -281,7 +281,7 @@ def _subject_for(reenactor: ReenactorBase, source: Path, cfg, cache: dict):
     if steps > 0:
         result = reenactor.finetune(steps, lr=cfg.finetune_lr, progress=cfg.progress)
         print(f"fine-tuned on {len(subject.shots.frames)} shots of {source} ({steps} steps): "
-              f"shot L1 {result.l1_before:.4f} -> {result.l1_after:.4f}")  # fmt: skip
+              f"shot L1 {result.l1_before:.4f} -> {result.l1_after:.4f}")
         cache["backend_model"] = reenactor.backend.model
     cache.update(key=key, subject=subject, seconds=encoded - started, finetune_seconds=time.perf_counter() - encoded)
 

@@ -89,7 +89,7 @@ class ModelConfig:
             "encoder_base_channels", "encoder_downsamplings", "max_channels", "layout_base_channels",
             "layout_levels", "generator_last_channels", "spade_hidden_channels", "generator_upsamplings",
             "discriminator_base_channels", "mbstd_group_size", "warp_references",
-        ):  # fmt: skip
+        ):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 fail(f"{name} must be a positive integer; got {value!r}")

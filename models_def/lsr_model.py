@@ -71,7 +71,7 @@ class FrameGenerator(nn.Module):
         return self.synthesize(
             landmark_image, layout_latent, style_latent, oracle_segmentation,
             references=references, reference_masks=reference_masks,
-        ).image  # fmt: skip
+        ).image
 
     def predict_layout(
         self, landmark_image: torch.Tensor, layout_latent: torch.Tensor, with_aux_rgb: bool = False

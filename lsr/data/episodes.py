@@ -232,7 +232,7 @@ class EpisodeDataset(Dataset):
 
 
 def reference_tensors(shots: torch.Tensor, shot_landmarks: torch.Tensor, target_landmarks: torch.Tensor,
-                      count: int) -> dict[str, torch.Tensor]:  # fmt: skip
+                      count: int) -> dict[str, torch.Tensor]:
     """The ``count`` nearest shots warped onto the target (``landmarks.tps.warp_references``) as network inputs.
 
     shots: (K, 3, S, S) in [-1, 1]; shot_landmarks: (K, 68, 2); target_landmarks: (68, 2)

@@ -36,7 +36,7 @@ from lsr.errors import DatasetError
 _OFFICIAL_ORDER = (
     "background", "skin", "nose", "eyeglasses", "l_eye", "r_eye", "l_brow", "r_brow", "l_ear",
     "r_ear", "mouth", "u_lip", "l_lip", "hair", "hat", "earring", "necklace", "neck", "cloth",
-)  # fmt: skip
+)
 OFFICIAL_TO_SEG_CLASS = np.array([SEG_CLASS_ID[name] for name in _OFFICIAL_ORDER], dtype=np.uint8)
 
 _JAW = slice(0, 17)

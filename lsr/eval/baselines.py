@@ -98,7 +98,7 @@ class TpsWarp:
         Exact map (grid_step 1): the baselines stay the exact TPS, not the coarse-grid one of the references."""
         result = tps.warp_tps(shot, shot_points, target_points, regularization=self.regularization,
                               merge_distance=self.merge_distance, max_folded_fraction=self.max_folded_fraction,
-                              fix_border=self.fix_border, grid_step=1)  # fmt: skip
+                              fix_border=self.fix_border, grid_step=1)
         self.warp_counts[result.method] += 1
         return result.image
 

@@ -40,7 +40,7 @@ def _row(method: str, steps: int | None, scores: list[dict[str, np.ndarray]], se
     joined = {key: np.concatenate([s[key] for s in scores]) for key in ("psnr", "ssim", "sharpness")}
     finite = joined["psnr"][np.isfinite(joined["psnr"])]
     return CurveRow(method, steps, float(finite.mean()), float(joined["ssim"].mean()), float(np.nanmedian(joined["sharpness"])),
-                    float(np.median(seconds)) if seconds else None)  # fmt: skip
+                    float(np.median(seconds)) if seconds else None)
 
 
 def finetune_curve(cfg: Any) -> tuple[list[CurveRow], dict[str, Any]]:
@@ -90,7 +90,7 @@ def finetune_curve(cfg: Any) -> tuple[list[CurveRow], dict[str, Any]]:
     bar.close()
     rows = [_row(name, steps, values, seconds.get(steps or 0, [])) for (name, steps), values in scores.items()]
     settings = {"data": str(data), "identities": [i.name for i in identities], "k": cfg.k, "seed": cfg.seed,
-                "weights": str(weights), "finetune_lr": cfg.finetune_lr}  # fmt: skip
+                "weights": str(weights), "finetune_lr": cfg.finetune_lr}
     return rows, settings
 
 
@@ -98,13 +98,13 @@ def curve_markdown(rows: list[CurveRow], settings: dict[str, Any], machine: str)
     lines = [f"K = {settings['k']} shots per identity ({len(settings['identities'])} identities of `{settings['data']}`, "
              f"seed {settings['seed']}); model `{settings['weights']}`, Adam lr {settings['finetune_lr']:g}.", "",
              "| method | fine-tuning steps | PSNR ↑ | SSIM ↑ | sharpness →1 | fine-tuning s (median per subject) |",
-             "|---|---|---|---|---|---|"]  # fmt: skip
+             "|---|---|---|---|---|---|"]
     for row in rows:
         steps = "–" if row.steps is None else str(row.steps)
         spent = "–" if row.seconds is None else f"{row.seconds:.1f}"
         lines.append(f"| {row.method} | {steps} | {row.psnr:.2f} | {row.ssim:.3f} | {row.sharpness:.2f} | {spent} |")
     lines += ["", "PSNR: mean over hold-out frames (uint8, peak 255); SSIM: kornia 11x11 Gaussian; sharpness: median "
-              "var(Laplacian(grey output)) / var(Laplacian(grey ground truth)), 1 = as sharp as the real frame.", "", machine]  # fmt: skip
+              "var(Laplacian(grey output)) / var(Laplacian(grey ground truth)), 1 = as sharp as the real frame.", "", machine]
     return "\n".join(lines)
 
 
@@ -118,6 +118,6 @@ def run_bench_finetune(cfg: Any) -> list[CurveRow]:
     print(text)
     if cfg.out_md is not None:
         path = write_section(cfg.out_md, SECTION, "Subject fine-tuning: steps against error (`lsr bench finetune`)",
-                             command_line(cfg, "lsr bench finetune"), text)  # fmt: skip
+                             command_line(cfg, "lsr bench finetune"), text)
         print(f"section eval:{SECTION} written to {path}")
     return rows

@@ -111,7 +111,7 @@ def yaw_preset(yaw: float):
 
     # the generator soft-clips angles as limit * tanh(signal / limit); a huge base saturates tanh at 0.7616
     return dataclasses.replace(get_preset("default"), name=f"yaw{yaw:g}", yaw_base_sd=1e4, yaw_swing=0.0,
-                               yaw_limit=yaw / math.tanh(1.0), occluder_fraction=0.0)  # fmt: skip
+                               yaw_limit=yaw / math.tanh(1.0), occluder_fraction=0.0)
 
 
 def _detect_all(frames: list[np.ndarray]) -> list[np.ndarray | None]:
@@ -160,7 +160,7 @@ def motion_blur(frame: np.ndarray, length: int = 21, degrees: float = 30.0) -> n
     kernel = np.zeros((length, length), np.float32)
     kernel[length // 2] = 1.0
     kernel = cv2.warpAffine(kernel, cv2.getRotationMatrix2D((length / 2 - 0.5, length / 2 - 0.5), degrees, 1.0),
-                            (length, length))  # fmt: skip
+                            (length, length))
     return cv2.filter2D(frame, -1, kernel / kernel.sum())
 
 
@@ -230,7 +230,7 @@ def build_cases(clip: Path | None, other_clip: Path | None, long_frames: int, pr
         _, yawed, _ = synthetic_material(seed, preset=yaw_preset(60.0), video_index=1)
         pose = "same person" if seed == 5 else "another synthetic person"
         cases.append(HardCase(f"yaw {sign}60", f"driver: {pose} holding the head at yaw {sign}60°", synthetic_shots,
-                              yawed, twin="easy_synthetic"))  # fmt: skip
+                              yawed, twin="easy_synthetic"))
     def drive(name, what, transform, **extra):
         cases.append(HardCase(name, what, shots, [transform(f, p) for f, p in zip(driver, driver_landmarks)], "easy", **extra))
 
@@ -242,16 +242,16 @@ def build_cases(clip: Path | None, other_clip: Path | None, long_frames: int, pr
     drive("motion blur", "driver blurred along a 21-px line", lambda f, p: motion_blur(f))
     drive("heavy JPEG", "driver JPEG quality 4", lambda f, p: jpeg(f))
     cases.append(HardCase("grayscale", "source shots and driver in grey", [grey(f) for f in shots],
-                          [grey(f) for f in driver], "easy"))  # fmt: skip
+                          [grey(f) for f in driver], "easy"))
     cases.append(HardCase("1 shot", "one source shot", shots[:1], driver, "easy", k=1))
     cases.append(HardCase("64 shots", "64 source frames, --k 32 (the most)", many_shots, driver, "easy", k=32))
     cases.append(HardCase("other face shape", "driver: another person (relative motion)", shots, other_driver))
     cases.append(HardCase("driver leaves frame", "the driver pans out of view over its first 2/3", shots,
-                          leave_frame(driver), "easy"))  # fmt: skip
+                          leave_frame(driver), "easy"))
     cases.append(HardCase("1-frame driver", "a single driver image", shots, driver[:1], "easy"))
     points = np.stack(found)
     cases.append(HardCase(f"{long_frames} landmarks", f"a {long_frames}-frame landmark sequence (.npy, frame pixels)",
-                          shots, long_landmarks(points, long_frames), check_faces_every=max(1, long_frames // 20)))  # fmt: skip
+                          shots, long_landmarks(points, long_frames), check_faces_every=max(1, long_frames // 20)))
     return cases
 
 
@@ -366,7 +366,7 @@ def hard_cases(cfg: Any) -> tuple[list[CaseResult], dict[str, Any]]:
             compare(result, produced, outputs.get(case.twin) if case.twin else None, detector)
             results.append(result)
     settings = {"weights": str(weights), "clips": [str(c) if c else "synthetic" for c in clips],
-                "long_frames": cfg.long_frames}  # fmt: skip
+                "long_frames": cfg.long_frames}
     return results, settings
 
 
@@ -383,16 +383,16 @@ def hard_markdown(results: list[CaseResult], settings: dict[str, Any], machine: 
              f"{', '.join(f'`{c}`' for c in settings['clips'])} (training clips; synthetic when absent).", "",
              "| case | what | outcome | frames out | driver frames without a face | non-finite frames | outputs with a face "
              "| PSNR vs easy twin | NMKE vs easy twin | s | ms/frame |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         outcome = r.outcome.replace("|", "/")
         face = "–" if r.output_face_share is None else f"{100 * r.output_face_share:.0f} %"
         lines.append(f"| {r.name} | {r.what} | {outcome} | {r.frames} | {r.driver_without_face} | {r.nonfinite_frames} | "
                      f"{face} | {_cell(r.psnr_vs_twin, 2)} | {_cell(r.nmke_vs_twin, 3)} | {r.seconds:.1f} | "
-                     f"{_cell(r.ms_per_frame, 1)} |")  # fmt: skip
+                     f"{_cell(r.ms_per_frame, 1)} |")
     lines += ["", "Twins: `easy` for the real material's cases, `easy_synthetic` for the yaw cases; – where a case has no "
               "twin, no frame pair or no face in one of the pair. ms/frame includes detection, tracking and the warps.",
-              "", machine]  # fmt: skip
+              "", machine]
     return "\n".join(lines)
 
 

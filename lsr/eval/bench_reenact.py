@@ -102,10 +102,10 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
             synth_ms = synthesis_only_ms(reenactor)
             started = time.perf_counter()
             stats = run_job(reenactor, Job(clip, clip, temp / f"out_{runtime}.mp4"),
-                            _JobOptions(cfg.paste_back, runtime=runtime))  # fmt: skip
+                            _JobOptions(cfg.paste_back, runtime=runtime))
             wall = time.perf_counter() - started
             per_frame = {stage: 1000 * stats.seconds.get(stage, 0.0) / max(1, stats.frames)
-                         for stage in ("decode", "landmarks", "synthesis", "paste_back", "encode")}  # fmt: skip
+                         for stage in ("decode", "landmarks", "synthesis", "paste_back", "encode")}
             end_to_end = stats.frames / wall
             rows.append(
                 f"| {runtime} | {stats.frames} | {stats.no_face} | {per_frame['decode']:.1f} | {per_frame['landmarks']:.1f} | "
@@ -129,6 +129,6 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
         *notes,
         "",
         machine_markdown(),
-    ])  # fmt: skip
+    ])
     print(table)
     return table

@@ -69,7 +69,7 @@ class FeatureExtractor:
         self.kind = "onnx" if path.suffix.lower() == ".onnx" else "torchscript"
         if self.kind == "torchscript" and path.suffix.lower() not in TORCHSCRIPT_SUFFIXES:
             raise WeightsError(f"{path}: unknown extractor format {path.suffix!r}; use TorchScript "
-                               f"({', '.join(TORCHSCRIPT_SUFFIXES)}) or .onnx. {WEIGHTS_HELP}")  # fmt: skip
+                               f"({', '.join(TORCHSCRIPT_SUFFIXES)}) or .onnx. {WEIGHTS_HELP}")
         self._module: Any = None
         self._session: Any = None
         try:
@@ -109,7 +109,7 @@ class FeatureExtractor:
             features = features[:, :, 0, 0]  # (N, D, 1, 1) -> (N, D), pytorch-fid's pool3 shape
         if features.ndim != 2 or features.shape[0] != images.shape[0]:
             raise WeightsError(f"FID feature extractor {self.path} returned {features.shape} for {images.shape[0]} "
-                               f"images; expected (N, D) or (N, D, 1, 1). {WEIGHTS_HELP}")  # fmt: skip
+                               f"images; expected (N, D) or (N, D, 1, 1). {WEIGHTS_HELP}")
         return features.astype(np.float64)
 
 

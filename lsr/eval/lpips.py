@@ -152,7 +152,7 @@ def load_lpips(path: Path, device: str = "cpu") -> Lpips:
             mapped[target] = value
     missing = sorted(set(expected) - set(mapped))
     wrong_shape = [f"{k}: {tuple(v.shape)} (expected {tuple(expected[k])})" for k, v in mapped.items()
-                   if not isinstance(v, Tensor) or v.shape != expected[k]]  # fmt: skip
+                   if not isinstance(v, Tensor) or v.shape != expected[k]]
     if missing or unexpected or wrong_shape:
         problems = []
         if missing:

@@ -71,7 +71,7 @@ class LsrModelMethod:
     ``target_segmentations`` in ``reenact``."""
 
     def __init__(self, weights: str | os.PathLike, *, device: str = "cpu", finetune_steps: int = 0,
-                 finetune_lr: float = 1e-3, name: str | None = None, reenactor=None) -> None:  # fmt: skip
+                 finetune_lr: float = 1e-3, name: str | None = None, reenactor=None) -> None:
         """reenactor: a ready ``ReenactorBase`` (e.g. ``deploy.runtime.OnnxReenactor`` over the bundle at
         ``weights``); None = load the torch model from ``weights``."""
         self.weights = Path(weights)
@@ -114,7 +114,7 @@ class LsrModelMethod:
         return scale
 
     def reenact(self, shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray,
-                target_segmentations: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+                target_segmentations: np.ndarray | None = None) -> np.ndarray:
         """shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (T, 68, 2);
         target_segmentations: (T, S, S) uint8 class ids, ground truth of the targets (``oracle_seg`` only)
         -> (T, S, S, 3) uint8."""
@@ -127,7 +127,7 @@ class LsrModelMethod:
         return np.stack(outputs) if outputs else np.zeros((0, size, size, 3), np.uint8)
 
     def _reenact_with_oracle(self, target_landmarks: np.ndarray, target_segmentations: np.ndarray | None,
-                             scale: float, size: int) -> np.ndarray:  # fmt: skip
+                             scale: float, size: int) -> np.ndarray:
         """Table 4.2's upper bound: G^s conditioned on the targets' one-hot ground-truth segmentation."""
         from deploy.engine import from_network, to_network
         from landmarks.raster import draw_landmarks
@@ -136,11 +136,11 @@ class LsrModelMethod:
         if target_segmentations is None:
             raise ConfigError(f"{self.name} is an 'oracle_seg' model: it needs the hold-out frames' ground-truth "
                               "segmentation; evaluate it on an lsr dataset with segmentation maps (e.g. one written "
-                              "by lsr.data.synth.generate_dataset), or drop it from --weights")  # fmt: skip
+                              "by lsr.data.synth.generate_dataset), or drop it from --weights")
         count = len(target_landmarks)
         if target_segmentations.shape != (count, size, size) or target_segmentations.dtype != np.uint8:
             raise ConfigError(f"target_segmentations must be ({count}, {size}, {size}) uint8, "
-                              f"got {target_segmentations.shape} {target_segmentations.dtype}")  # fmt: skip
+                              f"got {target_segmentations.shape} {target_segmentations.dtype}")
         subject = self.reenactor.subject  # encoded by _encode just before
         resolution = self.reenactor.resolution
         eye = np.eye(NUM_SEG_CLASSES, dtype=np.float32)

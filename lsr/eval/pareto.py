@@ -38,7 +38,7 @@ def _log_ticks(low: float, high: float) -> list[float]:
     """1-2-5 ticks per decade; finer (1, 1.5, 2, 3, 5, 7) when that gives fewer than four."""
     for mantissas in ((1, 2, 5), (1, 1.5, 2, 3, 5, 7), (1, 1.2, 1.5, 2, 2.5, 3, 4, 5, 6, 7, 8, 9)):
         ticks = [m * 10.0**d for d in range(math.floor(math.log10(low)), math.ceil(math.log10(high)) + 1)
-                 for m in mantissas if low <= m * 10.0**d <= high]  # fmt: skip
+                 for m in mantissas if low <= m * 10.0**d <= high]
         if len(ticks) >= 4:
             break
     return ticks

@@ -160,7 +160,7 @@ def load_lsr_split(root: Path, split: str = "test", inputs: int = 32, holdouts: 
         end = min(total, num_inputs + holdouts)
         holdout_segmentations = None if all_segmentations is None else all_segmentations[num_inputs:end]
         identities.append(EvalIdentity(name, all_frames[:num_inputs], all_landmarks[:num_inputs],
-                                       all_frames[num_inputs:end], all_landmarks[num_inputs:end], holdout_segmentations))  # fmt: skip
+                                       all_frames[num_inputs:end], all_landmarks[num_inputs:end], holdout_segmentations))
     return identities
 
 
@@ -281,7 +281,7 @@ def _rows_or_none(array: np.ndarray | None, rows: np.ndarray) -> np.ndarray | No
 def _check_outputs(outputs: np.ndarray, count: int, size: tuple[int, ...], name: str) -> None:
     if not isinstance(outputs, np.ndarray) or outputs.dtype != np.uint8 or outputs.shape != (count, *size):
         raise ConfigError(f"method {name} returned {getattr(outputs, 'shape', type(outputs))} "
-                          f"{getattr(outputs, 'dtype', '')}; expected ({count}, {', '.join(map(str, size))}) uint8")  # fmt: skip
+                          f"{getattr(outputs, 'dtype', '')}; expected ({count}, {', '.join(map(str, size))}) uint8")
 
 
 def run_protocol(
@@ -372,7 +372,7 @@ def run_protocol(
                         "nmke": float(nmke(found, target_landmarks[row])) if found is not None else float("nan"),
                         "no_face": found is None, "pose_distance": float(pose_distances[row]),
                         **{key: float(values[row]) for key, values in extra.items()},
-                    })  # fmt: skip
+                    })
                 if driver is not None and len(driver_landmarks):
                     before = _warp_counts(model)
                     # the oracle sees the driving frame's segmentation, i.e. identity i+1's face layout
@@ -387,7 +387,7 @@ def run_protocol(
                             "method": name, "k": int(k), "identity": identity.name, "driver": driver.name,
                             "frame": int(driver_rows[row]), "no_face": found is None,
                             "idsim_source": idsim.cosine_similarity(analysis.embedding(output, align), source_embedding),
-                        })  # fmt: skip
+                        })
                 if on_outputs is not None:
                     on_outputs(name, int(k), identity, outputs, targets)
                 bar.update(1)
@@ -401,5 +401,5 @@ def run_protocol(
             record["bucket"] = label
     settings = {"ks": [int(k) for k in ks], "seed": seed, "max_holdouts": max_holdouts, "cross_identity": cross_identity,
                 "identities": [i.name for i in identities], "methods": [v[0] for v in variants],
-                "bucket_thresholds": "fixed" if fixed_thresholds else "terciles per K"}  # fmt: skip
+                "bucket_thresholds": "fixed" if fixed_thresholds else "terciles per K"}
     return EvalRun(records, cross_records, thresholds, counts, settings)

@@ -80,7 +80,7 @@ def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backb
                 "lpips": _mean([r["lpips"] for r in group]) if "lpips" in group[0] else None,
                 "fid": fid[(name, k)].value if (name, k) in fid else None,
                 "fid_samples": fid[(name, k)].samples_first if (name, k) in fid else None,
-            })  # fmt: skip
+            })
             bucket = {"method": name, "k": k}
             for label in BUCKETS:
                 members = [r for r in group if r.get("bucket") == label]
@@ -91,7 +91,7 @@ def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backb
             if crossed:
                 cross_rows.append({"method": name, "k": k, "frames": len(crossed),
                                    "idsim_source": _mean([r["idsim_source"] for r in crossed]),
-                                   "no_face": sum(r["no_face"] for r in crossed)})  # fmt: skip
+                                   "no_face": sum(r["no_face"] for r in crossed)})
     return {
         "rows": rows,
         "buckets": bucket_rows,
@@ -120,7 +120,7 @@ def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backb
             "cross": "identity i driven by identity i+1's hold-out landmarks (not retargeted); ID-SIM of the output "
                      "to the mean embedding of i's K shots",
         },
-    }  # fmt: skip
+    }
 
 
 def _fmt(value: Any, digits: int = 3) -> str:
@@ -158,7 +158,7 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
     lines += ["", f"LPIPS: {summary['lpips']}.", "", f"FID: {summary['fid']}.", "",
               "## Thesis Table 4.4 (reference; VoxCeleb2, 50 ids, ID-SIM from VGGFace: compare trends, not absolute ID-SIM)", "",
               "| method | K | fine-tuned | PSNR ↑ | SSIM ↑ | sharpness →1 | LPIPS ↓ | ID-SIM ↑ | NMKE ↓ | FID ↓ |",
-              "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+              "|---|---|---|---|---|---|---|---|---|---|"]
     shown_ks = set(settings["ks"])
     for (method, k, tuned), values in THESIS_TABLE_4_4.items():
         if k in shown_ks:
@@ -167,24 +167,24 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
             lines.append(f"| {method} | {k} | {'yes' if tuned else 'no'} | {cells} |")
     lines += ["", "## ID-SIM per pose-variance bucket (thesis §4.5.1)", ""]
     lines.append("thresholds (pose distance, " + settings["bucket_thresholds"] + "): "
-                 + "; ".join(f"K={k}: low < {_fmt(t[0])} <= medium < {_fmt(t[1])} <= high" for k, t in summary["thresholds"].items()))  # fmt: skip
+                 + "; ".join(f"K={k}: low < {_fmt(t[0])} <= medium < {_fmt(t[1])} <= high" for k, t in summary["thresholds"].items()))
     lines += ["", "| method | K | low | medium | high | frames (l/m/h) |", "|---|---|---|---|---|---|"]
     for row in summary["buckets"]:
         lines.append(f"| {row['method']} | {row['k']} | {_fmt(row['low'])} | {_fmt(row['medium'])} | {_fmt(row['high'])} | "
-                     f"{row['low_frames']}/{row['medium_frames']}/{row['high_frames']} |")  # fmt: skip
+                     f"{row['low_frames']}/{row['medium_frames']}/{row['high_frames']} |")
     if summary["cross"]:
         lines += ["", "## Cross-identity re-enactment (thesis §4.4.3)", "",
-                  "| method | K | frames | ID-SIM to source ↑ | no face |", "|---|---|---|---|---|"]  # fmt: skip
+                  "| method | K | frames | ID-SIM to source ↑ | no face |", "|---|---|---|---|---|"]
         for row in summary["cross"]:
             lines.append(f"| {row['method']} | {row['k']} | {row['frames']} | {_fmt(row['idsim_source'])} | {row['no_face']} |")
     warp = summary["counts"].get("warp_methods", {})
     if warp:
         lines += ["", "## TPS warp methods used (warps: one per frame for tps, up to 3 for tps_mean3)", "",
-                  "| method | run | tps | tps_stronger | similarity | identity |", "|---|---|---|---|---|---|"]  # fmt: skip
+                  "| method | run | tps | tps_stronger | similarity | identity |", "|---|---|---|---|---|---|"]
         for name, table in warp.items():
             for run_name, used in table.items():
                 lines.append(f"| {name} | {run_name} | {used.get('tps', 0)} | {used.get('tps_stronger', 0)} | "
-                             f"{used.get('similarity', 0)} | {used.get('identity', 0)} |")  # fmt: skip
+                             f"{used.get('similarity', 0)} | {used.get('identity', 0)} |")
     skipped = {k: v for k, v in summary["counts"]["holdouts_without_face"].items() if v}
     no_input = {k: v for k, v in summary["counts"]["inputs_without_face"].items() if v}
     lines += ["", "## Notes", ""]
@@ -240,7 +240,7 @@ class ExampleWriter:
         if self.count <= 0:
             return
         strip = np.concatenate([np.concatenate(list(outputs[: self.count]), axis=1),
-                                np.concatenate(list(targets[: self.count]), axis=1)], axis=0)  # fmt: skip
+                                np.concatenate(list(targets[: self.count]), axis=1)], axis=0)
         write_image(self.out_dir / "examples" / f"{name}_k{k}_{identity.name}.png", strip)  # top: output, bottom: truth
 
     def comparison(self, k: int) -> np.ndarray:
@@ -312,7 +312,7 @@ def run_eval(cfg: Any) -> dict[str, Any]:
     if cfg.max_identities:
         identities = identities[: cfg.max_identities]
     available = {"nearest_shot": NearestShot, "tps": lambda: TpsWarp(regularization=cfg.tps_regularization),
-                 "tps_mean3": lambda: TpsMean3(regularization=cfg.tps_regularization)}  # fmt: skip
+                 "tps_mean3": lambda: TpsMean3(regularization=cfg.tps_regularization)}
     methods = [available[name]() for name in cfg.methods]
     if cfg.weights:
         from lsr.eval.model_method import LsrModelMethod
@@ -335,7 +335,7 @@ def run_eval(cfg: Any) -> dict[str, Any]:
         fid_features, on_outputs = _fid_collector(cfg.fid_weights, cfg.device, on_outputs)
     run = run_protocol(methods, identities, cfg.k, FaceAnalysis(detector), seed=cfg.seed, max_holdouts=cfg.max_holdouts,
                        fixed_thresholds=thresholds, cross_identity=cfg.cross_identity, on_outputs=on_outputs,
-                       frame_metrics=frame_metrics, progress=cfg.progress)  # fmt: skip
+                       frame_metrics=frame_metrics, progress=cfg.progress)
     fid_results = {}
     if cfg.fid_weights is not None:
         from lsr.eval.fid import fid_from_features
@@ -347,9 +347,9 @@ def run_eval(cfg: Any) -> dict[str, Any]:
         backbones["fid"] = (f"features from {cfg.fid_weights} (D = {', '.join(map(str, sorted(dims)))}), outputs vs ground "
                             f"truth over all hold-out frames per (method, K); samples per row in the JSON 'fid_samples'"
                             + (f"; N <= D, so {min(eps):g} was added to the covariance diagonals (values are not "
-                               "comparable to 50k-sample FIDs)" if eps else ""))  # fmt: skip
+                               "comparable to 50k-sample FIDs)" if eps else ""))
     run.settings.update({"data": str(data), "layout": layout, "detector": f"{cfg.detector}, upsample {cfg.detector_upsample}",
-                         "tps_regularization": cfg.tps_regularization})  # fmt: skip
+                         "tps_regularization": cfg.tps_regularization})
     summary = summarise(run, fid=fid_results, backbones=backbones)
     if cfg.figure is not None:
         from landmarks.imageio import write_image

@@ -45,7 +45,7 @@ def section_text(name: str, title: str, command: str, body: str, note: str | Non
     start, end = markers(name)
     stamp = f"{datetime.datetime.now().astimezone():%Y-%m-%d %H:%M %Z}"
     lines = [start, f"## {title}", "", f"_Written by the command below on {stamp}; do not edit the numbers by hand, "
-             "re-run it._", "", f"```\n{command}\n```", ""]  # fmt: skip
+             "re-run it._", "", f"```\n{command}\n```", ""]
     if note:
         lines += [f"**Note:** {note}", ""]
     lines += [body.strip("\n"), "", end]
@@ -62,7 +62,7 @@ def replace_section(path: Path, section: str, start: str, end: str) -> Path:
     starts, ends = text.count(start), text.count(end)
     if starts != ends or starts > 1:
         raise ConfigError(f"{path}: the markers {start} / {end} are unbalanced or repeated; "
-                          "fix them by hand (one pair) and re-run")  # fmt: skip
+                          "fix them by hand (one pair) and re-run")
     if starts:
         before, rest = text.split(start, 1)
         _, after = rest.split(end, 1)

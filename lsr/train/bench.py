@@ -64,9 +64,9 @@ def run_bench_train(cfg) -> None:
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs, "
-          f"torch {torch.__version__}, {torch.get_num_threads()} threads, device {device}")  # fmt: skip
+          f"torch {torch.__version__}, {torch.get_num_threads()} threads, device {device}")
     print(f"batch {cfg.batch_size} episodes, K = {cfg.k_shots}, {cfg.resolution}x{cfg.resolution}, fp32, "
-          f"median of {cfg.steps} steps after 1 warm-up\n")  # fmt: skip
+          f"median of {cfg.steps} steps after 1 warm-up\n")
     print("| preset | stage | s/step | steps/s | episodes/s |")
     print("|---|---|---|---|---|")
     for preset in cfg.presets:

@@ -196,7 +196,7 @@ def save_subject(result: FinetuneResult, out: Path, extra: dict | None = None) -
     with atomic_output(out / LATENTS_NAME) as temp:
         save_file(latents, str(temp))
     summary = {"l1_before": result.l1_before, "l1_after": result.l1_after, "skipped_steps": result.skipped_steps,
-               "seconds": result.seconds, **(extra or {})}  # fmt: skip
+               "seconds": result.seconds, **(extra or {})}
     with atomic_output(out / "finetune.json") as temp:
         temp.write_text(json.dumps(summary, indent=2) + "\n")
     return out
@@ -225,7 +225,7 @@ def run_finetune(cfg) -> FinetuneResult:
     result = finetune_subject(
         model, discriminator, shots, steps=cfg.steps, lr=cfg.lr, batch_size=cfg.batch_size,
         weights=cfg.losses, device=device, seed=cfg.seed, progress=cfg.progress,
-    )  # fmt: skip
+    )
     save_subject(result, cfg.out, {"shots": len(shots.frames), "steps": cfg.steps, "weights": str(weights)})
     print(
         f"fine-tuned on {len(shots.frames)} shot(s) in {result.seconds:.1f} s ({cfg.steps} steps, "

@@ -198,7 +198,7 @@ def reconstruction_loss(fake: Tensor, real: Tensor, weights: LossWeights, percep
     if perceptual is not None and weights.vgg > 0:
         terms["vgg"] = perceptual(fake, real)
     total = (weights.l1 * terms["l1"] + weights.l2 * terms.get("l2", 0.0) + weights.ssim * terms.get("ssim", 0.0)
-             + weights.vgg * terms.get("vgg", 0.0))  # fmt: skip
+             + weights.vgg * terms.get("vgg", 0.0))
     return total, terms
 
 
@@ -255,7 +255,7 @@ def generator_step(
         else:  # stages 2-3, eqs. 4.3-4.4
             oracle = batch.oracle_one_hot() if model.config.variant == "oracle_seg" else None
             frame = generator.synthesize(batch.target_landmark_image, layout_latent, style_latent, oracle,
-                                         references=batch.references, reference_masks=batch.reference_masks)  # fmt: skip
+                                         references=batch.references, reference_masks=batch.reference_masks)
             fake, layout = frame.image.float(), frame.layout
             total, rec_terms = reconstruction_loss(fake, batch.target, weights, perceptual)
             scalars.update({k: v.item() for k, v in rec_terms.items()})

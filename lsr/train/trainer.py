@@ -301,7 +301,7 @@ class Trainer:
         result = generator_step(
             self.model, self.discriminator, self.g_optimizer, batch, plan, self.weights,
             context=self.context, perceptual=self.perceptual, bf16=self.bf16, loss_hook=self.loss_hook,
-        )  # fmt: skip
+        )
         scalars = dict(result.scalars)
         finite = result.finite
         if finite:
@@ -310,7 +310,7 @@ class Trainer:
                 d_result = discriminator_step(
                     self.discriminator, self.d_optimizer, batch.target, result.fake, self.weights, self.d_steps,
                     context=self.context, bf16=self.bf16,
-                )  # fmt: skip
+                )
                 self.d_steps += 1
                 scalars.update(d_result.scalars)
                 finite = d_result.finite

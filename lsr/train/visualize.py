@@ -114,7 +114,7 @@ def image_grid(rows: Sequence[Tensor], max_columns: int = 8) -> np.ndarray:
 # ---- loss curves --------------------------------------------------------------------------------------
 
 _CURVE_COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),
-                  (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]  # fmt: skip
+                  (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
 
 
 def read_tensorboard_scalars(log_dir: Path) -> dict[str, list[tuple[int, float]]]:
@@ -149,7 +149,7 @@ def plot_curves(series: Mapping[str, Sequence[tuple[int, float]]], panel_size: t
             for y_value, y_pixel in ((high, margin), (low, height - margin)):
                 cv2.putText(panel, f"{y_value:.3g}", (2, int(y_pixel)), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (80, 80, 80), 1)
             cv2.putText(panel, f"step {int(steps.min())}..{int(steps.max())}", (margin, height - 8),
-                        cv2.FONT_HERSHEY_SIMPLEX, 0.35, (80, 80, 80), 1)  # fmt: skip
+                        cv2.FONT_HERSHEY_SIMPLEX, 0.35, (80, 80, 80), 1)
         cv2.rectangle(panel, (margin, margin), (width - 10, height - margin), (200, 200, 200), 1)
         panels.append(panel)
     if not panels:

@@ -22,7 +22,7 @@ def _widened(name: str, old: torch.Tensor, new: torch.Tensor) -> torch.Tensor:
     """``old`` placed in the leading slice of a zero tensor shaped like ``new`` (input channels, output rows)."""
     if old.dim() != new.dim() or any(o > n for o, n in zip(old.shape, new.shape)):
         raise WeightsError(f"--init-from: {name} has shape {tuple(old.shape)}, the new model needs {tuple(new.shape)}; "
-                           "only added input or output channels can be warm-started (same preset and resolution)")  # fmt: skip
+                           "only added input or output channels can be warm-started (same preset and resolution)")
     result = torch.zeros_like(new)
     result[tuple(slice(0, size) for size in old.shape)] = old
     if old.dim() == 4 and old.shape[1] != new.shape[1]:  # EqualConv2d: keep weight / sqrt(fan_in) unchanged
@@ -46,7 +46,7 @@ def warm_start(model: LSRModel, discriminator: Discriminator, folder: str | Path
     missing = sorted(set(new_state) - set(old_state))
     if missing:
         raise WeightsError(f"--init-from {folder}: the new model has parameters the old one lacks ({', '.join(missing[:3])}); "
-                           "warm-start from a model of the same preset")  # fmt: skip
+                           "warm-start from a model of the same preset")
     widened, merged = [], {}
     for name, new in new_state.items():
         old = old_state[name]

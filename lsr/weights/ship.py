@@ -48,7 +48,7 @@ def ship(run_weights: str | os.PathLike, target: str | os.PathLike = DEFAULT_WEI
     finally:
         shutil.rmtree(temp, ignore_errors=True)
     return [(name, (target / name).stat().st_size, hashlib.sha256((target / name).read_bytes()).hexdigest())
-            for name in names]  # fmt: skip
+            for name in names]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -60,7 +60,7 @@ def app_server(app_server_weights, tmp_path_factory):
     from lsr.config import AppConfig
 
     cfg = AppConfig(weights=app_server_weights, port=free_port(), device="cpu", max_upload_mb=5,
-                    examples_dir=tmp_path_factory.mktemp("app_examples"))  # fmt: skip
+                    examples_dir=tmp_path_factory.mktemp("app_examples"))
     cfg.validate()
     demo, _, files = build_app(cfg)
     url = launch(demo, cfg, files, block=False)

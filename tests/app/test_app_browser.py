@@ -16,7 +16,7 @@ pytestmark = pytest.mark.slow
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--no-first-run"]  # fmt: skip
+                 "--disable-component-update", "--no-first-run"]
 WAIT_MS = 300_000  # generous: a failure bound on shared CPUs, not a speed check
 VIDEO_PLAYABLE = """() => {
     const video = document.querySelector('#result-video video');

@@ -13,12 +13,12 @@ def call_reenact(url, source, driving, **options):
 
     client = Client(url, verbose=False)
     settings = {"k": 1, "motion": "relative", "smooth": True, "paste_back": False, "finetune_steps": 0,
-                "runtime": "torch", "watermark": True, **options}  # fmt: skip
+                "runtime": "torch", "watermark": True, **options}
     return client.predict(
         [handle_file(str(source))], settings["k"], handle_file(str(driving)), settings["motion"], settings["smooth"],
         settings["paste_back"], settings["finetune_steps"], settings["runtime"], settings["watermark"],
         api_name="/reenact",
-    )  # fmt: skip
+    )
 
 
 def decode(path):

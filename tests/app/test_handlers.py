@@ -111,7 +111,7 @@ def test_finetuning_is_per_run_and_leaves_the_served_model_untouched(tiny_app_we
     before = {name: tensor.clone() for name, tensor in base.state_dict().items()}
     files = handlers.SessionFiles(tmp_path / "sessions")
     result = handlers.run_reenactment(store, handlers.Limits(), files.new_run("s"), [app_inputs["source"]], 1,
-                                      app_inputs["driving"], finetune_steps=1, watermark=False)  # fmt: skip
+                                      app_inputs["driving"], finetune_steps=1, watermark=False)
     assert result.frames == 5 and "fine-tuning" in result.timing
     assert store.reenactor("torch").model is base
     assert all(torch.equal(before[name], tensor) for name, tensor in base.state_dict().items())

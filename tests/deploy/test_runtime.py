@@ -166,7 +166,7 @@ def test_int8_static_qdq_bundle_runs_and_reports_error(bundle, tmp_path):
     subject = reference.encode_subject([face_frame(0), face_frame(10)])
     feeds = [{"landmark_image": to_network(draw_landmarks(points + shift, 64))[None],
               "layout_latent": subject.layout_latent, "style_latent": subject.style_latent}
-             for points in subject.shots.landmarks for shift in (0.0, 1.0)]  # fmt: skip
+             for points in subject.shots.landmarks for shift in (0.0, 1.0)]
     int8_path = quantize_frame_generator(folder / "frame_generator.onnx", folder / "frame_generator.int8.onnx", feeds)
     assert any(node.op_type == "QuantizeLinear" for node in onnx.load(str(int8_path)).graph.node)
     max_abs, mean_abs = graph_error(folder / "frame_generator.onnx", int8_path, feeds)

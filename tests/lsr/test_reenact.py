@@ -59,7 +59,7 @@ def test_single_job_keeps_frames_fps_audio_and_marks_provenance(weights, inputs,
     out, sbs = tmp_path / "out.mp4", tmp_path / "sbs.mp4"
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
                  str(inputs / "drive.mp4"), "--out", str(out), "--paste-back", "--side-by-side", str(sbs),
-                 "--watermark", "--no-progress"])  # fmt: skip
+                 "--watermark", "--no-progress"])
     assert code == 0
     frames, fps, has_audio, metadata = probe(out)
     assert (frames, fps, has_audio) == (5, 20.0, True)
@@ -136,7 +136,7 @@ def test_dirs_pairing_and_shards(tmp_path, monkeypatch):
     ],
 )
 def test_bad_input_exits_2_naming_the_problem_without_output(weights, inputs, tmp_path, capsys, monkeypatch, case,
-                                                            message):  # fmt: skip
+                                                            message):
     from landmarks.imageio import write_image
 
     source, driving = inputs / "alice.png", inputs / "drive.mp4"
@@ -171,7 +171,7 @@ def test_bad_input_exits_2_naming_the_problem_without_output(weights, inputs, tm
         monkeypatch.setenv("LSR_WEIGHTS", str(tmp_path / "nowhere"))
     out = tmp_path / "result.mp4"
     code = main(["reenact", "--finetune-steps", "0", *weights_args, "--source", str(source), "--driving", str(driving), "--out", str(out),
-                 "--no-progress", *extra])  # fmt: skip
+                 "--no-progress", *extra])
     error = capsys.readouterr().err
     assert code == 2
     assert message in error and error.startswith("lsr: error:")
@@ -186,7 +186,7 @@ def test_phone_portrait_clip_works_as_source_and_driver(weights, tmp_path, capsy
     clip = video_tests.write_rotated_clip(tmp_path / "phone.mp4", "phone", 0, upright)
     out = tmp_path / "out.mp4"
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(clip), "--driving", str(clip), "--out", str(out),
-                 "--paste-back", "--no-progress"])  # fmt: skip
+                 "--paste-back", "--no-progress"])
     assert code == 0, capsys.readouterr().err
     assert "| 1 | 0 | 0 | 3 | 0 |" in capsys.readouterr().out  # 3 frames, none without a face
     info = probe_video(out)
@@ -203,9 +203,9 @@ def _forbid_model_load(monkeypatch):
 
 
 @pytest.mark.parametrize("case", ["proc", "parent_is_file", "read_only", "out_is_folder", "sbs_equals_out",
-                                  "sbs_parent_is_file"])  # fmt: skip
+                                  "sbs_parent_is_file"])
 def test_unwritable_output_exits_2_with_one_line_before_the_model_loads(weights, inputs, tmp_path, capsys,
-                                                                       monkeypatch, case):  # fmt: skip
+                                                                       monkeypatch, case):
     _forbid_model_load(monkeypatch)
     out, extra, named = tmp_path / "out.mp4", [], None
     if case == "proc":
@@ -230,7 +230,7 @@ def test_unwritable_output_exits_2_with_one_line_before_the_model_loads(weights,
         (tmp_path / "blocker").write_text("a file, not a folder")
         extra, named = ["--side-by-side", str(tmp_path / "blocker" / "sbs.mp4")], tmp_path / "blocker"
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
-                 str(inputs / "drive.mp4"), "--out", str(out), "--no-progress", *extra])  # fmt: skip
+                 str(inputs / "drive.mp4"), "--out", str(out), "--no-progress", *extra])
     error = capsys.readouterr().err
     assert code == 2
     assert error.startswith("lsr: error:") and error.count("\n") == 1, error  # one line
@@ -274,7 +274,7 @@ def test_export_then_onnx_runtime_job(weights, inputs, tmp_path):
     assert all(p.stat().st_mode & 0o044 == 0o044 for p in bundle.iterdir())  # readable by others (mkstemp gives 0600)
     out = tmp_path / "onnx.mp4"
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(bundle), "--runtime", "onnx", "--source", str(inputs / "alice.png"),
-                 "--driving", str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])  # fmt: skip
+                 "--driving", str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])
     assert code == 0 and probe(out)[:3] == (5, 20.0, True)
 
 
@@ -282,7 +282,7 @@ def test_export_then_onnx_runtime_job(weights, inputs, tmp_path):
 def test_onnx_runtime_exports_a_model_folder_once_into_the_cache(weights, inputs, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--runtime", "onnx", "--source", str(inputs / "alice.png"),
-            "--driving", str(inputs / "drive.mp4"), "--no-progress"]  # fmt: skip
+            "--driving", str(inputs / "drive.mp4"), "--no-progress"]
     assert main([*args, "--out", str(tmp_path / "a.mp4")]) == 0
     assert "exporting" in capsys.readouterr().out
     bundles = list((tmp_path / "cache" / "lsr" / "onnx").iterdir())
@@ -312,7 +312,7 @@ def test_real_clip_end_to_end(weights, shared_data, tmp_path):
             writer.write(frame)
     out = tmp_path / "real.mp4"
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(short), "--driving", str(short), "--out",
-                 str(out), "--k", "2", "--paste-back", "--no-progress"])  # fmt: skip
+                 str(out), "--k", "2", "--paste-back", "--no-progress"])
     assert code == 0
     frames, fps, has_audio, metadata = probe(out)
     assert frames == 20 and abs(fps - info.fps) < 1e-3 and has_audio == info.has_audio
@@ -324,7 +324,7 @@ def test_finetune_steps_then_reenact(weights, inputs, tmp_path, capsys):
     """--finetune-steps fine-tunes the generators on the source shots (thesis §4.3.5) before synthesising."""
     out = tmp_path / "ft.mp4"
     code = main(["reenact", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
-                 str(inputs / "drive.mp4"), "--out", str(out), "--finetune-steps", "2", "--no-progress"])  # fmt: skip
+                 str(inputs / "drive.mp4"), "--out", str(out), "--finetune-steps", "2", "--no-progress"])
     assert code == 0 and probe(out)[0] == 5
     printed = capsys.readouterr().out
     assert "fine-tuned on 1 shots" in printed and "| finetune |" in printed
@@ -359,7 +359,7 @@ def test_existing_single_output_says_skipped(weights, inputs, tmp_path, capsys, 
     out.write_bytes(b"an earlier result")
     _forbid_model_load(monkeypatch)
     code = main(["reenact", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
-                 str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])  # fmt: skip
+                 str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])
     assert code == 0
     assert f"{out} exists, skipped; --overwrite to redo" in capsys.readouterr().out
     assert out.read_bytes() == b"an earlier result"
@@ -377,7 +377,7 @@ def test_bad_inputs_fail_before_the_model_loads(weights, inputs, tmp_path, capsy
     else:
         driving = tmp_path / "nothing.mp4"
     code = main(["reenact", "--weights", str(weights), "--source", str(source), "--driving", str(driving), "--out",
-                 str(tmp_path / "out.mp4"), "--no-progress"])  # fmt: skip
+                 str(tmp_path / "out.mp4"), "--no-progress"])
     error = capsys.readouterr().err
     assert code == 2 and error.count("\n") == 1 and error.startswith("lsr: error:")
     assert str(source if case == "missing_source" else driving) in error
@@ -387,7 +387,7 @@ def test_driver_without_any_face_is_an_error_and_writes_nothing(weights, inputs,
     driving = write_clip(tmp_path / "wall.mp4", [np.full((128, 128, 3), 90, np.uint8)] * 3, fps=10, audio=False)
     out = tmp_path / "out.mp4"
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"),
-                 "--driving", str(driving), "--out", str(out), "--no-progress"])  # fmt: skip
+                 "--driving", str(driving), "--out", str(out), "--no-progress"])
     error = capsys.readouterr().err
     assert code == 2 and "no face found in any of the 3 frame(s) of the driver" in error and str(driving) in error
     assert sorted(p.name for p in tmp_path.iterdir()) == ["wall.mp4"]  # no output, no temp file
@@ -416,7 +416,7 @@ def test_truncated_driver_video_warns_with_decoded_and_declared_counts(weights, 
     assert probe_video(cut).frames == 16 and 0 < decoded < 16  # the fixture is what the test needs
     out = tmp_path / "out.mp4"
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"),
-                 "--driving", str(cut), "--out", str(out), "--no-progress"])  # fmt: skip
+                 "--driving", str(cut), "--out", str(out), "--no-progress"])
     assert code == 0
     assert f"decoded {decoded} of its 16 declared frames (truncated file?)" in capsys.readouterr().out
     assert probe(out)[0] == decoded
@@ -437,7 +437,7 @@ def _start_batch(weights, inputs, tmp_path, jobs: int):
             writer.writerow([inputs / "alice.png", drive, f"out/{index}.mp4"])
     args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--jobs", str(table), "--no-progress"]
     child = subprocess.Popen([sys.executable, "-m", "lsr.cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                             text=True, cwd=Path(__file__).parents[2])  # fmt: skip
+                             text=True, cwd=Path(__file__).parents[2])
     while not (tmp_path / "out" / "0.mp4").exists():
         if child.poll() is not None:
             raise AssertionError(f"the batch ended before it was stopped: {child.communicate()}")
@@ -478,7 +478,7 @@ def test_one_corrupt_image_in_a_source_folder_is_skipped_with_a_note(weights, in
     (folder / "c.jpg").write_bytes(b"\xff\xd8 not really a jpeg")
     out = tmp_path / "out.mp4"
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(folder), "--driving",
-                 str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])  # fmt: skip
+                 str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])
     assert code == 0, capsys.readouterr().err
     printed = capsys.readouterr().out
     assert "skipped cannot decode" in printed and str(folder / "c.jpg") in printed
@@ -501,7 +501,7 @@ def test_a_source_with_two_faces_uses_the_largest_and_face_index_picks(weights, 
     source = tmp_path / "pair.png"
     write_image(source, _two_faces())
     args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(source), "--driving",
-            str(inputs / "drive.mp4"), "--no-progress"]  # fmt: skip
+            str(inputs / "drive.mp4"), "--no-progress"]
     assert main([*args, "--out", str(tmp_path / "a.mp4")]) == 0
     assert "1 source frame(s) show more than one face: used the largest; --face-index picks another" in capsys.readouterr().out
     assert main([*args, "--out", str(tmp_path / "b.mp4"), "--face-index", "1"]) == 0
@@ -525,14 +525,14 @@ def test_a_face_too_small_to_detect_says_the_size_needed(weights, inputs, tmp_pa
     source = tmp_path / "far.png"
     write_image(source, photo)
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(source), "--driving",
-                 str(inputs / "drive.mp4"), "--out", str(tmp_path / "out.mp4"), "--no-progress"])  # fmt: skip
+                 str(inputs / "drive.mp4"), "--out", str(tmp_path / "out.mp4"), "--no-progress"])
     error = capsys.readouterr().err
     assert code == 2 and "at least about 150 px wide" in error and "crop a large photo closer to the face" in error
 
 
 def test_finetune_on_a_single_photo_with_the_default_k(weights, inputs, tmp_path, capsys):
     code = main(["finetune", str(inputs / "alice.png"), "--weights", str(weights), "--steps", "1", "--out",
-                 str(tmp_path / "subject"), "--no-progress"])  # fmt: skip
+                 str(tmp_path / "subject"), "--no-progress"])
     assert code == 0, capsys.readouterr().err
     assert "fine-tuned on 1 shot(s)" in capsys.readouterr().out
 

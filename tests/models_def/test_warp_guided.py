@@ -49,7 +49,7 @@ def test_low_resolution_logits_are_upsampled_to_the_references():
 def test_blend_gradcheck():
     generator = torch.Generator().manual_seed(0)
     args = [torch.rand(1, 2, 3, 4, 4, generator=generator, dtype=torch.float64), torch.ones(1, 2, 1, 4, 4, dtype=torch.float64),
-            torch.rand(1, 3, 2, 2, generator=generator, dtype=torch.float64), torch.rand(1, 3, 2, 2, generator=generator, dtype=torch.float64)]  # fmt: skip
+            torch.rand(1, 3, 2, 2, generator=generator, dtype=torch.float64), torch.rand(1, 3, 2, 2, generator=generator, dtype=torch.float64)]
     for index in (0, 2, 3):
         args[index].requires_grad_(True)
     assert torch.autograd.gradcheck(lambda *a: blend_references(*a)[0], args)
@@ -103,7 +103,7 @@ def test_warm_start_keeps_the_old_generator_and_starts_with_a_uniform_blend(tmp_
     torch.testing.assert_close(outputs.generated, expected, atol=1e-4, rtol=0)
     valid = masks[:, :, 0].sum(dim=1) == config.warp_references  # where every reference is valid: all weights equal
     torch.testing.assert_close(outputs.blend_weights.permute(0, 2, 3, 1)[valid], torch.full((int(valid.sum()), 4), 0.25),
-                               atol=1e-5, rtol=0)  # fmt: skip
+                               atol=1e-5, rtol=0)
 
 
 def test_warm_start_rejects_another_preset(tmp_path):
@@ -132,6 +132,6 @@ def test_onnx_frame_graph_matches_torch(tmp_path):
     with torch.no_grad():
         expected = model.frame_generator.synthesize(landmark_image, latent, latent, references=references, reference_masks=masks)
     image, layout = backend.synthesize(landmark_image.numpy(), latent.numpy(), latent.numpy(), True,
-                                       references.numpy(), masks.numpy())  # fmt: skip
+                                       references.numpy(), masks.numpy())
     assert np.abs(image - expected.image.numpy()).max() <= 1e-4
     assert np.abs(layout - expected.layout.numpy()).max() <= 1e-4

@@ -143,14 +143,14 @@ def align_clip(clip: SynthClip, size: int) -> SynthClip:
         matrix = crop_transform(clip.landmarks[index], size)
         frames[index] = warp_to_crop(clip.frames[index], matrix, size)
         segmentation[index] = cv2.warpAffine(clip.segmentation[index], matrix, (size, size), flags=cv2.INTER_NEAREST,
-                                             borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+                                             borderMode=cv2.BORDER_REPLICATE)
         landmarks[index] = transform_landmarks(clip.landmarks[index], matrix)
     params = {**clip.params, "framing": "aligned", "size": size, "render_size": int(clip.frames.shape[1])}
     return dataclasses.replace(clip, frames=frames, landmarks=landmarks, segmentation=segmentation, params=params)
 
 
 def render_framed(identity_seed: int, num_frames: int, size: int = 128, preset: str | Preset = "default",
-                  video_index: int = 0, fps: float = DEFAULT_FPS, framing: Framing = "aligned") -> SynthClip:  # fmt: skip
+                  video_index: int = 0, fps: float = DEFAULT_FPS, framing: Framing = "aligned") -> SynthClip:
     """``render_video`` with a framing: 'camera' (the scene's camera, the head moves in the frame) or 'aligned'
     (rendered at ``ALIGN_OVERSAMPLE`` x size, then cropped per frame like inference; see ``align_clip``)."""
     if framing not in FRAMINGS:

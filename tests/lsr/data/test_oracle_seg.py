@@ -109,7 +109,7 @@ class TestIoU:
 IOU_THRESHOLDS = {
     "background": 0.70, "skin": 0.65, "nose": 0.62, "cloth": 0.72, "l_ear": 0.50, "r_ear": 0.40,
     "u_lip": 0.45, "l_lip": 0.30, "neck": 0.35, "l_eye": 0.2, "r_eye": 0.2, "l_brow": 0.15, "r_brow": 0.12,
-}  # fmt: skip
+}
 
 
 @pytest.mark.slow

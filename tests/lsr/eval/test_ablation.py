@@ -41,7 +41,7 @@ def ablation_setup(tmp_path_factory):
         folders.append(folder)
     data = root / "synth"
     generate_dataset(data, identities=2, videos_per_identity=1, frames=8, size=64,
-                            test_fraction=0.5, progress=False)  # fmt: skip
+                            test_fraction=0.5, progress=False)
     return data, folders
 
 
@@ -66,7 +66,7 @@ def test_lsr_eval_scores_every_variant(ablation_setup, tmp_path, monkeypatch):
     data, folders = ablation_setup
     monkeypatch.setattr(landmarks.detect, "FaceDetector", _NoFaceDetector)
     cfg = EvalConfig(data=data, out=tmp_path / "out", k=(1,), methods=(), weights=tuple(folders), inputs=4, holdouts=2,
-                     progress=False, examples=0)  # fmt: skip
+                     progress=False, examples=0)
     cfg.validate()
     summary = report.run_eval(cfg)
     rows = {row["method"]: row for row in summary["rows"]}
@@ -111,8 +111,8 @@ def test_oracle_seg_without_segmentation_is_a_config_error(ablation_setup):
     analysis = protocol.FaceAnalysis(_NoFaceDetector())
     # methods that do not need the ground truth are untouched by its absence
     run = protocol.run_protocol([NearestShot(), LsrModelMethod(folders[VARIANTS.index("latent_layout")])], identities,
-                                [1], analysis, max_holdouts=1, cross_identity=False, progress=False)  # fmt: skip
+                                [1], analysis, max_holdouts=1, cross_identity=False, progress=False)
     assert {r["method"] for r in run.records} == {"nearest_shot", "lsr:weights"}
     with pytest.raises(ConfigError, match="segmentation"):
         protocol.run_protocol([LsrModelMethod(folders[VARIANTS.index("oracle_seg")])], identities, [1], analysis,
-                              cross_identity=False, progress=False)  # fmt: skip
+                              cross_identity=False, progress=False)

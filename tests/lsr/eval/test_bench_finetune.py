@@ -28,7 +28,7 @@ def test_curve_rows_and_section(tmp_path, capsys):
     generate_dataset(data, identities=2, videos_per_identity=1, frames=8, size=64, seed=5, test_fraction=0.5, progress=False)
     weights = LSRModel(preset_config("tiny", variant="warp_guided")).save_pretrained(tmp_path / "warp")
     cfg = BenchFinetuneConfig(weights=weights, data=data, out=tmp_path / "out", k=2, steps=(0, 2), max_holdouts=2,
-                              out_md=tmp_path / "BENCH.md", progress=False)  # fmt: skip
+                              out_md=tmp_path / "BENCH.md", progress=False)
     rows = run_bench_finetune(cfg)
     assert [(row.method, row.steps) for row in rows] == [("tps", None), ("tps_mean3", None), ("lsr:warp", 0), ("lsr:warp", 2)]
     assert rows[3].seconds is not None and rows[3].seconds > 0 and rows[2].seconds is None

@@ -64,7 +64,7 @@ def test_lpips_matches_a_direct_computation(lpips_file, rng):
     expected, layer = 0.0, 0
     for index, stride, padding, pool in ((0, 4, 2, True), (3, 1, 2, True), (6, 1, 1, False), (8, 1, 1, False), (10, 1, 1, False)):
         x, y = (torch.relu(torch.nn.functional.conv2d(t, state[convs[index] + ".weight"], state[convs[index] + ".bias"],
-                                                      stride=stride, padding=padding)) for t in (x, y))  # fmt: skip
+                                                      stride=stride, padding=padding)) for t in (x, y))
         nx, ny = (t / (t.pow(2).sum(1, keepdim=True).sqrt() + 1e-10) for t in (x, y))
         expected += float((state[f"lin{layer}.model.1.weight"] * (nx - ny) ** 2).sum(1).mean())
         layer += 1
@@ -171,7 +171,7 @@ def extractor_files(tmp_path_factory):
     torch.jit.trace(module, example).save(str(folder / "tiny.pt"))
     export_kwargs = {"dynamo": False} if "dynamo" in torch.onnx.export.__code__.co_varnames else {}
     torch.onnx.export(module, (example,), str(folder / "tiny.onnx"), input_names=["images"],
-                      dynamic_axes={"images": {0: "n"}}, **export_kwargs)  # fmt: skip
+                      dynamic_axes={"images": {0: "n"}}, **export_kwargs)
     return module, folder / "tiny.pt", folder / "tiny.onnx"
 
 
@@ -228,7 +228,7 @@ def test_report_with_lpips_and_fid(tmp_path, lpips_file, extractor_files, capsys
     root = tmp_path / "synth"
     generate_dataset(root, identities=4, videos_per_identity=1, frames=10, size=64, test_fraction=0.5, progress=False)
     cfg = EvalConfig(data=root, out=tmp_path / "out", k=(1,), inputs=6, holdouts=4, progress=False, examples=0,
-                     cross_identity=False, lpips_weights=lpips_file, fid_weights=extractor_files[1])  # fmt: skip
+                     cross_identity=False, lpips_weights=lpips_file, fid_weights=extractor_files[1])
     cfg.validate()
     summary = report.run_eval(cfg)
     capsys.readouterr()

@@ -34,5 +34,5 @@ def test_tiny_model_runs_through_the_protocol(tmp_path, rng):
     outputs = method.reenact(list(frames[:2]), points[:2].astype(np.float64), points[4:].astype(np.float64))
     assert outputs.shape == (2, size, size, 3) and outputs.dtype == np.uint8
     run = protocol.run_protocol([method], [identity], [2], protocol.FaceAnalysis(_NoFaceDetector()),
-                                cross_identity=False, progress=False)  # fmt: skip
+                                cross_identity=False, progress=False)
     assert {r["method"] for r in run.records} == {"lsr:tiny", "lsr:tiny+ft"}

@@ -88,7 +88,7 @@ def test_runner_never_shows_holdouts_to_the_method(rng):
     identities[0].holdout_landmarks[1] = np.nan  # a hold-out without a face: skipped and counted
     spy = _SpyMethod()
     run = protocol.run_protocol([spy], identities, [1, 4], protocol.FaceAnalysis(_NoFaceDetector()),
-                                max_holdouts=3, progress=False)  # fmt: skip
+                                max_holdouts=3, progress=False)
     holdouts = {frame.tobytes() for identity in identities for frame in identity.holdout_frames}
     inputs = {frame.tobytes() for identity in identities for frame in identity.input_frames}
     assert spy.seen and all(shot.tobytes() in inputs and shot.tobytes() not in holdouts for shot in spy.seen)
@@ -110,6 +110,6 @@ def test_k_beyond_usable_inputs_is_capped_and_reported(rng):
     identity.input_landmarks[0] = np.nan  # 4 usable inputs
     spy = _SpyMethod()
     run = protocol.run_protocol([spy], [identity], [8], protocol.FaceAnalysis(_NoFaceDetector()),
-                                cross_identity=False, finetune=False, progress=False)  # fmt: skip
+                                cross_identity=False, finetune=False, progress=False)
     assert run.counts["k_capped"] == {"K=8 a": 4}
     assert len(spy.seen) == 4 and not any(np.array_equal(shot, identity.input_frames[0]) for shot in spy.seen)

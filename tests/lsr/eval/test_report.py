@@ -30,7 +30,7 @@ def test_report_on_synthetic_identities(tmp_path):
     identities = load_lsr_split(root, "test", inputs=6, holdouts=4)
     assert len(identities) == 2 and all(len(i.input_frames) == 6 and len(i.holdout_frames) == 4 for i in identities)
     run = run_protocol([NearestShot(), TpsWarp(), TpsMean3()], identities, [1], FaceAnalysis(_NoFaceDetector()),
-                       progress=False)  # fmt: skip
+                       progress=False)
     run.settings["data"] = str(root)
     summary = report.summarise(run)
     text = report.markdown(summary, "| machine | |")
@@ -80,7 +80,7 @@ def test_lsr_eval_on_two_real_identities(shared_data, tmp_path, capsys):
                 target.parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy(frame, target)
     cfg = EvalConfig(data=small, out=tmp_path / "out", k=(1,), max_holdouts=4, progress=False, examples=2,
-                     figure=tmp_path / "compare.png", figure_k=1)  # fmt: skip
+                     figure=tmp_path / "compare.png", figure_k=1)
     cfg.validate()
     summary = report.run_eval(cfg)
     printed = capsys.readouterr().out

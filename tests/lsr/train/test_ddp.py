@@ -40,7 +40,7 @@ def _one_step(rank: int, world: int) -> dict[str, torch.Tensor]:
     d_result = discriminator_step(discriminator, d_opt, batch.target, result.fake, weights, 0, context=context)
     assert result.finite and d_result.finite
     return {**{f"g.{k}": v.clone() for k, v in model.state_dict().items()},
-            **{f"d.{k}": v.clone() for k, v in discriminator.state_dict().items()}}  # fmt: skip
+            **{f"d.{k}": v.clone() for k, v in discriminator.state_dict().items()}}
 
 
 def _worker(rank: int, world: int, store_path: str, out_path: str) -> None:

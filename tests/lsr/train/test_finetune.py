@@ -31,7 +31,7 @@ def test_finetuning_lowers_reconstruction_error_and_writes_subject_files(tmp_pat
     out = save_subject(result, tmp_path / "subject")
     reloaded = LSRModel.from_pretrained(out)
     assert torch.equal(reloaded.state_dict()["frame_generator.image_generator.to_rgb.weight"],
-                       model.state_dict()["frame_generator.image_generator.to_rgb.weight"])  # fmt: skip
+                       model.state_dict()["frame_generator.image_generator.to_rgb.weight"])
     latents = load_file(str(out / "latents.safetensors"))
     assert latents["layout_latent"].shape == (1, config.latent_dim) and latents["style_latent"].shape == (1, config.latent_dim)
 

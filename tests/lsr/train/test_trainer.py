@@ -47,7 +47,7 @@ def test_each_stage_trains_the_right_parameters(tmp_path):
             ["frame_generator.layout_predictor.to_aux_rgb"]),
         3: (["frame_generator.image_generator", "frame_generator.layout_predictor.up_blocks"],
             ["frame_generator.layout_predictor.to_aux_rgb"]),
-    }  # fmt: skip
+    }
     for stage, start in ((1, 0), (2, 2), (3, 4)):
         trainer.step = start
         assert trainer.plan_at(start).stage == stage
