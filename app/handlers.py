@@ -84,7 +84,6 @@ class ModelStore:
         self._lock = threading.Lock()
         self._torch = None
         self._onnx = None
-        self._base_model = None
         self._detector = None
 
     @property
@@ -125,7 +124,6 @@ class ModelStore:
                 from lsr.devices import resolve_device
 
                 self._torch = Reenactor(weights, device=resolve_device(self.device), detector=detector)
-                self._base_model = self._torch.backend.model
             return self._torch
 
     @contextlib.contextmanager
@@ -134,19 +132,11 @@ class ModelStore:
         if steps <= 0:
             yield None
             return
-        from lsr.pipeline import Reenactor
-        from lsr.errors import ConfigError
+        from lsr.train.finetune import finetuned
 
-        if not isinstance(reenactor, Reenactor):
-            raise ConfigError("fine-tuning needs the torch runtime: choose runtime 'torch' or set the steps to 0")
-        base = self._base_model
-        reenactor.backend.model = copy.deepcopy(base)  # the shared base model must stay untouched
-        try:
-            started = time.perf_counter()
-            reenactor.finetune(steps, progress=True)
+        started = time.perf_counter()
+        with finetuned(reenactor, steps, progress=True):  # the shared base model is back after the run
             yield time.perf_counter() - started
-        finally:
-            reenactor.backend.model = base
 
 
 class SessionFiles:
@@ -422,7 +412,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     from lsr import __version__
     from lsr.errors import LsrError
     from lsr.reenact import side_by_side_frame
-    from lsr.train.visualize import LayoutPCA
+    from lsr.layout_view import LayoutPCA
 
     reenactor = store.reenactor(runtime)  # first: without a model nothing else matters
     driving_paths = _paths(driving)

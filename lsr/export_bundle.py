@@ -31,7 +31,7 @@ from landmarks.imageio import atomic_output, make_readable
 from lsr import __version__
 from lsr.errors import ConfigError, WeightsError
 from lsr.export import SUBJECT_GRAPH_IO, FrameGeneratorGraph, export_onnx, frame_graph_io
-from lsr.pipeline import layout_kind_of, load_model
+from lsr.pipeline import load_model
 from models_def import PRESET_NAMES, LSRModel, ModelConfig, preset_config
 
 ONNX_OPSET = 17
@@ -66,7 +66,7 @@ def bundle_metadata(config: ModelConfig, crop_size: int | None = None) -> dict[s
         "variant": config.variant,
         "resolution": str(config.resolution),
         "latent_dim": str(config.latent_dim),
-        "layout_kind": layout_kind_of(config.variant),
+        "layout_kind": config.layout_kind,
         "layout_channels": str(config.layout_channels),
         "landmark_format": LANDMARK_FORMAT,
         "opset": str(ONNX_OPSET),
@@ -102,7 +102,7 @@ def export_graphs(model: LSRModel, out: str | os.PathLike, *, shots: int = 2) ->
     example_landmarks = torch.rand(1, shots, config.landmark_channels, size, size, generator=generator) * 2 - 1
     subject_path = export_onnx(model.subject_encoder, (example_shots, example_landmarks), out / SUBJECT_ENCODER_FILE,
                                *SUBJECT_GRAPH_IO, opset=ONNX_OPSET)
-    with_layout = layout_kind_of(config.variant) != "none"
+    with_layout = config.layout_kind != "none"
     graph = FrameGeneratorGraph(model.frame_generator, with_layout=with_layout)
     latents = model.subject_encoder(example_shots, example_landmarks)
     frame_inputs = (example_landmarks[:, 0], *latents)

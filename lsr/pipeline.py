@@ -27,19 +27,10 @@ import torch
 from deploy.engine import LayoutKind, ReenactorBase, Subject
 from deploy.sources import SubjectShots
 from lsr.errors import ConfigError, WeightsError
-from models_def import Discriminator, LSRModel
+from models_def import LSRModel
 
 Precision = Literal["fp32", "bf16"]
 _DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
-
-
-def layout_kind_of(variant: str) -> LayoutKind:
-    """What the frame generator's layout output is for a variant (thesis Table 4.2)."""
-    if variant in ("latent_layout", "warp_guided"):
-        return "latent"
-    if variant in ("learned_seg", "oracle_seg"):
-        return "segmentation"
-    return "none"
 
 
 def load_model(weights: str | os.PathLike) -> LSRModel:
@@ -73,7 +64,7 @@ class TorchBackend:
         self.precision = precision
         self.model.to(self.device)
         self.resolution = model.config.resolution
-        self.layout_kind = layout_kind_of(model.config.variant)
+        self.layout_kind: LayoutKind = model.config.layout_kind  # type: ignore[assignment]
         self.warp_references = model.config.warp_references if model.config.uses_references else 0
 
     def _autocast(self):
@@ -151,29 +142,6 @@ class Reenactor(ReenactorBase):
     @property
     def model(self) -> LSRModel:
         return self.backend.model
-
-    def finetune(self, steps: int, *, lr: float = 1e-3, batch_size: int = 4, seed: int = 0, progress: bool = False):
-        """Fine-tune G^l, G^s on the cached subject's shots (thesis §4.3.5; ``lsr.train.finetune``), in place.
-
-        The latents stay those of ``encode_subject`` (fixed during fine-tuning, as in the thesis).
-        Returns the ``FinetuneResult`` (L1 before/after).
-        """
-        from lsr.train.finetune import finetune_subject, load_discriminator
-
-        subject = self._require_subject()
-        model = self.backend.model
-        if self.weights_path is not None:  # D saved beside the weights by `lsr train`, else a fresh one
-            discriminator, _ = load_discriminator(self.weights_path, model)
-        else:
-            discriminator = Discriminator(model.config)
-        from deploy.engine import resize_shots
-
-        result = finetune_subject(
-            model, discriminator, resize_shots(subject.shots, self.resolution),  # trained at the model resolution
-            steps=steps, lr=lr, batch_size=batch_size, device=self.backend.device, seed=seed, progress=progress,
-        )
-        self.backend.model = result.model.eval().requires_grad_(False)
-        return result
 
     def precision_error(self, driver_landmarks: Iterable[np.ndarray], precision: Precision = "bf16") -> PrecisionError:
         """Synthesise the same crop landmarks (each (68, 2) in crop pixels) in fp32 and ``precision``; print and return the error."""

@@ -186,14 +186,14 @@ def make_reenactor(cfg) -> ReenactorBase:
 def layout_panel(layout: np.ndarray | None, kind: str, size: int, pca=None) -> np.ndarray:
     """(C_l, S, S) layout -> (S, S, 3) uint8: argmax class colours for segmentations, else PCA of the channels.
 
-    pca: a ``lsr.train.visualize.LayoutPCA`` kept over a video (fitted on its first frame) so colours stay put;
+    pca: a ``lsr.layout_view.LayoutPCA`` kept over a video (fitted on its first frame) so colours stay put;
     None fits one on this frame alone.
     """
     if layout is None:
         return np.zeros((size, size, 3), np.uint8)
     import torch
 
-    from lsr.train.visualize import LayoutPCA, images_to_uint8, layout_argmax_rgb
+    from lsr.layout_view import LayoutPCA, images_to_uint8, layout_argmax_rgb
 
     tensor = torch.from_numpy(layout)[None]
     rgb = layout_argmax_rgb(tensor) if kind == "segmentation" else (pca if pca is not None else LayoutPCA())(tensor)
@@ -223,7 +223,7 @@ def side_by_side_frame(frame, kind: str, size: int, pca=None) -> np.ndarray:
 def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | None = None) -> ReenactStats:
     """Re-enact one job into ``job.output`` (atomic). The subject must already be encoded."""
     from landmarks.video import VideoWriter
-    from lsr.train.visualize import LayoutPCA
+    from lsr.layout_view import LayoutPCA
 
     info = describe_driver(job.driving, fps=cfg.fps)
     mode = "relative" if cfg.relative else "absolute" if cfg.absolute else "auto"
@@ -279,7 +279,9 @@ def _subject_for(reenactor: ReenactorBase, source: Path, cfg, cache: dict):
         print(f"lsr reenact: {source}: {note}")
     encoded = time.perf_counter()
     if steps > 0:
-        result = reenactor.finetune(steps, lr=cfg.finetune_lr, progress=cfg.progress)
+        from lsr.train.finetune import finetune_reenactor  # fine-tuning is composed on top of inference
+
+        result = finetune_reenactor(reenactor, steps, lr=cfg.finetune_lr, progress=cfg.progress)
         print(f"fine-tuned on {len(subject.shots.frames)} shots of {source} ({steps} steps): "
               f"shot L1 {result.l1_before:.4f} -> {result.l1_after:.4f}")
         cache["backend_model"] = reenactor.backend.model

@@ -129,6 +129,16 @@ class ModelConfig:
         return self.variant in LAYOUT_PREDICTOR_VARIANTS
 
     @property
+    def layout_kind(self) -> str:
+        """What the frame generator's layout output is (thesis Table 4.2): 'latent' (a learned layout to show as
+        PCA colours), 'segmentation' (class scores) or 'none' (no layout predictor)."""
+        if self.variant in ("latent_layout", "warp_guided"):
+            return "latent"
+        if self.variant in ("learned_seg", "oracle_seg"):
+            return "segmentation"
+        return "none"
+
+    @property
     def uses_references(self) -> bool:
         """The frame generator takes warped shots (variant warp_guided)."""
         return self.variant == "warp_guided"

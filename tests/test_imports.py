@@ -84,3 +84,26 @@ def test_lower_floors_do_not_import_upper_ones():
         if package in floors:
             outside = {t for t in targets if t.split(".")[0] not in floors[package] | {package}}
             assert not outside, f"{name} imports {sorted(outside)}"
+
+
+INFERENCE_PATH = ("deploy", "lsr.pipeline", "lsr.export", "lsr.export_bundle", "lsr.layout_view")
+
+
+def reachable(graph: dict[str, set[str]], starts: list[str]) -> set[str]:
+    seen, todo = set(), list(starts)
+    while todo:
+        name = todo.pop()
+        if name not in seen:
+            seen.add(name)
+            todo.extend(graph[name])
+    return seen
+
+
+def test_the_per_frame_inference_path_never_imports_training():
+    """Fine-tuning is composed on top of inference (lsr reenact, the app, lsr eval), never imported by it."""
+    modules = project_modules()
+    graph = import_graph(modules)
+    starts = [name for name in modules if name.startswith(INFERENCE_PATH)]
+    assert "lsr.pipeline" in starts and "deploy.engine" in starts
+    training = sorted(name for name in reachable(graph, starts) if name.startswith("lsr.train"))
+    assert training == [], f"the inference path reaches {training}"

@@ -159,5 +159,7 @@ class LsrModelMethod:
         check_method_inputs(shots, shot_landmarks, shot_landmarks)
         subject = LsrModelMethod(self.weights, device=self.device, name=self.name)
         subject._encode(shots, shot_landmarks)
-        subject.reenactor.finetune(self.finetune_steps, lr=self.finetune_lr, batch_size=min(4, len(shots)))
+        from lsr.train.finetune import finetune_reenactor
+
+        finetune_reenactor(subject.reenactor, self.finetune_steps, lr=self.finetune_lr, batch_size=min(4, len(shots)))
         return subject

@@ -10,9 +10,12 @@ style_latent), ready for the pipeline.
 
 from __future__ import annotations
 
+import contextlib
+import copy
 import dataclasses
 import json
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -177,6 +180,48 @@ def finetune_subject(
     model.requires_grad_(False)
     l1_after = reconstruction_l1(model, images, landmark_imgs, latents, oracle, references)
     return FinetuneResult(model, layout_latent.cpu(), style_latent.cpu(), l1_before, l1_after, skipped, seconds)
+
+
+def finetune_reenactor(reenactor, steps: int, *, lr: float = FINETUNE_LR, batch_size: int = 4, seed: int = 0,
+                       progress: bool = False) -> FinetuneResult:
+    """Fine-tune a torch ``lsr.pipeline.Reenactor``'s G^l, G^s on its encoded subject's shots, in place (§4.3.5).
+
+    The latents stay those of ``encode_subject`` (fixed during fine-tuning, as in the thesis); D comes from beside
+    the weights (``lsr train`` saves it) or starts fresh. Inference knows nothing of training: fine-tuning is
+    composed on top of it here, by ``lsr reenact``, the app and ``lsr eval``. Returns the ``FinetuneResult``."""
+    from deploy.engine import resize_shots
+    from lsr.errors import ConfigError
+
+    model = getattr(reenactor.backend, "model", None)
+    if not isinstance(model, LSRModel):
+        raise ConfigError("fine-tuning needs the torch runtime (the ONNX runtime runs the model as trained)")
+    subject = reenactor._require_subject()
+    if reenactor.weights_path is not None:
+        discriminator, _ = load_discriminator(reenactor.weights_path, model)
+    else:
+        discriminator = Discriminator(model.config)
+    result = finetune_subject(
+        model, discriminator, resize_shots(subject.shots, reenactor.resolution),  # trained at the model resolution
+        steps=steps, lr=lr, batch_size=batch_size, device=reenactor.backend.device, seed=seed, progress=progress,
+    )
+    reenactor.backend.model = result.model.eval().requires_grad_(False)
+    return result
+
+
+@contextlib.contextmanager
+def finetuned(reenactor, steps: int, **options) -> Iterator[FinetuneResult | None]:
+    """Fine-tune a copy of the re-enactor's model for the ``with`` block; its base model is back afterwards.
+
+    ``steps`` <= 0 yields None and touches nothing; ``options``: those of ``finetune_reenactor``."""
+    if steps <= 0:
+        yield None
+        return
+    base = reenactor.backend.model
+    reenactor.backend.model = copy.deepcopy(base)  # the base model (shared, e.g. by the app's sessions) stays untouched
+    try:
+        yield finetune_reenactor(reenactor, steps, **options)
+    finally:
+        reenactor.backend.model = base
 
 
 def save_subject(result: FinetuneResult, out: Path, extra: dict | None = None) -> Path:

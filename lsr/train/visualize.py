@@ -1,4 +1,4 @@
-"""Training previews: image grids, layout maps as RGB (PCA of channels, argmax class colours), loss curves.
+"""Training previews: image grids and loss curves (layout pictures come from ``lsr.layout_view``).
 
 Everything returns uint8 RGB numpy arrays (H, W, 3) so TensorBoard, PNG writers and tests share them.
 """
@@ -13,86 +13,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lsr.data.classes import NUM_SEG_CLASSES, colorize_segmentation
-
-
-def images_to_uint8(images: Tensor) -> np.ndarray:
-    """(B, 3, H, W) float in [-1, 1] -> (B, H, W, 3) uint8."""
-    if images.ndim != 4 or images.shape[1] != 3:
-        raise ValueError(f"images must be (B, 3, H, W); got {tuple(images.shape)}")
-    array = ((images.detach().float().clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8)
-    return array.permute(0, 2, 3, 1).cpu().numpy()
-
-
-class LayoutPCA:
-    """Colours a layout map by its 3 principal components, with the basis fitted once and then kept.
-
-    Fitted on the first call (a batch, or a video's first frame) and reused after, so a colour keeps its meaning
-    from frame to frame: refitting per frame flips eigenvector signs and swaps colours. Each component is scaled
-    by its robust (99th percentile) range at fit time. C < 3 is zero-padded.
-    """
-
-    def __init__(self) -> None:
-        self.mean: Tensor | None = None
-        self.basis: Tensor | None = None
-        self.scale: Tensor | None = None
-
-    @staticmethod
-    def _pixels(layout: Tensor) -> Tensor:
-        if layout.ndim != 4:
-            raise ValueError(f"layout must be (B, C, H, W); got {tuple(layout.shape)}")
-        return layout.detach().float().permute(0, 2, 3, 1).reshape(-1, layout.shape[1])  # (B*H*W, C)
-
-    def fit(self, layout: Tensor) -> LayoutPCA:
-        pixels = self._pixels(layout)
-        self.mean = pixels.mean(dim=0, keepdim=True)
-        centred = pixels - self.mean
-        channels = centred.shape[1]
-        # Principal axes from the C x C covariance (cheap: C is small), largest variance first.
-        covariance = centred.T @ centred / max(1, centred.shape[0] - 1)
-        _, eigenvectors = torch.linalg.eigh(covariance.double())
-        basis = eigenvectors[:, -min(3, channels):].flip(1).float()  # (C, <=3)
-        # Fix each axis' sign (eigh's is arbitrary): its largest-magnitude entry is positive.
-        signs = torch.sign(basis.gather(0, basis.abs().argmax(dim=0, keepdim=True)))
-        self.basis = basis * torch.where(signs == 0, torch.ones_like(signs), signs)
-        self.scale = (centred @ self.basis).abs().quantile(0.99, dim=0).clamp_min(1e-6)
-        return self
-
-    def __call__(self, layout: Tensor) -> Tensor:
-        """(B, C, H, W) -> (B, 3, H, W) in [-1, 1]; fits on this layout first when not fitted yet."""
-        if self.basis is None:
-            self.fit(layout)
-        batch, channels, height, width = layout.shape
-        if channels != self.basis.shape[0]:
-            raise ValueError(f"layout has {channels} channels; this LayoutPCA was fitted on {self.basis.shape[0]}")
-        projected = ((self._pixels(layout) - self.mean) @ self.basis / self.scale).clamp(-1, 1)
-        if projected.shape[1] < 3:
-            projected = torch.cat([projected, projected.new_zeros(projected.shape[0], 3 - projected.shape[1])], dim=1)
-        return projected.reshape(batch, height, width, 3).permute(0, 3, 1, 2)  # (B, 3, H, W)
-
-
-def layout_pca_rgb(layout: Tensor) -> Tensor:
-    """Project a layout map's channels onto their 3 principal components -> (B, 3, H, W) in [-1, 1].
-
-    layout: (B, C, H, W) float. One PCA basis is fitted on the whole batch so colours are comparable
-    across the row (``LayoutPCA`` keeps a basis across calls, e.g. over a video).
-    """
-    return LayoutPCA()(layout)
-
-
-def layout_argmax_rgb(layout: Tensor) -> Tensor:
-    """Argmax over the layout's class channels coloured with ``SEG_PALETTE`` -> (B, 3, H, W) in [-1, 1]."""
-    if layout.ndim != 4 or layout.shape[1] != NUM_SEG_CLASSES:
-        raise ValueError(f"layout must be (B, {NUM_SEG_CLASSES}, H, W) class scores; got {tuple(layout.shape)}")
-    return segmentation_rgb(layout.detach().argmax(dim=1))
-
-
-def segmentation_rgb(segmentation: Tensor, ignore_index: int = -1) -> Tensor:
-    """Class map (B, H, W) int -> palette colours (B, 3, H, W) in [-1, 1]; ignored pixels are grey."""
-    maps = segmentation.detach().cpu().numpy()
-    coloured = np.stack([colorize_segmentation(np.where(m == ignore_index, 0, m).astype(np.uint8)) for m in maps])
-    coloured[maps == ignore_index] = 128
-    return torch.from_numpy(coloured).permute(0, 3, 1, 2).float() / 127.5 - 1
+from lsr.layout_view import (  # noqa: F401 - re-exported for the training previews
+    LayoutPCA,
+    images_to_uint8,
+    layout_argmax_rgb,
+    layout_pca_rgb,
+    segmentation_rgb,
+)
 
 
 def image_grid(rows: Sequence[Tensor], max_columns: int = 8) -> np.ndarray:
