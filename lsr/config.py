@@ -281,6 +281,8 @@ class TrainConfig:
     """Ablation variant (thesis Table 4.2), or warp_guided (latent layout + the nearest shots warped and blended)."""
     resolution: int = 0
     """Image resolution; 0 = the preset's."""
+    warp_references: int = 0
+    """warp_guided: how many of the nearest shots, TPS-warped to the target, G^s sees and blends; 0 = the preset's."""
     synthetic_identities: int = 0
     """Train on this many procedural synthetic identities: alone, or mixed with --data (real clips)."""
     init_from: Path | None = None
@@ -334,6 +336,8 @@ class TrainConfig:
             raise ConfigError(f"--resolution must be 0 or a power of two >= 32, got {self.resolution}")
         if self.k_shots < 1 or self.batch_size < 1 or self.workers < 0 or self.threads < 0:
             raise ConfigError("--k-shots and --batch-size must be >= 1, --workers and --threads >= 0")
+        if self.warp_references < 0 or (self.warp_references and self.variant != "warp_guided"):
+            raise ConfigError(f"--warp-references is for --variant warp_guided and must be >= 0, got {self.warp_references}")
         if self.checkpoint_every < 1 or self.keep_checkpoints < 1 or self.log_every < 1 or self.image_every < 0:
             raise ConfigError("--checkpoint-every, --keep-checkpoints, --log-every must be >= 1; --image-every >= 0")
         if self.max_consecutive_nonfinite < 1 or self.max_recoveries < 0:

@@ -39,6 +39,8 @@ def model_config_for(cfg) -> ModelConfig:
     overrides: dict[str, Any] = {"variant": cfg.variant}
     if cfg.resolution:
         overrides["resolution"] = cfg.resolution
+    if cfg.warp_references:
+        overrides["warp_references"] = cfg.warp_references
     return preset_config(cfg.preset, **overrides)
 
 

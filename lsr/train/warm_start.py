@@ -3,7 +3,9 @@
 Parameters of the same shape are copied. Layers that the new model widens (the warp-guided generator's SPADE
 condition projections, which also see the warped references, and its last conv, which also predicts the blend
 logits) keep the old weights on the old channels and start the new channels at zero, so the warm-started
-model first behaves like the old one on its old inputs (for the new logits: a uniform blend). Equalised-LR
+model first behaves like the old one on its old inputs (for the new logits: a uniform blend). A warp-guided model
+warm-started with more references (``--warp-references``) keeps each old reference's and mask's channels, and
+the new references start silent (see ``_reference_slots``). Equalised-LR
 convs scale their weights by 1/sqrt(fan_in) at run time, so widened inputs are rescaled to keep the old output.
 """
 
@@ -15,7 +17,7 @@ from pathlib import Path
 import torch
 
 from lsr.errors import WeightsError
-from models_def import Discriminator, LSRModel
+from models_def import Discriminator, LSRModel, ModelConfig
 
 
 def _widened(name: str, old: torch.Tensor, new: torch.Tensor) -> torch.Tensor:
@@ -28,6 +30,49 @@ def _widened(name: str, old: torch.Tensor, new: torch.Tensor) -> torch.Tensor:
     if old.dim() == 4 and old.shape[1] != new.shape[1]:  # EqualConv2d: keep weight / sqrt(fan_in) unchanged
         result *= math.sqrt(new.shape[1] / old.shape[1])
     return result
+
+
+# A new reference's blend logit starts as the farthest old reference's, this much lower: it gets a little weight
+# (e^-2 of that reference's) and a gradient, and the warm-started blend is almost the old one.
+NEW_REFERENCE_LOGIT_OFFSET = -2.0
+
+
+def _reference_slots(old: ModelConfig, new: ModelConfig) -> tuple[list[int | None], list[int | None]]:
+    """Where each new SPADE-condition channel and each new generator output channel comes from in the old model.
+
+    Condition: layout + landmark image, then 3 RGB channels per reference, then 1 mask per reference; output: RGB,
+    one blend logit per reference, then the generated image's logit. Returns, per new channel, the old channel
+    index, or None for a new reference's input (starts at zero). A new reference's output logit copies the last
+    old reference's (its bias lowered by NEW_REFERENCE_LOGIT_OFFSET, see ``_remap_references``)."""
+    base = old.layout_channels + old.landmark_channels
+    old_count, new_count = old.warp_references, new.warp_references
+    condition: list[int | None] = list(range(base))
+    condition += [base + c if c < 3 * old_count else None for c in range(3 * new_count)]
+    condition += [base + 3 * old_count + r if r < old_count else None for r in range(new_count)]
+    output: list[int | None] = [0, 1, 2] + [3 + min(r, old_count - 1) for r in range(new_count)] + [3 + old_count]
+    return condition, output
+
+
+def _remap_references(name: str, old: torch.Tensor, new: torch.Tensor, old_config: ModelConfig,
+                      new_config: ModelConfig) -> torch.Tensor | None:
+    """A warp-guided parameter whose shape depends on the reference count, moved to the new count (None: not one)."""
+    condition, output = _reference_slots(old_config, new_config)
+    result = torch.zeros_like(new)
+    if name.endswith("projection.conv.weight") and old.dim() == 4 and new.shape[1] == len(condition):
+        for index, source in enumerate(condition):
+            if source is not None:
+                result[:, index] = old[:, source]
+        return result * math.sqrt(new.shape[1] / old.shape[1])  # EqualConv2d: keep weight / sqrt(fan_in)
+    if name.endswith("to_rgb.weight") or name.endswith("to_rgb.bias"):
+        if new.shape[0] != len(output):
+            return None
+        for index, source in enumerate(output):
+            result[index] = old[source]
+        if name.endswith("bias"):
+            for index in range(3 + old_config.warp_references, 3 + new_config.warp_references):
+                result[index] += NEW_REFERENCE_LOGIT_OFFSET
+        return result
+    return None
 
 
 def warm_start(model: LSRModel, discriminator: Discriminator, folder: str | Path) -> list[str]:
@@ -47,14 +92,17 @@ def warm_start(model: LSRModel, discriminator: Discriminator, folder: str | Path
     if missing:
         raise WeightsError(f"--init-from {folder}: the new model has parameters the old one lacks ({', '.join(missing[:3])}); "
                            "warm-start from a model of the same preset")
+    recount = (source.config.uses_references and model.config.uses_references
+               and source.config.warp_references != model.config.warp_references)
     widened, merged = [], {}
     for name, new in new_state.items():
         old = old_state[name]
         if old.shape == new.shape:
             merged[name] = old
-        else:
-            merged[name] = _widened(name, old, new)
-            widened.append(name)
+            continue
+        remapped = _remap_references(name, old, new, source.config, model.config) if recount else None
+        merged[name] = remapped if remapped is not None else _widened(name, old, new)
+        widened.append(name)
     model.load_state_dict(merged)
     old_discriminator, found = load_discriminator(folder, source)
     if found:

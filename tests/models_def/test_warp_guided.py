@@ -106,6 +106,38 @@ def test_warm_start_keeps_the_old_generator_and_starts_with_a_uniform_blend(tmp_
                                atol=1e-5, rtol=0)
 
 
+def test_warm_start_with_more_references_keeps_each_old_reference_and_starts_the_new_ones_silent(tmp_path):
+    from lsr.train.warm_start import NEW_REFERENCE_LOGIT_OFFSET, warm_start
+    from models_def import Discriminator
+
+    torch.manual_seed(0)
+    old_config = preset_config("tiny", variant="warp_guided", warp_references=2)
+    old = LSRModel(old_config)
+    with torch.no_grad():  # an old blend head that does not start uniform, so a wrong channel map shows
+        old.frame_generator.image_generator.to_rgb.bias.copy_(torch.tensor([0.0, 0.0, 0.0, 1.5, -0.5, 0.7]))
+    folder = old.save_pretrained(tmp_path / "old")
+    config = preset_config("tiny", variant="warp_guided", warp_references=4)
+    model = LSRModel(config).eval()
+    warm_start(model, Discriminator(config), folder)
+    base = LSRModel.from_pretrained(folder).eval()
+    landmark_image, latent, references, masks = _inputs(config, config.resolution * 2)
+    masks = torch.ones_like(masks)
+    with torch.no_grad():
+        expected = base.frame_generator.synthesize(landmark_image, latent, latent, references=references[:, :2],
+                                                   reference_masks=masks[:, :2])
+        outputs = model.frame_generator.synthesize(landmark_image, latent, latent, references=references,
+                                                   reference_masks=masks)
+    # the new references' inputs start at zero: G^s's image is the old one
+    torch.testing.assert_close(outputs.generated, expected.generated, atol=1e-4, rtol=0)
+    # old references and the generated image keep their logits; new ones copy the last old one's, lowered
+    old_weights, new_weights = expected.blend_weights, outputs.blend_weights  # (B, 3, H, W), (B, 5, H, W)
+    ratio = torch.exp(torch.tensor(NEW_REFERENCE_LOGIT_OFFSET))
+    torch.testing.assert_close(new_weights[:, 2] / new_weights[:, 1], torch.full_like(new_weights[:, 1], ratio), atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(new_weights[:, 3] / new_weights[:, 1], torch.full_like(new_weights[:, 1], ratio), atol=1e-4, rtol=1e-4)
+    kept = new_weights[:, [0, 1, 4]]
+    torch.testing.assert_close(kept / kept.sum(dim=1, keepdim=True), old_weights, atol=1e-4, rtol=1e-4)
+
+
 def test_warm_start_rejects_another_preset(tmp_path):
     from lsr.errors import WeightsError
     from lsr.train.warm_start import warm_start
