@@ -9,7 +9,6 @@ shows their message (which already says what to do). Files a run writes live in 
 from __future__ import annotations
 
 import contextlib
-import copy
 import dataclasses
 import logging
 import os
@@ -240,7 +239,7 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
 
     Images without a face are skipped and named in the notes (an error only when none has a face).
     """
-    from deploy.sources import DEFAULT_K, SubjectShots, load_subject_shots
+    from deploy.sources import DEFAULT_K, SubjectShots, load_subject_shots, spread_shots
     from landmarks.errors import InputFileError, NoFaceError
     from landmarks.imageio import IMAGE_SUFFIXES
     from landmarks.video import VIDEO_SUFFIXES, probe_video
@@ -268,7 +267,7 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
         # for explicitly (the engine then says how many frames had a face if there are too few).
         shots = load_subject_shots(videos[0], size, k=None if k <= DEFAULT_K else int(k), detector=detector)
         if len(shots.frames) > k:
-            shots = _take(shots, int(k))
+            shots = spread_shots(shots, int(k))
         return shots, [f"{len(shots.frames)} shot(s) sampled from {videos[0].name}"]
     if len(paths) > MAX_K:
         raise InputFileError(f"{len(paths)} images uploaded; give at most {MAX_K} shots (K <= {MAX_K})")
@@ -291,19 +290,9 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
         if len(unreadable) == len(paths):
             raise unreadable[0]
         raise NoFaceError(f"no face found in the {len(paths)} uploaded image(s); upload frontal, well-lit photos of one person")
-    shots = _take(SubjectShots(np.stack(frames), np.stack(points), names), int(k))
+    shots = spread_shots(SubjectShots(np.stack(frames), np.stack(points), names), int(k))
     notes.insert(0, f"using {len(shots.frames)} of {len(frames)} shot(s) with a face (K={k})")
     return shots, notes
-
-
-def _take(shots, k: int):
-    """At most k shots, evenly spread."""
-    from deploy.sources import SubjectShots
-
-    if len(shots.frames) <= k:
-        return shots
-    chosen = np.unique(np.round(np.linspace(0, len(shots.frames) - 1, k)).astype(int))
-    return SubjectShots(shots.frames[chosen], shots.landmarks[chosen], [shots.names[i] for i in chosen])
 
 
 # ---- pictures --------------------------------------------------------------------------------------------
@@ -367,18 +356,6 @@ def latent_averaging(reenactor, shots, target_landmarks: np.ndarray) -> list[tup
     return items
 
 
-def timing_table(stats, extra: dict[str, float]) -> str:
-    """Markdown table of seconds per stage (``deploy.engine.STAGES`` + encode + the app's extra stages)."""
-    rows = ["| stage | seconds | ms / frame |", "|---|---|---|"]
-    frames = max(1, stats.frames)
-    once_per_run = ("shot detection", "subject_encoding", "latent averaging", "fine-tuning")
-    merged = {**extra, **{stage: s for stage, s in stats.seconds.items() if stage not in extra}}
-    for stage, seconds in merged.items():
-        per_frame = "" if stage in once_per_run else f"{1000 * seconds / frames:.1f}"
-        rows.append(f"| {stage} | {seconds:.2f} | {per_frame} |")
-    return "\n".join(rows)
-
-
 # ---- the run ---------------------------------------------------------------------------------------------
 
 
@@ -405,14 +382,9 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
                     motion: str = "relative", smooth: bool = True, paste_back: bool = False, finetune_steps: int = 0,
                     runtime: str = "torch", watermark: bool = True) -> RunResult:
     """Shots -> subject latents (K-shot average) -> one output frame per driver frame, written as the app shows them."""
-    from deploy.engine import draw_watermark, provenance_metadata
     from landmarks.errors import InputFileError
     from landmarks.imageio import write_image
-    from landmarks.video import VideoWriter
-    from lsr import __version__
-    from lsr.errors import LsrError
-    from lsr.reenact import side_by_side_frame
-    from lsr.layout_view import LayoutPCA
+    from lsr.reenact import stage_table, write_reenactment
 
     reenactor = store.reenactor(runtime)  # first: without a model nothing else matters
     driving_paths = _paths(driving)
@@ -426,51 +398,43 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     info = check_driver(driving, limits)
     started = time.perf_counter()
     shots, notes = load_shots(source_files, k, reenactor.crop_size, store.detector, limits)
-    extra = {"shot detection": time.perf_counter() - started}
+    shot_seconds = time.perf_counter() - started
     if runtime == "onnx" and int(finetune_steps) > 0:  # the ONNX runtime cannot train: run without, and say so
         notes.append(f"the ONNX runtime cannot fine-tune: ran without the {int(finetune_steps)} fine-tuning steps "
                      "(choose runtime 'torch' for them)")
         finetune_steps = 0
     reenactor.encode_subject(shots)
-    extra["subject_encoding"] = reenactor.last_stats.seconds["subject_encoding"]
-    kind, size = reenactor.backend.layout_kind, reenactor.crop_size
+    encode_seconds = reenactor.last_stats.seconds["subject_encoding"]  # reenact() starts new stats
+    kind = reenactor.backend.layout_kind
     output = run_dir / "reenacted.mp4"
     panels_dir = run_dir / "panels"
     panels_dir.mkdir()
-    audio = driving if info.kind == "video" and info.has_audio else None
-    target_landmarks = None
-    encode_seconds = 0.0
-    pca = LayoutPCA()  # one colouring for the whole clip (fitted on its first frame)
     with store.finetuned(reenactor, int(finetune_steps)) as finetune_seconds:
-        frames = reenactor.reenact(driving, mode=motion, smooth=smooth, paste_back=paste_back, with_layout=True, progress=True)
-        with VideoWriter(output, info.fps, audio_from=audio, metadata=provenance_metadata(__version__, runtime)) as writer:
-            for frame in frames:
-                image = draw_watermark(frame.image) if watermark else frame.image
-                tick = time.perf_counter()
-                writer.write(image)
-                encode_seconds += time.perf_counter() - tick
-                if target_landmarks is None and frame.landmarks is not None:
-                    target_landmarks = frame.landmarks
-                write_image(panel_path(panels_dir, frame.index), side_by_side_frame(frame, kind, size, pca))
-            stats = reenactor.last_stats
-            if stats.frames != info.frames:
-                raise LsrError(f"{driving.name}: produced {stats.frames} frames for {info.frames} driver frames")
-        stats.add("encode", encode_seconds)
+        written = write_reenactment(
+            reenactor, driving, output, runtime=runtime, mode=motion, smooth=smooth, paste_back=paste_back,
+            watermark=watermark, progress=True,
+            panel_sink=lambda index, panel: write_image(panel_path(panels_dir, index), panel),
+        )
+        stats = written.stats
+        notes += written.warnings
         tick = time.perf_counter()
-        if target_landmarks is None:  # no face anywhere in the driver: show the averaging at the first shot's pose
-            target_landmarks = shots.landmarks[0]
+        # no face anywhere in the driver: show the averaging at the first shot's pose
+        target_landmarks = written.first_landmarks if written.first_landmarks is not None else shots.landmarks[0]
         averaging = latent_averaging(reenactor, shots, target_landmarks)
-        extra["latent averaging"] = time.perf_counter() - tick
+        stats.add("latent averaging", time.perf_counter() - tick)
+    stats.add("shot detection", shot_seconds)
+    stats.add("subject_encoding", encode_seconds)
     if finetune_seconds is not None:
-        extra["fine-tuning"] = finetune_seconds
+        stats.add("finetune", finetune_seconds)
     if kind == "none":
         notes.append("this model variant has no layout stage: the layout panel stays black")
     if info.kind == "landmarks":
         notes.append("a landmark driver has no pictures: the 'driving frame' panel stays black")
     if info.kind == "landmarks" and paste_back:
         notes.append("landmark drivers have no frames to paste into: the output is the synthesised crop")
+    audio = info.kind == "video" and info.has_audio
     notes.append(f"{stats.frames} frame(s) at {info.fps:g} fps"
                  + (f", {stats.no_face} without a face (passed through)" if stats.no_face else "")
-                 + (", audio kept" if audio is not None else ""))
-    return RunResult(output, stats.frames, shot_gallery(shots), averaging, panels_dir, timing_table(stats, extra),
+                 + (", audio kept" if audio else ""))
+    return RunResult(output, stats.frames, shot_gallery(shots), averaging, panels_dir, stage_table(stats),
                      "\n".join(f"- {note}" for note in notes))

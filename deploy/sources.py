@@ -80,6 +80,15 @@ def _spread(count: int, wanted: int) -> list[int]:
     return np.unique(np.round(np.linspace(0, count - 1, wanted)).astype(int)).tolist()
 
 
+def spread_shots(shots: SubjectShots, k: int) -> SubjectShots:
+    """At most ``k`` of the shots, evenly spread over them (the policy ``load_subject_shots`` samples with)."""
+    if len(shots.frames) <= k:
+        return shots
+    chosen = _spread(len(shots.frames), k)
+    names = [shots.names[i] for i in chosen] if len(shots.names) == len(shots.frames) else shots.names
+    return dataclasses.replace(shots, frames=shots.frames[chosen], landmarks=shots.landmarks[chosen], names=names)
+
+
 def _check_k(k: int | None) -> None:
     if k is not None and not (isinstance(k, (int, np.integer)) and 1 <= k <= MAX_K):
         raise InputFileError(f"K (shots) must be an integer in 1..{MAX_K}, got {k!r}")

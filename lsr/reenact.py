@@ -220,46 +220,82 @@ def side_by_side_frame(frame, kind: str, size: int, pca=None) -> np.ndarray:
 # ---- running ----------------------------------------------------------------------------------------------
 
 
-def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | None = None) -> ReenactStats:
-    """Re-enact one job into ``job.output`` (atomic). The subject must already be encoded."""
+@dataclasses.dataclass
+class WrittenVideo:
+    """What ``write_reenactment`` wrote: the run's stats, warnings for the user, and the first driven landmarks."""
+
+    stats: ReenactStats
+    warnings: list[str]
+    first_landmarks: np.ndarray | None
+    """(68, 2) crop pixels of the first frame with a face (None: no face in any frame)."""
+
+
+def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtime: str, mode: str = "auto",
+                      smooth: bool = True, paste_back: bool = False, watermark: bool = False, fps: float | None = None,
+                      landmark_space=None, landmark_size: int | None = None, progress: bool = False,
+                      side_by_side: Path | None = None, panel_sink=None) -> WrittenVideo:
+    """The one writer of a re-enacted video, for ``lsr reenact`` and the app. The subject must be encoded.
+
+    Writes ``output`` (and ``side_by_side``) atomically with the driver's fps and audio, provenance metadata and,
+    with ``watermark``, the visible mark; ``panel_sink(index, panel)`` receives each side-by-side panel (driver |
+    landmarks | layout | output, unmarked). A landmark or image-folder driver that yields another number of frames
+    than it has is an error; a video that decodes fewer frames than it declares (a cut file) is a warning.
+    """
     from landmarks.video import VideoWriter
     from lsr.layout_view import LayoutPCA
 
-    info = describe_driver(job.driving, fps=cfg.fps)
-    mode = "relative" if cfg.relative else "absolute" if cfg.absolute else "auto"
-    with_layout = side_by_side is not None
-    metadata = provenance_metadata(__version__, cfg.runtime)
-    audio = job.driving if info.kind == "video" and info.has_audio else None
-    frames = reenactor.reenact(
-        job.driving, mode=mode, smooth=cfg.smooth, paste_back=cfg.paste_back, with_layout=with_layout,
-        landmark_space=cfg.landmark_space, landmark_size=cfg.landmark_size, progress=cfg.progress,
-    )
-    encode_seconds = 0.0
+    info = describe_driver(driving, fps=fps)
+    metadata = provenance_metadata(__version__, runtime)
+    audio = driving if info.kind == "video" and info.has_audio else None
+    with_layout = side_by_side is not None or panel_sink is not None
+    frames = reenactor.reenact(driving, mode=mode, smooth=smooth, paste_back=paste_back, with_layout=with_layout,
+                               landmark_space=landmark_space, landmark_size=landmark_size, progress=progress)
+    encode_seconds, first_landmarks = 0.0, None
+    kind, size = reenactor.backend.layout_kind, reenactor.crop_size
+    pca = LayoutPCA()  # fitted on the first frame, kept for the whole video
     with contextlib.ExitStack() as stack:
-        writer = stack.enter_context(VideoWriter(job.output, info.fps, audio_from=audio, metadata=metadata))
+        writer = stack.enter_context(VideoWriter(output, info.fps, audio_from=audio, metadata=metadata))
         sbs_writer = None
-        pca = LayoutPCA()  # fitted on the first frame, kept for the whole video
         if side_by_side is not None:
             sbs_writer = stack.enter_context(VideoWriter(side_by_side, info.fps, audio_from=audio, metadata=metadata))
         for frame in frames:
-            image = draw_watermark(frame.image) if cfg.watermark else frame.image
+            if first_landmarks is None and frame.landmarks is not None:
+                first_landmarks = frame.landmarks
             started = time.perf_counter()
-            writer.write(image)
+            writer.write(draw_watermark(frame.image) if watermark else frame.image)
             encode_seconds += time.perf_counter() - started
-            if sbs_writer is not None:
-                panel = side_by_side_frame(frame, reenactor.backend.layout_kind, reenactor.crop_size, pca)
-                sbs_writer.write(draw_watermark(panel) if cfg.watermark else panel)
+            if with_layout:
+                panel = side_by_side_frame(frame, kind, size, pca)
+                if sbs_writer is not None:
+                    sbs_writer.write(draw_watermark(panel) if watermark else panel)
+                if panel_sink is not None:
+                    panel_sink(frame.index, panel)
         stats = reenactor.last_stats
         if stats.frames != info.frames and info.kind != "video":
-            raise LsrError(f"{job.driving}: produced {stats.frames} frames for {info.frames} driver frames")
+            raise LsrError(f"{driving}: produced {stats.frames} frames for {info.frames} driver frames")
         started = time.perf_counter()
     stats.add("encode", encode_seconds + time.perf_counter() - started)  # includes the final flush and audio mux
+    warnings = []
     if info.kind == "video" and stats.frames < info.frames:
-        print(f"lsr reenact: warning: {job.driving}: decoded {stats.frames} of its {info.frames} declared frames "
-              "(truncated file?); the output has the decoded ones")
-    if stats.no_face:
-        print(f"lsr reenact: {job.driving}: {stats.no_face} of {stats.frames} frame(s) had no face and were passed through")
-    return stats
+        warnings.append(f"warning: {Path(driving).name}: decoded {stats.frames} of its {info.frames} declared frames "
+                        "(truncated file?); the output has the decoded ones")
+    return WrittenVideo(stats, warnings, first_landmarks)
+
+
+def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | None = None) -> ReenactStats:
+    """Re-enact one job into ``job.output`` (atomic). The subject must already be encoded."""
+    written = write_reenactment(
+        reenactor, job.driving, job.output, runtime=cfg.runtime,
+        mode="relative" if cfg.relative else "absolute" if cfg.absolute else "auto", smooth=cfg.smooth,
+        paste_back=cfg.paste_back, watermark=cfg.watermark, fps=cfg.fps, landmark_space=cfg.landmark_space,
+        landmark_size=cfg.landmark_size, progress=cfg.progress, side_by_side=side_by_side,
+    )
+    for warning in written.warnings:
+        print(f"lsr reenact: {warning}")
+    if written.stats.no_face:
+        print(f"lsr reenact: {job.driving}: {written.stats.no_face} of {written.stats.frames} frame(s) had no face "
+              "and were passed through")
+    return written.stats
 
 
 def _subject_for(reenactor: ReenactorBase, source: Path, cfg, cache: dict):
@@ -288,6 +324,22 @@ def _subject_for(reenactor: ReenactorBase, source: Path, cfg, cache: dict):
     cache.update(key=key, subject=subject, seconds=encoded - started, finetune_seconds=time.perf_counter() - encoded)
 
 
+# Stages that run once per subject or run, not per frame (their rate is not shown).
+ONCE_PER_RUN = ("shot detection", "subject_encoding", "finetune", "latent averaging")
+
+
+def stage_table(stats: ReenactStats) -> str:
+    """Markdown table of seconds per stage (``deploy.engine.STAGES``, fine-tuning, encode and any added stage),
+    with frames per second for the per-frame ones: the one stage table of ``lsr reenact`` and the app."""
+    rows = ["| stage | seconds | fps (frames / stage seconds) |", "|---|---|---|"]
+    ordered = (*STAGES[:3], "finetune", *STAGES[3:], "encode")
+    for stage in (*ordered, *(s for s in stats.seconds if s not in ordered)):
+        seconds = stats.seconds.get(stage, 0.0)
+        per_frame = seconds > 0 and stage not in ONCE_PER_RUN
+        rows.append(f"| {stage} | {seconds:.2f} | {f'{stats.frames / seconds:.1f}' if per_frame else '–'} |")
+    return "\n".join(rows)
+
+
 def summary_table(done: int, skipped: int, failed: int, stats: ReenactStats, wall: float) -> str:
     rows = [
         "| jobs done | skipped (finished) | failed | frames | frames without a face | end-to-end fps |",
@@ -295,14 +347,8 @@ def summary_table(done: int, skipped: int, failed: int, stats: ReenactStats, wal
         f"| {done} | {skipped} | {failed} | {stats.frames} | {stats.no_face} | "
         f"{stats.frames / wall if wall > 0 else float('nan'):.2f} |",
         "",
-        "| stage | seconds | fps (frames / stage seconds) |",
-        "|---|---|---|",
     ]
-    for stage in (*STAGES[:3], "finetune", *STAGES[3:], "encode"):
-        seconds = stats.seconds.get(stage, 0.0)
-        per_frame = seconds > 0 and stage not in ("subject_encoding", "finetune")  # once per subject, not per frame
-        rows.append(f"| {stage} | {seconds:.2f} | {f'{stats.frames / seconds:.1f}' if per_frame else '–'} |")
-    return "\n".join(rows)
+    return "\n".join(rows) + "\n" + stage_table(stats)
 
 
 def run_reenact(cfg) -> ReenactStats:

@@ -112,7 +112,7 @@ def test_finetuning_is_per_run_and_leaves_the_served_model_untouched(tiny_app_we
     files = handlers.SessionFiles(tmp_path / "sessions")
     result = handlers.run_reenactment(store, handlers.Limits(), files.new_run("s"), [app_inputs["source"]], 1,
                                       app_inputs["driving"], finetune_steps=1, watermark=False)
-    assert result.frames == 5 and "fine-tuning" in result.timing
+    assert result.frames == 5 and "| finetune |" in result.timing
     assert store.reenactor("torch").model is base
     assert all(torch.equal(before[name], tensor) for name, tensor in base.state_dict().items())
 
@@ -142,3 +142,27 @@ def test_errors_name_the_uploaded_file_not_the_server_temp_path(app_inputs, tmp_
     assert "holiday photo.png" in caught.value.message and str(tmp_path) not in caught.value.message
     shots, notes = handlers.load_shots([app_inputs["source"], upload], 4, 64, FaceDetector(), handlers.Limits())
     assert len(shots.frames) == 1 and "cannot read holiday photo.png as an image: skipped" in notes
+
+
+def test_the_app_and_lsr_reenact_write_the_same_video(tiny_app_weights, app_inputs, tmp_path):
+    """One writer for both: the same shots, driver and options give the same frames, audio and provenance."""
+    import av
+
+    from landmarks.video import iter_frames
+    from lsr.cli import main
+
+    store = handlers.ModelStore(tiny_app_weights, "cpu")
+    files = handlers.SessionFiles(tmp_path / "sessions")
+    result = handlers.run_reenactment(store, handlers.Limits(), files.new_run("s"), [app_inputs["source"]], 1,
+                                      app_inputs["driving"], motion="relative", finetune_steps=0, watermark=True)
+    cli_out = tmp_path / "cli.mp4"
+    assert main(["reenact", "--weights", str(tiny_app_weights), "--device", "cpu", "--source", str(app_inputs["source"]),
+                 "--k", "1", "--driving", str(app_inputs["driving"]), "--relative", "--finetune-steps", "0",
+                 "--watermark", "--out", str(cli_out), "--no-progress"]) == 0
+    app_frames, cli_frames = list(iter_frames(result.video)), list(iter_frames(cli_out))
+    assert len(app_frames) == len(cli_frames) == 5
+    for app_frame, cli_frame in zip(app_frames, cli_frames):
+        np.testing.assert_array_equal(app_frame, cli_frame)
+    with av.open(str(result.video)) as app_video, av.open(str(cli_out)) as cli_video:
+        assert bool(app_video.streams.audio) and bool(cli_video.streams.audio)
+        assert app_video.metadata["comment"] == cli_video.metadata["comment"]
