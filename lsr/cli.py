@@ -37,12 +37,6 @@ def _run_demo(cfg: config.DemoConfig) -> None:
              threads=cfg.threads, progress=cfg.progress)
 
 
-def _run_bench_landmarks(cfg: config.BenchLandmarksConfig) -> None:
-    from lsr.eval.bench_landmarks import run_bench_landmarks
-
-    run_bench_landmarks(cfg)
-
-
 def _run_prepare(cfg: config.PrepareConfig) -> None:
     import os
 
@@ -78,100 +72,41 @@ def _run_synth(cfg: config.SynthConfig) -> None:
     print(f"dataset written to {cfg.out} ({manifest.name})")
 
 
-def _run_train(cfg: config.TrainConfig) -> None:
-    from lsr.train.trainer import run_train
-
-    run_train(cfg)
+Runner = Callable[[Any], None] | str
+"""A function of the config, or "module:function" imported only when that sub-command runs (``lsr --help`` stays instant)."""
 
 
-def _run_finetune(cfg: config.FinetuneConfig) -> None:
-    from lsr.train.finetune import run_finetune
+def _resolve(runner: Runner) -> Callable[[Any], None]:
+    if callable(runner):
+        return runner
+    import importlib
 
-    run_finetune(cfg)
-
-
-def _run_eval(cfg: config.EvalConfig) -> None:
-    from lsr.eval.report import run_eval
-
-    run_eval(cfg)
-
-
-def _run_bench_train(cfg: config.BenchTrainConfig) -> None:
-    from lsr.train.bench import run_bench_train
-
-    run_bench_train(cfg)
-
-
-def _run_bench_models(cfg: config.BenchModelsConfig) -> None:
-    from lsr.eval.bench_models import run_bench_models
-
-    run_bench_models(cfg)
-
-
-def _run_bench_speed(cfg: config.BenchSpeedConfig) -> None:
-    from lsr.eval.bench_speed import run_bench_speed
-
-    run_bench_speed(cfg)
-
-
-def _run_reenact(cfg: config.ReenactConfig) -> None:
-    from lsr.reenact import run_reenact
-
-    run_reenact(cfg)
-
-
-def _run_export(cfg: config.ExportConfig) -> None:
-    from lsr.export_bundle import run_export
-
-    run_export(cfg)
-
-
-def _run_app(cfg: config.AppConfig) -> None:
-    from app.ui import run_app
-
-    run_app(cfg)
-
-
-def _run_bench_reenact(cfg: config.BenchReenactConfig) -> None:
-    from lsr.eval.bench_reenact import run_bench_reenact
-
-    run_bench_reenact(cfg)
-
-
-def _run_bench_finetune(cfg: config.BenchFinetuneConfig) -> None:
-    from lsr.eval.bench_finetune import run_bench_finetune
-
-    run_bench_finetune(cfg)
-
-
-def _run_bench_hard(cfg: config.BenchHardConfig) -> None:
-    from lsr.eval.bench_hard import run_bench_hard
-
-    run_bench_hard(cfg)
+    module, function = runner.split(":")
+    return getattr(importlib.import_module(module), function)
 
 
 # name -> (config dataclass, runner). Groups (like "bench") nest one level.
-COMMANDS: dict[str, tuple[type, Callable[[Any], None]]] = {
+COMMANDS: dict[str, tuple[type, Runner]] = {
     "landmarks": (config.LandmarksConfig, _run_landmarks),
     "demo": (config.DemoConfig, _run_demo),
-    "train": (config.TrainConfig, _run_train),
-    "finetune": (config.FinetuneConfig, _run_finetune),
+    "train": (config.TrainConfig, "lsr.train.trainer:run_train"),
+    "finetune": (config.FinetuneConfig, "lsr.train.finetune:run_finetune"),
     "prepare": (config.PrepareConfig, _run_prepare),
-    "eval": (config.EvalConfig, _run_eval),
+    "eval": (config.EvalConfig, "lsr.eval.report:run_eval"),
     "synth": (config.SynthConfig, _run_synth),
-    "reenact": (config.ReenactConfig, _run_reenact),
-    "export": (config.ExportConfig, _run_export),
-    "app": (config.AppConfig, _run_app),
+    "reenact": (config.ReenactConfig, "lsr.reenact:run_reenact"),
+    "export": (config.ExportConfig, "lsr.export_bundle:run_export"),
+    "app": (config.AppConfig, "app.ui:run_app"),
 }
-GROUPS: dict[str, dict[str, tuple[type, Callable[[Any], None]]]] = {
+GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
     "bench": {
-        "landmarks": (config.BenchLandmarksConfig, _run_bench_landmarks),
-        "train": (config.BenchTrainConfig, _run_bench_train),
-        "reenact": (config.BenchReenactConfig, _run_bench_reenact),
-        "models": (config.BenchModelsConfig, _run_bench_models),
-        "speed": (config.BenchSpeedConfig, _run_bench_speed),
-        "finetune": (config.BenchFinetuneConfig, _run_bench_finetune),
-        "hard": (config.BenchHardConfig, _run_bench_hard),
+        "landmarks": (config.BenchLandmarksConfig, "lsr.eval.bench_landmarks:run_bench_landmarks"),
+        "train": (config.BenchTrainConfig, "lsr.train.bench:run_bench_train"),
+        "reenact": (config.BenchReenactConfig, "lsr.eval.bench_reenact:run_bench_reenact"),
+        "models": (config.BenchModelsConfig, "lsr.eval.bench_models:run_bench_models"),
+        "speed": (config.BenchSpeedConfig, "lsr.eval.bench_speed:run_bench_speed"),
+        "finetune": (config.BenchFinetuneConfig, "lsr.eval.bench_finetune:run_bench_finetune"),
+        "hard": (config.BenchHardConfig, "lsr.eval.bench_hard:run_bench_hard"),
     },
 }
 
@@ -216,7 +151,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         cfg.validate()
-        runners[type(cfg)](cfg)
+        _resolve(runners[type(cfg)])(cfg)
     except user_errors as exc:
         print(f"lsr: error: {exc}", file=sys.stderr)
         return 2

@@ -107,3 +107,12 @@ def test_the_per_frame_inference_path_never_imports_training():
     assert "lsr.pipeline" in starts and "deploy.engine" in starts
     training = sorted(name for name in reachable(graph, starts) if name.startswith("lsr.train"))
     assert training == [], f"the inference path reaches {training}"
+
+
+def test_every_cli_runner_resolves_to_a_function():
+    """The CLI table names its runners as "module:function" (imported when chosen): each must exist."""
+    from lsr.cli import COMMANDS, GROUPS, _resolve
+
+    tables = [COMMANDS, *GROUPS.values()]
+    runners = [runner for table in tables for _, runner in table.values()]
+    assert runners and all(callable(_resolve(runner)) for runner in runners)
