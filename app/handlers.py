@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deploy import MAX_K
+from lsr.core import MAX_K
 
 LOG = logging.getLogger("lsr.app")
 DISPLAY_SIDE = 256  # shots, per-shot results and side-by-side tiles are shown at least this large
@@ -219,7 +219,7 @@ def check_upload_size(path: Path, limits: Limits) -> None:
 
 def check_driver(driving: Path, limits: Limits):
     """``describe_driver`` plus the app's length limits; returns the ``DriverInfo``."""
-    from deploy.sources import describe_driver
+    from lsr.core.sources import describe_driver
     from landmarks.errors import InputFileError
 
     check_upload_size(driving, limits)
@@ -239,7 +239,7 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
 
     Images without a face are skipped and named in the notes (an error only when none has a face).
     """
-    from deploy.sources import DEFAULT_K, SubjectShots, load_subject_shots, spread_shots
+    from lsr.core.sources import DEFAULT_K, SubjectShots, load_subject_shots, spread_shots
     from landmarks.errors import InputFileError, NoFaceError
     from landmarks.imageio import IMAGE_SUFFIXES
     from landmarks.video import VIDEO_SUFFIXES, probe_video
@@ -338,7 +338,7 @@ def latent_averaging(reenactor, shots, target_landmarks: np.ndarray) -> list[tup
     target_landmarks: (68, 2) crop pixels (the first driven frame's target). A warp-guided model warps the same
     nearest shots for every panel, so the panels differ by the latents only.
     """
-    from deploy.engine import resize_shots, to_network
+    from lsr.core.engine import resize_shots, to_network
     from landmarks.raster import draw_landmarks
 
     size = reenactor.resolution

@@ -11,9 +11,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from deploy.engine import draw_watermark, provenance_metadata
+from lsr.core.engine import draw_watermark, provenance_metadata
 from deploy.runtime import OnnxReenactor
-from deploy.sources import describe_driver
+from lsr.core.sources import describe_driver
 from landmarks.imageio import write_image
 from landmarks.video import VideoWriter
 

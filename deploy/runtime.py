@@ -1,7 +1,7 @@
 """``OnnxReenactor``: LSR re-enactment from an ``lsr export`` bundle with onnxruntime. No torch anywhere.
 
 Needs numpy, onnxruntime, OpenCV, dlib and the ``landmarks`` toolkit. Same API as ``lsr.pipeline.Reenactor``
-(both are ``deploy.engine.ReenactorBase``; only the backend differs):
+(both are ``lsr.core.engine.ReenactorBase``; only the backend differs):
 
     reenactor = OnnxReenactor("bundle/")               # subject_encoder.onnx + frame_generator.onnx
     reenactor.encode_subject("person.jpg", k=1)
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deploy.engine import ReenactorBase
+from lsr.core.engine import ReenactorBase
 from landmarks.errors import InputFileError
 
 SUBJECT_ENCODER_FILE = "subject_encoder.onnx"
@@ -46,7 +46,7 @@ def _session(path: Path, providers: list[str] | None, threads: int):
 
 
 class OnnxBackend:
-    """``deploy.engine.SynthesisBackend`` over the two ONNX graphs of a bundle folder."""
+    """``lsr.core.engine.SynthesisBackend`` over the two ONNX graphs of a bundle folder."""
 
     def __init__(self, folder: str | os.PathLike, *, int8: bool = False, providers: list[str] | None = None,
                  threads: int = 0) -> None:
@@ -81,7 +81,7 @@ class OnnxBackend:
                    with_layout: bool, references: np.ndarray | None = None,
                    reference_masks: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """(B, 3, S, S) + (B, D) latents [+ references, reference_masks at ``crop_size``, warp-guided bundles]
-        -> (image (B, 3, C, C) in [-1, 1], layout (B, C_l, S, S) or None); see ``deploy.engine.SynthesisBackend``."""
+        -> (image (B, 3, C, C) in [-1, 1], layout (B, C_l, S, S) or None); see ``lsr.core.engine.SynthesisBackend``."""
         feed = {"landmark_image": np.ascontiguousarray(landmark_image, np.float32),
                 "layout_latent": np.ascontiguousarray(layout_latent, np.float32),
                 "style_latent": np.ascontiguousarray(style_latent, np.float32)}

@@ -12,7 +12,7 @@ from typing import Literal
 
 import tyro
 
-from deploy import MAX_K  # deploy/__init__ imports nothing: --help stays instant
+from lsr.core import MAX_K  # lsr/core/__init__ imports nothing: --help stays instant
 from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command config is lsr.config.*
     BenchLandmarksConfig,
     BenchTrainConfig,

@@ -205,7 +205,7 @@ def graph_error(reference_path: Path, other_path: Path, inputs: Sequence[dict[st
 def calibration_inputs(weights: str | os.PathLike | LSRModel, source, driving, *, k: int | None = None,
                        frames: int = 32) -> list[dict[str, np.ndarray]]:
     """Frame-graph inputs of real frames: ``driving``'s first ``frames`` landmark images and ``source``'s latents."""
-    from deploy.engine import to_network
+    from lsr.core.engine import to_network
     from lsr.pipeline import Reenactor
 
     reenactor = Reenactor(weights)

@@ -1,6 +1,6 @@
 """Inference pipeline: load the weights once, encode the subject once, synthesise per frame (thesis §4.3).
 
-``Reenactor`` is the torch runtime of the shared frame loop ``deploy.engine.ReenactorBase`` (source and
+``Reenactor`` is the torch runtime of the shared frame loop ``lsr.core.engine.ReenactorBase`` (source and
 driver loading, tracking, retargeting, crop, rasterise, paste-back, pass-through of face-less frames live
 there, torch-free, and serve ``deploy.runtime.OnnxReenactor`` too). This module adds only the torch glue:
 ``TorchBackend`` runs ``LSRModel.subject_encoder`` and ``LSRModel.frame_generator`` on numpy arrays.
@@ -24,8 +24,8 @@ from typing import Literal
 import numpy as np
 import torch
 
-from deploy.engine import LayoutKind, ReenactorBase, Subject
-from deploy.sources import SubjectShots
+from lsr.core.engine import LayoutKind, ReenactorBase, Subject
+from lsr.core.sources import SubjectShots
 from lsr.errors import ConfigError, WeightsError
 from models_def import LSRModel
 
@@ -54,7 +54,7 @@ def load_model(weights: str | os.PathLike) -> LSRModel:
 
 
 class TorchBackend:
-    """``deploy.engine.SynthesisBackend`` over an ``LSRModel`` (numpy in, numpy out, fp32 results)."""
+    """``lsr.core.engine.SynthesisBackend`` over an ``LSRModel`` (numpy in, numpy out, fp32 results)."""
 
     def __init__(self, model: LSRModel, device: str | torch.device = "cpu", precision: Precision = "fp32") -> None:
         if precision not in _DTYPES:
@@ -89,7 +89,7 @@ class TorchBackend:
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """(B, 3, S, S) + (B, D) latents -> (image (B, 3, S, S) in [-1, 1], layout (B, C_l, S, S) or None).
 
-        references / reference_masks: warp-guided models (``deploy.engine.SynthesisBackend``); the image is then at
+        references / reference_masks: warp-guided models (``lsr.core.engine.SynthesisBackend``); the image is then at
         their side. oracle_segmentation: (B, 19, S, S) one-hot ground truth, for ``oracle_seg`` models only (evaluation).
         """
         oracle = None if oracle_segmentation is None else self._tensor(oracle_segmentation)
@@ -123,7 +123,7 @@ class Reenactor(ReenactorBase):
 
     weights: model folder (config.json + model.safetensors). device: "cpu", "cuda", ... precision: "fp32"
     (default) or "bf16". detector: "hog" | "cnn" (dlib) for the source shots and the driver. crop_size: the
-    crop and output side (``deploy.engine.default_crop_size``: 2x the model resolution for warp-guided models).
+    crop and output side (``lsr.core.engine.default_crop_size``: 2x the model resolution for warp-guided models).
     """
 
     def __init__(
@@ -154,7 +154,7 @@ class Reenactor(ReenactorBase):
         for points in driver_landmarks:
             from landmarks.raster import draw_landmarks
 
-            from deploy.engine import to_network
+            from lsr.core.engine import to_network
 
             landmark_image = to_network(draw_landmarks(points, self.resolution))[None]
             outputs = [r.backend.synthesize(landmark_image, subject.layout_latent, subject.style_latent, False)[0]

@@ -9,7 +9,7 @@ Jobs come from exactly one of
   sub-folder of images; a driving entry is a video, a sub-folder of frames, or a .npy/.json landmark file.
 
 Outputs keep the driving video's frame count, fps and audio, and carry container metadata marking them as
-synthetic (``deploy.engine.provenance_metadata``); ``--watermark`` adds a visible "SYNTHETIC" mark. Each output
+synthetic (``lsr.core.engine.provenance_metadata``); ``--watermark`` adds a visible "SYNTHETIC" mark. Each output
 appears only once complete (temp file + rename), so a rerun skips finished jobs (resume) and redoes the rest.
 Output paths and inputs are checked before any model loads: an output that cannot be written (a read-only or
 missing-and-uncreatable folder, a parent that is a file), a ``--side-by-side`` equal to ``--out``, a missing source
@@ -32,8 +32,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from deploy.engine import STAGES, ReenactorBase, ReenactStats, draw_watermark, provenance_metadata, square_resize
-from deploy.sources import LANDMARK_SUFFIXES, describe_driver
+from lsr.core.engine import STAGES, ReenactorBase, ReenactStats, draw_watermark, provenance_metadata, square_resize
+from lsr.core.sources import LANDMARK_SUFFIXES, describe_driver
 from landmarks.errors import InputFileError, LandmarksError, OutputPathError
 from landmarks.imageio import IMAGE_SUFFIXES, check_output_path as check_writable
 from lsr import __version__
@@ -329,7 +329,7 @@ ONCE_PER_RUN = ("shot detection", "subject_encoding", "finetune", "latent averag
 
 
 def stage_table(stats: ReenactStats) -> str:
-    """Markdown table of seconds per stage (``deploy.engine.STAGES``, fine-tuning, encode and any added stage),
+    """Markdown table of seconds per stage (``lsr.core.engine.STAGES``, fine-tuning, encode and any added stage),
     with frames per second for the per-frame ones: the one stage table of ``lsr reenact`` and the app."""
     rows = ["| stage | seconds | fps (frames / stage seconds) |", "|---|---|---|"]
     ordered = (*STAGES[:3], "finetune", *STAGES[3:], "encode")

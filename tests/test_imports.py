@@ -78,15 +78,26 @@ def test_the_cycle_finder_finds_one():
 
 def test_lower_floors_do_not_import_upper_ones():
     graph = import_graph(project_modules())
-    floors = {"landmarks": set(), "models_def": {"landmarks"}}  # what each lower package may import of ours
+    # what each lower floor may import of ours (the inference core: landmarks and the lsr package's __init__ only)
+    floors = {"landmarks": set(), "models_def": {"landmarks"}, "lsr.core": {"landmarks", "lsr"}}
     for name, targets in graph.items():
-        package = name.split(".")[0]
-        if package in floors:
-            outside = {t for t in targets if t.split(".")[0] not in floors[package] | {package}}
+        floor = next((f for f in floors if name == f or name.startswith(f + ".")), None)
+        if floor is not None:
+            outside = {t for t in targets if t != "lsr" and t.split(".")[0] not in floors[floor] - {"lsr"}
+                       and not (t == floor or t.startswith(floor + "."))}
             assert not outside, f"{name} imports {sorted(outside)}"
 
 
-INFERENCE_PATH = ("deploy", "lsr.pipeline", "lsr.export", "lsr.export_bundle", "lsr.layout_view")
+def test_the_inference_core_needs_no_torch():
+    """lsr.core is shared by the torch pipeline and the ONNX runtime: importing it must not import torch."""
+    import subprocess
+    import sys
+
+    code = "import sys, lsr.core.engine, lsr.core.sources; assert 'torch' not in sys.modules, 'torch imported'"
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
+
+
+INFERENCE_PATH = ("lsr.core", "deploy", "lsr.pipeline", "lsr.export", "lsr.export_bundle", "lsr.layout_view")
 
 
 def reachable(graph: dict[str, set[str]], starts: list[str]) -> set[str]:
@@ -104,7 +115,7 @@ def test_the_per_frame_inference_path_never_imports_training():
     modules = project_modules()
     graph = import_graph(modules)
     starts = [name for name in modules if name.startswith(INFERENCE_PATH)]
-    assert "lsr.pipeline" in starts and "deploy.engine" in starts
+    assert "lsr.pipeline" in starts and "lsr.core.engine" in starts
     training = sorted(name for name in reachable(graph, starts) if name.startswith("lsr.train"))
     assert training == [], f"the inference path reaches {training}"
 

@@ -37,7 +37,7 @@ def trim_clip(video: Path, out: Path, frames: int) -> Path:
 
 def synthesis_only_ms(reenactor, repeats: int = 20) -> float:
     """Median ms of one ``backend.synthesize`` call on a real landmark image (after one warm-up)."""
-    from deploy.engine import to_network
+    from lsr.core.engine import to_network
     from landmarks.raster import draw_landmarks
 
     subject = reenactor.subject

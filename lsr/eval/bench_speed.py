@@ -227,7 +227,7 @@ class OnnxModelMethod(LsrModelMethod):
 def identity_calibration(method: LsrModelMethod, identities, frames: int = 32, k: int = 8) -> list[dict[str, np.ndarray]]:
     """Frame-graph inputs from the identities' *input* frames (never the hold-outs that are scored):
     each identity's latents from its first K inputs, landmark images of its inputs."""
-    from deploy.engine import to_network
+    from lsr.core.engine import to_network
     from landmarks.raster import draw_landmarks
 
     feeds: list[dict[str, np.ndarray]] = []

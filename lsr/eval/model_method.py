@@ -129,7 +129,7 @@ class LsrModelMethod:
     def _reenact_with_oracle(self, target_landmarks: np.ndarray, target_segmentations: np.ndarray | None,
                              scale: float, size: int) -> np.ndarray:
         """Table 4.2's upper bound: G^s conditioned on the targets' one-hot ground-truth segmentation."""
-        from deploy.engine import from_network, to_network
+        from lsr.core.engine import from_network, to_network
         from landmarks.raster import draw_landmarks
         from models_def.config import NUM_SEG_CLASSES
 

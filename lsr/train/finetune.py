@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from deploy.sources import SubjectShots, load_subject_shots  # one source loader for reenact, app and finetune
+from lsr.core.sources import SubjectShots, load_subject_shots  # one source loader for reenact, app and finetune
 from lsr.errors import DatasetError, WeightsError
 from lsr.train.checkpoint import DISCRIMINATOR_NAME, nonfinite_entries
 from lsr.train.optim import make_adam
@@ -189,7 +189,7 @@ def finetune_reenactor(reenactor, steps: int, *, lr: float = FINETUNE_LR, batch_
     The latents stay those of ``encode_subject`` (fixed during fine-tuning, as in the thesis); D comes from beside
     the weights (``lsr train`` saves it) or starts fresh. Inference knows nothing of training: fine-tuning is
     composed on top of it here, by ``lsr reenact``, the app and ``lsr eval``. Returns the ``FinetuneResult``."""
-    from deploy.engine import resize_shots
+    from lsr.core.engine import resize_shots
     from lsr.errors import ConfigError
 
     model = getattr(reenactor.backend, "model", None)

@@ -1,4 +1,4 @@
-"""lsr.pipeline.Reenactor and the shared frame loop (deploy.engine / deploy.sources) on a tiny random model."""
+"""lsr.pipeline.Reenactor and the shared frame loop (lsr.core.engine / lsr.core.sources) on a tiny random model."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import resource
 import numpy as np
 import pytest
 
-from deploy.engine import from_network, to_network
-from deploy.sources import SubjectShots, describe_driver, read_landmark_array
+from lsr.core.engine import from_network, to_network
+from lsr.core.sources import SubjectShots, describe_driver, read_landmark_array
 from landmarks.errors import InputFileError, NoFaceError
 from lsr.errors import WeightsError
 

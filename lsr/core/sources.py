@@ -33,7 +33,7 @@ from typing import Literal
 
 import numpy as np
 
-from deploy import MAX_K
+from lsr.core import MAX_K
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.imageio import IMAGE_SUFFIXES, read_image
 from landmarks.parts import NUM_LANDMARKS

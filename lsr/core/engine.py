@@ -31,7 +31,7 @@ from typing import Literal, Protocol
 import cv2
 import numpy as np
 
-from deploy.sources import (
+from lsr.core.sources import (
     DriverInfo,
     LandmarkSpace,
     SourceInput,
@@ -232,7 +232,7 @@ class ReenactorBase:
 
     # ---- subject ---------------------------------------------------------------------------------------
     def encode_subject(self, source: SourceInput | SubjectShots, k: int | None = None, face_index: int = 0) -> Subject:
-        """Load the K shots of ``source`` (images, a folder, a video or arrays; see ``deploy.sources``), encode and cache.
+        """Load the K shots of ``source`` (images, a folder, a video or arrays; see ``lsr.core.sources``), encode and cache.
 
         k: shots to average (1..32); None = min(8, usable shots). face_index: which face of a frame with several
         (0 = the largest). Returns the cached ``Subject`` (``subject.shots.notes``: what the loader skipped or chose).
@@ -301,7 +301,7 @@ class ReenactorBase:
     ) -> Iterator[ReenactedFrame]:
         """Stream re-enacted frames, one per driver frame, in order (a generator: nothing is held but one frame).
 
-        driver: a video, a folder of images, a .npy/.json landmark file or an (N, 68, 2) array (``deploy.sources``).
+        driver: a video, a folder of images, a .npy/.json landmark file or an (N, 68, 2) array (``lsr.core.sources``).
         mode: "relative" (driver motion on the source's face shape), "absolute" (the driver's landmarks), or
             "auto": absolute when the driver is the source file itself, else relative.
         smooth: One-Euro smoothing of the driver landmarks (and so of the crop framing).
