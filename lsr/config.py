@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import tyro
 
@@ -287,8 +287,8 @@ class TrainConfig:
     """Train on this many procedural synthetic identities: alone, or mixed with --data (real clips)."""
     init_from: Path | None = None
     """Start from this model folder (same preset) instead of random weights; channels a variant adds start at zero."""
-    k_shots: int = 4
-    """K: shots per training episode."""
+    k: Annotated[int, tyro.conf.arg(aliases=("--k-shots",))] = 4
+    """K: shots per training episode (--k-shots: the old name, kept for one release)."""
     shots_from: Literal["video", "identity"] = "video"
     """Where an episode's K shots come from: the target's own video (FSTH's episodes, and the evaluation
     protocol: shots and hold-outs share a video) or any video of the identity (other backgrounds and light)."""
@@ -334,8 +334,8 @@ class TrainConfig:
             raise ConfigError(f"--data {self.data} is not a folder; prepare a dataset first (see docs/TRAINING.md)")
         if self.resolution and (self.resolution < 32 or self.resolution & (self.resolution - 1)):
             raise ConfigError(f"--resolution must be 0 or a power of two >= 32, got {self.resolution}")
-        if self.k_shots < 1 or self.batch_size < 1 or self.workers < 0 or self.threads < 0:
-            raise ConfigError("--k-shots and --batch-size must be >= 1, --workers and --threads >= 0")
+        if self.k < 1 or self.batch_size < 1 or self.workers < 0 or self.threads < 0:
+            raise ConfigError("--k and --batch-size must be >= 1, --workers and --threads >= 0")
         if self.warp_references < 0 or (self.warp_references and self.variant != "warp_guided"):
             raise ConfigError(f"--warp-references is for --variant warp_guided and must be >= 0, got {self.warp_references}")
         if self.checkpoint_every < 1 or self.keep_checkpoints < 1 or self.log_every < 1 or self.image_every < 0:

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
+
+import tyro
 
 from lsr.errors import ConfigError
 
@@ -37,7 +39,8 @@ class BenchTrainConfig:
     presets: tuple[str, ...] = ("small", "paper")
     resolution: int = 128
     batch_size: int = 2
-    k_shots: int = 2
+    k: Annotated[int, tyro.conf.arg(aliases=("--k-shots",))] = 2
+    """K: shots per episode (--k-shots: the old name, kept for one release)."""
     steps: int = 5
     """Timed steps per preset and stage (after one warm-up step)."""
     device: Literal["auto", "cpu", "cuda"] = "auto"
@@ -45,8 +48,8 @@ class BenchTrainConfig:
     """CPU threads (0 = torch's default). On a shared/loaded machine 1 is often fastest."""
 
     def validate(self) -> None:
-        if self.steps < 1 or self.batch_size < 1 or self.k_shots < 1 or self.resolution < 32:
-            raise ConfigError("--steps, --batch-size, --k-shots >= 1 and --resolution >= 32 are required")
+        if self.steps < 1 or self.batch_size < 1 or self.k < 1 or self.resolution < 32:
+            raise ConfigError("--steps, --batch-size, --k >= 1 and --resolution >= 32 are required")
 
 
 @dataclasses.dataclass

@@ -65,12 +65,12 @@ def run_bench_train(cfg) -> None:
         torch.set_num_threads(cfg.threads)
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs, "
           f"torch {torch.__version__}, {torch.get_num_threads()} threads, device {device}")
-    print(f"batch {cfg.batch_size} episodes, K = {cfg.k_shots}, {cfg.resolution}x{cfg.resolution}, fp32, "
+    print(f"batch {cfg.batch_size} episodes, K = {cfg.k}, {cfg.resolution}x{cfg.resolution}, fp32, "
           f"median of {cfg.steps} steps after 1 warm-up\n")
     print("| preset | stage | s/step | steps/s | episodes/s |")
     print("|---|---|---|---|---|")
     for preset in cfg.presets:
         for stage in (1, 3):
-            seconds = time_steps(preset, stage, cfg.resolution, cfg.batch_size, cfg.k_shots, cfg.steps, device)
+            seconds = time_steps(preset, stage, cfg.resolution, cfg.batch_size, cfg.k, cfg.steps, device)
             name = "1 layout pretrain" if stage == 1 else "2-3 full (G+D)"
             print(f"| {preset} | {name} | {seconds:.3f} | {1 / seconds:.2f} | {cfg.batch_size / seconds:.2f} |", flush=True)

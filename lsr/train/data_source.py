@@ -66,7 +66,7 @@ def episode_dataset(cfg, model_config: ModelConfig) -> torch.utils.data.Dataset:
         dataset = EpisodeDataset(
             root,
             split="train",
-            shots=cfg.k_shots,
+            shots=cfg.k,
             size=model_config.resolution,
             seed=cfg.seed,
             shots_from=cfg.shots_from,

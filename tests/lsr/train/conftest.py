@@ -69,7 +69,7 @@ def tiny_train_config(out: Path, **changes) -> TrainConfig:
         synthetic_identities=1,
         out=out,
         preset="tiny",
-        k_shots=2,
+        k=2,
         batch_size=2,
         workers=0,
         stages=stages,
