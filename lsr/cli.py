@@ -52,13 +52,19 @@ def _run_prepare(cfg: config.PrepareConfig) -> None:
     print(f"dataset written to {cfg.out} (manifest.json, prepare_summary.json)")
 
 
+def _run_bench_synth(cfg: config.BenchSynthConfig) -> None:
+    from lsr.data.synth.generate import print_benchmark
+
+    print_benchmark(preset=cfg.preset)
+
+
 def _run_synth(cfg: config.SynthConfig) -> None:
     import os
 
     from lsr.data.synth import generate_dataset, write_preview
     from lsr.data.synth.generate import print_benchmark
 
-    if cfg.bench:
+    if cfg.bench:  # kept for one release: `lsr bench synth`
         print_benchmark(preset=cfg.preset)
         return
     if cfg.preview is not None:
@@ -97,6 +103,8 @@ COMMANDS: dict[str, tuple[type, Runner]] = {
     "reenact": (config.ReenactConfig, "lsr.reenact:run_reenact"),
     "export": (config.ExportConfig, "lsr.export_bundle:run_export"),
     "app": (config.AppConfig, "app.ui:run_app"),
+    "ship": (config.ShipConfig, "lsr.weights.ship:run_ship"),
+    "curves": (config.CurvesConfig, "lsr.train.visualize:run_curves"),
 }
 GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
     "bench": {
@@ -107,6 +115,8 @@ GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
         "speed": (config.BenchSpeedConfig, "lsr.eval.bench_speed:run_bench_speed"),
         "finetune": (config.BenchFinetuneConfig, "lsr.eval.bench_finetune:run_bench_finetune"),
         "hard": (config.BenchHardConfig, "lsr.eval.bench_hard:run_bench_hard"),
+        "synth": (config.BenchSynthConfig, _run_bench_synth),
+        "oracle-seg": (config.BenchOracleSegConfig, "lsr.data.oracle_seg:run_bench_oracle_seg"),
     },
 }
 

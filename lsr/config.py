@@ -21,6 +21,8 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchReenactConfig,
     BenchFinetuneConfig,
     BenchHardConfig,
+    BenchOracleSegConfig,
+    BenchSynthConfig,
     EvalConfig,
 )
 from lsr.errors import ConfigError
@@ -125,7 +127,7 @@ class SynthConfig:
     preview: Path | None = None
     """Only write a contact sheet PNG here (frame | landmarks | landmark image | classes), no dataset."""
     bench: bool = False
-    """Only print a frames/s table of the generator (128 and 256, 1 and 2 workers), no dataset."""
+    """Deprecated: `lsr bench synth` prints the generator's frames/s table."""
 
     def validate(self) -> None:
         if self.identities < 1 or self.videos_per_identity < 1 or self.frames < 1:
@@ -558,3 +560,31 @@ class AppConfig:
             raise ConfigError("--max-video-seconds and --max-upload-mb must be > 0; --max-video-frames, --queue-size >= 1")
         if not 1 <= self.max_k <= MAX_K:
             raise ConfigError(f"--max-k must be in 1..{MAX_K}, got {self.max_k}")
+
+
+@dataclasses.dataclass
+class ShipConfig:
+    """Copy a training run's weights into the package as the default model (checks that the copy loads; prints
+    sizes and SHA-256 sums for MODEL_CARD.md). Never ship weights trained on the evaluation people."""
+
+    weights: tyro.conf.Positional[Path]
+    """The run's weights folder (RUN/weights: config.json + model.safetensors [+ discriminator.safetensors])."""
+
+    def validate(self) -> None:
+        if not Path(self.weights).is_dir():
+            raise ConfigError(f"{self.weights} is not a folder; give a run's weights folder (RUN/weights)")
+
+
+@dataclasses.dataclass
+class CurvesConfig:
+    """Write a training run's loss curves (its TensorBoard scalars) as one PNG of line plots."""
+
+    run: tyro.conf.Positional[Path]
+    """The run folder of `lsr train --out RUN` (or its tensorboard/ folder)."""
+    out: Path = Path("out/curves.png")
+    tags: tuple[str, ...] = ()
+    """Only these scalars (e.g. g/l1 d/loss); empty = all."""
+
+    def validate(self) -> None:
+        if not Path(self.run).is_dir():
+            raise ConfigError(f"{self.run} is not a folder; give the run folder of `lsr train --out RUN`")

@@ -384,3 +384,26 @@ class BenchHardConfig:
 
 
 # ---- re-enactment and deployment (lsr.reenact, lsr.export_bundle) ------------------------------------------
+
+
+@dataclasses.dataclass
+class BenchSynthConfig:
+    """Print the synthetic generator's speed (frames/s at 128² and 256², 1 and 2 workers) with machine info."""
+
+    preset: Literal["default", "extreme_pose", "tiny_face", "huge_face", "heavy_occlusion", "low_light", "overexposed",
+                    "motion_blur", "noise"] = "default"
+
+    def validate(self) -> None:
+        pass
+
+
+@dataclasses.dataclass
+class BenchOracleSegConfig:
+    """Print the per-class IoU of the oracle face parsing (lsr.data.oracle_seg) against the official LSR maps."""
+
+    root: tyro.conf.Positional[Path | None] = None
+    """Folder searched for combined/*_segmap_merged.png; default: the shared fsth_eval_sample_processed."""
+
+    def validate(self) -> None:
+        if self.root is not None and not Path(self.root).is_dir():
+            raise ConfigError(f"{self.root} is not a folder")

@@ -127,3 +127,11 @@ def test_every_cli_runner_resolves_to_a_function():
     tables = [COMMANDS, *GROUPS.values()]
     runners = [runner for table in tables for _, runner in table.values()]
     assert runners and all(callable(_resolve(runner)) for runner in runners)
+
+
+def test_no_module_is_a_side_entry_point():
+    """Every command is an `lsr` sub-command: no module of ours runs as `python -m` (a __main__ block)."""
+    modules = project_modules()
+    side = [name for name, path in modules.items() if 'if __name__ == "__main__"' in path.read_text()
+            and name not in ("lsr.cli", "app.__main__", "deploy.example_embed")]
+    assert side == [], f"run these as lsr sub-commands instead: {side}"

@@ -218,7 +218,7 @@ def oracle_segmentation(image: np.ndarray, landmarks: np.ndarray, grabcut_iterat
     image: (H, W, 3) uint8 RGB; landmarks: (68, 2) float (x, y) pixels of the same frame, or all-NaN
     (no face: the whole map is background). Returns (H, W) uint8 class ids in ``SEG_CLASSES`` order.
     Plausible, not exact: compare with ``segmentation_iou`` (per-class IoU vs the official maps is
-    printed by ``python -m lsr.data.oracle_seg``).
+    printed by ``lsr bench oracle-seg``).
     """
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise ValueError(f"image must be (H, W, 3) uint8 RGB, got {image.shape} {image.dtype}")
@@ -351,24 +351,17 @@ def compare_with_official(frames_dirs: Sequence[Path], detector: str = "hog") ->
     return segmentation_iou(predicted, reference), share, len(predicted_maps)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Print the per-class IoU of the oracle vs the official LSR maps (default: the shared id00017 sample)."""
-    import argparse
+def run_bench_oracle_seg(cfg) -> int:
+    """Entry point of ``lsr bench oracle-seg [ROOT]``: the per-class IoU of the oracle vs the official LSR maps
+    (default root: the shared id00017 sample)."""
+    from lsr.errors import DatasetError
 
-    parser = argparse.ArgumentParser(prog="python -m lsr.data.oracle_seg", description=main.__doc__)
     default = Path(__file__).resolve().parents[3] / "shared" / "data" / "fsth_eval_sample_processed"
-    parser.add_argument("root", nargs="?", type=Path, default=default,
-                        help="folder searched recursively for combined/ folders with *_segmap_merged.png")
-    args = parser.parse_args(argv)
-    folders = sorted({p.parent for p in Path(args.root).rglob("*_segmap_merged.png")})
+    root = Path(cfg.root) if cfg.root is not None else default
+    folders = sorted({p.parent for p in root.rglob("*_segmap_merged.png")})
     if not folders:
-        print(f"no *_segmap_merged.png under {args.root}")
-        return 2
+        raise DatasetError(f"no *_segmap_merged.png under {root}: give a folder of the LSR release's processed frames")
     iou, share, count = compare_with_official(folders)
-    print(f"oracle vs official LSR segmaps: {count} frames from {len(folders)} folder(s) under {args.root}")
+    print(f"oracle vs official LSR segmaps: {count} frames from {len(folders)} folder(s) under {root}")
     print(format_iou_table(iou, share))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    return count

@@ -107,3 +107,18 @@ def tensorboard_to_png(log_dir: Path, png_path: Path, tags: Sequence[str] | None
         series = {tag: series[tag] for tag in tags if tag in series}
     write_png(png_path, plot_curves(series))
     return Path(png_path)
+
+
+def run_curves(cfg) -> Path:
+    """Entry point of ``lsr curves RUN --out PNG`` (``lsr.config.CurvesConfig``)."""
+    from landmarks.imageio import check_output_path
+    from lsr.errors import ConfigError
+
+    check_output_path(cfg.out)
+    log_dir = Path(cfg.run) / "tensorboard" if (Path(cfg.run) / "tensorboard").is_dir() else Path(cfg.run)
+    series = read_tensorboard_scalars(log_dir)
+    if not series:
+        raise ConfigError(f"no TensorBoard scalars under {log_dir}: give the run folder of `lsr train --out RUN`")
+    path = tensorboard_to_png(log_dir, cfg.out, cfg.tags or None)
+    print(f"curves of {len(series)} scalar(s) written to {path}")
+    return path

@@ -1,7 +1,7 @@
 """The shipped default model: ``lsr/weights/default`` (config.json + model.safetensors + discriminator.safetensors).
 
 It was trained on procedural synthetic heads only (``lsr synth``); MODEL_CARD.md gives the recipe, the
-metrics and what it can and cannot do. ``lsr.weights.ship`` copies a training run's weights here.
+metrics and what it can and cannot do. ``lsr ship RUN/weights`` copies a training run's weights here.
 """
 
 from __future__ import annotations

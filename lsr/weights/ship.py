@@ -1,4 +1,4 @@
-"""Copy a training run's weights into the package as the default model: ``python -m lsr.weights.ship RUN/weights``.
+"""Copy a training run's weights into the package as the default model: ``lsr ship RUN/weights``.
 
 Copies config.json, model.safetensors and (when present) discriminator.safetensors into ``lsr/weights/default``
 through a temp folder renamed into place, checks that the copy loads, and prints sizes and SHA-256 sums for
@@ -12,7 +12,6 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 
@@ -51,21 +50,10 @@ def ship(run_weights: str | os.PathLike, target: str | os.PathLike = DEFAULT_WEI
             for name in names]
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if len(argv) != 1:
-        print("usage: python -m lsr.weights.ship RUN/weights", file=sys.stderr)
-        return 2
-    try:
-        rows = ship(argv[0])
-    except MissingWeightsError as exc:
-        print(f"lsr.weights.ship: {exc}", file=sys.stderr)
-        return 2
+def run_ship(cfg) -> list[tuple[str, int, str]]:
+    """Entry point of ``lsr ship RUN/weights`` (``lsr.config.ShipConfig``): ship, then print sizes and sums."""
+    rows = ship(cfg.weights)
     print(f"shipped to {DEFAULT_WEIGHTS}:")
     for name, size, digest in rows:
         print(f"  {name:28s} {size / 2**20:7.2f} MB  sha256 {digest}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    return rows
