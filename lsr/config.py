@@ -24,6 +24,10 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchOracleSegConfig,
     BenchSynthConfig,
     EvalConfig,
+    OptionalFloat,
+    OptionalInt,
+    OptionalPath,
+    OptionalStr,
 )
 from lsr.errors import ConfigError
 
@@ -68,7 +72,7 @@ class DemoConfig:
 
     out: Path = Path("out")
     """Output folder: demo.mp4, demo_side_by_side.{mp4,png}, inputs/{source,driver}.mp4."""
-    weights: Path | None = None
+    weights: OptionalPath = None
     """Model folder; default: $LSR_WEIGHTS, else the shipped default model."""
     frames: int = 100
     """Frames of the driving clip (25 fps)."""
@@ -124,7 +128,7 @@ class SynthConfig:
     """Parallel clip workers (processes); -1 = min(2, CPU count). Output does not depend on it."""
     overwrite: bool = False
     """Replace clips that already exist under --out."""
-    preview: Path | None = None
+    preview: OptionalPath = None
     """Only write a contact sheet PNG here (frame | landmarks | landmark image | classes), no dataset."""
     bench: bool = False
     """Deprecated: `lsr bench synth` prints the generator's frames/s table."""
@@ -226,7 +230,7 @@ class LossConfig:
     """L1 between discriminator features of real and fake (perceptual signal without downloaded weights)."""
     vgg: float = 1.0
     """Weight of the VGG perceptual loss; used only when --losses.vgg-weights is given."""
-    vgg_weights: Path | None = None
+    vgg_weights: OptionalPath = None
     """VGG19 (or VGGFace as VGG16) state dict with torchvision key names (.pth or .safetensors); None = off."""
     adversarial: float = 0.1
     """lambda_adv: non-saturating logistic generator loss."""
@@ -273,7 +277,7 @@ class OptimConfig:
 class TrainConfig:
     """Train an LSR model in three stages (layout pre-training, full pipeline, latent layout)."""
 
-    data: Path | None = None
+    data: OptionalPath = None
     """Dataset root (lsr.data format). None with --synthetic-identities > 0 = a procedural dataset."""
     out: Path = Path("runs/lsr")
     """Run folder: checkpoints/, tensorboard/, weights/ (inference safetensors + config.json)."""
@@ -287,7 +291,7 @@ class TrainConfig:
     """warp_guided: how many of the nearest shots, TPS-warped to the target, G^s sees and blends; 0 = the preset's."""
     synthetic_identities: int = 0
     """Train on this many procedural synthetic identities: alone, or mixed with --data (real clips)."""
-    init_from: Path | None = None
+    init_from: OptionalPath = None
     """Start from this model folder (same preset) instead of random weights; channels a variant adds start at zero."""
     k: Annotated[int, tyro.conf.arg(aliases=("--k-shots",))] = 4
     """K: shots per training episode (--k-shots: the old name, kept for one release)."""
@@ -354,11 +358,11 @@ class FinetuneConfig:
 
     shots: tyro.conf.Positional[tuple[Path, ...]]
     """Image files, a folder of images, or one video (K frames with a face are sampled)."""
-    weights: Path | None = None
+    weights: OptionalPath = None
     """Model folder (config.json + model.safetensors); default: $LSR_WEIGHTS, else the shipped default model (MODEL_CARD.md)."""
     out: Path = Path("out/subject")
     """Output folder: subject model (safetensors + config.json) and latents.safetensors."""
-    k: int | None = None
+    k: OptionalInt = None
     """Number of shots to use (sampled evenly from a folder or video); default min(8, shots with a face)."""
     steps: int = 50
     """Fine-tuning steps (small preset at 128^2, batch 4: ~4.5 s/step on one loaded CPU core)."""
@@ -393,26 +397,26 @@ class FinetuneConfig:
 class ReenactConfig:
     """Re-enact a source person with a driving video: one job (--source/--driving/--out) or a batch (--jobs or dirs)."""
 
-    weights: Path | None = None
+    weights: OptionalPath = None
     """Model folder (config.json + model.safetensors); for --runtime onnx also an `lsr export` bundle (a model
     folder without one is exported on first use and cached). Default: $LSR_WEIGHTS, else the shipped model."""
-    source: Path | None = None
+    source: OptionalPath = None
     """Source person: an image, a folder of images, or a video (K frames with a face are sampled)."""
-    driving: Path | None = None
+    driving: OptionalPath = None
     """Driver: a video, a folder of frames, or landmarks (.npy/.json, N x 68 x 2; see --landmark-space)."""
-    out: Path | None = None
+    out: OptionalPath = None
     """Output .mp4 (single job)."""
-    jobs: Path | None = None
+    jobs: OptionalPath = None
     """Batch: CSV with columns source,driving,output (paths relative to the CSV)."""
-    source_dir: Path | None = None
+    source_dir: OptionalPath = None
     """Batch: folder of sources (images, videos, or sub-folders of images)."""
-    driving_dir: Path | None = None
+    driving_dir: OptionalPath = None
     """Batch: folder of drivers (videos, landmark files, or sub-folders of frames)."""
-    out_dir: Path | None = None
+    out_dir: OptionalPath = None
     """Batch: output folder for --source-dir/--driving-dir."""
     pairing: Literal["all", "by-name"] = "all"
     """Batch dirs: every source x driving (<source>__<driving>.mp4), or same-stem pairs (<stem>.mp4)."""
-    k: int | None = None
+    k: OptionalInt = None
     """Shots of the source to average (1..32); default min(8, frames with a face). Larger than usable is an error."""
     face_index: int = 0
     """Which face of a source frame showing several people (0 = the largest; the output says when there were several)."""
@@ -424,7 +428,7 @@ class ReenactConfig:
     """One-Euro smoothing of the driving landmarks."""
     paste_back: bool = False
     """Paste the synthesised head back into the full driving frame; otherwise output the crop-sized synthesis."""
-    finetune_steps: int | None = None
+    finetune_steps: OptionalInt = None
     """Fine-tune the generators on the source shots first (thesis §4.3.5; torch runtime only). Default:
     DEFAULT_FINETUNE_STEPS with --runtime torch (see `lsr bench finetune`), 0 with --runtime onnx."""
     finetune_lr: float = 1e-3
@@ -435,17 +439,18 @@ class ReenactConfig:
     precision: Literal["fp32", "bf16"] = "fp32"
     """--runtime torch precision (bf16 error vs fp32: `lsr bench reenact`)."""
     device: Literal["auto", "cpu", "cuda"] = "auto"
-    side_by_side: Path | None = None
+    side_by_side: OptionalPath = None
     """Single job: also write driver | landmarks | latent layout | output to this .mp4."""
     watermark: bool = False
     """Draw a visible 'SYNTHETIC' mark in the corner (container metadata always marks outputs as synthetic)."""
-    landmark_space: Literal["frame", "crop"] | None = None
+    landmark_space: Annotated[Literal["frame", "crop"] | None,
+                              tyro.conf.arg(metavar="{frame,crop}", help_behavior_hint="(optional)")] = None
     """Landmark drivers: pixel coordinates of the driver's frames (default) or of a training-framed crop."""
-    landmark_size: int | None = None
+    landmark_size: OptionalInt = None
     """Landmark drivers in crop space: the crop side the coordinates refer to (default: model resolution)."""
-    fps: float | None = None
+    fps: OptionalFloat = None
     """Output fps for landmark / image-folder drivers (default 25; videos keep their own)."""
-    shard: str | None = None
+    shard: OptionalStr = None
     """Batch: take job share i of n ('i/n'); default RANK/WORLD_SIZE under torchrun, else all jobs."""
     overwrite: bool = False
     """Redo jobs whose output already exists (default: skip them, which makes reruns resume)."""
@@ -504,18 +509,18 @@ class ReenactConfig:
 class ExportConfig:
     """Export a model folder to the ONNX bundle run by deploy.runtime.OnnxReenactor (no torch needed)."""
 
-    weights: Path | None = None
+    weights: OptionalPath = None
     """Model folder (config.json + model.safetensors); default: $LSR_WEIGHTS, else the shipped default model (MODEL_CARD.md)."""
     out: Path = Path("out/onnx")
     """Bundle folder: subject_encoder.onnx, frame_generator.onnx [, frame_generator.int8.onnx]."""
     int8: bool = False
     """Also write a static-QDQ int8 frame generator, calibrated on real frames; prints its error vs fp32."""
-    calibration_source: Path | None = None
+    calibration_source: OptionalPath = None
     """--int8: source (image/folder/video) whose latents calibrate; default the shared tpsmm_driving.mp4."""
-    calibration_driving: Path | None = None
+    calibration_driving: OptionalPath = None
     """--int8: driving video whose landmark images calibrate; default --calibration-source."""
     calibration_frames: int = 32
-    calibration_k: int | None = None
+    calibration_k: OptionalInt = None
 
     def validate(self) -> None:
         if self.weights is not None and not Path(self.weights).is_dir():
@@ -528,7 +533,7 @@ class ExportConfig:
 class AppConfig:
     """Start the Gradio web app (K-shot upload, re-enactment, the latent layout made visible) on HOST:PORT."""
 
-    weights: Path | None = None
+    weights: OptionalPath = None
     """Model folder (config.json + model.safetensors, from `lsr train`). Default: $LSR_WEIGHTS, else the
     shipped default model (trained on synthetic heads; see MODEL_CARD.md)."""
     random_init: bool = False
@@ -546,7 +551,7 @@ class AppConfig:
     """Largest K (source shots) offered (1..32)."""
     queue_size: int = 8
     """Requests allowed to wait while one runs (one runs at a time); beyond that the page says the queue is full."""
-    examples_dir: Path | None = None
+    examples_dir: OptionalPath = None
     """Where the bundled synthetic examples are generated on first use (default ~/.cache/lsr/app_examples)."""
 
     def validate(self) -> None:

@@ -13,12 +13,18 @@ import tyro
 
 from lsr.errors import ConfigError
 
+OptionalPath = Annotated[Path | None, tyro.conf.arg(metavar="PATH", help_behavior_hint="(optional)")]
+"""An optional path option: shown as ``--opt PATH ... (optional)`` in --help, not ``{None}|PATH (default: None)``."""
+OptionalInt = Annotated[int | None, tyro.conf.arg(metavar="INT", help_behavior_hint="(optional)")]
+OptionalFloat = Annotated[float | None, tyro.conf.arg(metavar="FLOAT", help_behavior_hint="(optional)")]
+OptionalStr = Annotated[str | None, tyro.conf.arg(metavar="STR", help_behavior_hint="(optional)")]
+
 
 @dataclasses.dataclass
 class BenchLandmarksConfig:
     """Print ms/frame of detection, tracking and rasterisation on a clip (a table, with machine info)."""
 
-    video: Path | None = None
+    video: OptionalPath = None
     """Video to time on; default: the shared real clip (../shared/data/clips/tpsmm_driving.mp4) if present."""
     size: int = 512
     """Frames are resized to size x size before timing (the tracking goal is stated at 512)."""
@@ -115,16 +121,16 @@ class BenchSpeedConfig:
     """Timed runs of subject encoding at K=32 (slow at 256^2)."""
     out_md: Path = Path("BENCHMARKS.md")
     """Markdown file whose `bench:speed` section is replaced (created when missing); bench_speed.json goes beside the plot."""
-    plot: Path | None = None
+    plot: OptionalPath = None
     """PNG of ms/frame against the error with the Pareto front; default OUT_MD's folder/docs/bench_speed.png."""
     pareto_metric: Literal["psnr", "ssim", "nmke"] = "psnr"
-    synthetic_root: Path | None = None
+    synthetic_root: OptionalPath = None
     """An existing `lsr synth` dataset whose 'test' split is scored; default a small fixed-seed one in --cache-dir."""
-    cache_dir: Path | None = None
+    cache_dir: OptionalPath = None
     """Where the default synthetic split and FSTH landmarks are cached (default ~/.cache/lsr/bench_speed)."""
     fsth: bool = False
     """Also score on the FSTH sample (../shared/data/fsth_eval_sample or --fsth-root)."""
-    fsth_root: Path | None = None
+    fsth_root: OptionalPath = None
     inputs: int = 32
     """Input frames per identity of the synthetic split (shots are drawn from them)."""
     holdouts: int = 32
@@ -160,9 +166,9 @@ class BenchSpeedConfig:
 class BenchReenactConfig:
     """Print end-to-end and per-stage fps of `lsr reenact` for each runtime (a table with machine info)."""
 
-    video: Path | None = None
+    video: OptionalPath = None
     """Driving (and source) clip; default the shared ../shared/data/clips/tpsmm_driving.mp4."""
-    weights: Path | None = None
+    weights: OptionalPath = None
     """Model folder; default a randomly initialised --preset model (speed does not depend on the weights)."""
     preset: str = "fast"
     resolution: int = 256
@@ -197,7 +203,7 @@ def evaluation_data(data: Path | None) -> Path:
 class EvalConfig:
     """Evaluate re-enactment with the thesis protocol (§4.4): K shots from the inputs, metrics on hold-out frames."""
 
-    data: Path | None = None
+    data: OptionalPath = None
     """LSR-release folder ({train,test}/<id>/<video>/combined/*_rgb.png) or an lsr dataset root (manifest.json);
     default: the shared FSTH sample (../shared/data/fsth_eval_sample, or $LSR_SHARED_DATA/fsth_eval_sample)."""
     out: Path = Path("out/eval")
@@ -238,15 +244,15 @@ class EvalConfig:
     """lambda of the TPS baselines, tps and tps_mean3 (unit-spread coordinates)."""
     examples: int = 4
     """Frames per (method, K, identity) written to OUT/examples (output above ground truth); 0 = none."""
-    figure: Path | None = None
+    figure: OptionalPath = None
     """Also write one picture comparing the methods: a hold-out frame per identity, methods side by side (PNG)."""
     figure_k: int = 8
     """K of that picture (one of --k)."""
-    lpips_weights: Path | None = None
+    lpips_weights: OptionalPath = None
     """LPIPS (AlexNet v0.1) weights file, .pth or .safetensors (see lsr/eval/lpips.py); unset = LPIPS not computed."""
-    fid_weights: Path | None = None
+    fid_weights: OptionalPath = None
     """FID feature extractor, TorchScript (.pt) or .onnx (see lsr/eval/fid.py); unset = FID not computed."""
-    out_md: Path | None = None
+    out_md: OptionalPath = None
     """Also put the report into this markdown file (e.g. BENCHMARKS.md) as the section named by --section,
     with the command that wrote it; other sections are kept."""
     section: str = "eval"
@@ -297,9 +303,9 @@ class EvalConfig:
 class BenchFinetuneConfig:
     """Print subject fine-tuning's steps-vs-error curve beside the TPS baselines (lsr.eval.bench_finetune)."""
 
-    weights: Path | None = None
+    weights: OptionalPath = None
     """Model folder; default: $LSR_WEIGHTS, else the shipped default model."""
-    data: Path | None = None
+    data: OptionalPath = None
     """As `lsr eval --data`; default: the shared FSTH sample."""
     out: Path = Path("out/bench_finetune")
     """Folder for the landmark cache of the evaluation frames."""
@@ -313,7 +319,7 @@ class BenchFinetuneConfig:
     seed: int = 0
     threads: int = 1
     """CPU threads for torch (timings are per subject; 0 = torch's default)."""
-    out_md: Path | None = None
+    out_md: OptionalPath = None
     """Also write the table as the 'finetune_curve' section of this markdown file (e.g. BENCHMARKS.md)."""
     progress: bool = True
 
@@ -353,11 +359,11 @@ def shared_real_clips() -> tuple[Path | None, Path | None]:
 class BenchHardConfig:
     """Hard inputs through the pipeline: the clear error, or finite outputs with faces, against an easy twin."""
 
-    weights: Path | None = None
+    weights: OptionalPath = None
     """Model folder; default: $LSR_WEIGHTS, else the shipped default model."""
-    clip: Path | None = None
+    clip: OptionalPath = None
     """Real clip the cases are built from; default: the first of the shared training clips (synthetic if absent)."""
-    other_clip: Path | None = None
+    other_clip: OptionalPath = None
     """Clip of another person (the 'other face shape' driver); default: the next person of the shared clips."""
     long_frames: int = 10000
     """Length of the long landmark-sequence case."""
@@ -365,7 +371,7 @@ class BenchHardConfig:
     """Run only these cases (names as in the table; the easy twins always run)."""
     threads: int = 1
     """CPU threads for torch (0 = torch's default)."""
-    out_md: Path | None = None
+    out_md: OptionalPath = None
     """Also write the table as the 'hard_cases' section of this markdown file (e.g. BENCHMARKS.md)."""
     progress: bool = True
 
@@ -401,7 +407,7 @@ class BenchSynthConfig:
 class BenchOracleSegConfig:
     """Print the per-class IoU of the oracle face parsing (lsr.data.oracle_seg) against the official LSR maps."""
 
-    root: tyro.conf.Positional[Path | None] = None
+    root: tyro.conf.Positional[OptionalPath] = None
     """Folder searched for combined/*_segmap_merged.png; default: the shared fsth_eval_sample_processed."""
 
     def validate(self) -> None:

@@ -44,3 +44,19 @@ def test_readme_command_parses(args):
     else:
         cls, rest = COMMANDS[args[0]][0], args[1:]
     tyro.cli(cls, args=rest)  # SystemExit (a failed test) on an unknown or malformed flag
+
+
+def test_help_shows_metavars_not_none_noise():
+    """Optional options read `--weights PATH ... (optional)`, never `{None}|PATH` or `(default: None)`."""
+    import contextlib
+    import io
+
+    from lsr.cli import COMMANDS, GROUPS, main
+
+    commands = [[name] for name in COMMANDS] + [[group, name] for group, table in GROUPS.items() for name in table]
+    for command in commands:
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.suppress(SystemExit):
+            main([*command, "--help"])
+        text = out.getvalue()
+        assert "usage" in text and "{None}" not in text and "(default: None)" not in text, (command, text[:400])
