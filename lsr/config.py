@@ -28,6 +28,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     OptionalInt,
     OptionalPath,
     OptionalStr,
+    check_weights,
 )
 from lsr.errors import ConfigError
 
@@ -85,8 +86,7 @@ class DemoConfig:
     progress: bool = True
 
     def validate(self) -> None:
-        if self.weights is not None and not Path(self.weights).is_dir():
-            raise ConfigError(f"--weights {self.weights} is not a model folder (config.json + model.safetensors)")
+        check_weights(self.weights)
         if self.finetune_steps < 0:
             raise ConfigError(f"--finetune-steps must be >= 0, got {self.finetune_steps}")
         if self.frames < 1:
@@ -382,8 +382,7 @@ class FinetuneConfig:
 
         self.losses.validate()
         check_output_path(self.out, "--out", folder=True)  # before the shots are loaded and the model tuned
-        if self.weights is not None and not Path(self.weights).is_dir():
-            raise ConfigError(f"--weights {self.weights} must be a model folder (config.json + .safetensors)")
+        check_weights(self.weights)
         if not self.shots:
             raise ConfigError("give at least one image, folder or video of the subject")
         for path in self.shots:
@@ -472,8 +471,7 @@ class ReenactConfig:
             raise ConfigError(f"--threads must be >= 0, got {self.threads}")
         if self.face_index < 0:
             raise ConfigError(f"--face-index must be >= 0 (0 = the largest face), got {self.face_index}")
-        if self.weights is not None and not Path(self.weights).is_dir():
-            raise ConfigError(f"--weights {self.weights} is not a folder (config.json + model.safetensors)")
+        check_weights(self.weights)
         single = [self.source, self.driving, self.out]
         dirs = [self.source_dir, self.driving_dir, self.out_dir]
         modes = sum([any(v is not None for v in single), self.jobs is not None, any(v is not None for v in dirs)])
@@ -523,8 +521,7 @@ class ExportConfig:
     calibration_k: OptionalInt = None
 
     def validate(self) -> None:
-        if self.weights is not None and not Path(self.weights).is_dir():
-            raise ConfigError(f"--weights {self.weights} is not a model folder (config.json + model.safetensors)")
+        check_weights(self.weights)
         if self.calibration_frames < 1:
             raise ConfigError(f"--calibration-frames must be >= 1, got {self.calibration_frames}")
 
@@ -555,8 +552,7 @@ class AppConfig:
     """Where the bundled synthetic examples are generated on first use (default ~/.cache/lsr/app_examples)."""
 
     def validate(self) -> None:
-        if self.weights is not None and not Path(self.weights).is_dir():
-            raise ConfigError(f"--weights {self.weights} is not a folder (config.json + model.safetensors from `lsr train`)")
+        check_weights(self.weights)
         if self.weights is not None and self.random_init:
             raise ConfigError("--weights and --random-init exclude each other")
         if not 0 <= self.port <= 65535:

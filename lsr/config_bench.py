@@ -6,6 +6,7 @@ Each benchmark is a command that prints a markdown table with machine info; neve
 from __future__ import annotations
 
 import dataclasses
+import os
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -15,6 +16,15 @@ from lsr.errors import ConfigError
 
 OptionalPath = Annotated[Path | None, tyro.conf.arg(metavar="PATH", help_behavior_hint="(optional)")]
 """An optional path option: shown as ``--opt PATH ... (optional)`` in --help, not ``{None}|PATH (default: None)``."""
+
+
+def check_weights(weights: str | os.PathLike | None, label: str = "--weights") -> None:
+    """The one ``--weights`` check of every command: None (the default model) or an existing folder."""
+    if weights is not None and not Path(weights).is_dir():
+        raise ConfigError(f"{label} {weights} is not a folder: give a model folder (config.json + model.safetensors "
+                          "from `lsr train`, or an `lsr export` bundle)")
+
+
 OptionalInt = Annotated[int | None, tyro.conf.arg(metavar="INT", help_behavior_hint="(optional)")]
 OptionalFloat = Annotated[float | None, tyro.conf.arg(metavar="FLOAT", help_behavior_hint="(optional)")]
 OptionalStr = Annotated[str | None, tyro.conf.arg(metavar="STR", help_behavior_hint="(optional)")]
@@ -278,8 +288,7 @@ class EvalConfig:
         if not self.methods and not self.weights:
             raise ConfigError("--methods needs at least one of nearest_shot, tps, tps_mean3 (or give --weights)")
         for folder in self.weights:
-            if not Path(folder).is_dir():
-                raise ConfigError(f"--weights {folder} is not a model folder (config.json + model.safetensors)")
+            check_weights(folder)
         if self.finetune_steps < 0 or not self.finetune_lr > 0:
             raise ConfigError(f"--finetune-steps must be >= 0 and --finetune-lr > 0, got {self.finetune_steps}, {self.finetune_lr}")
         if self.inputs < 1 or self.holdouts < 1 or self.max_holdouts < 0 or self.max_identities < 0 or self.examples < 0:
@@ -331,8 +340,7 @@ class BenchFinetuneConfig:
             raise ConfigError("--k >= 1, --steps values >= 0 (at least one) and --finetune-lr > 0 are required")
         if self.max_identities < 0 or self.max_holdouts < 0 or self.threads < 0:
             raise ConfigError("--max-identities, --max-holdouts and --threads must be >= 0")
-        if self.weights is not None and not Path(self.weights).is_dir():
-            raise ConfigError(f"--weights {self.weights} is not a model folder (config.json + model.safetensors)")
+        check_weights(self.weights)
 
 
 def shared_real_clips() -> tuple[Path | None, Path | None]:
@@ -385,8 +393,7 @@ class BenchHardConfig:
         for flag, path in (("--clip", self.clip), ("--other-clip", self.other_clip)):
             if path is not None and not Path(path).is_file():
                 raise ConfigError(f"{flag} {path} is not a file; give a video")
-        if self.weights is not None and not Path(self.weights).is_dir():
-            raise ConfigError(f"--weights {self.weights} is not a model folder (config.json + model.safetensors)")
+        check_weights(self.weights)
 
 
 # ---- re-enactment and deployment (lsr.reenact, lsr.export_bundle) ------------------------------------------

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from lsr.config_bench import check_weights
 from lsr.errors import ConfigError
 from lsr.eval import sections
 from lsr.eval.bench_models import conv_peak_gflops, count_gflop, frame_inputs, median_ms, time_runtime
@@ -64,8 +65,7 @@ def parse_weights(items: tuple[str, ...] | list[str]) -> dict[str, Path]:
         preset, separator, folder = item.partition("=")
         if not separator or not preset or not folder:
             raise ConfigError(f"--weights takes PRESET=DIR items (e.g. tiny=runs/tiny/weights), got {item!r}")
-        if not Path(folder).is_dir():
-            raise ConfigError(f"--weights {item}: {folder} is not a folder (config.json + model.safetensors from `lsr train`)")
+        check_weights(folder, f"--weights {preset}:")
         parsed[preset] = Path(folder)
     return parsed
 
