@@ -70,7 +70,7 @@ def model_summary(weights: Path | None, random_init: bool) -> str:
     return line
 
 
-def resolve_weights(cfg: AppConfig, examples_dir: Path) -> tuple[Path | None, bool]:
+def served_weights(cfg: AppConfig, examples_dir: Path) -> tuple[Path | None, bool]:
     """--weights, else a --random-init tiny model in the cache, else the default location (or None)."""
     if cfg.weights is not None:
         return Path(cfg.weights), False
@@ -82,7 +82,7 @@ def resolve_weights(cfg: AppConfig, examples_dir: Path) -> tuple[Path | None, bo
 def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.SessionFiles]:
     """The Blocks page, the lazily loading model store and the per-session file folders."""
     examples_dir = Path(cfg.examples_dir) if cfg.examples_dir is not None else ex.default_examples_dir()
-    weights, random_init = resolve_weights(cfg, examples_dir)
+    weights, random_init = served_weights(cfg, examples_dir)
     store = handlers.ModelStore(weights, cfg.device)
     files = handlers.SessionFiles()
     limits = handlers.Limits(cfg.max_video_seconds, cfg.max_video_frames, cfg.max_upload_mb, cfg.max_k)

@@ -42,7 +42,7 @@ def _run_prepare(cfg: config.PrepareConfig) -> None:
 
     from lsr.data.prepare import PrepareOptions, prepare_dataset
 
-    options = PrepareOptions(size=cfg.size, frames_per_clip=cfg.frames_per_clip, framing=cfg.framing,
+    options = PrepareOptions(size=cfg.resolution, frames_per_clip=cfg.frames_per_clip, framing=cfg.framing,
                              detector=cfg.detector, official_segmaps=cfg.official_segmaps)
     workers = min(2, os.cpu_count() or 1) if cfg.workers == -1 else cfg.workers
     summary = prepare_dataset(cfg.input, cfg.out, options, workers=workers, test_fraction=cfg.test_fraction,
@@ -68,11 +68,11 @@ def _run_synth(cfg: config.SynthConfig) -> None:
         print_benchmark(preset=cfg.preset)
         return
     if cfg.preview is not None:
-        path = write_preview(cfg.preview, size=cfg.size, seed=cfg.seed, preset=cfg.preset)
+        path = write_preview(cfg.preview, size=cfg.resolution, seed=cfg.seed, preset=cfg.preset)
         print(f"preview written to {path}")
         return
     workers = min(2, os.cpu_count() or 1) if cfg.workers == -1 else cfg.workers
-    manifest = generate_dataset(cfg.out, cfg.identities, cfg.videos_per_identity, cfg.frames, size=cfg.size, seed=cfg.seed,
+    manifest = generate_dataset(cfg.out, cfg.identities, cfg.videos_per_identity, cfg.frames, size=cfg.resolution, seed=cfg.seed,
                                 preset=cfg.preset, test_fraction=cfg.test_fraction, fps=cfg.fps, overwrite=cfg.overwrite,
                                 workers=workers, framing=cfg.framing)
     print(f"dataset written to {cfg.out} ({manifest.name})")

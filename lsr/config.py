@@ -109,8 +109,8 @@ class SynthConfig:
     """Videos per person (same identity, new background, motion and light)."""
     frames: int = 50
     """Frames per video."""
-    size: int = 128
-    """Frame size S (S x S); 128 default, 256 supported."""
+    resolution: Annotated[int, tyro.conf.arg(aliases=("--size",))] = 128
+    """Frame side S (S x S); 128 default, 256 supported (--size: the old name, kept for one release)."""
     seed: int = 0
     """Dataset seed: the same seed gives byte-identical arrays; identity i depends only on (seed, i)."""
     preset: Literal[
@@ -136,8 +136,8 @@ class SynthConfig:
     def validate(self) -> None:
         if self.identities < 1 or self.videos_per_identity < 1 or self.frames < 1:
             raise ConfigError("--identities, --videos-per-identity and --frames must all be >= 1")
-        if self.size < 32:
-            raise ConfigError(f"--size must be >= 32, got {self.size}")
+        if self.resolution < 32:
+            raise ConfigError(f"--resolution must be >= 32, got {self.resolution}")
         if not 0.0 <= self.test_fraction < 1.0:
             raise ConfigError(f"--test-fraction must be in [0, 1), got {self.test_fraction}")
         if self.fps <= 0:
@@ -156,8 +156,8 @@ class PrepareConfig:
     """A video, a folder of videos / image folders, or an LSR release folder ({train,test}/<id>/<video>/combined/)."""
     out: Path = Path("data/prepared")
     """Dataset root to write (clips + manifest.json). Finished clips are skipped, so a run can be resumed."""
-    size: int = 256
-    """Training resolution S: frames, landmarks and segmentation are S x S."""
+    resolution: Annotated[int, tyro.conf.arg(aliases=("--size",))] = 256
+    """Training resolution S: frames, landmarks and segmentation are S x S (--size: the old name, kept for one release)."""
     frames_per_clip: int = 10
     """Frames sampled uniformly per clip (frames without a face are dropped); 0 = all frames, tracked (kept with NaN)."""
     framing: Literal["auto", "align", "keep"] = "auto"
@@ -179,8 +179,8 @@ class PrepareConfig:
         from landmarks.imageio import check_output_path
 
         check_output_path(self.out, "--out", folder=True)  # before any video is read
-        if self.size < 32:
-            raise ConfigError(f"--size must be >= 32, got {self.size}")
+        if self.resolution < 32:
+            raise ConfigError(f"--resolution must be >= 32, got {self.resolution}")
         if self.frames_per_clip < 0:
             raise ConfigError(f"--frames-per-clip must be >= 0 (0 = all frames), got {self.frames_per_clip}")
         if not 0.0 <= self.test_fraction < 1.0:

@@ -96,7 +96,7 @@ class Trainer:
         self.model_config = model_config_for(cfg)
         self.out = Path(cfg.out)
         self.checkpoint_dir = self.out / "checkpoints"
-        self.weights = cfg.losses
+        self.loss_weights = cfg.losses
         self.loss_hook, self.keep_history = loss_hook, keep_history
         self.history: list[dict[str, float]] = []
 
@@ -301,7 +301,7 @@ class Trainer:
         set_lr(self.g_optimizer, lr)
         set_lr(self.d_optimizer, lr)
         result = generator_step(
-            self.model, self.discriminator, self.g_optimizer, batch, plan, self.weights,
+            self.model, self.discriminator, self.g_optimizer, batch, plan, self.loss_weights,
             context=self.context, perceptual=self.perceptual, bf16=self.bf16, loss_hook=self.loss_hook,
         )
         scalars = dict(result.scalars)
@@ -310,7 +310,7 @@ class Trainer:
             self.ema.update(self.model, self.step)
             if plan.full_pipeline and result.fake is not None:
                 d_result = discriminator_step(
-                    self.discriminator, self.d_optimizer, batch.target, result.fake, self.weights, self.d_steps,
+                    self.discriminator, self.d_optimizer, batch.target, result.fake, self.loss_weights, self.d_steps,
                     context=self.context, bf16=self.bf16,
                 )
                 self.d_steps += 1
