@@ -21,6 +21,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchReenactConfig,
     BenchFinetuneConfig,
     BenchHardConfig,
+    BenchAblationConfig,
     BenchOracleSegConfig,
     BenchSynthConfig,
     EvalConfig,

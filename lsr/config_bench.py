@@ -30,6 +30,13 @@ OptionalFloat = Annotated[float | None, tyro.conf.arg(metavar="FLOAT", help_beha
 OptionalStr = Annotated[str | None, tyro.conf.arg(metavar="STR", help_behavior_hint="(optional)")]
 
 
+def check_metric_weights(lpips_weights: Path | None, fid_weights: Path | None) -> None:
+    """The --lpips-weights / --fid-weights check of `lsr eval` and `lsr bench ablation`: unset or an existing file."""
+    for flag, path in (("--lpips-weights", lpips_weights), ("--fid-weights", fid_weights)):
+        if path is not None and not Path(path).is_file():
+            raise ConfigError(f"{flag} {path} is not a file; pass an existing weights file or leave {flag} unset")
+
+
 @dataclasses.dataclass
 class BenchLandmarksConfig:
     """Print ms/frame of detection, tracking and rasterisation on a clip (a table, with machine info)."""
@@ -303,9 +310,7 @@ class EvalConfig:
             raise ConfigError(f"--tps-regularization must be >= 0, got {self.tps_regularization}")
         if not self.section.replace("_", "").replace("-", "").isalnum():
             raise ConfigError(f"--section must be letters, digits, '-' or '_', got {self.section!r}")
-        for flag, path in (("--lpips-weights", self.lpips_weights), ("--fid-weights", self.fid_weights)):
-            if path is not None and not Path(path).is_file():
-                raise ConfigError(f"{flag} {path} is not a file; pass an existing weights file or leave {flag} unset")
+        check_metric_weights(self.lpips_weights, self.fid_weights)
 
 
 @dataclasses.dataclass
@@ -341,6 +346,78 @@ class BenchFinetuneConfig:
         if self.max_identities < 0 or self.max_holdouts < 0 or self.threads < 0:
             raise ConfigError("--max-identities, --max-holdouts and --threads must be >= 0")
         check_weights(self.weights)
+
+
+@dataclasses.dataclass
+class BenchAblationConfig:
+    """Reproduce the thesis ablation (Table 4.2): train baseline, +SPADE, +learned seg. maps and +latent layout with
+    one schedule on one data set (resumable), score each single-shot without fine-tuning with `lsr eval`'s protocol,
+    and print each metric's ranks beside the thesis' (lsr.eval.bench_ablation).
+
+    Default schedule: 3000 steps per variant, preset compact, batch 8, K 4, sized for about three hours for the
+    four on this project's 2-core CPU with --threads 1 while another training job shares it. Measured s/step
+    (16 steps each, data loading included; stage 1 | stages 2-3): baseline 0.74, spade_landmarks 0.72,
+    learned_seg 0.54 | 1.01, latent_layout 0.51 | 0.99, so 3000 steps take ~37, ~36, ~47 and ~46 min."""
+
+    data: OptionalPath = None
+    """Dataset root (an lsr dataset, e.g. from `lsr prepare`); its 'test' split is scored too when it has one."""
+    synthetic_identities: int = 0
+    """Also (or only) train on this many procedural identities, as `lsr train --synthetic-identities`."""
+    out: Path = Path("runs/ablation")
+    """Run folder: OUT/<variant>/ (an `lsr train` run each), OUT/eval/<split>/ (reports), OUT/ablation.json."""
+    preset: Literal["paper", "small", "fast", "compact", "tiny"] = "compact"
+    steps: int = 3000
+    """Training steps per variant, split like `lsr train`'s stages (2 : 4 : 9); variants without G^l (baseline,
+    spade_landmarks) skip stage 1 and give its steps to stage 2, so every variant trains the same number of steps."""
+    batch_size: int = 8
+    k: int = 4
+    """K: shots per training episode (the evaluation is single-shot, K = 1)."""
+    seed: int = 0
+    workers: int = 0
+    """DataLoader worker processes (0: load in the training process; on 2 busy cores workers only compete)."""
+    threads: int = 1
+    """CPU threads for torch (0 = torch's default); the default schedule was measured with 1."""
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    checkpoint_every: int = 200
+    """Full checkpoint every N steps: a run killed by a session limit loses at most this many steps."""
+    inputs: int = 32
+    """Evaluation: the first N frames of a test identity are its inputs (the single shot is drawn from them) ..."""
+    holdouts: int = 32
+    """... and the next N its hold-outs (as `lsr eval --inputs/--holdouts`)."""
+    max_identities: int = 0
+    """Score only the first N identities of each split (0 = all)."""
+    max_holdouts: int = 0
+    """Score only the first N hold-out frames per identity (0 = all)."""
+    fsth: bool = True
+    """Also score on the FSTH sample (--fsth-root, else ../shared/data/fsth_eval_sample; skipped when absent)."""
+    fsth_root: OptionalPath = None
+    lpips_weights: OptionalPath = None
+    """As `lsr eval --lpips-weights` (unset: no LPIPS column)."""
+    fid_weights: OptionalPath = None
+    """As `lsr eval --fid-weights` (unset: no FID column)."""
+    out_md: OptionalPath = None
+    """Also write the tables as the 'ablation' section of this markdown file (e.g. BENCHMARKS.md)."""
+    progress: bool = True
+
+    def validate(self) -> None:
+        from landmarks.imageio import check_output_path
+
+        check_output_path(self.out, "--out", folder=True)  # before hours of training
+        if self.data is None and self.synthetic_identities < 1:
+            raise ConfigError("give --data DATASET_ROOT and/or --synthetic-identities N (N >= 1) to train on")
+        if self.data is not None and not Path(self.data).is_dir():
+            raise ConfigError(f"--data {self.data} is not a folder; prepare a dataset first (see docs/TRAINING.md)")
+        if self.steps < 3:
+            raise ConfigError(f"--steps must be >= 3 (one per training stage), got {self.steps}")
+        if self.batch_size < 1 or self.k < 1 or self.checkpoint_every < 1:
+            raise ConfigError("--batch-size, --k and --checkpoint-every must be >= 1")
+        if min(self.synthetic_identities, self.workers, self.threads, self.max_identities, self.max_holdouts) < 0:
+            raise ConfigError("--synthetic-identities, --workers, --threads, --max-identities, --max-holdouts must be >= 0")
+        if self.inputs < 1 or self.holdouts < 1:
+            raise ConfigError("--inputs and --holdouts must be >= 1")
+        if self.fsth_root is not None and not Path(self.fsth_root).is_dir():
+            raise ConfigError(f"--fsth-root {self.fsth_root} is not a folder; give the FSTH sample or leave it unset")
+        check_metric_weights(self.lpips_weights, self.fid_weights)
 
 
 def shared_real_clips() -> tuple[Path | None, Path | None]:
