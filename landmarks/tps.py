@@ -25,6 +25,7 @@ stays put.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 
 import cv2
 import numpy as np
@@ -336,19 +337,12 @@ def tps_map(
     return WarpMap(grid_x, grid_y, "identity", 0.0, 0.0, "; ".join(reasons))
 
 
-def tps_maps(
-    source_sets: list[np.ndarray],
-    target_points: np.ndarray,
-    height: int,
-    width: int,
-    *,
-    regularization: float = DEFAULT_REGULARIZATION,
-    merge_distance: float = DEFAULT_MERGE_DISTANCE,
-    max_condition: float = DEFAULT_MAX_CONDITION,
-    max_folded_fraction: float = DEFAULT_MAX_FOLDED_FRACTION,
-    fix_border: bool = True,
-    grid_step: int = 1,
-) -> list[WarpMap]:
+# tps_map's keyword options and their defaults: the settings every warp of this module forwards
+_TPS_MAP_DEFAULTS = {name: parameter.default for name, parameter in inspect.signature(tps_map).parameters.items()
+                     if parameter.kind is inspect.Parameter.KEYWORD_ONLY}
+
+
+def tps_maps(source_sets: list[np.ndarray], target_points: np.ndarray, height: int, width: int, **settings) -> list[WarpMap]:
     """``tps_map`` of several source point sets onto one target, sharing what depends on the target alone.
 
     The control points of a backward TPS are the *target* points, so the references of a frame (all warped onto
@@ -357,8 +351,13 @@ def tps_maps(
     rounding; a set whose missing points differ from the target's, or whose first-try map is rejected (ill-
     conditioned, folded), goes through ``tps_map`` alone (with its retries and fallbacks).
     """
-    settings = dict(regularization=regularization, merge_distance=merge_distance, max_condition=max_condition,
-                    max_folded_fraction=max_folded_fraction, fix_border=fix_border, grid_step=grid_step)
+    # settings: the keyword options of ``tps_map`` (its defaults where not given)
+    unknown = set(settings) - set(_TPS_MAP_DEFAULTS)
+    if unknown:
+        raise TypeError(f"tps_maps got unknown settings {sorted(unknown)}; see tps_map")
+    options = {**_TPS_MAP_DEFAULTS, **settings}
+    regularization, merge_distance, max_condition = options["regularization"], options["merge_distance"], options["max_condition"]
+    max_folded_fraction, fix_border, grid_step = options["max_folded_fraction"], options["fix_border"], options["grid_step"]
     target = np.asarray(target_points, np.float64)
     sources = [np.asarray(points, np.float64) for points in source_sets]
     found = np.all(np.isfinite(target), axis=1) if target.ndim == 2 else None
@@ -385,7 +384,7 @@ def tps_maps(
                 folds = folded_fraction(map_x, map_y)
                 if np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)) and folds <= max_folded_fraction:
                     maps[index] = WarpMap(grid.densify(map_x), grid.densify(map_y), "tps", regularization, folds, "")
-    return [found_map if found_map is not None else tps_map(sources[index], target, height, width, **settings)
+    return [found_map if found_map is not None else tps_map(sources[index], target, height, width, **options)
             for index, found_map in enumerate(maps)]
 
 

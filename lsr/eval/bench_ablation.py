@@ -280,7 +280,7 @@ def run_bench_ablation(cfg: Any) -> dict[str, dict[str, dict[str, float | None]]
     import torch
 
     from lsr.devices import resolve_device
-    from lsr.eval.sections import command_line, write_section
+    from lsr.eval.sections import publish
     from lsr.machine import machine_markdown
     from models_def import preset_config
 
@@ -294,9 +294,5 @@ def run_bench_ablation(cfg: Any) -> dict[str, dict[str, dict[str, float | None]]
     device = resolve_device(cfg.device).type
     results = {title: evaluate(cfg, name, root, weights, device) for name, (title, root) in splits.items()}
     text = ablation_markdown(results, setting_notes(cfg, state, skipped), machine_markdown())
-    print(text)
-    if cfg.out_md is not None:
-        title = "Ablation, thesis Table 4.2: our ranks beside the thesis' (`lsr bench ablation`)"
-        path = write_section(cfg.out_md, SECTION, title, command_line(cfg, "lsr bench ablation"), text)
-        print(f"section eval:{SECTION} written to {path}")
+    publish(cfg, "lsr bench ablation", SECTION, "Ablation, thesis Table 4.2: our ranks beside the thesis' (`lsr bench ablation`)", text)
     return results

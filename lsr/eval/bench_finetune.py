@@ -110,14 +110,10 @@ def curve_markdown(rows: list[CurveRow], settings: dict[str, Any], machine: str)
 
 def run_bench_finetune(cfg: Any) -> list[CurveRow]:
     """Entry point of ``lsr bench finetune``: print the table (and write its BENCHMARKS.md section with --out-md)."""
-    from lsr.eval.sections import command_line, write_section
+    from lsr.eval.sections import publish
     from lsr.machine import machine_markdown
 
     rows, settings = finetune_curve(cfg)
     text = curve_markdown(rows, settings, machine_markdown())
-    print(text)
-    if cfg.out_md is not None:
-        path = write_section(cfg.out_md, SECTION, "Subject fine-tuning: steps against error (`lsr bench finetune`)",
-                             command_line(cfg, "lsr bench finetune"), text)
-        print(f"section eval:{SECTION} written to {path}")
+    publish(cfg, "lsr bench finetune", SECTION, "Subject fine-tuning: steps against error (`lsr bench finetune`)", text)
     return rows

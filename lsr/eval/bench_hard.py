@@ -399,15 +399,12 @@ def hard_markdown(results: list[CaseResult], settings: dict[str, Any], machine: 
 def run_bench_hard(cfg: Any) -> list[CaseResult]:
     """Entry point of ``lsr bench hard``: print the table (and write its BENCHMARKS.md section with --out-md)."""
     from lsr.errors import LsrError
-    from lsr.eval.sections import command_line, write_section
+    from lsr.eval.sections import publish
     from lsr.machine import machine_markdown
 
     results, settings = hard_cases(cfg)
     text = hard_markdown(results, settings, machine_markdown())
-    print(text)
-    if cfg.out_md is not None:
-        path = write_section(cfg.out_md, SECTION, "Hard inputs (`lsr bench hard`)", command_line(cfg, "lsr bench hard"), text)
-        print(f"section eval:{SECTION} written to {path}")
+    publish(cfg, "lsr bench hard", SECTION, "Hard inputs (`lsr bench hard`)", text)
     crashed = [r for r in results if r.traceback is not None]
     for r in crashed:
         print(r.traceback)

@@ -78,3 +78,14 @@ def replace_section(path: Path, section: str, start: str, end: str) -> Path:
 def write_section(path: Path, name: str, title: str, command: str, body: str, note: str | None = None) -> Path:
     """``section_text`` put into ``path`` by ``replace_section``."""
     return replace_section(Path(path), section_text(name, title, command, body, note), *markers(name))
+
+
+def publish(cfg: Any, prog: str, section: str, title: str, text: str) -> Path | None:
+    """Print a benchmark's table and, with ``cfg.out_md``, write it as the BENCHMARKS.md section ``section`` under
+    ``title`` with the command line that reproduces it (``prog``: e.g. "lsr bench hard"). Returns the file written."""
+    print(text)
+    if cfg.out_md is None:
+        return None
+    path = write_section(cfg.out_md, section, title, command_line(cfg, prog), text)
+    print(f"section eval:{section} written to {path}")
+    return path
