@@ -48,7 +48,7 @@ class Limits:
     max_video_seconds: float = 20.0
     max_video_frames: int = 500
     max_upload_mb: float = 50.0
-    max_k: int = 32
+    max_k: int = MAX_K
 
 
 def default_weights() -> Path | None:

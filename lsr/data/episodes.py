@@ -44,10 +44,10 @@ from torch.utils.data import Dataset
 
 from lsr.data.augment import AugmentConfig, augment_frames
 from lsr.data.format import ClipReader, list_clips
+from lsr.core import MAX_K
 from lsr.errors import ConfigError, DatasetError
 
 SEGMENTATION_IGNORE_INDEX = -1
-MAX_SHOTS = 32
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,8 +121,8 @@ def _rngs(seed: int, epoch: int, index: int) -> tuple[np.random.Generator, torch
 
 
 def _check_shots(shots: int) -> None:
-    if not 1 <= shots <= MAX_SHOTS:
-        raise ConfigError(f"shots (K) must be in 1..{MAX_SHOTS}, got {shots}")
+    if not 1 <= shots <= MAX_K:
+        raise ConfigError(f"shots (K) must be in 1..{MAX_K}, got {shots}")
 
 
 def _draw_shots(rng: np.random.Generator, pool: list[FrameRef], shots: int) -> list[FrameRef]:
