@@ -23,6 +23,7 @@ import shutil
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -33,6 +34,9 @@ from lsr.errors import ConfigError, WeightsError
 from lsr.export import SUBJECT_GRAPH_IO, FrameGeneratorGraph, export_onnx, frame_graph_io
 from lsr.pipeline import load_model
 from models_def import PRESET_NAMES, LSRModel, ModelConfig, preset_config
+
+if TYPE_CHECKING:
+    from lsr.config import ExportConfig
 
 ONNX_OPSET = 17
 SUBJECT_ENCODER_FILE = "subject_encoder.onnx"
@@ -228,7 +232,7 @@ def default_calibration_clip() -> Path | None:
     return clip if clip.is_file() else None
 
 
-def run_export(cfg) -> ExportResult:
+def run_export(cfg: ExportConfig) -> ExportResult:
     """Entry point of ``lsr export`` (``lsr.config.ExportConfig``)."""
     from landmarks.imageio import check_output_path
     from lsr.weights import resolve_weights

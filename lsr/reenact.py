@@ -28,6 +28,7 @@ import dataclasses
 import os
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -39,6 +40,9 @@ from landmarks.imageio import IMAGE_SUFFIXES, check_output_path as check_writabl
 from lsr import __version__
 from lsr.errors import ConfigError, LsrError
 from lsr.weights import is_model_folder, resolve_weights
+
+if TYPE_CHECKING:
+    from lsr.config import ReenactConfig
 
 
 class ReenactJobsError(LsrError):
@@ -110,7 +114,7 @@ def shard_jobs(jobs: list[Job], index: int, count: int) -> list[Job]:
     return sorted(jobs, key=lambda job: str(job.output))[index::count]
 
 
-def collect_jobs(cfg) -> list[Job]:
+def collect_jobs(cfg: ReenactConfig) -> list[Job]:
     if cfg.jobs is not None:
         return jobs_from_csv(cfg.jobs)
     if cfg.source_dir is not None:
@@ -163,7 +167,7 @@ def onnx_bundle_folder(weights: Path) -> Path:
                       "(config.json + model.safetensors)")
 
 
-def make_reenactor(cfg) -> ReenactorBase:
+def make_reenactor(cfg: ReenactConfig) -> ReenactorBase:
     weights = resolve_weights(cfg.weights)
     if cfg.runtime == "onnx":
         from deploy.runtime import OnnxReenactor
@@ -298,7 +302,7 @@ def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | Non
     return written.stats
 
 
-def _subject_for(reenactor: ReenactorBase, source: Path, cfg, cache: dict):
+def _subject_for(reenactor: ReenactorBase, source: Path, cfg: ReenactConfig, cache: dict):
     """Encode (and optionally fine-tune on) a source once per batch."""
     key = str(source.resolve())
     if cache.get("key") == key:
@@ -351,7 +355,7 @@ def summary_table(done: int, skipped: int, failed: int, stats: ReenactStats, wal
     return "\n".join(rows) + "\n" + stage_table(stats)
 
 
-def run_reenact(cfg) -> ReenactStats:
+def run_reenact(cfg: ReenactConfig) -> ReenactStats:
     """Entry point of ``lsr reenact`` (``lsr.config.ReenactConfig``). Returns the merged stats."""
     from tqdm import tqdm
 

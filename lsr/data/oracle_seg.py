@@ -23,12 +23,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from lsr.data.classes import NUM_SEG_CLASSES, SEG_CLASS_ID, SEG_CLASSES
 from lsr.errors import DatasetError
+
+if TYPE_CHECKING:
+    from lsr.config import BenchOracleSegConfig
 
 # Official LSR/CelebAMask-HQ mask id -> SEG_CLASSES id. Deduced from the id00017 maps (class centroids
 # and sizes: id 2 is the large central region = nose, 4/5 eyes at image right/left, 17 below the jaw =
@@ -351,7 +355,7 @@ def compare_with_official(frames_dirs: Sequence[Path], detector: str = "hog") ->
     return segmentation_iou(predicted, reference), share, len(predicted_maps)
 
 
-def run_bench_oracle_seg(cfg) -> int:
+def run_bench_oracle_seg(cfg: BenchOracleSegConfig) -> int:
     """Entry point of ``lsr bench oracle-seg [ROOT]``: the per-class IoU of the oracle vs the official LSR maps
     (default root: the shared id00017 sample)."""
     from lsr.errors import DatasetError

@@ -19,9 +19,12 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lsr.errors import ConfigError
+
+if TYPE_CHECKING:
+    from lsr.config import BenchAblationConfig
 
 SECTION = "ablation"
 VARIANTS = ("baseline", "spade_landmarks", "learned_seg", "latent_layout")
@@ -128,7 +131,7 @@ def schedule(steps: int) -> dict[str, int]:
     return {"pretrain": pretrain, "full": full, "latent": latent, "decay": decay}
 
 
-def train_config(cfg: Any, variant: str, resume: bool):
+def train_config(cfg: BenchAblationConfig, variant: str, resume: bool):
     """The `lsr train` config of one variant: the same steps for every variant (stage 1's go to stage 2 without G^l)."""
     from lsr.config import StagesConfig, TrainConfig
     from lsr.train.steps import stages_for_variant
@@ -153,7 +156,7 @@ def trained_step(run: Path) -> int | None:
     return None if newest is None else int(CHECKPOINT_PATTERN.match(newest.name).group(1))
 
 
-def load_state(cfg: Any) -> dict[str, Any]:
+def load_state(cfg: BenchAblationConfig) -> dict[str, Any]:
     """OUT/ablation.json: the schedule this OUT was started with and the timings. ConfigError when a training flag
     differs from it while a variant has checkpoints (before any, the new flags simply replace the old)."""
     from landmarks.imageio import write_json
@@ -171,7 +174,7 @@ def load_state(cfg: Any) -> dict[str, Any]:
     return state
 
 
-def train_variants(cfg: Any, state: dict[str, Any]) -> dict[str, Path]:
+def train_variants(cfg: BenchAblationConfig, state: dict[str, Any]) -> dict[str, Path]:
     """Train (or resume, or skip) every variant; returns variant -> weights folder."""
     from landmarks.imageio import write_json
     from lsr.train.trainer import run_train
@@ -201,7 +204,7 @@ def train_variants(cfg: Any, state: dict[str, Any]) -> dict[str, Path]:
 # ---- evaluation --------------------------------------------------------------------------------------------
 
 
-def synthetic_test_split(cfg: Any, resolution: int) -> Path:
+def synthetic_test_split(cfg: BenchAblationConfig, resolution: int) -> Path:
     """Held-out procedural identities at the model's resolution, rendered once into OUT: `lsr bench speed`'s fixed
     seed (never a training seed), one video of --inputs + --holdouts frames per identity, half of them 'test'."""
     from lsr.data.synth import generate_dataset
@@ -217,7 +220,7 @@ def synthetic_test_split(cfg: Any, resolution: int) -> Path:
     return root
 
 
-def evaluation_splits(cfg: Any, resolution: int) -> tuple[dict[str, tuple[str, Path]], list[str]]:
+def evaluation_splits(cfg: BenchAblationConfig, resolution: int) -> tuple[dict[str, tuple[str, Path]], list[str]]:
     """{folder name: (title, dataset root)} to score, and one line per split skipped, with the reason."""
     from lsr.config_bench import evaluation_data
     from lsr.data.format import read_manifest
@@ -239,7 +242,7 @@ def evaluation_splits(cfg: Any, resolution: int) -> tuple[dict[str, tuple[str, P
     return splits, skipped
 
 
-def evaluate(cfg: Any, name: str, root: Path, weights: dict[str, Path], device: str) -> dict[str, dict[str, Any]]:
+def evaluate(cfg: BenchAblationConfig, name: str, root: Path, weights: dict[str, Path], device: str) -> dict[str, dict[str, Any]]:
     """`lsr eval` of the variants at K = 1, no fine-tuning (report and a side-by-side picture in OUT/eval/NAME);
     variant -> metric (and "no_face", "frames") -> value."""
     from lsr.config_bench import EvalConfig
@@ -256,7 +259,7 @@ def evaluate(cfg: Any, name: str, root: Path, weights: dict[str, Path], device: 
     return {variant: {key: rows[f"lsr:{variant}"][key] for key in keys} for variant in weights}
 
 
-def setting_notes(cfg: Any, state: dict[str, Any], skipped: list[str]) -> list[str]:
+def setting_notes(cfg: BenchAblationConfig, state: dict[str, Any], skipped: list[str]) -> list[str]:
     """The lines above the tables: schedule, data, protocol, the splits skipped and the measured s/step."""
     steps = schedule(cfg.steps)
     data = " + ".join(([f"`{cfg.data}` (train split)"] if cfg.data else [])
@@ -274,7 +277,7 @@ def setting_notes(cfg: Any, state: dict[str, Any], skipped: list[str]) -> list[s
     return notes
 
 
-def run_bench_ablation(cfg: Any) -> dict[str, dict[str, dict[str, float | None]]]:
+def run_bench_ablation(cfg: BenchAblationConfig) -> dict[str, dict[str, dict[str, float | None]]]:
     """Entry point of ``lsr bench ablation``: train what is missing, evaluate, print the tables (and write the section).
     Returns split title -> variant -> metric -> value."""
     import torch

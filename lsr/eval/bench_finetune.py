@@ -12,9 +12,12 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from lsr.config import BenchFinetuneConfig
 
 SECTION = "finetune_curve"
 
@@ -43,7 +46,7 @@ def _row(method: str, steps: int | None, scores: list[dict[str, np.ndarray]], se
                     float(np.median(seconds)) if seconds else None)
 
 
-def finetune_curve(cfg: Any) -> tuple[list[CurveRow], dict[str, Any]]:
+def finetune_curve(cfg: BenchFinetuneConfig) -> tuple[list[CurveRow], dict[str, Any]]:
     """Rows: tps, tps_mean3, then the model at each budget of ``cfg.steps`` (0 = not fine-tuned)."""
     import torch
     from tqdm import tqdm
@@ -108,7 +111,7 @@ def curve_markdown(rows: list[CurveRow], settings: dict[str, Any], machine: str)
     return "\n".join(lines)
 
 
-def run_bench_finetune(cfg: Any) -> list[CurveRow]:
+def run_bench_finetune(cfg: BenchFinetuneConfig) -> list[CurveRow]:
     """Entry point of ``lsr bench finetune``: print the table (and write its BENCHMARKS.md section with --out-md)."""
     from lsr.eval.sections import publish
     from lsr.machine import machine_markdown

@@ -21,10 +21,13 @@ import math
 import time
 import traceback
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
+
+if TYPE_CHECKING:
+    from lsr.config import BenchHardConfig
 
 SECTION = "hard_cases"
 DRIVER_FRAMES = 24
@@ -339,7 +342,7 @@ def compare(result: CaseResult, outputs: list, twin_outputs: list | None, detect
     result.nmke_vs_twin = float(np.mean(errors)) if errors else None
 
 
-def hard_cases(cfg: Any) -> tuple[list[CaseResult], dict[str, Any]]:
+def hard_cases(cfg: BenchHardConfig) -> tuple[list[CaseResult], dict[str, Any]]:
     import tempfile
 
     import torch
@@ -396,7 +399,7 @@ def hard_markdown(results: list[CaseResult], settings: dict[str, Any], machine: 
     return "\n".join(lines)
 
 
-def run_bench_hard(cfg: Any) -> list[CaseResult]:
+def run_bench_hard(cfg: BenchHardConfig) -> list[CaseResult]:
     """Entry point of ``lsr bench hard``: print the table (and write its BENCHMARKS.md section with --out-md)."""
     from lsr.errors import LsrError
     from lsr.eval.sections import publish

@@ -26,7 +26,7 @@ import os
 import re
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -37,6 +37,9 @@ from lsr.eval import sections
 from lsr.eval.bench_models import conv_peak_gflops, count_gflop, frame_inputs, median_ms, time_runtime
 from lsr.eval.model_method import LsrModelMethod, scale_points
 from lsr.eval.pareto import pareto_front, plot_speed_error, write_plot
+
+if TYPE_CHECKING:
+    from lsr.config import BenchSpeedConfig
 
 SECTION_START = "<!-- bench:speed:start -->"
 SECTION_END = "<!-- bench:speed:end -->"
@@ -87,7 +90,7 @@ def training_provenance(weights: Path) -> str:
     return text
 
 
-def synthetic_split(cfg, size: int) -> Path:
+def synthetic_split(cfg: BenchSpeedConfig, size: int) -> Path:
     """``cfg.synthetic_root``, or a small fixed-seed synthetic dataset rendered once into the cache folder."""
     if cfg.synthetic_root is not None:
         if not (Path(cfg.synthetic_root) / "manifest.json").is_file():
@@ -285,7 +288,7 @@ def not_computed(preset: str, weights: Path | None, weights_resolution: int | No
     return f"not computed (weights of {preset} are {weights_resolution}²; train at --resolution {resolution})"
 
 
-def bench_rows(cfg, weights: dict[str, Path], splits: dict[str, list], detector, peak: float, temp: Path) -> list[dict]:
+def bench_rows(cfg: BenchSpeedConfig, weights: dict[str, Path], splits: dict[str, list], detector, peak: float, temp: Path) -> list[dict]:
     """Time every (preset, resolution, runtime) and attach the errors; returns the rows."""
     from tqdm import tqdm
 
@@ -375,7 +378,7 @@ def pareto_points(rows: list[dict], metric: str, k: int) -> tuple[list[tuple[flo
     return points, labels, groups, indices
 
 
-def section_markdown(cfg, rows: list[dict], peak: float, provenance: dict[str, str], plot_link: str,
+def section_markdown(cfg: BenchSpeedConfig, rows: list[dict], peak: float, provenance: dict[str, str], plot_link: str,
                      front_labels: list[str], machine: str, command: str) -> str:
     """The BENCHMARKS.md section (markers included)."""
     splits = [s for s in ("synthetic", "fsth") if any(f"error_{s}" in r for r in rows)]
@@ -422,7 +425,7 @@ def replace_section(path: Path, section: str, start: str = SECTION_START, end: s
     return sections.replace_section(path, section, start, end)
 
 
-def command_line(cfg, prog: str = "lsr bench speed") -> str:
+def command_line(cfg: BenchSpeedConfig, prog: str = "lsr bench speed") -> str:
     return sections.command_line(cfg, prog)
 
 
@@ -432,7 +435,7 @@ def _json_ready(rows: list[dict]) -> list[dict]:
     return json_safe([{k: ({str(kk): vv for kk, vv in v.items()} if isinstance(v, dict) else v) for k, v in row.items()} for row in rows])
 
 
-def run_bench_speed(cfg) -> dict[str, Any]:
+def run_bench_speed(cfg: BenchSpeedConfig) -> dict[str, Any]:
     """Entry point of ``lsr bench speed`` (``lsr.config.BenchSpeedConfig``): print and write the table, JSON, plot."""
     from landmarks.detect import FaceDetector
     from landmarks.imageio import write_json

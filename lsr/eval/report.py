@@ -12,13 +12,16 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from lsr.errors import ConfigError
 from lsr.eval import idsim, metrics
 from lsr.eval.protocol import BUCKETS, EvalIdentity, EvalRun
+
+if TYPE_CHECKING:
+    from lsr.config import EvalConfig
 
 NOT_COMPUTED = "not computed (pass --lpips-weights / --fid-weights: LPIPS needs AlexNet + LPIPS v0.1 heads, FID a feature extractor; neither can be downloaded here, see lsr/eval/lpips.py and lsr/eval/fid.py)"
 
@@ -295,7 +298,7 @@ def label_by_variant(models: Sequence[Any], folders: Sequence[Any]) -> list[Any]
     return list(models)
 
 
-def run_eval(cfg: Any) -> dict[str, Any]:
+def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     """Run ``lsr eval`` (cfg: lsr.config.EvalConfig): load, evaluate the baselines, write and print the report."""
     from landmarks.detect import FaceDetector
     from lsr.eval.baselines import NearestShot, TpsMean3, TpsWarp
@@ -365,7 +368,7 @@ def run_eval(cfg: Any) -> dict[str, Any]:
     return summary
 
 
-def write_section(cfg: Any, text: str) -> Path:
+def write_section(cfg: EvalConfig, text: str) -> Path:
     """Put the report ``text`` into ``cfg.out_md`` between ``<!-- eval:SECTION:start/end -->`` with its command."""
     from lsr.eval.sections import command_line, write_section as write
 

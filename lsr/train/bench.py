@@ -10,12 +10,16 @@ import os
 import platform
 import statistics
 import time
+from typing import TYPE_CHECKING
 
 import torch
 
 from lsr.train.optim import make_adam
 from lsr.train.steps import Batch, LossWeights, StagePlan, discriminator_step, generator_step, set_stage_trainable
 from models_def import Discriminator, LSRModel, preset_config
+
+if TYPE_CHECKING:
+    from lsr.config import BenchTrainConfig
 
 
 def random_batch(batch: int, k: int, size: int, generator: torch.Generator, device: torch.device) -> Batch:
@@ -57,7 +61,7 @@ def time_steps(preset: str, stage: int, resolution: int, batch_size: int, k: int
     return statistics.median(durations)
 
 
-def run_bench_train(cfg) -> None:
+def run_bench_train(cfg: BenchTrainConfig) -> None:
     from lsr.devices import resolve_device
 
     device = resolve_device(cfg.device)

@@ -9,11 +9,15 @@ clips close the domain gap, synthetic heads keep exact ground truth.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 
 from lsr.errors import DatasetError
 from models_def import ModelConfig
+
+if TYPE_CHECKING:
+    from lsr.config import TrainConfig
 
 SYNTHETIC_VIDEOS_PER_IDENTITY = 2
 SYNTHETIC_FRAMES_PER_VIDEO = 16
@@ -28,7 +32,7 @@ class MixedEpisodes(torch.utils.data.ConcatDataset):
             dataset.set_epoch(epoch)
 
 
-def synthetic_root(cfg, model_config: ModelConfig) -> Path:
+def synthetic_root(cfg: TrainConfig, model_config: ModelConfig) -> Path:
     """Render the procedural dataset on rank 0 once (other ranks wait); returns its root."""
     from lsr.data.format import MANIFEST_NAME
 
@@ -53,7 +57,7 @@ def synthetic_root(cfg, model_config: ModelConfig) -> Path:
     return root
 
 
-def episode_dataset(cfg, model_config: ModelConfig) -> torch.utils.data.Dataset:
+def episode_dataset(cfg: TrainConfig, model_config: ModelConfig) -> torch.utils.data.Dataset:
     """``EpisodeDataset`` over ``cfg.data`` (split 'train') and/or the synthetic dataset, at the model's resolution."""
     from lsr.data.episodes import EpisodeDataset
 

@@ -17,6 +17,7 @@ import json
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -28,6 +29,9 @@ from lsr.train.checkpoint import DISCRIMINATOR_NAME, nonfinite_entries
 from lsr.train.optim import make_adam
 from lsr.train.steps import Batch, LossWeights, StagePlan, discriminator_step, generator_step
 from models_def import Discriminator, LSRModel
+
+if TYPE_CHECKING:
+    from lsr.config import FinetuneConfig
 
 # Adam lr of subject fine-tuning: the training lr (thesis §4.6). On the default model, 50 steps at 1e-3 lift the
 # single-shot far-pose cases of tests/lsr/test_weights.py from PSNR/SSIM 19.45/0.652 to 21.24/0.736 (MODEL_CARD.md).
@@ -247,7 +251,7 @@ def save_subject(result: FinetuneResult, out: Path, extra: dict | None = None) -
     return out
 
 
-def run_finetune(cfg) -> FinetuneResult:
+def run_finetune(cfg: FinetuneConfig) -> FinetuneResult:
     """Entry point of ``lsr finetune``."""
     from lsr.devices import resolve_device
     from lsr.weights import resolve_weights

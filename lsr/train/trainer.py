@@ -12,7 +12,7 @@ import math
 import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor
@@ -33,8 +33,11 @@ from lsr.train.steps import (
 )
 from models_def import Discriminator, LSRModel, ModelConfig, preset_config
 
+if TYPE_CHECKING:
+    from lsr.config import TrainConfig
 
-def model_config_for(cfg) -> ModelConfig:
+
+def model_config_for(cfg: TrainConfig) -> ModelConfig:
     """The ModelConfig a TrainConfig asks for (preset + variant + optional resolution)."""
     overrides: dict[str, Any] = {"variant": cfg.variant}
     if cfg.resolution:
@@ -393,14 +396,14 @@ class Trainer:
             self.writer = None
 
 
-def build_dataset(cfg, model_config: ModelConfig) -> torch.utils.data.Dataset:
+def build_dataset(cfg: TrainConfig, model_config: ModelConfig) -> torch.utils.data.Dataset:
     """The episode dataset for a TrainConfig: ``cfg.data`` or a synthetic dataset generated under OUT/synthetic_data."""
     from lsr.train.data_source import episode_dataset
 
     return episode_dataset(cfg, model_config)
 
 
-def run_train(cfg) -> dict[str, Any]:
+def run_train(cfg: TrainConfig) -> dict[str, Any]:
     """Entry point of ``lsr train`` (and of each torchrun process)."""
     trainer = Trainer(cfg)
     try:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -20,6 +21,9 @@ from lsr.layout_view import (  # noqa: F401 - re-exported for the training previ
     layout_pca_rgb,
     segmentation_rgb,
 )
+
+if TYPE_CHECKING:
+    from lsr.config import CurvesConfig
 
 
 def image_grid(rows: Sequence[Tensor], max_columns: int = 8) -> np.ndarray:
@@ -109,7 +113,7 @@ def tensorboard_to_png(log_dir: Path, png_path: Path, tags: Sequence[str] | None
     return Path(png_path)
 
 
-def run_curves(cfg) -> Path:
+def run_curves(cfg: CurvesConfig) -> Path:
     """Entry point of ``lsr curves RUN --out PNG`` (``lsr.config.CurvesConfig``)."""
     from landmarks.imageio import check_output_path
     from lsr.errors import ConfigError

@@ -14,8 +14,12 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from lsr.weights import DEFAULT_WEIGHTS, MissingWeightsError, is_model_folder
+
+if TYPE_CHECKING:
+    from lsr.config import ShipConfig
 
 FILES = ("config.json", "model.safetensors", "discriminator.safetensors")
 MAX_MB = 25.0
@@ -50,7 +54,7 @@ def ship(run_weights: str | os.PathLike, target: str | os.PathLike = DEFAULT_WEI
             for name in names]
 
 
-def run_ship(cfg) -> list[tuple[str, int, str]]:
+def run_ship(cfg: ShipConfig) -> list[tuple[str, int, str]]:
     """Entry point of ``lsr ship RUN/weights`` (``lsr.config.ShipConfig``): ship, then print sizes and sums."""
     rows = ship(cfg.weights)
     print(f"shipped to {DEFAULT_WEIGHTS}:")
