@@ -39,3 +39,27 @@ def blend_references(
     weights = torch.cat([reference_logits, blend_logits[:, count:]], dim=1).softmax(dim=1)  # (B, N + 1, H, W)
     image = (weights[:, :count, None] * references).sum(dim=1) + weights[:, count:] * generated  # (B, 3, H, W)
     return image, weights
+
+
+def shift_references(references: torch.Tensor, reference_masks: torch.Tensor, flow: torch.Tensor,
+                     max_shift: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Resample each warped reference (and its mask) by a residual flow G^s predicts: the correction of the landmark
+    TPS where its sparse points leave the warp wrong (mouth, jaw, hair edge).
+
+    references: (B, N, 3, H, W); reference_masks: (B, N, 1, H, W); flow: (B, 2N, h, w) raw outputs (x then y per
+    reference; bilinearly upsampled to H, W), bounded by tanh to ``max_shift`` of the crop side. Zero flow is the
+    identity (up to float rounding). -> (references, masks) of the same shapes."""
+    batch, count, _, height, width = references.shape
+    check_shape("flow", flow, (batch, 2 * count, "h", "w"))
+    if flow.shape[2:] != (height, width):
+        flow = F.interpolate(flow, size=(height, width), mode="bilinear", align_corners=False)
+    offsets = torch.tanh(flow) * (2.0 * max_shift)  # grid units: the crop side spans 2
+    offsets = offsets.view(batch * count, 2, height, width).permute(0, 2, 3, 1)  # (B*N, H, W, 2) x, y
+    ys = (torch.arange(height, dtype=flow.dtype, device=flow.device) + 0.5) * (2.0 / height) - 1.0
+    xs = (torch.arange(width, dtype=flow.dtype, device=flow.device) + 0.5) * (2.0 / width) - 1.0
+    identity = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), dim=-1)  # (H, W, 2) pixel centres
+    grid = identity[None] + offsets
+    stacked = torch.cat([references, reference_masks], dim=2).flatten(0, 1)  # (B*N, 4, H, W)
+    moved = F.grid_sample(stacked, grid, mode="bilinear", padding_mode="border", align_corners=False)
+    moved = moved.view(batch, count, 4, height, width)
+    return moved[:, :, :3], moved[:, :, 3:]

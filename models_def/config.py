@@ -20,7 +20,7 @@ VARIANTS: tuple[str, ...] = ("baseline", "spade_landmarks", "learned_seg", "late
 # Variants whose per-frame path runs the layout predictor G^l (the others have no layout latent to use).
 LAYOUT_PREDICTOR_VARIANTS: tuple[str, ...] = ("learned_seg", "latent_layout", "warp_guided")
 # Fields added after models were first saved, with the value that keeps an older config.json's behaviour.
-LATER_FIELDS: dict[str, object] = {"warp_references": 3}
+LATER_FIELDS: dict[str, object] = {"warp_references": 3, "reference_flow": 0.0}
 
 
 class ModelConfigError(ValueError):
@@ -75,6 +75,9 @@ class ModelConfig:
     norm_eps: float = 1e-5
     warp_references: int = 3
     """warp_guided only: how many of the nearest shots, TPS-warped to the target, G^s sees and blends."""
+    reference_flow: float = 0.0
+    """warp_guided only: > 0 lets G^s also predict a residual flow per reference that corrects what the landmark TPS
+    got wrong, at most this fraction of the crop side (tanh-bounded); 0 = the warped shots are blended as they are."""
 
     def __post_init__(self) -> None:
         def fail(message: str) -> None:
@@ -97,6 +100,8 @@ class ModelConfig:
             fail(f"width must be a positive finite number; got {self.width!r}")
         if not self.norm_eps > 0:
             fail(f"norm_eps must be > 0; got {self.norm_eps!r}")
+        if not (isinstance(self.reference_flow, (int, float)) and 0 <= self.reference_flow <= 0.25):
+            fail(f"reference_flow must be in [0, 0.25] (a fraction of the crop side); got {self.reference_flow!r}")
         if self.resolution & (self.resolution - 1):
             fail(f"resolution must be a power of two (e.g. 64, 128, 256); got {self.resolution}")
         # Every blur-pool needs an input of at least 2 pixels; the generator starts at >= 1 pixel; the
@@ -154,8 +159,11 @@ class ModelConfig:
 
     @property
     def generator_output_channels(self) -> int:
-        """RGB [+ one blend logit per warped reference and one for the generated image, warp_guided]."""
-        return 3 + (self.warp_references + 1 if self.uses_references else 0)
+        """RGB [+ one blend logit per warped reference and one for the generated image, warp_guided]
+        [+ an (x, y) flow per reference, reference_flow > 0]."""
+        if not self.uses_references:
+            return 3
+        return 3 + self.warp_references + 1 + (2 * self.warp_references if self.reference_flow > 0 else 0)
 
     @property
     def encoder_input_channels(self) -> int:

@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from models_def.composite import blend_references
+from models_def.composite import blend_references, shift_references
 from models_def.config import NUM_SEG_CLASSES, ModelConfig
 from models_def.encoder import SubjectEncoder
 from models_def.generator import SpadeGenerator
@@ -134,7 +134,11 @@ class FrameGenerator(nn.Module):
             small_references = F.interpolate(small_references, size=(size, size), mode="area")
             small_masks = F.interpolate(small_masks, size=(size, size), mode="area")
         output = self.image_generator(torch.cat([condition, small_references, small_masks], dim=1), style_latent)
-        generated, blend_logits = output[:, :3], output[:, 3:]  # (B, 3, H, W), (B, N + 1, H, W)
+        count = self.config.warp_references
+        generated, blend_logits = output[:, :3], output[:, 3 : 4 + count]  # (B, 3, H, W), (B, N + 1, H, W)
+        if self.config.reference_flow > 0:  # residual flow per reference (B, 2N, H, W), applied at the blend side
+            references, reference_masks = shift_references(references, reference_masks, output[:, 4 + count :],
+                                                           self.config.reference_flow)
         image, weights = blend_references(references, reference_masks, generated, blend_logits)
         return FrameOutputs(image, layout, layout_logits, aux_rgb, weights, generated)
 

@@ -44,6 +44,8 @@ def model_config_for(cfg: TrainConfig) -> ModelConfig:
         overrides["resolution"] = cfg.resolution
     if cfg.warp_references:
         overrides["warp_references"] = cfg.warp_references
+    if cfg.reference_flow:
+        overrides["reference_flow"] = cfg.reference_flow
     return preset_config(cfg.preset, **overrides)
 
 
