@@ -62,10 +62,9 @@ def _run_synth(cfg: config.SynthConfig) -> None:
     import os
 
     from lsr.data.synth import generate_dataset, write_preview
-    from lsr.data.synth.generate import print_benchmark
 
     if cfg.bench:  # kept for one release: `lsr bench synth`
-        print_benchmark(preset=cfg.preset)
+        _run_bench_synth(config.BenchSynthConfig(preset=cfg.preset))
         return
     if cfg.preview is not None:
         path = write_preview(cfg.preview, size=cfg.resolution, seed=cfg.seed, preset=cfg.preset)

@@ -33,11 +33,11 @@ from typing import Literal
 
 import numpy as np
 
-from lsr.core import MAX_K
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.imageio import IMAGE_SUFFIXES, read_image
 from landmarks.parts import NUM_LANDMARKS
 from landmarks.video import VIDEO_SUFFIXES
+from lsr.core import MAX_K
 
 LANDMARK_SUFFIXES = (".npy", ".json")
 DEFAULT_K = 8

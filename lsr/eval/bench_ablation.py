@@ -207,17 +207,11 @@ def train_variants(cfg: BenchAblationConfig, state: dict[str, Any]) -> dict[str,
 def synthetic_test_split(cfg: BenchAblationConfig, resolution: int) -> Path:
     """Held-out procedural identities at the model's resolution, rendered once into OUT: `lsr bench speed`'s fixed
     seed (never a training seed), one video of --inputs + --holdouts frames per identity, half of them 'test'."""
-    from lsr.data.synth import generate_dataset
-    from lsr.eval.bench_speed import SYNTH_IDENTITIES, SYNTH_SEED
+    from lsr.eval.bench_speed import SYNTH_SEED, held_out_synthetic_split
 
     if cfg.synthetic_identities and cfg.seed == SYNTH_SEED:
         raise ConfigError(f"--seed {SYNTH_SEED} renders the held-out synthetic identities; train with another --seed")
-    frames = cfg.inputs + cfg.holdouts
-    root = Path(cfg.out) / f"synthetic_test_{resolution}_seed{SYNTH_SEED}_{SYNTH_IDENTITIES}x{frames}"
-    if not (root / "manifest.json").is_file():
-        generate_dataset(root, SYNTH_IDENTITIES, 1, frames, size=resolution, seed=SYNTH_SEED, test_fraction=0.5,
-                         progress=cfg.progress, overwrite=True)
-    return root
+    return held_out_synthetic_split(Path(cfg.out), resolution, 1, cfg.inputs + cfg.holdouts, progress=cfg.progress)
 
 
 def evaluation_splits(cfg: BenchAblationConfig, resolution: int) -> tuple[dict[str, tuple[str, Path]], list[str]]:

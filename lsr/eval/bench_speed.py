@@ -96,14 +96,19 @@ def synthetic_split(cfg: BenchSpeedConfig, size: int) -> Path:
         if not (Path(cfg.synthetic_root) / "manifest.json").is_file():
             raise ConfigError(f"--synthetic-root {cfg.synthetic_root} has no manifest.json; make one with `lsr synth`")
         return Path(cfg.synthetic_root)
+    cache = Path(cfg.cache_dir) if cfg.cache_dir is not None else Path.home() / ".cache" / "lsr" / "bench_speed"
+    return held_out_synthetic_split(cache, size, SYNTH_VIDEOS, SYNTH_FRAMES, progress=cfg.progress)
+
+
+def held_out_synthetic_split(folder: Path, size: int, videos: int, frames: int, *, progress: bool = False) -> Path:
+    """SYNTH_IDENTITIES procedural people of the fixed SYNTH_SEED (never a training seed), half of them 'test',
+    rendered once into ``folder`` (lsr synth's default, aligned framing) and reused after; the dataset root."""
     from lsr.data.synth import generate_dataset
 
-    cache = Path(cfg.cache_dir) if cfg.cache_dir is not None else Path.home() / ".cache" / "lsr" / "bench_speed"
-    # aligned: the framing lsr synth uses by default
-    root = cache / f"synth_test_{size}_seed{SYNTH_SEED}_{SYNTH_IDENTITIES}x{SYNTH_VIDEOS}x{SYNTH_FRAMES}_aligned"
+    root = Path(folder) / f"synth_test_{size}_seed{SYNTH_SEED}_{SYNTH_IDENTITIES}x{videos}x{frames}_aligned"
     if not (root / "manifest.json").is_file():
-        generate_dataset(root, SYNTH_IDENTITIES, SYNTH_VIDEOS, SYNTH_FRAMES, size=size, seed=SYNTH_SEED,
-                         test_fraction=0.5, progress=cfg.progress, overwrite=True)
+        generate_dataset(root, SYNTH_IDENTITIES, videos, frames, size=size, seed=SYNTH_SEED, test_fraction=0.5,
+                         progress=progress, overwrite=True)
     return root
 
 
