@@ -292,6 +292,9 @@ class TrainConfig:
     """warp_guided: how many of the nearest shots, TPS-warped to the target, G^s sees and blends; 0 = the preset's."""
     reference_flow: float = 0.0
     """warp_guided: > 0 lets G^s predict a residual flow per warped shot (at most this fraction of the crop side)."""
+    reference_detail: float = 0.0
+    """warp_guided: > 0 puts the per-pixel median of the warped shots' detail on the blend's low band, split at a
+    Gaussian of this fraction of the crop side (0.0117 = 3 px at 256^2); 0 = the blend as it is."""
     synthetic_identities: int = 0
     """Train on this many procedural synthetic identities: alone, or mixed with --data (real clips)."""
     init_from: OptionalPath = None
@@ -345,8 +348,8 @@ class TrainConfig:
             raise ConfigError(f"--resolution must be 0 or a power of two >= 32, got {self.resolution}")
         if self.k < 1 or self.batch_size < 1 or self.workers < 0 or self.threads < 0:
             raise ConfigError("--k and --batch-size must be >= 1, --workers and --threads >= 0")
-        if self.reference_flow and self.variant != "warp_guided":
-            raise ConfigError("--reference-flow is for --variant warp_guided")
+        if (self.reference_flow or self.reference_detail) and self.variant != "warp_guided":
+            raise ConfigError("--reference-flow and --reference-detail are for --variant warp_guided")
         if self.warp_references < 0 or (self.warp_references and self.variant != "warp_guided"):
             raise ConfigError(f"--warp-references is for --variant warp_guided and must be >= 0, got {self.warp_references}")
         if self.checkpoint_every < 1 or self.keep_checkpoints < 1 or self.log_every < 1 or self.image_every < 0:

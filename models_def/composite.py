@@ -9,6 +9,8 @@ the network may run lower (its RGB and logits are upsampled), so that detail com
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 
@@ -69,3 +71,40 @@ def shift_references(references: torch.Tensor, reference_masks: torch.Tensor, fl
     moved = F.grid_sample(stacked, grid, mode="bilinear", padding_mode="border", align_corners=False)
     moved = moved.view(batch, count, 4, height, width)
     return moved[:, :, :3], moved[:, :, 3:]
+
+
+def gaussian_blur(images: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Separable Gaussian blur of (B, C, H, W) with a ``sigma``-pixel kernel (radius ceil(3 sigma), reflect padding).
+
+    Every plane is convolved with one fixed 1-channel kernel, so the ONNX export traces two Conv nodes."""
+    radius = max(1, math.ceil(3.0 * sigma))
+    radius = min(radius, images.shape[-1] - 1, images.shape[-2] - 1)  # reflect padding needs radius < side
+    taps = torch.arange(-radius, radius + 1, dtype=images.dtype, device=images.device)
+    kernel = torch.exp(-0.5 * (taps / sigma) ** 2)
+    kernel = kernel / kernel.sum()
+    planes = images.flatten(0, 1)[:, None]  # (B*C, 1, H, W): one static 1-channel kernel (ONNX needs its shape)
+    padded = F.pad(planes, (radius, radius, radius, radius), mode="reflect")
+    blurred = F.conv2d(F.conv2d(padded, kernel.view(1, 1, 1, -1)), kernel.view(1, 1, -1, 1))
+    return blurred.view(images.shape)
+
+
+def add_reference_detail(image: torch.Tensor, references: torch.Tensor, reference_masks: torch.Tensor,
+                         generated_weight: torch.Tensor, sigma: float) -> torch.Tensor:
+    """The blend's fine detail replaced by the references' consensus detail.
+
+    A soft blend of several warps is blurred where they disagree by a pixel or two; one warp alone is sharp but its
+    misplacements cost more than the blur. This keeps the blend's low band (a Gaussian of ``sigma`` pixels) and adds
+    the per-pixel median of the references' high bands: detail that most warps agree on survives at full contrast,
+    detail only one of them has is dropped. Scaled by the references' share of the blend (none where G^s's own image
+    is used). image: (B, 3, H, W); references: (B, N, 3, H, W); reference_masks: (B, N, 1, H, W); generated_weight:
+    (B, 1, H, W) -> (B, 3, H, W), clamped to [-1, 1]. The median of an even N is the mean of the two middle values.
+    """
+    batch, count, _, height, width = references.shape
+    check_shape("image", image, (batch, 3, height, width))
+    check_shape("generated_weight", generated_weight, (batch, 1, height, width))
+    flat = references.flatten(0, 1)
+    details = (flat - gaussian_blur(flat, sigma)).view(batch, count, 3, height, width) * reference_masks
+    ordered = details.sort(dim=1).values
+    middle = count // 2
+    median = ordered[:, middle] if count % 2 else 0.5 * (ordered[:, middle - 1] + ordered[:, middle])
+    return (gaussian_blur(image, sigma) + (1.0 - generated_weight) * median).clamp(-1.0, 1.0)

@@ -20,7 +20,7 @@ VARIANTS: tuple[str, ...] = ("baseline", "spade_landmarks", "learned_seg", "late
 # Variants whose per-frame path runs the layout predictor G^l (the others have no layout latent to use).
 LAYOUT_PREDICTOR_VARIANTS: tuple[str, ...] = ("learned_seg", "latent_layout", "warp_guided")
 # Fields added after models were first saved, with the value that keeps an older config.json's behaviour.
-LATER_FIELDS: dict[str, object] = {"warp_references": 3, "reference_flow": 0.0}
+LATER_FIELDS: dict[str, object] = {"warp_references": 3, "reference_flow": 0.0, "reference_detail": 0.0}
 
 
 class ModelConfigError(ValueError):
@@ -78,6 +78,10 @@ class ModelConfig:
     reference_flow: float = 0.0
     """warp_guided only: > 0 lets G^s also predict a residual flow per reference that corrects what the landmark TPS
     got wrong, at most this fraction of the crop side (tanh-bounded); 0 = the warped shots are blended as they are."""
+    reference_detail: float = 0.0
+    """warp_guided only: > 0 replaces the blend's fine detail with the per-pixel median of the references' detail
+    (``models_def.composite.add_reference_detail``), split at a Gaussian of this fraction of the crop side (3/256 at
+    256^2: 0.0117); 0 = the blend as it is. A fixed operation on the output: it can be switched on for trained weights."""
 
     def __post_init__(self) -> None:
         def fail(message: str) -> None:
@@ -102,6 +106,8 @@ class ModelConfig:
             fail(f"norm_eps must be > 0; got {self.norm_eps!r}")
         if not (isinstance(self.reference_flow, (int, float)) and 0 <= self.reference_flow <= 0.25):
             fail(f"reference_flow must be in [0, 0.25] (a fraction of the crop side); got {self.reference_flow!r}")
+        if not (isinstance(self.reference_detail, (int, float)) and 0 <= self.reference_detail <= 0.1):
+            fail(f"reference_detail must be in [0, 0.1] (a fraction of the crop side); got {self.reference_detail!r}")
         if self.resolution & (self.resolution - 1):
             fail(f"resolution must be a power of two (e.g. 64, 128, 256); got {self.resolution}")
         # Every blur-pool needs an input of at least 2 pixels; the generator starts at >= 1 pixel; the

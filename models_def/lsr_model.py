@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from models_def.composite import blend_references, shift_references
+from models_def.composite import add_reference_detail, blend_references, shift_references
 from models_def.config import NUM_SEG_CLASSES, ModelConfig
 from models_def.encoder import SubjectEncoder
 from models_def.generator import SpadeGenerator
@@ -140,6 +140,9 @@ class FrameGenerator(nn.Module):
             references, reference_masks = shift_references(references, reference_masks, output[:, 4 + count :],
                                                            self.config.reference_flow)
         image, weights = blend_references(references, reference_masks, generated, blend_logits)
+        if self.config.reference_detail > 0:  # the references' consensus detail on the blend's low band
+            sigma = self.config.reference_detail * references.shape[-1]
+            image = add_reference_detail(image, references, reference_masks, weights[:, count:], sigma)
         return FrameOutputs(image, layout, layout_logits, aux_rgb, weights, generated)
 
     def _check_references(

@@ -46,6 +46,8 @@ def model_config_for(cfg: TrainConfig) -> ModelConfig:
         overrides["warp_references"] = cfg.warp_references
     if cfg.reference_flow:
         overrides["reference_flow"] = cfg.reference_flow
+    if cfg.reference_detail:
+        overrides["reference_detail"] = cfg.reference_detail
     return preset_config(cfg.preset, **overrides)
 
 

@@ -185,14 +185,54 @@ def test_warm_start_rejects_another_preset(tmp_path):
         warm_start(LSRModel(config), Discriminator(config), old)
 
 
-@pytest.mark.parametrize("reference_flow", [0.0, 0.05], ids=["blend", "blend+flow"])
-def test_onnx_frame_graph_matches_torch(tmp_path, reference_flow):
+def test_gaussian_blur_matches_opencv_and_keeps_a_constant():
+    import cv2
+
+    from models_def.composite import gaussian_blur
+
+    image = np.random.default_rng(0).random((3, 32, 32)).astype(np.float32)
+    ours = gaussian_blur(torch.from_numpy(image)[None], 2.0)[0].numpy()
+    theirs = np.stack([cv2.GaussianBlur(c, (13, 13), 2.0, borderType=cv2.BORDER_REFLECT_101) for c in image])
+    assert np.abs(ours - theirs).max() < 1e-5
+    torch.testing.assert_close(gaussian_blur(torch.full((1, 2, 9, 9), 0.3), 3.0), torch.full((1, 2, 9, 9), 0.3))
+
+
+def test_reference_detail_keeps_what_most_references_agree_on():
+    from models_def.composite import add_reference_detail, gaussian_blur
+
+    generator = torch.Generator().manual_seed(0)
+    shared = torch.rand(1, 3, 24, 24, generator=generator) * 2 - 1
+    outlier = torch.rand(1, 3, 24, 24, generator=generator) * 2 - 1
+    references = torch.stack([shared, shared, outlier], dim=1)  # (1, 3, 3, 24, 24)
+    masks, no_generated = torch.ones(1, 3, 1, 24, 24), torch.zeros(1, 1, 24, 24)
+    blurry = gaussian_blur(shared, 2.0)  # the blend's low band is right, its detail is gone
+    image = add_reference_detail(blurry, references, masks, no_generated, 2.0)
+    # low band of the blurry blend (~ blurry) + the two agreeing references' detail = the shared image
+    expected = (gaussian_blur(blurry, 2.0) + shared - gaussian_blur(shared, 2.0)).clamp(-1, 1)
+    torch.testing.assert_close(image, expected, atol=1e-5, rtol=0)
+    assert (image - shared).abs().mean() < (blurry - shared).abs().mean()  # sharper and closer than the blend
+    # where G^s's own image is used, no reference detail is added; invalid reference pixels add none either
+    only_generated = add_reference_detail(blurry, references, masks, torch.ones(1, 1, 24, 24), 2.0)
+    torch.testing.assert_close(only_generated, gaussian_blur(blurry, 2.0), atol=1e-6, rtol=0)
+    nothing_valid = add_reference_detail(blurry, references, torch.zeros(1, 3, 1, 24, 24), no_generated, 2.0)
+    torch.testing.assert_close(nothing_valid, gaussian_blur(blurry, 2.0), atol=1e-6, rtol=0)
+
+
+def test_reference_detail_is_off_by_default_and_checked():
+    assert preset_config("tiny", variant="warp_guided").reference_detail == 0.0
+    with pytest.raises(ValueError, match="reference_detail"):
+        preset_config("tiny", variant="warp_guided", reference_detail=0.5)
+
+
+@pytest.mark.parametrize("reference_flow, reference_detail", [(0.0, 0.0), (0.05, 0.0), (0.0, 0.02)],
+                         ids=["blend", "blend+flow", "blend+detail"])
+def test_onnx_frame_graph_matches_torch(tmp_path, reference_flow, reference_detail):
     pytest.importorskip("onnxruntime")
     from deploy.runtime import OnnxBackend
     from lsr.export_bundle import export_graphs
 
     torch.manual_seed(0)
-    config = preset_config("tiny", variant="warp_guided", reference_flow=reference_flow)
+    config = preset_config("tiny", variant="warp_guided", reference_flow=reference_flow, reference_detail=reference_detail)
     model = LSRModel(config).eval()
     if reference_flow:  # a flow head that moves the references (a zero-initialised one would test nothing)
         with torch.no_grad():
