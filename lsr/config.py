@@ -301,9 +301,11 @@ class TrainConfig:
     """Start from this model folder (same preset) instead of random weights; channels a variant adds start at zero."""
     k: Annotated[int, tyro.conf.arg(aliases=("--k-shots",))] = 4
     """K: shots per training episode (--k-shots: the old name, kept for one release)."""
-    shots_from: Literal["video", "identity"] = "video"
+    shots_from: Literal["video", "video_apart", "identity"] = "video"
     """Where an episode's K shots come from: the target's own video (FSTH's episodes, and the evaluation
-    protocol: shots and hold-outs share a video) or any video of the identity (other backgrounds and light)."""
+    protocol: shots and hold-outs share a video), the half of the target's clip away from it (video_apart: as the
+    protocol's separate stretches of inputs and hold-outs, no neighbour in time), or any video of the identity
+    (other backgrounds and light)."""
     batch_size: int = 8
     """Global batch (episodes per step, over all processes; each of N processes gets batch / N)."""
     workers: int = 2

@@ -22,7 +22,9 @@ Conventions (shape contracts of every item):
 
 Sampling: frames with NaN landmarks are never chosen. ``shots_from="identity"`` (default) draws the
 shots from any video of the target's identity (appearance across videos, as at test time);
-``"video"`` draws them from the target's video only. The target is never one of its own shots;
+``"video"`` draws them from the target's video only; ``"video_apart"`` from the half of the target's clip that
+does not hold the target (the evaluation protocol's inputs and hold-outs are separate stretches of one video, so
+its shots are never the target's neighbours in time). The target is never one of its own shots;
 when fewer than K other frames exist the shots are drawn with replacement.
 
 Determinism: episode ``i`` of a dataset with seed ``s`` (and epoch ``e``, see ``set_epoch``) is drawn
@@ -48,6 +50,7 @@ from lsr.core import MAX_K
 from lsr.errors import ConfigError, DatasetError
 
 SEGMENTATION_IGNORE_INDEX = -1
+SHOTS_FROM = ("identity", "video", "video_apart")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,7 +149,7 @@ class EpisodeDataset(Dataset):
         size: int | None = None,
         episodes: int | None = None,
         seed: int = 0,
-        shots_from: Literal["identity", "video"] = "identity",
+        shots_from: Literal["identity", "video", "video_apart"] = "identity",
         augment: AugmentConfig | None = None,
         with_segmentation: bool = True,
         warp_references: int = 0,
@@ -155,8 +158,8 @@ class EpisodeDataset(Dataset):
         if warp_references < 0:
             raise ConfigError(f"warp_references must be >= 0, got {warp_references}")
         self.warp_references = warp_references
-        if shots_from not in ("identity", "video"):
-            raise ConfigError(f"shots_from must be 'identity' or 'video', got {shots_from!r}")
+        if shots_from not in SHOTS_FROM:
+            raise ConfigError(f"shots_from must be one of {', '.join(SHOTS_FROM)}, got {shots_from!r}")
         if augment is not None:
             augment.validate()
         self.index = _FrameIndex(root, split, size)
@@ -193,12 +196,22 @@ class EpisodeDataset(Dataset):
         clip = self.index.clips[ref.clip]
         return clip.identity if self.shots_from == "identity" else (clip.identity, clip.video)
 
+    def _shot_pool(self, target_ref: FrameRef) -> list[FrameRef]:
+        """The frames the target's shots are drawn from (never the target itself)."""
+        pool = [ref for ref in self._pools[self._pool_key(target_ref)] if ref != target_ref]
+        if self.shots_from == "video_apart":
+            same_clip = sorted(ref.frame for ref in pool if ref.clip == target_ref.clip) + [target_ref.frame]
+            middle = (min(same_clip) + max(same_clip)) / 2.0
+            apart = [ref for ref in pool if ref.clip != target_ref.clip or (ref.frame < middle) != (target_ref.frame < middle)]
+            pool = apart or pool  # a clip with its frames on one side only: the whole video
+        return pool
+
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         if not 0 <= index < self.episodes:
             raise IndexError(f"episode {index} out of range ({self.episodes})")
         rng, generator = _rngs(self.seed, self.epoch, index)
         target_ref = self.targets[int(rng.integers(len(self.targets)))]
-        pool = [ref for ref in self._pools[self._pool_key(target_ref)] if ref != target_ref]
+        pool = self._shot_pool(target_ref)
         refs = _draw_shots(rng, pool, self.shots) + [target_ref]
         loaded = [self.index.load(ref, with_segmentation=False) for ref in refs[:-1]]
         loaded.append(self.index.load(target_ref, with_segmentation=self.with_segmentation))

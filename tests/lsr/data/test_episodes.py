@@ -65,6 +65,18 @@ def test_nan_frames_never_chosen_and_target_not_a_shot(dataset_root: Path):
         assert not any(torch.equal(item["target"], shot) for shot in item["shots"])
 
 
+def test_video_apart_draws_the_shots_from_the_other_half_of_the_clip(dataset_root: Path):
+    dataset = EpisodeDataset(dataset_root, shots=2, shots_from="video_apart", seed=3, episodes=20)
+    for target in dataset.targets:
+        pool = dataset._shot_pool(target)
+        frames = [ref.frame for ref in dataset._pools[dataset._pool_key(target)]]
+        middle = (min(frames) + max(frames)) / 2.0
+        assert pool and all(ref.clip == target.clip and (ref.frame < middle) != (target.frame < middle) for ref in pool)
+    _check_item(dataset[0], 2, SIZE)
+    with pytest.raises(ConfigError, match="video_apart"):
+        EpisodeDataset(dataset_root, shots_from="neighbours")
+
+
 def test_resize_and_augmentation_keep_contract(dataset_root: Path):
     dataset = EpisodeDataset(dataset_root, shots=2, size=48, augment=AugmentConfig(), seed=0)
     _check_item(dataset[3], 2, 48)
