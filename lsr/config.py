@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 
 import tyro
 
-from lsr.core import MAX_K  # lsr/core/__init__ imports nothing: --help stays instant
+from lsr.core import DEFAULT_FINETUNE_LR, MAX_K  # lsr/core/__init__ imports nothing: --help stays instant
 from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command config is lsr.config.*
     BenchLandmarksConfig,
     BenchTrainConfig,
@@ -376,8 +376,8 @@ class FinetuneConfig:
     """Number of shots to use (sampled evenly from a folder or video); default min(8, shots with a face)."""
     steps: int = 50
     """Fine-tuning steps (small preset at 128^2, batch 4: ~4.5 s/step on one loaded CPU core)."""
-    lr: float = 1e-3
-    """Adam lr for G^l, G^s and D during fine-tuning (the training lr, thesis §4.6)."""
+    lr: float = DEFAULT_FINETUNE_LR
+    """Adam lr for G^l, G^s and D during fine-tuning (a tenth of the training lr: lsr.core.DEFAULT_FINETUNE_LR)."""
     batch_size: int = 4
     """Shots reconstructed per step (<= K)."""
     losses: LossConfig = dataclasses.field(default_factory=LossConfig)
@@ -440,7 +440,7 @@ class ReenactConfig:
     finetune_steps: OptionalInt = None
     """Fine-tune the generators on the source shots first (thesis §4.3.5; torch runtime only). Default:
     DEFAULT_FINETUNE_STEPS with --runtime torch (see `lsr bench finetune`), 0 with --runtime onnx."""
-    finetune_lr: float = 1e-3
+    finetune_lr: float = DEFAULT_FINETUNE_LR
     """Adam lr of that fine-tuning (G^l, G^s, D)."""
     runtime: Literal["torch", "onnx"] = "torch"
     int8: bool = False

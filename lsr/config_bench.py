@@ -12,6 +12,7 @@ from typing import Annotated, Literal
 
 import tyro
 
+from lsr.core import DEFAULT_FINETUNE_LR
 from lsr.errors import ConfigError
 
 OptionalPath = Annotated[Path | None, tyro.conf.arg(metavar="PATH", help_behavior_hint="(optional)")]
@@ -233,7 +234,7 @@ class EvalConfig:
     """Trained LSR model folders (config.json + model.safetensors) to evaluate beside the baselines."""
     finetune_steps: int = 0
     """> 0: also evaluate each model fine-tuned on the K shots of each identity for this many steps (thesis §4.3.5)."""
-    finetune_lr: float = 1e-3
+    finetune_lr: float = DEFAULT_FINETUNE_LR
     """Adam lr of that fine-tuning (G^l, G^s, D)."""
     device: str = "cpu"
     """Torch device of the models (cpu, cuda, cuda:1, ...)."""
@@ -327,7 +328,7 @@ class BenchFinetuneConfig:
     """Shots per identity (drawn as `lsr eval` draws them)."""
     steps: tuple[int, ...] = (0, 10, 25, 50, 100)
     """Fine-tuning budgets (0 = the model as trained)."""
-    finetune_lr: float = 1e-3
+    finetune_lr: float = DEFAULT_FINETUNE_LR
     max_identities: int = 0
     max_holdouts: int = 0
     seed: int = 0

@@ -20,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from lsr.core import DEFAULT_FINETUNE_LR
 from lsr.errors import ConfigError, WeightsError
 from lsr.eval.baselines import check_method_inputs
 
@@ -71,7 +72,7 @@ class LsrModelMethod:
     ``target_segmentations`` in ``reenact``."""
 
     def __init__(self, weights: str | os.PathLike, *, device: str = "cpu", finetune_steps: int = 0,
-                 finetune_lr: float = 1e-3, name: str | None = None, reenactor=None) -> None:
+                 finetune_lr: float = DEFAULT_FINETUNE_LR, name: str | None = None, reenactor=None) -> None:
         """reenactor: a ready ``ReenactorBase`` (e.g. ``deploy.runtime.OnnxReenactor`` over the bundle at
         ``weights``); None = load the torch model from ``weights``."""
         self.weights = Path(weights)

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from lsr.core import DEFAULT_FINETUNE_LR
 from lsr.core.sources import SubjectShots, load_subject_shots  # one source loader for reenact, app and finetune
 from lsr.errors import DatasetError, WeightsError
 from lsr.train.checkpoint import DISCRIMINATOR_NAME, nonfinite_entries
@@ -33,9 +34,6 @@ from models_def import Discriminator, LSRModel
 if TYPE_CHECKING:
     from lsr.config import FinetuneConfig
 
-# Adam lr of subject fine-tuning: the training lr (thesis §4.6). On the default model, 50 steps at 1e-3 lift the
-# single-shot far-pose cases of tests/lsr/test_weights.py from PSNR/SSIM 19.45/0.652 to 21.24/0.736 (MODEL_CARD.md).
-FINETUNE_LR = 1e-3
 LATENTS_NAME = "latents.safetensors"
 FINETUNE_PLAN = StagePlan(stage=3, cross_entropy=False)  # eq. 4.4 only: the shots have no segmentation
 
@@ -120,7 +118,7 @@ def finetune_subject(
     shots: SubjectShots,
     *,
     steps: int,
-    lr: float = FINETUNE_LR,
+    lr: float = DEFAULT_FINETUNE_LR,
     batch_size: int = 4,
     weights: LossWeights | None = None,
     device: torch.device | str = "cpu",
@@ -186,7 +184,7 @@ def finetune_subject(
     return FinetuneResult(model, layout_latent.cpu(), style_latent.cpu(), l1_before, l1_after, skipped, seconds)
 
 
-def finetune_reenactor(reenactor, steps: int, *, lr: float = FINETUNE_LR, batch_size: int = 4, seed: int = 0,
+def finetune_reenactor(reenactor, steps: int, *, lr: float = DEFAULT_FINETUNE_LR, batch_size: int = 4, seed: int = 0,
                        progress: bool = False) -> FinetuneResult:
     """Fine-tune a torch ``lsr.pipeline.Reenactor``'s G^l, G^s on its encoded subject's shots, in place (§4.3.5).
 
