@@ -197,6 +197,17 @@ def test_gaussian_blur_matches_opencv_and_keeps_a_constant():
     torch.testing.assert_close(gaussian_blur(torch.full((1, 2, 9, 9), 0.3), 3.0), torch.full((1, 2, 9, 9), 0.3))
 
 
+@pytest.mark.parametrize("count", [1, 2, 3, 4, 5, 6])
+def test_median_over_references_is_the_median(count):
+    from models_def.composite import median_over_references
+
+    generator = torch.Generator().manual_seed(count)
+    values = torch.randn(2, count, 3, 5, 7, generator=generator)
+    values[0, :, 0] = torch.randint(0, 3, (count, 5, 7), generator=generator).float()  # ties
+    expected = values.quantile(0.5, dim=1)  # the mean of the two middle values for an even count
+    torch.testing.assert_close(median_over_references(values), expected, atol=1e-6, rtol=0)
+
+
 def test_reference_detail_keeps_what_most_references_agree_on():
     from models_def.composite import add_reference_detail, gaussian_blur
 
