@@ -59,8 +59,10 @@ def model_summary(weights: Path | None, random_init: bool) -> str:
     if config.get("variant") == "warp_guided":
         output = f"{2 * size}x{2 * size}" if isinstance(size, int) else "twice that size"
         line += (f". It warps the source shots nearest to each driving pose onto it and blends them with its own "
-                 f"synthesis at {output}, so detail comes from your shots; fine-tuning on them (on by default) "
-                 "adapts it to the person")
+                 f"synthesis at {output}, so detail comes from your shots")
+        if config.get("reference_detail"):
+            line += " (the fine detail most of the warped shots agree on, not a blur of them)"
+        line += "; fine-tuning on them (on by default) adapts it to the person"
     if name == "the shipped default model":
         line += ". Trained on real talking-face clips and synthetic heads (MODEL_CARD.md)"
     line += "."
