@@ -13,18 +13,6 @@ from lsr.eval import protocol
 VARIANTS = ("baseline", "spade_landmarks", "learned_seg", "latent_layout", "oracle_seg")
 
 
-class _NoFaceDetector:
-    """Stands in for dlib (slow, and it finds no faces on tiny untrained outputs anyway)."""
-
-    kind, max_side, upsample, min_score = "fake", 64, 0, 0.0
-
-    def __init__(self, *args, **kwargs) -> None:
-        pass
-
-    def detect(self, image):
-        return []
-
-
 @pytest.fixture(scope="module")
 def ablation_setup(tmp_path_factory):
     pytest.importorskip("lsr.pipeline")
@@ -57,14 +45,14 @@ def test_load_lsr_split_keeps_holdout_segmentation(ablation_setup):
 
 
 @pytest.mark.slow
-def test_lsr_eval_scores_every_variant(ablation_setup, tmp_path, monkeypatch):
+def test_lsr_eval_scores_every_variant(ablation_setup, tmp_path, monkeypatch, no_face_detector):
     import landmarks.detect
 
     from lsr.config import EvalConfig
     from lsr.eval import report
 
     data, folders = ablation_setup
-    monkeypatch.setattr(landmarks.detect, "FaceDetector", _NoFaceDetector)
+    monkeypatch.setattr(landmarks.detect, "FaceDetector", no_face_detector)
     cfg = EvalConfig(data=data, out=tmp_path / "out", k=(1,), methods=(), weights=tuple(folders), inputs=4, holdouts=2,
                      progress=False, examples=0)
     cfg.validate()
@@ -102,13 +90,13 @@ def test_oracle_seg_uses_the_ground_truth_segmentation(ablation_setup):
 
 
 @pytest.mark.slow
-def test_oracle_seg_without_segmentation_is_a_config_error(ablation_setup):
+def test_oracle_seg_without_segmentation_is_a_config_error(ablation_setup, no_face_detector):
     from lsr.eval.baselines import NearestShot
     from lsr.eval.model_method import LsrModelMethod
 
     data, folders = ablation_setup
     identities = [dataclasses.replace(i, holdout_segmentations=None) for i in protocol.load_lsr_split(data, "test", 4, 4)]
-    analysis = protocol.FaceAnalysis(_NoFaceDetector())
+    analysis = protocol.FaceAnalysis(no_face_detector())
     # methods that do not need the ground truth are untouched by its absence
     run = protocol.run_protocol([NearestShot(), LsrModelMethod(folders[VARIANTS.index("latent_layout")])], identities,
                                 [1], analysis, max_holdouts=1, cross_identity=False, progress=False)

@@ -77,20 +77,8 @@ def test_bad_options_are_one_clear_line(changes, message, tmp_path):
     assert "\n" not in str(raised.value)
 
 
-class _NoFaceDetector:
-    """Stands in for dlib (slow, and it finds no faces on tiny untrained outputs anyway)."""
-
-    kind, max_side, upsample, min_score = "fake", 64, 0, 0.0
-
-    def __init__(self, *args, **kwargs) -> None:
-        pass
-
-    def detect(self, image):
-        return []
-
-
 @pytest.mark.slow
-def test_tiny_ablation_trains_resumes_and_ranks(tmp_path, monkeypatch, capsys):
+def test_tiny_ablation_trains_resumes_and_ranks(tmp_path, monkeypatch, capsys, no_face_detector):
     import dataclasses
     import shutil
     from pathlib import Path
@@ -99,7 +87,7 @@ def test_tiny_ablation_trains_resumes_and_ranks(tmp_path, monkeypatch, capsys):
     from lsr.train import trainer
     from lsr.train.checkpoint import list_checkpoints
 
-    monkeypatch.setattr(landmarks.detect, "FaceDetector", _NoFaceDetector)
+    monkeypatch.setattr(landmarks.detect, "FaceDetector", no_face_detector)
     monkeypatch.setenv("LSR_SHARED_DATA", str(tmp_path / "no_shared_data"))  # the FSTH part is skipped, with a reason
     benchmarks = tmp_path / "BENCHMARKS.md"
     shutil.copy(Path(__file__).resolve().parents[3] / "BENCHMARKS.md", benchmarks)

@@ -8,15 +8,8 @@ import pytest
 from lsr.eval import protocol
 
 
-class _NoFaceDetector:
-    kind, max_side, upsample, min_score = "fake", 64, 0, 0.0
-
-    def detect(self, image):
-        return []
-
-
 @pytest.mark.slow
-def test_tiny_model_runs_through_the_protocol(tmp_path, rng):
+def test_tiny_model_runs_through_the_protocol(tmp_path, rng, no_face_detector):
     pytest.importorskip("lsr.pipeline")
     from models_def import LSRModel
     from models_def.presets import preset_config
@@ -33,6 +26,6 @@ def test_tiny_model_runs_through_the_protocol(tmp_path, rng):
     method = LsrModelMethod(tmp_path / "tiny", finetune_steps=1)
     outputs = method.reenact(list(frames[:2]), points[:2].astype(np.float64), points[4:].astype(np.float64))
     assert outputs.shape == (2, size, size, 3) and outputs.dtype == np.uint8
-    run = protocol.run_protocol([method], [identity], [2], protocol.FaceAnalysis(_NoFaceDetector()),
+    run = protocol.run_protocol([method], [identity], [2], protocol.FaceAnalysis(no_face_detector()),
                                 cross_identity=False, progress=False)
     assert {r["method"] for r in run.records} == {"lsr:tiny", "lsr:tiny+ft"}

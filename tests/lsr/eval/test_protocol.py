@@ -57,13 +57,6 @@ class TestBuckets:
         assert [labels.count(b) for b in protocol.BUCKETS] == [3, 3, 3]
 
 
-class _NoFaceDetector:
-    kind, max_side, upsample, min_score = "fake", 64, 0, 0.0
-
-    def detect(self, image):
-        return []
-
-
 class _SpyMethod:
     """Outputs the inverted first shot and remembers every shot it was given."""
 
@@ -83,11 +76,11 @@ class _SpyMethod:
         return self
 
 
-def test_runner_never_shows_holdouts_to_the_method(rng):
+def test_runner_never_shows_holdouts_to_the_method(rng, no_face_detector):
     identities = [_identity(rng, "a"), _identity(rng, "b")]
     identities[0].holdout_landmarks[1] = np.nan  # a hold-out without a face: skipped and counted
     spy = _SpyMethod()
-    run = protocol.run_protocol([spy], identities, [1, 4], protocol.FaceAnalysis(_NoFaceDetector()),
+    run = protocol.run_protocol([spy], identities, [1, 4], protocol.FaceAnalysis(no_face_detector()),
                                 max_holdouts=3, progress=False)
     holdouts = {frame.tobytes() for identity in identities for frame in identity.holdout_frames}
     inputs = {frame.tobytes() for identity in identities for frame in identity.input_frames}
@@ -105,11 +98,11 @@ def test_runner_never_shows_holdouts_to_the_method(rng):
     assert all(0.5 < r["sharpness"] < 2.0 for r in run.records)
 
 
-def test_k_beyond_usable_inputs_is_capped_and_reported(rng):
+def test_k_beyond_usable_inputs_is_capped_and_reported(rng, no_face_detector):
     identity = _identity(rng, "a", inputs=5, holdouts=2)
     identity.input_landmarks[0] = np.nan  # 4 usable inputs
     spy = _SpyMethod()
-    run = protocol.run_protocol([spy], [identity], [8], protocol.FaceAnalysis(_NoFaceDetector()),
+    run = protocol.run_protocol([spy], [identity], [8], protocol.FaceAnalysis(no_face_detector()),
                                 cross_identity=False, finetune=False, progress=False)
     assert run.counts["k_capped"] == {"K=8 a": 4}
     assert len(spy.seen) == 4 and not any(np.array_equal(shot, identity.input_frames[0]) for shot in spy.seen)

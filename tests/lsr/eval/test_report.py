@@ -15,21 +15,14 @@ from lsr.eval.baselines import NearestShot, TpsMean3, TpsWarp
 from lsr.eval.protocol import FaceAnalysis, load_lsr_split, run_protocol
 
 
-class _NoFaceDetector:
-    kind, max_side, upsample, min_score = "fake", 64, 0, 0.0
-
-    def detect(self, image):
-        return []
-
-
-def test_report_on_synthetic_identities(tmp_path):
+def test_report_on_synthetic_identities(tmp_path, no_face_detector):
     from lsr.data.synth.generate import generate_dataset
 
     root = tmp_path / "synth"
     generate_dataset(root, identities=4, videos_per_identity=1, frames=10, size=64, test_fraction=0.5, progress=False)
     identities = load_lsr_split(root, "test", inputs=6, holdouts=4)
     assert len(identities) == 2 and all(len(i.input_frames) == 6 and len(i.holdout_frames) == 4 for i in identities)
-    run = run_protocol([NearestShot(), TpsWarp(), TpsMean3()], identities, [1], FaceAnalysis(_NoFaceDetector()),
+    run = run_protocol([NearestShot(), TpsWarp(), TpsMean3()], identities, [1], FaceAnalysis(no_face_detector()),
                        progress=False)
     run.settings["data"] = str(root)
     summary = report.summarise(run)
