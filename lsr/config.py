@@ -302,10 +302,8 @@ class TrainConfig:
     k: Annotated[int, tyro.conf.arg(aliases=("--k-shots",))] = 4
     """K: shots per training episode (--k-shots: the old name, kept for one release)."""
     shots_from: Literal["video", "video_apart", "identity"] = "video"
-    """Where an episode's K shots come from: the target's own video (FSTH's episodes, and the evaluation
-    protocol: shots and hold-outs share a video), the half of the target's clip away from it (video_apart: as the
-    protocol's separate stretches of inputs and hold-outs, no neighbour in time), or any video of the identity
-    (other backgrounds and light)."""
+    """Where an episode's K shots come from: the target's video (as the evaluation protocol), the half of its clip
+    away from it (video_apart: no neighbour in time), or any video of the identity (lsr.data.episodes)."""
     batch_size: int = 8
     """Global batch (episodes per step, over all processes; each of N processes gets batch / N)."""
     workers: int = 2
