@@ -278,8 +278,8 @@ class OptimConfig:
 class TrainConfig:
     """Train an LSR model in three stages (layout pre-training, full pipeline, latent layout)."""
 
-    data: OptionalPath = None
-    """Dataset root (lsr.data format). None with --synthetic-identities > 0 = a procedural dataset."""
+    data: tuple[Path, ...] = ()
+    """Dataset roots (lsr.data format); several mix (e.g. the clips prepared with --framing align and keep)."""
     out: Path = Path("runs/lsr")
     """Run folder: checkpoints/, tensorboard/, weights/ (inference safetensors + config.json)."""
     preset: Literal["paper", "small", "fast", "compact", "tiny"] = "paper"
@@ -340,10 +340,11 @@ class TrainConfig:
         self.stages.validate()
         self.losses.validate()
         self.optim.validate()
-        if self.data is None and self.synthetic_identities < 1:
+        if not self.data and self.synthetic_identities < 1:
             raise ConfigError("give --data DATASET_ROOT or --synthetic-identities N (N >= 1) for a procedural dataset")
-        if self.data is not None and not Path(self.data).is_dir():
-            raise ConfigError(f"--data {self.data} is not a folder; prepare a dataset first (see docs/TRAINING.md)")
+        for root in self.data:
+            if not Path(root).is_dir():
+                raise ConfigError(f"--data {root} is not a folder; prepare a dataset first (see docs/TRAINING.md)")
         if self.resolution and (self.resolution < 32 or self.resolution & (self.resolution - 1)):
             raise ConfigError(f"--resolution must be 0 or a power of two >= 32, got {self.resolution}")
         if self.k < 1 or self.batch_size < 1 or self.workers < 0 or self.threads < 0:

@@ -142,7 +142,8 @@ def train_config(cfg: BenchAblationConfig, variant: str, resume: bool):
     # steps_per_epoch 1: every stage budget is a step count
     stages = StagesConfig(pretrain_epochs=steps["pretrain"], full_epochs=full, latent_epochs=steps["latent"],
                           steps_per_epoch=1, lr_decay_steps=steps["decay"])
-    return TrainConfig(data=cfg.data, synthetic_identities=cfg.synthetic_identities, out=Path(cfg.out) / variant,
+    data = (cfg.data,) if cfg.data is not None else ()
+    return TrainConfig(data=data, synthetic_identities=cfg.synthetic_identities, out=Path(cfg.out) / variant,
                        preset=cfg.preset, variant=variant, k=cfg.k, batch_size=cfg.batch_size, workers=cfg.workers,
                        seed=cfg.seed, stages=stages, device=cfg.device, threads=cfg.threads,
                        checkpoint_every=cfg.checkpoint_every, resume=resume, progress=cfg.progress)

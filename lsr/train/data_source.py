@@ -58,10 +58,11 @@ def synthetic_root(cfg: TrainConfig, model_config: ModelConfig) -> Path:
 
 
 def episode_dataset(cfg: TrainConfig, model_config: ModelConfig) -> torch.utils.data.Dataset:
-    """``EpisodeDataset`` over ``cfg.data`` (split 'train') and/or the synthetic dataset, at the model's resolution."""
+    """``EpisodeDataset`` over each ``cfg.data`` root (split 'train') and/or the synthetic dataset, at the model's
+    resolution; several are mixed in proportion to their episodes."""
     from lsr.data.episodes import EpisodeDataset
 
-    roots = [Path(cfg.data)] if cfg.data is not None else []
+    roots = [Path(root) for root in cfg.data]
     if cfg.synthetic_identities > 0:
         roots.append(synthetic_root(cfg, model_config))
     needs_segmentation = model_config.variant in SEGMENTATION_VARIANTS

@@ -65,7 +65,7 @@ class DrawnEpisodes(torch.utils.data.Dataset):
 def tiny_train_config(out: Path, **changes) -> TrainConfig:
     stages = changes.pop("stages", StagesConfig(pretrain_epochs=1, full_epochs=1, latent_epochs=1, steps_per_epoch=2))
     cfg = TrainConfig(
-        data=None,
+        data=(),
         synthetic_identities=1,
         out=out,
         preset="tiny",

@@ -200,8 +200,33 @@ def test_shots_from_picks_the_episode_pool(tmp_path, shots_from):
 
     root = tmp_path / "data"
     generate_dataset(root, identities=2, videos_per_identity=2, frames=4, size=64, seed=0, test_fraction=0.0, progress=False)
-    cfg = tiny_train_config(tmp_path / "run", data=root, synthetic_identities=0, shots_from=shots_from)
+    cfg = tiny_train_config(tmp_path / "run", data=(root,), synthetic_identities=0, shots_from=shots_from)
     dataset = episode_dataset(cfg, model_config_for(cfg))
     assert dataset.shots_from == shots_from
     pool_sizes = {len(pool) for pool in dataset._pools.values()}
     assert pool_sizes == ({4} if shots_from == "video" else {8})
+
+
+def test_several_data_roots_are_mixed(tmp_path):
+    """--data A B: episodes of both prepared datasets in one index space (e.g. aligned and loosely framed crops)."""
+    import tyro
+
+    from lsr.config import TrainConfig
+    from lsr.data.synth import generate_dataset
+    from lsr.errors import ConfigError
+    from lsr.train.data_source import MixedEpisodes, episode_dataset
+    from lsr.train.trainer import model_config_for
+
+    roots = [tmp_path / "a", tmp_path / "b"]
+    for seed, (root, identities) in enumerate(zip(roots, (1, 2))):
+        generate_dataset(root, identities=identities, videos_per_identity=1, frames=4, size=64, seed=seed,
+                         test_fraction=0.0, progress=False)
+    parsed = tyro.cli(TrainConfig, args=["--data", str(roots[0]), str(roots[1])])
+    assert parsed.data == tuple(roots)
+    cfg = tiny_train_config(tmp_path / "run", data=parsed.data, synthetic_identities=0)
+    dataset = episode_dataset(cfg, model_config_for(cfg))
+    assert isinstance(dataset, MixedEpisodes)
+    alone = [len(episode_dataset(dataclasses.replace(cfg, data=(root,)), model_config_for(cfg))) for root in roots]
+    assert len(dataset) == sum(alone) and alone[1] > alone[0] > 0
+    with pytest.raises(ConfigError, match="is not a folder"):
+        dataclasses.replace(cfg, data=(roots[0], tmp_path / "missing")).validate()
