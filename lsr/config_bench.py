@@ -355,10 +355,11 @@ class BenchAblationConfig:
     one schedule on one data set (resumable), score each single-shot without fine-tuning with `lsr eval`'s protocol,
     and print each metric's ranks beside the thesis' (lsr.eval.bench_ablation).
 
-    Default schedule: 3000 steps per variant, preset compact, batch 8, K 4, sized for about three hours for the
-    four on this project's 2-core CPU with --threads 1 while another training job shares it. Measured s/step
-    (16 steps each, data loading included; stage 1 | stages 2-3): baseline 0.74, spade_landmarks 0.72,
-    learned_seg 0.54 | 1.01, latent_layout 0.51 | 0.99, so 3000 steps take ~37, ~36, ~47 and ~46 min."""
+    Default schedule: 1000 steps per variant, preset compact, batch 8, K 4: the four train in about two hours on
+    this project's 2-core CPU with --threads 1 while another job shares it (2.2 s/step measured so), one hour alone.
+    Uncontended s/step (16 steps each, data loading included; stage 1 | stages 2-3): baseline 0.74,
+    spade_landmarks 0.72, learned_seg 0.54 | 1.01, latent_layout 0.51 | 0.99. 3000 steps (~3 h alone, ~6 h shared)
+    did not fit a 3-hour session, whose run folders do not outlive it."""
 
     data: OptionalPath = None
     """Dataset root (an lsr dataset, e.g. from `lsr prepare`); its 'test' split is scored too when it has one."""
@@ -367,7 +368,7 @@ class BenchAblationConfig:
     out: Path = Path("runs/ablation")
     """Run folder: OUT/<variant>/ (an `lsr train` run each), OUT/eval/<split>/ (reports), OUT/ablation.json."""
     preset: Literal["paper", "small", "fast", "compact", "tiny"] = "compact"
-    steps: int = 3000
+    steps: int = 1000
     """Training steps per variant, split like `lsr train`'s stages (2 : 4 : 9); variants without G^l (baseline,
     spade_landmarks) skip stage 1 and give its steps to stage 2, so every variant trains the same number of steps."""
     batch_size: int = 8
