@@ -44,6 +44,16 @@ def _log_ticks(low: float, high: float) -> list[float]:
     return ticks
 
 
+def y_axis_range(ys: np.ndarray, min_span: float = 0.0) -> tuple[float, float]:
+    """(low, high) of a y axis showing ``ys`` (finite, non-empty) with a 10 % margin, centred on them, at least
+    ``min_span`` wide: differences smaller than the metric's run-to-run noise must not fill the axis (two runtimes
+    of one model differ by ~0.01 dB of PSNR)."""
+    low, high = float(ys.min()), float(ys.max())
+    span = max(high - low, min_span, 1e-3 * max(1.0, abs(high)))
+    centre = (low + high) / 2
+    return centre - 0.6 * span, centre + 0.6 * span
+
+
 def plot_speed_error(
     points: Sequence[tuple[float, float]],
     labels: Sequence[str],
@@ -52,10 +62,12 @@ def plot_speed_error(
     y_label: str,
     higher_y_is_better: bool,
     title: str,
+    min_y_span: float = 0.0,
     size: tuple[int, int] = (960, 640),
 ) -> np.ndarray:
     """Scatter of ``points`` (x = ms/frame on a log axis, y linear), one colour per group (runtime), each point
-    labelled, the Pareto front joined by a line and circled. Returns an (H, W, 3) uint8 RGB image."""
+    labelled, the Pareto front joined by a line and circled. The y axis spans at least ``min_y_span`` (see
+    ``y_axis_range``). Returns an (H, W, 3) uint8 RGB image."""
     if not (len(points) == len(labels) == len(groups)):
         raise ValueError("points, labels and groups must have the same length")
     width, height = size
@@ -73,8 +85,7 @@ def plot_speed_error(
         return canvas
     xs, ys = np.array([p[0] for p in finite]), np.array([p[1] for p in finite])
     x_low, x_high = float(xs.min()) / 1.3, float(xs.max()) * 1.3
-    y_span = max(float(ys.max() - ys.min()), 1e-3 * max(1.0, abs(float(ys.max()))))
-    y_low, y_high = float(ys.min()) - 0.1 * y_span, float(ys.max()) + 0.1 * y_span
+    y_low, y_high = y_axis_range(ys, min_y_span)
     decimals = max(0, 1 - math.floor(math.log10((y_high - y_low) / 5)))
 
     def to_pixel(x: float, y: float) -> tuple[int, int]:

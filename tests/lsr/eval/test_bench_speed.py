@@ -11,7 +11,7 @@ import pytest
 from lsr.config import BenchSpeedConfig
 from lsr.errors import ConfigError
 from lsr.eval.bench_speed import SECTION_END, SECTION_START, command_line, parse_weights, replace_section
-from lsr.eval.pareto import pareto_front, plot_speed_error
+from lsr.eval.pareto import pareto_front, plot_speed_error, y_axis_range
 
 
 class TestParetoFront:
@@ -39,6 +39,15 @@ class TestParetoFront:
                                  y_label="PSNR", higher_y_is_better=True, title="t")
         assert image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3
         assert (image < 255).any()
+
+
+    def test_axis_keeps_a_minimum_span_for_near_ties(self):
+        # two runtimes of one model 0.003 dB apart must not fill a PSNR axis
+        low, high = y_axis_range(np.array([26.337, 26.340]), min_span=0.5)
+        assert high - low == pytest.approx(0.6) and low < 26.337 < 26.340 < high
+        assert (26.3385 - low) == pytest.approx(high - 26.3385)  # centred on the points
+        low, high = y_axis_range(np.array([18.0, 22.0]), min_span=0.5)  # wider data: 10 % margins
+        assert (low, high) == pytest.approx((17.6, 22.4))
 
 
 class TestSection:
