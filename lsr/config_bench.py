@@ -356,7 +356,7 @@ class BenchAblationConfig:
     and print each metric's ranks beside the thesis' (lsr.eval.bench_ablation).
 
     Default schedule: 1000 steps per variant, preset compact, batch 8, K 4: the four train in about three hours on
-    this project's 2-core CPU with --threads 1 while another job shares it (2.2-2.9 s/step measured so), one alone.
+    this project's 2-core CPU with --threads 1 while another job shares it (2.2-2.9 s/step measured so), one hour alone.
     Uncontended s/step (16 steps each, data loading included; stage 1 | stages 2-3): baseline 0.74,
     spade_landmarks 0.72, learned_seg 0.54 | 1.01, latent_layout 0.51 | 0.99. 3000 steps (~3 h alone, ~6 h shared)
     did not fit a 3-hour session, whose run folders do not outlive it."""

@@ -55,10 +55,9 @@ ENCODER_KS = (1, 32)
 # The default synthetic test split: unseen identities (training renders with other seeds), fixed seed. One
 # 64-frame video per person, so the 32 inputs and 32 hold-outs share background and light as in FSTH's test set.
 SYNTH_SEED, SYNTH_IDENTITIES, SYNTH_VIDEOS, SYNTH_FRAMES = 1234, 12, 1, 64
-METRICS = {"psnr": ("PSNR", True), "ssim": ("SSIM", True), "nmke": ("NMKE", False)}  # name -> (label, higher is better)
-# The plot's smallest y span per metric: about ten times the noise between runtimes of one model, so that such
-# differences show as the near-ties they are.
-PLOT_MIN_SPAN = {"psnr": 0.5, "ssim": 0.01, "nmke": 0.005}
+# name -> (label, higher is better, the plot's smallest y span: about ten times the noise between runtimes of one
+# model, so that such differences show as the near-ties they are)
+METRICS = {"psnr": ("PSNR", True, 0.5), "ssim": ("SSIM", True, 0.01), "nmke": ("NMKE", False, 0.005)}
 
 
 # ---- inputs ---------------------------------------------------------------------------------------------
@@ -421,7 +420,7 @@ def section_markdown(cfg: BenchSpeedConfig, rows: list[dict], peak: float, prove
                  _ms(row["total_ms"]), _ms(row["encode_ms"][1]), _ms(row["encode_ms"][32])]
         cells += [_error_cell(row.get(f"error_{s}"), k) for s in splits for k in cfg.k]
         lines.append("| " + " | ".join(cells) + " |")
-    label, _ = METRICS[cfg.pareto_metric]
+    label, _, _ = METRICS[cfg.pareto_metric]
     lines += ["", f"Pareto front (ms/frame vs synthetic {label} at K={max(cfg.k)}): "
               + (", ".join(front_labels) if front_labels else "no row has both a time and an error"), "",
               f"![ms/frame vs {label}]({plot_link})", "", machine, "", SECTION_END]
@@ -481,7 +480,7 @@ def run_bench_speed(cfg: BenchSpeedConfig) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="lsr-bench-speed-") as temp:
         rows = bench_rows(cfg, weights, splits, detector, peak, Path(temp))
 
-    metric_label, higher = METRICS[cfg.pareto_metric]
+    metric_label, higher, min_span = METRICS[cfg.pareto_metric]
     points, labels, groups, indices = pareto_points(rows, cfg.pareto_metric, max(cfg.k))
     front = pareto_front(points, higher_y_is_better=higher)
     for position, index in enumerate(indices):
@@ -489,7 +488,7 @@ def run_bench_speed(cfg: BenchSpeedConfig) -> dict[str, Any]:
     title = f"lsr bench speed: ms/frame vs synthetic {metric_label} (K={max(cfg.k)}), {machine_info()['cpu']}"
     write_plot(plot_path, plot_speed_error(points, labels, groups, y_label=f"{metric_label} (synthetic, K={max(cfg.k)})",
                                            higher_y_is_better=higher, title=title,
-                                           min_y_span=PLOT_MIN_SPAN[cfg.pareto_metric]))
+                                           min_y_span=min_span))
     command = command_line(cfg)
     section = section_markdown(cfg, rows, peak, provenance,
                                os.path.relpath(plot_path, out_md.parent), [labels[i] for i in front],

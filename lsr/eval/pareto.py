@@ -46,8 +46,7 @@ def _log_ticks(low: float, high: float) -> list[float]:
 
 def y_axis_range(ys: np.ndarray, min_span: float = 0.0) -> tuple[float, float]:
     """(low, high) of a y axis showing ``ys`` (finite, non-empty) with a 10 % margin, centred on them, at least
-    ``min_span`` wide: differences smaller than the metric's run-to-run noise must not fill the axis (two runtimes
-    of one model differ by ~0.01 dB of PSNR)."""
+    ``min_span`` wide, so that differences within the metric's run-to-run noise do not fill the axis."""
     low, high = float(ys.min()), float(ys.max())
     span = max(high - low, min_span, 1e-3 * max(1.0, abs(high)))
     centre = (low + high) / 2

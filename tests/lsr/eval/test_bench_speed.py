@@ -40,7 +40,6 @@ class TestParetoFront:
         assert image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3
         assert (image < 255).any()
 
-
     def test_axis_keeps_a_minimum_span_for_near_ties(self):
         # two runtimes of one model 0.003 dB apart must not fill a PSNR axis
         low, high = y_axis_range(np.array([26.337, 26.340]), min_span=0.5)
