@@ -150,3 +150,22 @@ def retarget_absolute(
     reference = _check_shape(driver_reference, "driver_reference", finite=True)
     output = apply_similarity(frames, *_fit_rigid(reference, source_points))
     return output[0] if single else output
+
+
+def retarget_driving(driver: np.ndarray, driver_reference: np.ndarray, source: np.ndarray) -> np.ndarray:
+    """What ``lsr reenact`` and ``lsr eval`` drive another person with: ``retarget_relative``, then the mouth as
+    open as the driver's (``landmarks.expression.mouth_opening``, which is normalised by the eye distance).
+
+    A closed mouth is closed for everyone, so the opening transfers as it is; as a relative delta it would inherit
+    whatever the source's anchor and the driver's reference frame showed (an open mouth in either left the output
+    never closing or never opening fully). Shapes as in ``retarget_relative``.
+    """
+    from landmarks.expression import mouth_opening, set_mouth_opening
+
+    moved = retarget_relative(driver, driver_reference, source)
+    frames, single = _check_driver(driver)
+    valid = np.isfinite(frames).all(axis=(1, 2))
+    output = np.atleast_3d(moved) if not single else moved[None]
+    output = output.copy()
+    output[valid] = set_mouth_opening(output[valid], mouth_opening(frames[valid]))
+    return output[0] if single else output

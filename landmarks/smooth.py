@@ -22,17 +22,28 @@ def _alpha(cutoff: np.ndarray | float, fps: float) -> np.ndarray | float:
     return 1.0 / (1.0 + tau * fps)
 
 
+EXPRESSIVE_POINTS = tuple(range(36, 68))  # eyelids and lips: blinks and mouth motion last a few frames
+EXPRESSIVE_CUTOFF = 6.0  # Hz: a blink (about 150 ms) and a syllable's mouth opening pass; 1 Hz halved them
+
+
+def driving_cutoffs(rigid: float = 1.0, expressive: float = EXPRESSIVE_CUTOFF) -> np.ndarray:
+    """Per-point ``min_cutoff`` for driving landmarks: (68,) Hz, the head steady, eyes and lips quick."""
+    cutoffs = np.full(NUM_LANDMARKS, rigid)
+    cutoffs[list(EXPRESSIVE_POINTS)] = expressive
+    return cutoffs
+
+
 class OneEuroFilter:
     """Stateful One-Euro filter over (68, 2) point sets (any (P, 2) works).
 
-    fps: sample rate; min_cutoff (Hz): smoothing at rest; beta: speed coefficient
-    (per px/s); d_cutoff (Hz): low-pass on the speed estimate.
+    fps: sample rate; min_cutoff (Hz): smoothing at rest, one value or one per point ((P,), e.g.
+    ``driving_cutoffs()``); beta: speed coefficient (per px/s); d_cutoff (Hz): low-pass on the speed estimate.
     """
 
-    def __init__(self, fps: float, min_cutoff: float = 1.0, beta: float = 0.05, d_cutoff: float = 1.0) -> None:
-        if fps <= 0 or min_cutoff <= 0 or beta < 0 or d_cutoff <= 0:
+    def __init__(self, fps: float, min_cutoff: float | np.ndarray = 1.0, beta: float = 0.05, d_cutoff: float = 1.0) -> None:
+        if fps <= 0 or np.any(np.asarray(min_cutoff) <= 0) or beta < 0 or d_cutoff <= 0:
             raise ValueError("need fps > 0, min_cutoff > 0, beta >= 0, d_cutoff > 0")
-        self.fps, self.min_cutoff, self.beta, self.d_cutoff = fps, min_cutoff, beta, d_cutoff
+        self.fps, self.min_cutoff, self.beta, self.d_cutoff = fps, np.asarray(min_cutoff, np.float64), beta, d_cutoff
         self.reset()
 
     def reset(self) -> None:

@@ -1,0 +1,231 @@
+"""Composite a re-enacted face into a scene frame: the source's own background, body and hair (issue 23).
+
+A frame is layers that move as they do in life; only the face is synthesised:
+
+* **background and body**: the scene frame, unmoved;
+* **head** (hair, ears, the skin around the face): the scene frame moved by the head's rigid motion, the
+  similarity that takes the scene's landmarks onto the target's (fitted on ``landmarks.retarget.RIGID_INDEX``, so
+  the mouth and brows do not count as head motion). The motion fades smoothly to none at the edge of the head
+  region (``head_weight``), so the neck stretches a little and the body never moves. One coherent layer: the
+  hair is the scene's, never an average of disagreeing warps, so it cannot ghost;
+* **face**: the synthesised crop inside the face mask (the hull of the target's landmarks, with the forehead,
+  united with the hull of the moved scene face so that no old chin or cheek peeks out), feathered, and
+  colour-matched to the head layer along the seam (a smooth offset field measured just inside the face edge).
+
+Sizes are fractions of the face's crop side ``s`` in frame pixels (the VoxCeleb2 framing of
+``landmarks.align.crop_transform``), so the composite behaves the same for a 60-pixel face in a full-body
+shot and for a close-up. Everything outside the head region is the scene's pixels, bit for bit.
+
+numpy + OpenCV only (no torch): the torch and ONNX runtimes share it through ``lsr.core.engine``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+from landmarks.align import crop_transform, invert_affine, transform_landmarks
+from landmarks.parts import NUM_LANDMARKS
+from landmarks.retarget import RIGID_INDEX, apply_similarity, similarity_procrustes
+
+# Head region (fractions of the crop side s), centred above the eyes/mouth midpoint; a VoxCeleb2 crop has the
+# top of the hair about 0.35 s above that point and the chin about 0.22 s below it.
+HEAD_CENTRE_UP = 0.08
+HEAD_SEMI_AXES = (0.36, 0.46)  # (x, y): hair and ears inside, shoulders outside
+HEAD_INNER = 0.7  # inside this fraction of the ellipse the head moves fully; it fades to none at its edge
+FOREHEAD_LIFT = 0.3  # brows lifted by this fraction of the eye-to-mouth distance: the forehead is face
+FACE_MARGIN = 0.02  # the face mask reaches this far outside the hull (covers the jaw line) ...
+FACE_FEATHER = 0.05  # ... with a ramp this wide
+COLOUR_BAND = 0.06  # colour offsets are measured in this band just inside the face hull ...
+COLOUR_SIGMA = 0.12  # ... and spread smoothly with this Gaussian
+COLOUR_LIMIT = 40.0  # grey levels: larger offsets are lighting the face itself, not a seam
+STILL = 0.25  # pixels: a head motion smaller than this leaves the head layer untouched
+
+
+def face_side(landmarks: np.ndarray) -> float:
+    """The face's crop side in frame pixels (``landmarks.align.crop_transform``'s framing): (68, 2) -> float."""
+    matrix = crop_transform(landmarks, 1024)
+    return 1024.0 / float(np.sqrt(abs(np.linalg.det(matrix[:, :2]))))
+
+
+def _ellipse(landmarks: np.ndarray, side: float) -> tuple[np.ndarray, np.ndarray]:
+    """(centre (2,), semi-axes (2,)) of the head region of a face, frame pixels."""
+    points = np.asarray(landmarks, np.float64)
+    eyes = (points[36:42].mean(0) + points[42:48].mean(0)) / 2
+    mouth = (points[48] + points[54]) / 2
+    centre = (eyes + mouth) / 2 - np.array([0.0, HEAD_CENTRE_UP * side])
+    return centre, np.asarray(HEAD_SEMI_AXES) * side
+
+
+def head_weight(landmarks: np.ndarray, shape: tuple[int, int], offset: tuple[int, int] = (0, 0),
+                side: float | None = None) -> np.ndarray:
+    """How much each pixel moves with the head: (H, W) float32, 1 inside the inner head ellipse, 0 outside it.
+
+    landmarks: (68, 2) frame pixels; shape: (H, W) of the region; offset: (x0, y0) of the region in the frame.
+    """
+    side = face_side(landmarks) if side is None else side
+    centre, axes = _ellipse(landmarks, side)
+    ys, xs = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float32)
+    radius = np.sqrt(((xs + offset[0] - centre[0]) / axes[0]) ** 2 + ((ys + offset[1] - centre[1]) / axes[1]) ** 2)
+    ramp = np.clip((1.0 - radius) / (1.0 - HEAD_INNER), 0.0, 1.0)
+    return (ramp * ramp * (3.0 - 2.0 * ramp)).astype(np.float32)  # smoothstep: no kink at either edge
+
+
+def head_box(landmarks_list: list[np.ndarray], frame_hw: tuple[int, int], margin: int = 2) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1) bounding every given face's head region, clipped to the frame; None if outside it."""
+    lows, highs = [], []
+    for points in landmarks_list:
+        centre, axes = _ellipse(points, face_side(points))
+        lows.append(centre - axes)
+        highs.append(centre + axes)
+    x0, y0 = np.floor(np.min(lows, 0)).astype(int) - margin
+    x1, y1 = np.ceil(np.max(highs, 0)).astype(int) + margin + 1
+    height, width = frame_hw
+    x0, y0, x1, y1 = max(int(x0), 0), max(int(y0), 0), min(int(x1), width), min(int(y1), height)
+    return None if x0 >= x1 or y0 >= y1 else (x0, y0, x1, y1)
+
+
+def head_region(landmarks_list: list[np.ndarray], frame_hw: tuple[int, int]) -> np.ndarray:
+    """Where any of the given faces' head regions reaches: (H, W) bool. Its complement is the scene a composite
+    leaves as it is (the region ``lsr eval``'s scene PSNR and flicker are measured in)."""
+    region = np.zeros(frame_hw, bool)
+    box = head_box(landmarks_list, frame_hw)
+    if box is None:
+        return region
+    x0, y0, x1, y1 = box
+    for points in landmarks_list:
+        region[y0:y1, x0:x1] |= head_weight(points, (y1 - y0, x1 - x0), (x0, y0)) > 0
+    return region
+
+
+def face_outline(landmarks: np.ndarray) -> np.ndarray:
+    """The face's outline for its mask: the jaw and the brows lifted to the hairline, (27, 2) float64."""
+    points = np.asarray(landmarks, np.float64)
+    eyes = (points[36:42].mean(0) + points[42:48].mean(0)) / 2
+    mouth = (points[48] + points[54]) / 2
+    forehead = points[17:27] + FOREHEAD_LIFT * (eyes - mouth)
+    return np.concatenate([points[0:17], forehead])
+
+
+def blur(image: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian blur of a float32 map at any sigma: large sigmas run on a shrunk copy (a smooth field needs no
+    more), so the cost stays that of a small kernel. (H, W[, C]) float32 -> same."""
+    if sigma <= 6:
+        return cv2.GaussianBlur(image, (0, 0), max(sigma, 0.1))
+    factor = sigma / 3.0
+    height, width = image.shape[:2]
+    small = cv2.resize(image, (max(1, round(width / factor)), max(1, round(height / factor))), interpolation=cv2.INTER_AREA)
+    small = cv2.GaussianBlur(small, (0, 0), 3.0)
+    return cv2.resize(small, (width, height), interpolation=cv2.INTER_LINEAR)
+
+
+@dataclasses.dataclass
+class Composite:
+    """What ``composite_face`` made: the frame and, for inspection, its layers' masks (in the frame's box)."""
+
+    frame: np.ndarray
+    """(H, W, 3) uint8: the scene with the re-enacted head."""
+    box: tuple[int, int, int, int] | None
+    """(x0, y0, x1, y1): the only region that differs from the scene (None: nothing changed)."""
+    face_alpha: np.ndarray | None = None
+    """(y1 - y0, x1 - x0) float32: the face layer's weight."""
+    head_motion: np.ndarray | None = None
+    """(2, 3) float64: the head's similarity, scene -> target, frame pixels."""
+
+
+def _check(frame: np.ndarray, points: np.ndarray, name: str) -> np.ndarray:
+    points = np.asarray(points, np.float64)
+    if points.shape != (NUM_LANDMARKS, 2) or not np.isfinite(points).all():
+        raise ValueError(f"{name} must be finite ({NUM_LANDMARKS}, 2) frame pixels, got {points.shape}")
+    return points
+
+
+def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landmarks: np.ndarray,
+                   face_crop: np.ndarray, crop_matrix: np.ndarray) -> Composite:
+    """Put a synthesised face into a scene frame, the head (hair) following it rigidly (module docstring).
+
+    scene: (H, W, 3) uint8 the frame to composite into (the source's anchor shot or source video frame);
+    scene_landmarks: (68, 2) the scene's own face, frame pixels;
+    target_landmarks: (68, 2) where the face is drawn (the retargeted driving landmarks), frame pixels;
+    face_crop: (C, C, 3) uint8 the synthesis, a crop of the frame under ``crop_matrix`` ((2, 3) frame -> crop).
+    """
+    if scene.ndim != 3 or scene.shape[2] != 3 or scene.dtype != np.uint8:
+        raise ValueError(f"scene must be (H, W, 3) uint8, got {scene.shape} {scene.dtype}")
+    scene_points = _check(scene, scene_landmarks, "scene_landmarks")
+    target_points = _check(scene, target_landmarks, "target_landmarks")
+    rigid = list(RIGID_INDEX)
+    scale, rotation, translation = similarity_procrustes(scene_points[rigid], target_points[rigid])
+    motion = np.concatenate([scale * rotation, translation[:, None]], axis=1)
+    moved_scene = apply_similarity(scene_points, scale, rotation, translation)
+    box = head_box([scene_points, target_points], scene.shape[:2])
+    if box is None:
+        return Composite(scene.copy(), None)
+    x0, y0, x1, y1 = box
+    roi_hw = (y1 - y0, x1 - x0)
+    side = face_side(target_points)
+    output = scene.copy()
+
+    # head layer: identity far away, the head's inverse motion inside; one smooth field, so no seam and no hole
+    ys, xs = np.mgrid[y0:y1, x0:x1].astype(np.float32)
+    inverse = invert_affine(motion)
+    source_x = inverse[0, 0] * xs + inverse[0, 1] * ys + inverse[0, 2]
+    source_y = inverse[1, 0] * xs + inverse[1, 1] * ys + inverse[1, 2]
+    if max(np.abs(source_x - xs).max(), np.abs(source_y - ys).max()) > STILL:
+        weight = np.maximum(head_weight(scene_points, roi_hw, (x0, y0)), head_weight(target_points, roi_hw, (x0, y0)))
+        map_x = (xs + weight * (source_x - xs)).astype(np.float32)
+        map_y = (ys + weight * (source_y - ys)).astype(np.float32)
+        output[y0:y1, x0:x1] = cv2.remap(scene, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    head_layer = output[y0:y1, x0:x1].astype(np.float32)
+
+    # face layer: the synthesis, exactly inverse-warped into the box
+    roi_matrix = np.asarray(crop_matrix, np.float64).copy()
+    roi_matrix[:, 2] += roi_matrix[:, :2] @ np.array([x0, y0], np.float64)
+    crop_side = face_crop.shape[0]
+    face = cv2.warpAffine(face_crop, roi_matrix, roi_hw[::-1], flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
+    inside_crop = np.zeros((crop_side, crop_side), np.float32)
+    edge = max(1, crop_side // 32)
+    inside_crop[edge:-edge, edge:-edge] = 1.0
+    footprint = cv2.warpAffine(inside_crop, roi_matrix, roi_hw[::-1], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+
+    hull = np.zeros(roi_hw, np.uint8)
+    for points in (target_points, moved_scene):
+        outline = np.round(face_outline(points) - [x0, y0]).astype(np.int32)
+        cv2.fillConvexPoly(hull, cv2.convexHull(outline), 1)
+    outside = cv2.distanceTransform(1 - hull, cv2.DIST_L2, 3)  # pixels to the hull (0 inside)
+    ramp = np.clip((FACE_MARGIN * side + FACE_FEATHER * side / 2 - outside) / (FACE_FEATHER * side), 0.0, 1.0)
+    alpha = ramp * ramp * (3.0 - 2.0 * ramp) * footprint * _within_head(scene_points, target_points, roi_hw, (x0, y0))
+
+    # colour match: a smooth offset that makes the face's edge agree with the head layer around it
+    inside = cv2.distanceTransform(hull, cv2.DIST_L2, 3)
+    band = ((hull > 0) & (inside < COLOUR_BAND * side) & (footprint > 0.99)).astype(np.float32)
+    if band.sum() > 16:
+        sigma = COLOUR_SIGMA * side
+        difference = (head_layer - face) * band[..., None]
+        spread = blur(band, sigma)[..., None]
+        global_offset = difference.sum((0, 1)) / band.sum()
+        offset = np.where(spread > 1e-3, blur(difference, sigma) / np.maximum(spread, 1e-3), global_offset)
+        face = face + np.clip(offset, -COLOUR_LIMIT, COLOUR_LIMIT)
+    blended = head_layer + (face - head_layer) * alpha[..., None]
+    output[y0:y1, x0:x1] = np.clip(np.rint(blended), 0, 255).astype(np.uint8)
+    return Composite(output, box, alpha.astype(np.float32), motion)
+
+
+def _within_head(scene_points: np.ndarray, target_points: np.ndarray, shape: tuple[int, int],
+                 offset: tuple[int, int]) -> np.ndarray:
+    """1 inside the head regions, ramping to 0 over their outermost 5 %: the face layer never leaves them (a
+    close-up's face can be as large as the frame), so ``head_region``'s complement is the scene, bit for bit."""
+    inside = np.zeros(shape, np.float32)
+    ys, xs = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float32)
+    for points in (scene_points, target_points):
+        centre, axes = _ellipse(points, face_side(points))
+        radius = np.sqrt(((xs + offset[0] - centre[0]) / axes[0]) ** 2 + ((ys + offset[1] - centre[1]) / axes[1]) ** 2)
+        inside = np.maximum(inside, np.clip((1.0 - radius) / 0.05, 0.0, 1.0))
+    return inside
+
+
+def place_in_frame(crop_landmarks: np.ndarray, crop_matrix: np.ndarray) -> np.ndarray:
+    """Crop-pixel landmarks -> frame pixels under a (2, 3) frame -> crop matrix: (..., 2) -> (..., 2)."""
+    return transform_landmarks(crop_landmarks, invert_affine(crop_matrix))

@@ -1,0 +1,93 @@
+"""landmarks.scene (composite a face into a scene, the head following rigidly) and landmarks.expression."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from landmarks.align import crop_transform, warp_to_crop
+from landmarks.expression import eye_opening, mouth_opening, pick_anchor
+from landmarks.pose import project_canonical
+from landmarks.scene import composite_face, face_side, head_region
+
+SIZE = (240, 320)  # (H, W): a scene wider than tall, face off-centre
+
+
+def _scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A textured (H, W, 3) scene and a frontal face's (68, 2) landmarks in it."""
+    import cv2
+
+    noise = cv2.GaussianBlur(rng.random((*SIZE, 3)).astype(np.float32), (0, 0), 3)  # texture a warp can follow
+    scene = np.clip((noise - noise.mean()) / noise.std() * 50 + 128, 0, 255).astype(np.uint8)
+    points = project_canonical(0, 0, 0, SIZE, scale=0.55, translation=(30, -5)).astype(np.float64)
+    return scene, points
+
+
+def _psnr(first: np.ndarray, second: np.ndarray) -> float:
+    error = np.mean((first.astype(np.float64) - second.astype(np.float64)) ** 2)
+    return float("inf") if error == 0 else 10 * np.log10(255**2 / error)
+
+
+def test_the_scene_itself_as_face_gives_the_scene_back(rng):
+    scene, points = _scene(rng)
+    matrix = crop_transform(points, 128)
+    result = composite_face(scene, points, points, warp_to_crop(scene, matrix, 128), matrix)
+    assert result.frame.shape == scene.shape and result.frame.dtype == np.uint8
+    x0, y0, x1, y1 = result.box
+    outside = np.ones(SIZE, bool)
+    outside[y0:y1, x0:x1] = False
+    np.testing.assert_array_equal(result.frame[outside], scene[outside])  # bit for bit outside the head box
+    np.testing.assert_allclose(result.head_motion, np.eye(2, 3), atol=1e-6)  # no head motion: no head layer warp
+    # inside, the face went through a crop and back (resampling noise only) and the colour match adds nothing
+    assert _psnr(result.frame[y0:y1, x0:x1], scene[y0:y1, x0:x1]) > 20
+
+
+def test_outside_the_head_region_nothing_changes_and_the_head_follows_a_translation(rng):
+    scene, points = _scene(rng)
+    target = points + [12.0, 0.0]  # the head moves 12 px to the right
+    matrix = crop_transform(target, 128)
+    face = np.full((128, 128, 3), 90, np.uint8)  # a flat synthesised face
+    result = composite_face(scene, points, target, face, matrix)
+    region = head_region([points, target], SIZE)
+    np.testing.assert_array_equal(result.frame[~region], scene[~region])
+    # hair above the forehead (inside the head, outside the face) is the scene's, moved by 12 px
+    side = face_side(points)
+    top = int(points[19, 1] - 0.2 * side)
+    left = int(points[27, 0]) - 8
+    moved = result.frame[top - 3 : top + 3, left + 12 : left + 20].astype(int)
+    original = scene[top - 3 : top + 3, left : left + 8].astype(int)
+    unmoved = result.frame[top - 3 : top + 3, left : left + 8].astype(int)
+    assert np.abs(moved - original).mean() < 0.3 * np.abs(unmoved - original).mean()
+    assert np.abs(result.frame[int(points[33, 1]), int(target[33, 0])].astype(int) - 90).max() < 45  # the face is there
+
+
+def test_bad_landmarks_raise():
+    scene = np.zeros((*SIZE, 3), np.uint8)
+    points = project_canonical(0, 0, 0, SIZE).astype(np.float64)
+    with pytest.raises(ValueError, match="target_landmarks"):
+        composite_face(scene, points, np.full((68, 2), np.nan), np.zeros((64, 64, 3), np.uint8), np.eye(2, 3))
+
+
+def _open_mouth(points: np.ndarray, amount: float) -> np.ndarray:
+    opened = points.copy()
+    opened[[65, 66, 67, 55, 56, 57, 58, 59, 8, 7, 9]] += [0.0, amount]
+    return opened
+
+
+def test_openings_grow_with_the_mouth_and_ignore_face_size():
+    points = project_canonical(0, 0, 0, (256, 256)).astype(np.float64)
+    closed, opened = mouth_opening(points), mouth_opening(_open_mouth(points, 10))
+    assert closed < 0.1 < opened
+    np.testing.assert_allclose(mouth_opening(points * 2), closed)  # normalised by the eye distance
+    np.testing.assert_allclose(eye_opening(np.stack([points, points * 3])), eye_opening(points)[None].repeat(2))
+    assert np.isnan(mouth_opening(np.full((68, 2), np.nan)))
+
+
+def test_anchor_is_the_frontal_closed_mouth_shot():
+    image = (256, 256)
+    frontal = project_canonical(0, 0, 0, image).astype(np.float64)
+    shots = np.stack([project_canonical(25, 0, 0, image), _open_mouth(frontal, 12), frontal,
+                      project_canonical(0, 15, 0, image)]).astype(np.float64)
+    assert pick_anchor(shots, image) == 2
+    shots[2] = np.nan
+    assert pick_anchor(shots, image) in (1, 3)  # never a shot without landmarks
