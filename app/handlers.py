@@ -239,7 +239,7 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
 
     Images without a face are skipped and named in the notes (an error only when none has a face).
     """
-    from lsr.core.sources import DEFAULT_K, SubjectShots, load_subject_shots, spread_shots
+    from lsr.core.sources import DEFAULT_K, SubjectShots, load_subject_shots, set_anchor, spread_shots
     from landmarks.errors import InputFileError, NoFaceError
     from landmarks.imageio import IMAGE_SUFFIXES
     from landmarks.video import VIDEO_SUFFIXES, probe_video
@@ -267,12 +267,12 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
         # for explicitly (the engine then says how many frames had a face if there are too few).
         shots = load_subject_shots(videos[0], size, k=None if k <= DEFAULT_K else int(k), detector=detector)
         if len(shots.frames) > k:
-            shots = spread_shots(shots, int(k))
+            shots = set_anchor(spread_shots(shots, int(k)))
         return shots, [f"{len(shots.frames)} shot(s) sampled from {videos[0].name}"]
     if len(paths) > MAX_K:
         raise InputFileError(f"{len(paths)} images uploaded; give at most {MAX_K} shots (K <= {MAX_K})")
     frames, points, names, notes = [], [], [], []
-    unreadable = []
+    unreadable, full_frames = [], {}
     for path in paths:  # one image = one candidate shot; a face-less or unreadable one is skipped, not fatal
         try:
             one = load_subject_shots(path, size, detector=detector)
@@ -286,11 +286,13 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
         frames.append(one.frames[0])
         points.append(one.landmarks[0])
         names.append(path.name)
+        full_frames[path.name] = (one.anchor_frame, one.anchor_frame_landmarks)  # the scene, if it is the anchor
     if not frames:
         if len(unreadable) == len(paths):
             raise unreadable[0]
         raise NoFaceError(f"no face found in the {len(paths)} uploaded image(s); upload frontal, well-lit photos of one person")
-    shots = spread_shots(SubjectShots(np.stack(frames), np.stack(points), names), int(k))
+    shots = set_anchor(spread_shots(SubjectShots(np.stack(frames), np.stack(points), names), int(k)),
+                       full_frames=full_frames)
     notes.insert(0, f"using {len(shots.frames)} of {len(frames)} shot(s) with a face (K={k})")
     return shots, notes
 
@@ -411,7 +413,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     panels_dir.mkdir()
     with store.finetuned(reenactor, int(finetune_steps)) as finetune_seconds:
         written = write_reenactment(
-            reenactor, driving, output, runtime=runtime, mode=motion, smooth=smooth, paste_back=paste_back,
+            reenactor, driving, output, runtime=runtime, mode=motion, smooth=smooth, paste_back=paste_back, scene="source",
             watermark=watermark, progress=True,
             panel_sink=lambda index, panel: write_image(panel_path(panels_dir, index), panel),
         )
@@ -431,7 +433,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     if info.kind == "landmarks":
         notes.append("a landmark driver has no pictures: the 'driving frame' panel stays black")
     if info.kind == "landmarks" and paste_back:
-        notes.append("landmark drivers have no frames to paste into: the output is the synthesised crop")
+        notes.append("a landmark driver has no frames: the face is composited into the source's anchor shot")
     audio = info.kind == "video" and info.has_audio
     notes.append(f"{stats.frames} frame(s) at {info.fps:g} fps"
                  + (f", {stats.no_face} without a face (passed through)" if stats.no_face else "")

@@ -165,8 +165,9 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                                       info="relative: the driver's motion on the source's face shape; "
                                            "absolute: the driver's own landmarks")
                     smooth = gr.Checkbox(True, label="Smooth the driving landmarks (One-Euro)")
-                    paste_back = gr.Checkbox(False, label="Paste the head back into the driving frame",
-                                             info="video drivers only; otherwise the output is the face crop")
+                    paste_back = gr.Checkbox(True, label="Put the result into the source's own scene",
+                                             info="the source's frame size, background, body and hair (its anchor "
+                                                  "shot, or its video's frames); otherwise the face crop")
                     finetune_steps = gr.Slider(0, 200, value=DEFAULT_FINETUNE_STEPS, step=1,
                                                label="Fine-tuning steps on the source",
                                                info="thesis §4.3.5; torch runtime only (ONNX skips it)")

@@ -33,9 +33,10 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
 )
 from lsr.errors import ConfigError
 
-# Subject fine-tuning steps used by `lsr reenact`, `lsr demo` and the app unless told otherwise (thesis §4.3.5),
-# chosen from the steps-vs-error curve of `lsr bench finetune` on the shipped default (BENCHMARKS.md).
-DEFAULT_FINETUNE_STEPS = 10
+# Subject fine-tuning steps used by `lsr reenact`, `lsr demo` and the app unless told otherwise (thesis §4.3.5).
+# 0: on the shipped warp-guided default, fine-tuning buys nothing measurable (FSTH K=8, BENCHMARKS.md: whole-frame
+# PSNR 18.99 dB at 0, 10 and 25 steps; the face region likewise) and cost 4-24 s of every job. --finetune-steps N.
+DEFAULT_FINETUNE_STEPS = 0
 
 
 @dataclasses.dataclass
@@ -435,10 +436,18 @@ class ReenactConfig:
     smooth: bool = True
     """One-Euro smoothing of the driving landmarks."""
     paste_back: bool = False
-    """Paste the synthesised head back into the full driving frame; otherwise output the crop-sized synthesis."""
+    """Composite the re-enacted face into full frames of --scene (background and body stay, hair follows the head);
+    otherwise output the crop-sized synthesis."""
+    scene: Literal["source", "driver"] = "source"
+    """--paste-back into the source's own scene (its anchor shot, or its video's frames back and forth; the output
+    has the source's frame size) or into the driver's frames (dubbing; a face swap when the people differ)."""
+    anchor: OptionalInt = None
+    """Which of the K source shots is the neutral face and the scene (0..K-1); default the most frontal one with a
+    closed mouth."""
     finetune_steps: OptionalInt = None
     """Fine-tune the generators on the source shots first (thesis §4.3.5; torch runtime only). Default:
-    DEFAULT_FINETUNE_STEPS with --runtime torch (see `lsr bench finetune`), 0 with --runtime onnx."""
+    DEFAULT_FINETUNE_STEPS (0: it buys nothing measurable on the shipped default; `lsr bench finetune`), and
+    always 0 with --runtime onnx."""
     finetune_lr: float = DEFAULT_FINETUNE_LR
     """Adam lr of that fine-tuning (G^l, G^s, D)."""
     runtime: Literal["torch", "onnx"] = "torch"

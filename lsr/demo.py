@@ -2,7 +2,9 @@
 
 It renders two procedural people the default model never saw (``lsr.data.synth``; a source and a driver),
 writes them as H.264 videos, and runs ``lsr reenact`` with the shipped default model: the source person is
-re-enacted with the driver's head motion and expression (relative motion, K source shots averaged). The small
+re-enacted with the driver's head motion and expression (relative motion, K source shots averaged), composited
+into the source's own video (``--paste-back``: its background, body and hair stay; its frames play back and
+forth). The small
 default model is fine-tuned on the K shots first (``--finetune-steps``, thesis §4.3.5; 0 shows the
 meta-learned output).
 
@@ -70,7 +72,7 @@ def run_demo(out: Path, *, weights: Path | None = None, frames: int = 100, k: in
     print(f"demo: rendered a source person ({SOURCE_FRAMES} frames) and a driver ({frames} frames) into {out / 'inputs'}")
     paths = {"video": out / "demo.mp4", "side_by_side": out / "demo_side_by_side.mp4"}
     cfg = ReenactConfig(weights=weights, source=source, driving=driver, out=paths["video"], k=k,
-                        finetune_steps=finetune_steps, side_by_side=paths["side_by_side"], overwrite=True,
+                        finetune_steps=finetune_steps, side_by_side=paths["side_by_side"], overwrite=True, paste_back=True,
                         threads=threads, progress=progress)
     cfg.validate()
     run_reenact(cfg)

@@ -235,7 +235,8 @@ class WrittenVideo:
 
 
 def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtime: str, mode: str = "auto",
-                      smooth: bool = True, paste_back: bool = False, watermark: bool = False, fps: float | None = None,
+                      smooth: bool = True, paste_back: bool = False, scene: str = "source", watermark: bool = False,
+                      fps: float | None = None,
                       landmark_space=None, landmark_size: int | None = None, progress: bool = False,
                       side_by_side: Path | None = None, panel_sink=None) -> WrittenVideo:
     """The one writer of a re-enacted video, for ``lsr reenact`` and the app. The subject must be encoded.
@@ -252,7 +253,7 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
     metadata = provenance_metadata(__version__, runtime)
     audio = driving if info.kind == "video" and info.has_audio else None
     with_layout = side_by_side is not None or panel_sink is not None
-    frames = reenactor.reenact(driving, mode=mode, smooth=smooth, paste_back=paste_back, with_layout=with_layout,
+    frames = reenactor.reenact(driving, mode=mode, smooth=smooth, paste_back=paste_back, scene=scene, with_layout=with_layout,
                                landmark_space=landmark_space, landmark_size=landmark_size, progress=progress)
     encode_seconds, first_landmarks = 0.0, None
     kind, size = reenactor.backend.layout_kind, reenactor.crop_size
@@ -291,7 +292,7 @@ def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | Non
     written = write_reenactment(
         reenactor, job.driving, job.output, runtime=cfg.runtime,
         mode="relative" if cfg.relative else "absolute" if cfg.absolute else "auto", smooth=cfg.smooth,
-        paste_back=cfg.paste_back, watermark=cfg.watermark, fps=cfg.fps, landmark_space=cfg.landmark_space,
+        paste_back=cfg.paste_back, scene=cfg.scene, watermark=cfg.watermark, fps=cfg.fps, landmark_space=cfg.landmark_space,
         landmark_size=cfg.landmark_size, progress=cfg.progress, side_by_side=side_by_side,
     )
     for warning in written.warnings:
@@ -314,7 +315,7 @@ def _subject_for(reenactor: ReenactorBase, source: Path, cfg: ReenactConfig, cac
     steps = cfg.resolved_finetune_steps
     if steps > 0:
         reenactor.backend.model = copy.deepcopy(cache.setdefault("base_model", reenactor.backend.model))
-    subject = reenactor.encode_subject(source, k=cfg.k, face_index=cfg.face_index)
+    subject = reenactor.encode_subject(source, k=cfg.k, face_index=cfg.face_index, anchor=cfg.anchor)
     for note in subject.shots.notes:
         print(f"lsr reenact: {source}: {note}")
     encoded = time.perf_counter()

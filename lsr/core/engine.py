@@ -44,9 +44,10 @@ from lsr.core.sources import (
 from landmarks.errors import InputFileError, NoFaceError
 
 Mode = Literal["auto", "relative", "absolute"]
+Scene = Literal["source", "driver"]
+"""What ``paste_back`` composites into: the source's own frames (its anchor shot or its video) or the driver's."""
 LayoutKind = Literal["none", "latent", "segmentation"]
 STAGES = ("decode", "landmarks", "subject_encoding", "synthesis", "paste_back")
-PASTE_FEATHER_FRACTION = 1 / 8  # blend ramp, in crop sides: wide enough to hide the synthesised background
 
 
 class SynthesisBackend(Protocol):
@@ -87,13 +88,13 @@ class Subject:
 
     @property
     def reference_landmarks(self) -> np.ndarray:
-        """(68, 2) crop landmarks of the first shot: the face shape relative motion is applied to."""
-        return self.shots.landmarks[0]
+        """(68, 2) crop landmarks of the anchor shot (the most neutral): the face relative motion is applied to."""
+        return self.shots.landmarks[self.shots.anchor]
 
 
 @dataclasses.dataclass
 class ReenactedFrame:
-    """One output frame. ``image`` is the full driver frame (paste-back) or the (S, S, 3) synthesis."""
+    """One output frame. ``image`` is the composited scene frame (paste-back) or the (C, C, 3) synthesis."""
 
     index: int
     image: np.ndarray
@@ -231,15 +232,17 @@ class ReenactorBase:
         return self._detector
 
     # ---- subject ---------------------------------------------------------------------------------------
-    def encode_subject(self, source: SourceInput | SubjectShots, k: int | None = None, face_index: int = 0) -> Subject:
+    def encode_subject(self, source: SourceInput | SubjectShots, k: int | None = None, face_index: int = 0,
+                       anchor: int | None = None) -> Subject:
         """Load the K shots of ``source`` (images, a folder, a video or arrays; see ``lsr.core.sources``), encode and cache.
 
         k: shots to average (1..32); None = min(8, usable shots). face_index: which face of a frame with several
-        (0 = the largest). Returns the cached ``Subject`` (``subject.shots.notes``: what the loader skipped or chose).
+        (0 = the largest). anchor: which shot is the neutral face and the scene (None: the most frontal one with
+        a closed mouth). Returns the cached ``Subject`` (``subject.shots.notes``: what the loader skipped or chose).
         """
         started = time.perf_counter()
         shots = source if isinstance(source, SubjectShots) else load_subject_shots(
-            source, self.crop_size, k=k, detector=self.detector, face_index=face_index
+            source, self.crop_size, k=k, detector=self.detector, face_index=face_index, anchor=anchor
         )
         self.subject = self._encode(shots, _source_key(source))
         self.last_stats = ReenactStats()
@@ -294,6 +297,7 @@ class ReenactorBase:
         mode: Mode = "auto",
         smooth: bool = True,
         paste_back: bool = False,
+        scene: Scene = "source",
         with_layout: bool = False,
         landmark_space: LandmarkSpace | None = None,
         landmark_size: int | None = None,
@@ -305,23 +309,37 @@ class ReenactorBase:
         mode: "relative" (driver motion on the source's face shape), "absolute" (the driver's landmarks), or
             "auto": absolute when the driver is the source file itself, else relative.
         smooth: One-Euro smoothing of the driver landmarks (and so of the crop framing).
-        paste_back: put the synthesised head back into the driver frame (feathered ellipse blend); otherwise the
-            output is the (S, S) synthesis. Raw landmark drivers have no frame and always give the synthesis.
-        Face-less driver frames pass through (the frame, or its centre square resized) and are counted; a driver
-        without a face in any frame raises ``NoFaceError`` after its last frame.
+        paste_back: composite the re-enacted face into full frames (``landmarks.scene.composite_face``: the
+            scene's background and body stay, its hair follows the head rigidly, the face is the synthesis);
+            otherwise the output is the (C, C) synthesis.
+        scene: what paste_back composites into: "source", the source's own scene (``lsr.core.scene_source``:
+            the anchor shot's frame, or the source video's frames in order, back and forth), at its frame size;
+            "driver", the driver's frames (dubbing; a face swap when source and driver differ). When the driver
+            is the source itself both are the same. Raw landmark drivers have no frames: "driver" gives the crop.
+        Face-less driver frames pass through (the scene frame, the driver frame, or its centre square resized)
+        and are counted; a driver without a face in any frame raises ``NoFaceError`` after its last frame.
         """
         if mode not in ("auto", "relative", "absolute"):
             raise InputFileError(f"mode must be 'auto', 'relative' or 'absolute', got {mode!r}")
+        if scene not in ("source", "driver"):
+            raise InputFileError(f"scene must be 'source' or 'driver', got {scene!r}")
         subject = self._require_subject()
         info = describe_driver(driver)
         relative = mode == "relative" or (mode == "auto" and not _same_input(subject.source, driver))
         with_layout = with_layout and self.backend.layout_kind != "none"
         self.last_stats = stats = ReenactStats()
+        into_source = paste_back and scene == "source" and not _same_input(subject.source, driver)
+        scenes = None
+        if into_source:
+            from lsr.core.scene_source import SourceScene
+
+            scenes = SourceScene(subject.shots, self.crop_size, detector=self.detector, fps=info.fps, smooth=smooth)
         if info.kind == "landmarks":
             read_landmark_array(driver, landmark_space=landmark_space, landmark_size=landmark_size)  # fail early
-            frames = self._landmark_driver(driver, info, relative, smooth, with_layout, landmark_space, landmark_size, stats)
+            frames = self._landmark_driver(driver, info, relative, smooth, with_layout, landmark_space, landmark_size,
+                                           stats, scenes)
         else:
-            frames = self._frame_driver(info, relative, smooth, paste_back, with_layout, stats)
+            frames = self._frame_driver(info, relative, smooth, paste_back and not into_source, with_layout, stats, scenes)
         if progress:
             from tqdm import tqdm
 
@@ -331,20 +349,42 @@ class ReenactorBase:
     __call__ = reenact
 
     def _retarget(self, crop_landmarks: np.ndarray, reference: np.ndarray | None, relative: bool) -> np.ndarray:
-        from landmarks.retarget import retarget_relative
+        from landmarks.retarget import retarget_driving
 
         if not relative:
             return crop_landmarks
-        # Relative motion: the driver's first valid frame maps to the source's own face (FOMM/LivePortrait style).
-        return retarget_relative(crop_landmarks, reference, self._require_subject().reference_landmarks)
+        # Relative motion: the driver's first valid frame maps to the source's own face (FOMM/LivePortrait style),
+        # the mouth exactly as open as the driver's.
+        return retarget_driving(crop_landmarks, reference, self._require_subject().reference_landmarks)
+
+    def _into_scene(self, scenes, target: np.ndarray, with_layout: bool, stats: ReenactStats):
+        """Synthesise the target (anchor crop pixels) at the next scene frame's head pose and composite it there:
+        (output frame, synthesis, landmark image, layout, target in that frame's crop pixels)."""
+        from landmarks.scene import composite_face, place_in_frame
+
+        started = time.perf_counter()
+        scene = next(scenes)
+        stats.add("decode", time.perf_counter() - started)
+        if scene.landmarks is None:  # a video source whose face was not found yet: synthesise at the anchor's place
+            synthesis, landmark_image, layout = self.synthesize_crop(target, with_layout)
+            return scene.image, synthesis, landmark_image, layout, target
+        target = scene.place(target)
+        started = time.perf_counter()
+        synthesis, landmark_image, layout = self.synthesize_crop(target, with_layout)
+        stats.add("synthesis", time.perf_counter() - started)
+        started = time.perf_counter()
+        output = composite_face(scene.image, scene.landmarks, place_in_frame(target, scene.matrix), synthesis,
+                                scene.matrix).frame
+        stats.add("paste_back", time.perf_counter() - started)
+        return output, synthesis, landmark_image, layout, target
 
     def _landmark_driver(self, driver, info: DriverInfo, relative: bool, smooth: bool, with_layout: bool,
-                         landmark_space, landmark_size, stats: ReenactStats) -> Iterator[ReenactedFrame]:
+                         landmark_space, landmark_size, stats: ReenactStats, scenes=None) -> Iterator[ReenactedFrame]:
         from landmarks.align import crop_transform, transform_landmarks
-        from landmarks.smooth import OneEuroFilter
+        from landmarks.smooth import OneEuroFilter, driving_cutoffs
 
         array, space, size = read_landmark_array(driver, landmark_space=landmark_space, landmark_size=landmark_size)
-        one_euro = OneEuroFilter(info.fps) if smooth else None
+        one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
         reference = None
         for index, points in enumerate(array):
             started = time.perf_counter()
@@ -356,21 +396,27 @@ class ReenactorBase:
             reference = crop_landmarks if reference is None else reference
             target = self._retarget(crop_landmarks, reference, relative)
             stats.add("landmarks", time.perf_counter() - started)
+            stats.frames += 1
+            if scenes is not None:
+                output, synthesis, landmark_image, layout, target = self._into_scene(scenes, target, with_layout, stats)
+                yield ReenactedFrame(index, output, True, None, landmark_image, synthesis, layout, target)
+                continue
             started = time.perf_counter()
             synthesis, landmark_image, layout = self.synthesize_crop(target, with_layout)
             stats.add("synthesis", time.perf_counter() - started)
-            stats.frames += 1
             yield ReenactedFrame(index, synthesis, True, None, landmark_image, synthesis, layout, target)
 
     def _frame_driver(self, info: DriverInfo, relative: bool, smooth: bool, paste_back: bool, with_layout: bool,
-                      stats: ReenactStats) -> Iterator[ReenactedFrame]:
-        from landmarks.align import crop_transform, paste_back as paste, transform_landmarks
-        from landmarks.smooth import OneEuroFilter
+                      stats: ReenactStats, scenes=None) -> Iterator[ReenactedFrame]:
+        """paste_back: into the driver's frames; scenes: a ``SourceScene`` to composite into instead."""
+        from landmarks.align import crop_transform, transform_landmarks
+        from landmarks.scene import composite_face, place_in_frame
+        from landmarks.smooth import OneEuroFilter, driving_cutoffs
         from landmarks.track import LandmarkTracker
 
         size = self.crop_size
         tracker = LandmarkTracker(self.detector)
-        one_euro = OneEuroFilter(info.fps) if smooth else None
+        one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
         reference = None
         frames = iter_driver_frames(info)
         index = 0
@@ -396,20 +442,28 @@ class ReenactorBase:
             if crop_landmarks is None:
                 stats.no_face += 1
                 stats.frames += 1
-                passthrough = frame if paste_back else square_resize(frame, size)
+                if scenes is not None:
+                    passthrough = next(scenes).image
+                else:
+                    passthrough = frame if paste_back else square_resize(frame, size)
                 yield ReenactedFrame(index, passthrough, False, frame, None, None, None)
+                index += 1
+                continue
+            stats.frames += 1
+            if scenes is not None:
+                output, synthesis, landmark_image, layout, crop_landmarks = self._into_scene(
+                    scenes, crop_landmarks, with_layout, stats)
+                yield ReenactedFrame(index, output, True, frame, landmark_image, synthesis, layout, crop_landmarks)
                 index += 1
                 continue
             started = time.perf_counter()
             synthesis, landmark_image, layout = self.synthesize_crop(crop_landmarks, with_layout)
             stats.add("synthesis", time.perf_counter() - started)
             output = synthesis
-            if paste_back:
+            if paste_back:  # into the driver's own frame: its head and scene around the synthesised face
                 started = time.perf_counter()
-                # Only the head is synthesised: an ellipse with a wide feather hides the crop's background.
-                output = paste(frame, synthesis, matrix, mask="ellipse", feather=size * PASTE_FEATHER_FRACTION)
+                output = composite_face(frame, points, place_in_frame(crop_landmarks, matrix), synthesis, matrix).frame
                 stats.add("paste_back", time.perf_counter() - started)
-            stats.frames += 1
             yield ReenactedFrame(index, output, True, frame, landmark_image, synthesis, layout, crop_landmarks)
             index += 1
         if stats.frames and stats.no_face == stats.frames:  # a writer that is still open discards its file

@@ -59,6 +59,15 @@ class SubjectShots:
     names: list[str] = dataclasses.field(default_factory=list)
     notes: list[str] = dataclasses.field(default_factory=list)
     """What the loader decided for the user (unreadable images skipped, which of several faces was used)."""
+    anchor: int = 0
+    """Index of the anchor shot: the source's neutral face (relative motion starts from it) and its scene."""
+    anchor_frame: np.ndarray | None = None
+    """(H, W, 3) uint8: the anchor shot's full-resolution frame, the scene a re-enactment is composited into
+    (None for a video source, whose own frames are the scene, or for shots given as crops)."""
+    anchor_frame_landmarks: np.ndarray | None = None
+    """(68, 2) float64: the anchor's landmarks in ``anchor_frame`` pixels."""
+    video: Path | None = None
+    """The source video, when the source is one: its frames, in order, are the scene."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,7 +95,11 @@ def spread_shots(shots: SubjectShots, k: int) -> SubjectShots:
         return shots
     chosen = _spread(len(shots.frames), k)
     names = [shots.names[i] for i in chosen] if len(shots.names) == len(shots.frames) else shots.names
-    return dataclasses.replace(shots, frames=shots.frames[chosen], landmarks=shots.landmarks[chosen], names=names)
+    lost = shots.anchor not in chosen  # its frame went with its shot: anchor 0, composited into its crop
+    return dataclasses.replace(shots, frames=shots.frames[chosen], landmarks=shots.landmarks[chosen], names=names,
+                               anchor=0 if lost else chosen.index(shots.anchor),
+                               anchor_frame=None if lost else shots.anchor_frame,
+                               anchor_frame_landmarks=None if lost else shots.anchor_frame_landmarks)
 
 
 def _check_k(k: int | None) -> None:
@@ -153,22 +166,28 @@ def _source_candidates(source: SourceInput, k: int | None) -> Iterator[tuple[str
 
 
 def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, detector=None,
-                       face_index: int = 0) -> SubjectShots:
+                       face_index: int = 0, anchor: int | None = None) -> SubjectShots:
     """Detect, crop and pick the K shots of a subject (see the module docstring for the rules).
 
     size: crop side S (the model resolution). detector: a ``landmarks.detect.FaceDetector`` (default HOG).
     face_index: which face of a frame with several (0 = the largest). Unreadable images of a folder are skipped
     while another image is usable; what was skipped or chosen is in ``SubjectShots.notes``.
-    Raises ``NoFaceError`` when no candidate has a face, ``InputFileError`` for unreadable input or K too large.
+    anchor: which of the K chosen shots is the scene and the neutral face (None: the most frontal one with a
+    closed mouth, ``landmarks.expression.pick_anchor``). Shots whose face is smaller than the crop are cut from
+    the full-resolution frames (and a note says so).
+    Raises ``NoFaceError`` when no candidate has a face, ``InputFileError`` for unreadable input, K too large or
+    an anchor outside 0..K-1.
     """
     from landmarks.align import crop, transform_landmarks
     from landmarks.detect import FaceDetector
+    from landmarks.scene import face_side
 
     _check_k(k)
     if face_index < 0:
         raise InputFileError(f"face index must be >= 0, got {face_index}")
     detector = detector if detector is not None else FaceDetector()
     frames, points, names, tried, unreadable, crowded, too_few, min_faces = [], [], [], [], [], 0, 0, []
+    frame_points, arrays = [], {}
     for name, image in _source_candidates(source, k):
         tried.append(name)
         if isinstance(image, InputFileError):
@@ -186,7 +205,10 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
         cropped, matrix = crop(image, face.landmarks, size)
         frames.append(cropped)
         points.append(transform_landmarks(face.landmarks, matrix).astype(np.float32))
+        frame_points.append(np.asarray(face.landmarks, np.float64))
         names.append(name)
+        if name.startswith("array#"):
+            arrays[name] = image
     files = sorted({name.split("#")[0] for name in tried})
     where = files[0] if len(files) == 1 else f"{len(files)} source files"
     if not frames:
@@ -213,9 +235,38 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
             f"{where} have a face; lower --k to <= {len(frames)} or give more shots"
         )
     chosen = _spread(len(frames), k or DEFAULT_K)
-    return SubjectShots(
+    shots = SubjectShots(
         np.stack([frames[i] for i in chosen]), np.stack([points[i] for i in chosen]), [names[i] for i in chosen], notes
     )
+    sides = [face_side(frame_points[i]) for i in chosen]
+    if np.median(sides) < size:
+        shots.notes.append(f"the source's face is small ({np.median(sides):.0f} px framed, under the {size} px working "
+                           "crop): shots are cut from the full-resolution frames and upscaled, and the result is "
+                           "composited back at the source's size; closer or larger source frames give a sharper face")
+    items = [source] if isinstance(source, (str, os.PathLike, np.ndarray)) else list(source)
+    if len(items) == 1 and isinstance(items[0], (str, os.PathLike)) and is_video(Path(items[0])):
+        return set_anchor(dataclasses.replace(shots, video=Path(items[0])), anchor)
+    full = {names[i]: (arrays.get(names[i]), frame_points[i]) for i in chosen}
+    return set_anchor(shots, anchor, full_frames=full)
+
+
+def set_anchor(shots: SubjectShots, anchor: int | None = None, *,
+               full_frames: dict[str, tuple[np.ndarray | None, np.ndarray]] | None = None) -> SubjectShots:
+    """The shots with their anchor chosen (``anchor`` or ``landmarks.expression.pick_anchor``) and, for image
+    sources, its full frame as the scene. full_frames: shot name -> (its (H, W, 3) frame, or None to read the
+    image file of that name; its (68, 2) landmarks in the frame). Shots without one composite into their crop."""
+    from landmarks.expression import pick_anchor
+
+    count = len(shots.frames)
+    if anchor is not None and not 0 <= anchor < count:
+        raise InputFileError(f"--anchor {anchor} is not one of the {count} shots (0..{count - 1})")
+    chosen = pick_anchor(shots.landmarks, shots.frames.shape[1:3]) if anchor is None else int(anchor)
+    frame = points = None
+    if shots.video is None and full_frames and chosen < len(shots.names) and shots.names[chosen] in full_frames:
+        frame, points = full_frames[shots.names[chosen]]
+        frame = read_image(shots.names[chosen]) if frame is None else frame
+    return dataclasses.replace(shots, anchor=chosen, anchor_frame=frame,
+                               anchor_frame_landmarks=None if points is None else np.asarray(points, np.float64))
 
 
 # ---- drivers ---------------------------------------------------------------------------------------------

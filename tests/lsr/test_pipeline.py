@@ -118,10 +118,10 @@ def test_relative_mode_first_frame_is_source_shape(reenactor):
     assert np.abs(first.landmark_image.astype(int) - expected).max() <= 2
 
 
-def test_video_driver_passes_faceless_frames_through(reenactor, tmp_path):
+def test_video_driver_passes_faceless_frames_through_in_the_driver_scene(reenactor, tmp_path):
     frames = [face_frame(0), np.zeros((256, 256, 3), np.uint8), face_frame(6), face_frame(9)]
     clip = write_clip(tmp_path / "drive.mp4", frames, audio=False)
-    out = list(reenactor(clip, paste_back=True))
+    out = list(reenactor(clip, paste_back=True, scene="driver"))
     assert [f.has_face for f in out] == [True, False, True, True]
     assert reenactor.last_stats.frames == 4 and reenactor.last_stats.no_face == 1
     assert all(f.image.shape == (256, 256, 3) for f in out)

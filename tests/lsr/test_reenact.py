@@ -346,10 +346,11 @@ def test_pipeline_finetune_changes_generator_not_latents(weights, inputs):
 
 
 def test_default_finetune_steps_follow_the_runtime():
-    """Fine-tuning is on by default where it can run (torch), off for the ONNX runtime, which cannot train."""
+    """Fine-tuning follows the default where it can run (torch) and is off for the ONNX runtime, which cannot train."""
     from lsr.config import DEFAULT_FINETUNE_STEPS, ReenactConfig
 
-    assert ReenactConfig().resolved_finetune_steps == DEFAULT_FINETUNE_STEPS > 0
+    assert ReenactConfig().resolved_finetune_steps == DEFAULT_FINETUNE_STEPS
+    assert ReenactConfig(finetune_steps=7).resolved_finetune_steps == 7
     assert ReenactConfig(runtime="onnx").resolved_finetune_steps == 0
     assert ReenactConfig(finetune_steps=0).resolved_finetune_steps == 0
     with pytest.raises(ConfigError, match="--runtime torch"):
