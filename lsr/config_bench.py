@@ -257,13 +257,15 @@ class EvalConfig:
     bucket_thresholds: tuple[float, ...] = ()
     """Two pose-distance thresholds (low/medium, medium/high); empty = terciles per K."""
     cross_identity: bool = True
-    """Also drive each identity with the next identity's landmarks (ID-SIM to the source)."""
+    """Also drive each identity with the next identity's landmarks, retargeted and composited into the source's
+    anchor shot as `lsr reenact` does (expression, pose, identity and scene metrics; lsr.eval.cross)."""
     tps_regularization: float = 1e-3
     """lambda of the TPS baselines, tps and tps_mean3 (unit-spread coordinates)."""
     examples: int = 4
     """Frames per (method, K, identity) written to OUT/examples (output above ground truth); 0 = none."""
     figure: OptionalPath = None
-    """Also write one picture comparing the methods: a hold-out frame per identity, methods side by side (PNG)."""
+    """Also write one picture comparing the methods: a hold-out frame per identity, methods side by side (PNG);
+    with --cross-identity, also <stem>_cross<suffix> beside it: driver | source anchor | composited outputs."""
     figure_k: int = 8
     """K of that picture (one of --k)."""
     lpips_weights: OptionalPath = None

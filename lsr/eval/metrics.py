@@ -16,6 +16,11 @@ Conventions (stated in every report):
         1.0 = as much fine detail as the real frame, < 1 blurrier, > 1 sharper or noisier. NaN where the
         ground truth has zero Laplacian variance (a flat frame). Reported as the median over frames (NaN
         ignored): a few noisy outputs would dominate a mean of ratios.
+  face region  (``face_mask``) the convex hull of the 68 ground-truth landmarks (jaw, brows, eyes, nose,
+        mouth), dilated by ``FACE_DILATION`` = 0.1 of the inter-ocular distance (about the jaw line's own
+        width at 224 px) so that the chin and cheek edges count as face. ``psnr_face`` = PSNR of the MSE over
+        the masked pixels; ``ssim_face`` = mean of the same SSIM map (computed on the whole frame, so the
+        window sees real context) over the masked pixels.
 ID-SIM lives in ``lsr.eval.idsim`` (dlib embeddings; needs the model file).
 """
 
@@ -33,6 +38,7 @@ SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5  # kornia's fixed Gaussian sigma; only the window size is a parameter
 PIXEL_PEAK = 255.0
 LAPLACIAN_KSIZE = 1  # cv2.Laplacian's own default: the 4-neighbour kernel, the usual variance-of-Laplacian focus measure
+FACE_DILATION = 0.1  # face_mask's dilation, a fraction of the inter-ocular distance
 LEFT_EYE = slice(36, 42)  # iBUG-68 points 36-41 (subject's right eye, image left)
 RIGHT_EYE = slice(42, 48)
 
@@ -44,11 +50,29 @@ def _check_image_pair(output: np.ndarray, target: np.ndarray) -> None:
         raise ConfigError(f"images must be uint8 RGB, got {output.dtype} and {target.dtype}")
 
 
-def mse(output: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Mean squared error in grey levels^2. output, target: (..., H, W, 3) uint8 -> (...) float64."""
+def _check_mask(mask: np.ndarray, image_shape: tuple[int, ...]) -> np.ndarray:
+    mask = np.asarray(mask)
+    if mask.dtype != bool or mask.shape != image_shape[:-1]:
+        raise ConfigError(f"mask must be bool of shape {image_shape[:-1]} (the images' (..., H, W)), got {mask.shape} {mask.dtype}")
+    return mask
+
+
+def _masked_mean(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Mean of values (..., H, W) over mask (..., H, W) bool -> (...); NaN where the mask is empty."""
+    count = mask.sum(axis=(-2, -1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(count > 0, (values * mask).sum(axis=(-2, -1)) / np.maximum(count, 1), np.nan)
+
+
+def mse(output: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """Mean squared error in grey levels^2. output, target: (..., H, W, 3) uint8 -> (...) float64.
+
+    mask: (..., H, W) bool: the mean over its pixels (and the channels) only; NaN where it is empty."""
     _check_image_pair(output, target)
     difference = output.astype(np.float64) - target.astype(np.float64)
-    return np.mean(difference**2, axis=(-3, -2, -1))
+    if mask is None:
+        return np.mean(difference**2, axis=(-3, -2, -1))
+    return _masked_mean(np.mean(difference**2, axis=-1), _check_mask(mask, output.shape))
 
 
 def psnr_from_mse(mean_squared_error: np.ndarray | float) -> np.ndarray:
@@ -78,16 +102,22 @@ def summarise_psnr(values: np.ndarray, mses: np.ndarray) -> dict[str, float | in
     }
 
 
-def ssim(output: np.ndarray, target: np.ndarray) -> np.ndarray:
+def ssim(output: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
     """Mean SSIM (11x11 Gaussian window, sigma 1.5). output, target: (N, H, W, 3) or (H, W, 3) uint8
-    -> (N,) or () float64. Computed in fp32 (fp64 is 5x slower on CPU; identical images give 1 to ~1e-7)."""
+    -> (N,) or () float64. Computed in fp32 (fp64 is 5x slower on CPU; identical images give 1 to ~1e-7).
+
+    mask: (N, H, W) or (H, W) bool: the mean of the (whole-frame) SSIM map over its pixels and the channels
+    instead of over all pixels; NaN where it is empty. Without a mask the result is unchanged."""
     import kornia
     import torch
 
     _check_image_pair(output, target)
+    if mask is not None:
+        mask = _check_mask(mask, output.shape)
     single = output.ndim == 3
     if single:
         output, target = output[None], target[None]
+        mask = None if mask is None else mask[None]
     if min(output.shape[1:3]) <= SSIM_WINDOW // 2:
         raise ConfigError(f"SSIM needs images larger than {SSIM_WINDOW // 2} pixels, got {output.shape[1:3]}")
     # (N, H, W, 3) uint8 -> (N, 3, H, W) float32 in [0, 1]
@@ -95,7 +125,10 @@ def ssim(output: np.ndarray, target: np.ndarray) -> np.ndarray:
     second = torch.from_numpy(target).permute(0, 3, 1, 2).to(torch.float32) / PIXEL_PEAK
     with torch.no_grad():
         ssim_map = kornia.metrics.ssim(first, second, window_size=SSIM_WINDOW, max_val=1.0, eps=0.0)
-    values = ssim_map.mean(dim=(1, 2, 3)).double().numpy()
+    if mask is None:
+        values = ssim_map.mean(dim=(1, 2, 3)).double().numpy()
+    else:
+        values = _masked_mean(ssim_map.mean(dim=1).double().numpy(), mask)  # (N, H, W) channel mean, then masked
     return values[0] if single else values
 
 
@@ -115,6 +148,20 @@ def laplacian_variance(images: np.ndarray) -> np.ndarray:
     return values.reshape(images.shape[:-3])
 
 
+def masked_laplacian_variance(image: np.ndarray, mask: np.ndarray) -> float:
+    """Variance of the Laplacian of the grey image over the pixels of ``mask`` (the Laplacian is taken on the
+    whole image, so the mask's edge is no edge). image: (H, W, 3) uint8 RGB; mask: (H, W) bool -> float
+    (NaN when the mask is empty)."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[-1] != 3 or image.dtype != np.uint8:
+        raise ConfigError(f"image must be (H, W, 3) uint8 RGB, got {image.shape} {image.dtype}")
+    mask = _check_mask(mask, image.shape)
+    if not mask.any():
+        return math.nan
+    grey = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
+    return float(cv2.Laplacian(grey, cv2.CV_64F, ksize=LAPLACIAN_KSIZE)[mask].var())
+
+
 def sharpness(output: np.ndarray, target: np.ndarray) -> np.ndarray:
     """Laplacian-variance ratio output / ground truth (1 = as sharp as the real frame; module docstring).
 
@@ -131,6 +178,27 @@ def median_sharpness(values: np.ndarray) -> float:
     values = np.asarray(values, np.float64)
     finite = values[np.isfinite(values)]
     return float(np.median(finite)) if finite.size else math.nan
+
+
+def face_mask(landmarks: np.ndarray, shape: tuple[int, int], dilate: float = FACE_DILATION) -> np.ndarray:
+    """The face region of one face (module docstring): the convex hull of its 68 landmarks dilated by
+    ``dilate`` x its inter-ocular distance. landmarks: (68, 2) x, y pixels; shape: (H, W) -> (H, W) bool
+    (all False when the landmarks are not finite)."""
+    points = check_landmarks(landmarks)
+    if points.shape != (NUM_LANDMARKS, 2):
+        raise ConfigError(f"face_mask needs one face's ({NUM_LANDMARKS}, 2) landmarks, got {points.shape}")
+    if dilate < 0:
+        raise ConfigError(f"face_mask's dilation must be >= 0, got {dilate}")
+    mask = np.zeros(shape, np.uint8)
+    if not np.isfinite(points).all():
+        return mask.astype(bool)
+    hull = cv2.convexHull(np.round(points).astype(np.int32))
+    cv2.fillConvexPoly(mask, hull, 1)
+    radius = dilate * float(eye_distance(points))
+    if radius > 0:
+        outside = cv2.distanceTransform(1 - mask, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)  # pixels to the hull, 0 inside
+        return outside <= radius
+    return mask.astype(bool)
 
 
 def check_landmarks(landmarks: np.ndarray, name: str = "landmarks") -> np.ndarray:

@@ -15,14 +15,16 @@ Data sources (``load_identities``):
     landmarks from ``landmarks.npy``; the hold-outs' segmentation maps too, when every clip has them.
 
 A method is anything with ``reenact`` (``Method``); the runner also evaluates, per method:
+  * PSNR / SSIM on the whole frame and inside the ground truth's face region (``lsr.eval.metrics.face_mask``);
   * NMKE / ID-SIM of the output, where output landmarks come from the same detector; hold-outs
     whose ground truth has no face cannot be driven and are skipped (counted); outputs with no
     detected face are counted (``no_face``), their NMKE is missing and their ID-SIM embedding
     is aligned with the ground-truth landmarks instead (the output is meant to be in that pose);
   * pose-variance buckets (thesis §4.5.1): the raw-landmark NMKE between the nearest source shot
     and the target (= the single shot at K = 1), split into low / medium / high;
-  * cross-identity re-enactment (§4.4.3): identity i driven by identity i+1's hold-out
-    landmarks (raw, not retargeted), ID-SIM of the output to the mean embedding of i's shots.
+  * cross-identity re-enactment (§4.4.3): identity i driven by identity i+1's hold-out landmarks as
+    ``lsr reenact`` drives it (retargeted onto the anchor shot, composited into it); expression, pose, NMKE,
+    identity, face sharpness and scene metrics of the composited frames (``lsr.eval.cross``).
 """
 
 from __future__ import annotations
@@ -38,9 +40,9 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from lsr.errors import ConfigError, DatasetError
-from lsr.eval import idsim
+from lsr.eval import cross, idsim
 from lsr.eval.baselines import check_method_inputs, nearest_shot_indices
-from lsr.eval.metrics import mse, nmke, psnr_from_mse, sharpness, ssim
+from lsr.eval.metrics import face_mask, mse, nmke, psnr_from_mse, sharpness, ssim
 
 BUCKETS = ("low", "medium", "high")
 
@@ -251,8 +253,10 @@ class FaceAnalysis:
 @dataclasses.dataclass
 class EvalRun:
     """Everything a report needs. records: one dict per (method, K, identity, hold-out frame) with
-    keys method, k, identity, frame, mse, psnr, ssim, sharpness, idsim, nmke, no_face, pose_distance, bucket.
-    cross_records: one per cross-identity frame with method, k, identity, driver, frame, idsim_source, no_face."""
+    keys method, k, identity, frame, mse, psnr, ssim, psnr_face, ssim_face, sharpness, idsim, nmke, no_face,
+    pose_distance, bucket. cross_records: one per cross-identity frame, keys of ``lsr.eval.cross.evaluate_method``
+    (method, k, identity, driver, frame, anchor, no_face, idsim_source, nmke, yaw/pitch/roll_error, driver_mouth,
+    driver_eye, output_mouth, output_eye, sharpness_face, scene_mse, scene_psnr, scene_flicker)."""
 
     records: list[dict[str, Any]]
     cross_records: list[dict[str, Any]]
@@ -296,6 +300,7 @@ def run_protocol(
     cross_identity: bool = True,
     finetune: bool = True,
     on_outputs: Callable[[str, int, EvalIdentity, np.ndarray, np.ndarray], None] | None = None,
+    on_cross_outputs: Callable[[str, cross.CrossSequence, np.ndarray], None] | None = None,
     frame_metrics: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] | None = None,
     progress: bool = True,
 ) -> EvalRun:
@@ -304,7 +309,9 @@ def run_protocol(
     max_holdouts: use only the first N driveable hold-out frames per identity (0 = all).
     fixed_thresholds: bucket thresholds on the pose distance; None = terciles per K.
     on_outputs(method_name, k, identity, outputs, targets) is called per (method, K, identity)
-    (e.g. to save example images). frame_metrics: {key: metric(outputs, targets) -> (T,)}, each value
+    (e.g. to save example images); on_cross_outputs(method_name, sequence, composited) per cross-identity
+    drive (composited: (T, S, S, 3) uint8, the frames the cross metrics see). frame_metrics:
+    {key: metric(outputs, targets) -> (T,)}, each value
     stored per frame in the records under its key (e.g. LPIPS). A method with ``finetune`` is also evaluated fine-tuned,
     as "<name>+ft", when ``finetune`` is true.
     """
@@ -342,12 +349,17 @@ def run_protocol(
             _, pose_distances = nearest_shot_indices(shot_landmarks, target_landmarks)
             target_embeddings = [analysis.embedding(t, p) for t, p in zip(targets, target_landmarks)]
             source_embedding = idsim.mean_embedding(np.stack([analysis.embedding(s, p) for s, p in zip(shots, shot_landmarks)]))
+            face_masks = np.stack([face_mask(p, targets.shape[1:3]) for p in target_landmarks]) if len(targets) else None
             driver = identities[(position + 1) % len(identities)] if cross_identity and len(identities) > 1 else None
             target_segmentations = _rows_or_none(identity.holdout_segmentations, driveable)
+            sequence = None
             if driver is not None:
                 driver_rows = np.flatnonzero(np.isfinite(driver.holdout_landmarks).all(axis=(1, 2)))[: len(driveable)]
-                driver_landmarks = driver.holdout_landmarks[driver_rows].astype(np.float64)
                 driver_segmentations = _rows_or_none(driver.holdout_segmentations, driver_rows)
+                if len(driver_rows):  # retargeted onto the anchor shot once; every method gets the same targets
+                    sequence = cross.prepare_sequence(k, identity.name, driver.name, driver_rows, shots, shot_landmarks,
+                                                      driver.holdout_frames[driver_rows],
+                                                      driver.holdout_landmarks[driver_rows], source_embedding)
             for name, method, use_finetune in variants:
                 check_method_inputs(shots, shot_landmarks, target_landmarks)
                 model = method.finetune(shots, shot_landmarks) if use_finetune else method  # type: ignore[attr-defined]
@@ -359,6 +371,8 @@ def run_protocol(
                 _check_outputs(outputs, len(targets), targets.shape[1:], name)
                 errors = mse(outputs, targets)
                 similarities = ssim(outputs, targets) if len(targets) else np.zeros(0)
+                face_errors = mse(outputs, targets, mask=face_masks) if len(targets) else np.zeros(0)
+                face_similarities = ssim(outputs, targets, mask=face_masks) if len(targets) else np.zeros(0)
                 sharpnesses = sharpness(outputs, targets)  # (T,) Laplacian-variance ratio, NaN for a flat ground truth
                 extra = {key: metric(outputs, targets) for key, metric in (frame_metrics or {}).items()}
                 for row, output in enumerate(outputs):
@@ -367,27 +381,24 @@ def run_protocol(
                     records.append({
                         "method": name, "k": int(k), "identity": identity.name, "frame": int(driveable[row]),
                         "mse": float(errors[row]), "psnr": float(psnr_from_mse(errors[row])),
-                        "ssim": float(similarities[row]), "sharpness": float(sharpnesses[row]),
+                        "ssim": float(similarities[row]), "psnr_face": float(psnr_from_mse(face_errors[row])),
+                        "ssim_face": float(face_similarities[row]), "sharpness": float(sharpnesses[row]),
                         "idsim": idsim.cosine_similarity(analysis.embedding(output, align), target_embeddings[row]),
                         "nmke": float(nmke(found, target_landmarks[row])) if found is not None else float("nan"),
                         "no_face": found is None, "pose_distance": float(pose_distances[row]),
                         **{key: float(values[row]) for key, values in extra.items()},
                     })
-                if driver is not None and len(driver_landmarks):
+                if sequence is not None:
                     before = _warp_counts(model)
-                    # the oracle sees the driving frame's segmentation, i.e. identity i+1's face layout
+                    # the oracle sees the driving frames' segmentation, i.e. identity i+1's own (not retargeted) layout
                     extra_inputs = {"target_segmentations": driver_segmentations} if oracle else {}
-                    crossed = model.reenact(shots, shot_landmarks, driver_landmarks, **extra_inputs)
+                    crossed = model.reenact(shots, shot_landmarks, sequence.targets, **extra_inputs)
                     _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))
-                    _check_outputs(crossed, len(driver_landmarks), targets.shape[1:], name)
-                    for row, output in enumerate(crossed):
-                        found = analysis.landmarks(output)
-                        align = found if found is not None else driver_landmarks[row]
-                        cross_records.append({
-                            "method": name, "k": int(k), "identity": identity.name, "driver": driver.name,
-                            "frame": int(driver_rows[row]), "no_face": found is None,
-                            "idsim_source": idsim.cosine_similarity(analysis.embedding(output, align), source_embedding),
-                        })
+                    _check_outputs(crossed, len(sequence.targets), targets.shape[1:], name)
+                    composited = cross.composite(sequence, crossed)
+                    cross_records.extend(cross.evaluate_method(sequence, name, composited, analysis))
+                    if on_cross_outputs is not None:
+                        on_cross_outputs(name, sequence, composited)
                 if on_outputs is not None:
                     on_outputs(name, int(k), identity, outputs, targets)
                 bar.update(1)

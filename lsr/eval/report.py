@@ -1,10 +1,13 @@
 """``lsr eval``: run the protocol (``lsr.eval.protocol``) and write the report (markdown + JSON).
 
 The report lists, per method and K: PSNR (mean over finite frames, the count of identical
-frames = +inf, and PSNR of the mean MSE), SSIM, sharpness (median Laplacian-variance ratio to the
-ground truth), ID-SIM, NMKE and the count of outputs without a detected face; ID-SIM per
-pose-variance bucket (thesis §4.5.1); cross-identity ID-SIM to the source (§4.4.3); TPS
-warp-method counts; the thesis' Table 4.4 rows for reference; machine info.
+frames = +inf, and PSNR of the mean MSE), PSNR and SSIM inside the face, SSIM, sharpness (median
+Laplacian-variance ratio to the ground truth), ID-SIM, NMKE and the count of outputs without a detected
+face; ID-SIM per pose-variance bucket (thesis §4.5.1); cross-identity re-enactment (§4.4.3, retargeted and
+composited as ``lsr reenact`` does: expression, pose, NMKE, identity, sharpness and scene metrics,
+``lsr.eval.cross``); TPS warp-method counts; the thesis' Table 4.4 rows for reference; machine info.
+With ``--figure``: the methods side by side on one hold-out frame per identity, and beside it
+(``<figure>_cross.<ext>``) the cross-identity figure (``CrossFigure``).
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lsr.errors import ConfigError
-from lsr.eval import idsim, metrics
+from lsr.eval import cross, idsim, metrics
 from lsr.eval.protocol import BUCKETS, EvalIdentity, EvalRun
 
 if TYPE_CHECKING:
@@ -66,7 +69,7 @@ def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backb
     NOT_COMPUTED for the metrics that were computed."""
     fid = fid or {}
     backbones = backbones or {}
-    rows, bucket_rows, cross_rows = [], [], []
+    rows, bucket_rows = [], []
     for name in run.settings["methods"]:
         for k in run.settings["ks"]:
             group = [r for r in run.records if r["method"] == name and r["k"] == k]
@@ -76,7 +79,9 @@ def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backb
             rows.append({
                 "method": name, "k": k, "frames": len(group),
                 "psnr": psnr["mean_finite"], "psnr_infinite": psnr["infinite"], "psnr_of_mean_mse": psnr["of_mean_mse"],
-                "ssim": _mean([r["ssim"] for r in group]),
+                "psnr_face": _mean([r["psnr_face"] for r in group]),
+                "psnr_face_infinite": sum(math.isinf(r["psnr_face"]) for r in group),
+                "ssim": _mean([r["ssim"] for r in group]), "ssim_face": _mean([r["ssim_face"] for r in group]),
                 "sharpness": metrics.median_sharpness(np.array([r["sharpness"] for r in group])),
                 "idsim": _mean([r["idsim"] for r in group]),
                 "nmke": _mean([r["nmke"] for r in group]), "no_face": sum(r["no_face"] for r in group),
@@ -90,15 +95,10 @@ def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backb
                 bucket[label] = _mean([r["idsim"] for r in members])
                 bucket[f"{label}_frames"] = len(members)
             bucket_rows.append(bucket)
-            crossed = [r for r in run.cross_records if r["method"] == name and r["k"] == k]
-            if crossed:
-                cross_rows.append({"method": name, "k": k, "frames": len(crossed),
-                                   "idsim_source": _mean([r["idsim_source"] for r in crossed]),
-                                   "no_face": sum(r["no_face"] for r in crossed)})
     return {
         "rows": rows,
         "buckets": bucket_rows,
-        "cross": cross_rows,
+        "cross": cross.summarise_cross(run.cross_records, run.settings["methods"], run.settings["ks"]),
         "thresholds": {str(k): list(v) for k, v in run.thresholds.items()},
         "counts": run.counts,
         "settings": run.settings,
@@ -107,6 +107,9 @@ def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backb
         "conventions": {
             "psnr": "uint8 RGB, peak 255; 'PSNR' = mean over frames with finite PSNR, 'inf' = identical frames "
                     "(excluded from that mean), 'PSNR(mean MSE)' = PSNR of the MSE averaged over all frames",
+            "face region": f"PSNR face / SSIM face: inside the convex hull of the ground truth's 68 landmarks dilated "
+                           f"by {metrics.FACE_DILATION:g} x its inter-ocular distance; PSNR of the MSE over those pixels "
+                           "(mean over frames with finite PSNR), SSIM = mean of the whole-frame SSIM map over them",
             "ssim": f"kornia.metrics.ssim, {metrics.SSIM_WINDOW}x{metrics.SSIM_WINDOW} Gaussian window, sigma "
                     f"{metrics.SSIM_SIGMA}, reflect padding, RGB in [0, 1], mean over pixels and channels",
             "sharpness": f"per frame var(Laplacian(grey output)) / var(Laplacian(grey ground truth)) (cv2 RGB2GRAY, "
@@ -120,8 +123,7 @@ def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backb
                     "distance (points 36-41, 42-47); mean over outputs with a detected face, the rest counted in 'no face'",
             "buckets": "pose distance = raw-landmark NMKE between the nearest source shot and the target (the single "
                        "shot at K = 1), split at the thresholds given above the bucket table",
-            "cross": "identity i driven by identity i+1's hold-out landmarks (not retargeted); ID-SIM of the output "
-                     "to the mean embedding of i's K shots",
+            "cross": cross.CONVENTION,
         },
     }
 
@@ -138,6 +140,18 @@ def _fmt(value: Any, digits: int = 3) -> str:
     return str(value)
 
 
+CROSS_COLUMNS = ("method", "K", "frames", "mouth corr ↑", "mouth gain →1", "eye corr ↑", "yaw / pitch / roll err ° ↓",
+                 "NMKE ↓", "ID-SIM to source ↑", "sharpness (face) →1", "scene PSNR ↑", "scene flicker ↓", "no face")
+
+
+def _scene_psnr(row: dict[str, Any]) -> str:
+    """Mean of the finite scene PSNRs with the bit-identical frames counted; 'inf' when every frame is identical."""
+    infinite = row["scene_psnr_infinite"]
+    if infinite and infinite == row["frames"]:
+        return "inf"
+    return _fmt(row["scene_psnr"], 2) + (f" (+{infinite} inf)" if infinite else "")
+
+
 def markdown(summary: dict[str, Any], machine: str) -> str:
     """The report as markdown (the same text is printed by ``lsr eval``)."""
     settings = summary["settings"]
@@ -149,13 +163,15 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
         "",
         "## Self re-enactment (hold-out frames)",
         "",
-        "| method | K | frames | PSNR ↑ | inf | PSNR(mean MSE) | SSIM ↑ | sharpness →1 | ID-SIM ↑ | NMKE ↓ | no face | LPIPS ↓ | FID ↓ |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| method | K | frames | PSNR ↑ | inf | PSNR(mean MSE) | PSNR face ↑ | SSIM ↑ | SSIM face ↑ | sharpness →1 | "
+        "ID-SIM ↑ | NMKE ↓ | no face | LPIPS ↓ | FID ↓ |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in summary["rows"]:
         lines.append(
             f"| {row['method']} | {row['k']} | {row['frames']} | {_fmt(row['psnr'], 2)} | {row['psnr_infinite']} | "
-            f"{_fmt(row['psnr_of_mean_mse'], 2)} | {_fmt(row['ssim'])} | {_fmt(row['sharpness'], 2)} | {_fmt(row['idsim'])} | "
+            f"{_fmt(row['psnr_of_mean_mse'], 2)} | {_fmt(row['psnr_face'], 2)} | {_fmt(row['ssim'])} | "
+            f"{_fmt(row['ssim_face'])} | {_fmt(row['sharpness'], 2)} | {_fmt(row['idsim'])} | "
             f"{_fmt(row['nmke'])} | {row['no_face']} | {_fmt(row['lpips'])} | {_fmt(row['fid'], 2)} |"
         )
     lines += ["", f"LPIPS: {summary['lpips']}.", "", f"FID: {summary['fid']}.", "",
@@ -176,10 +192,14 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
         lines.append(f"| {row['method']} | {row['k']} | {_fmt(row['low'])} | {_fmt(row['medium'])} | {_fmt(row['high'])} | "
                      f"{row['low_frames']}/{row['medium_frames']}/{row['high_frames']} |")
     if summary["cross"]:
-        lines += ["", "## Cross-identity re-enactment (thesis §4.4.3)", "",
-                  "| method | K | frames | ID-SIM to source ↑ | no face |", "|---|---|---|---|---|"]
+        lines += ["", "## Cross-identity re-enactment (thesis §4.4.3; retargeted, composited into the anchor shot)", "",
+                  "| " + " | ".join(CROSS_COLUMNS) + " |", "|" + "---|" * len(CROSS_COLUMNS)]
         for row in summary["cross"]:
-            lines.append(f"| {row['method']} | {row['k']} | {row['frames']} | {_fmt(row['idsim_source'])} | {row['no_face']} |")
+            angles = " / ".join(_fmt(row[f"{angle}_error"], 1) for angle in ("yaw", "pitch", "roll"))
+            lines.append(f"| {row['method']} | {row['k']} | {row['frames']} | {_fmt(row['mouth_corr'], 2)} | "
+                         f"{_fmt(row['mouth_gain'], 2)} | {_fmt(row['eye_corr'], 2)} | {angles} | {_fmt(row['nmke'])} | "
+                         f"{_fmt(row['idsim_source'])} | {_fmt(row['sharpness_face'], 2)} | {_scene_psnr(row)} | "
+                         f"{_fmt(row['scene_flicker'], 2)} | {row['no_face']} |")
     warp = summary["counts"].get("warp_methods", {})
     if warp:
         lines += ["", "## TPS warp methods used (warps: one per frame for tps, up to 3 for tps_mean3)", "",
@@ -249,8 +269,6 @@ class ExampleWriter:
     def comparison(self, k: int) -> np.ndarray:
         """One row per identity (its first hold-out frame), one column per method in run order, then the ground
         truth; method names above the columns. (rows * S + title, columns * S, 3) uint8."""
-        import cv2
-
         methods = list(dict.fromkeys(name for name, at_k, _ in self.first if at_k == k))
         identities = list(dict.fromkeys(who for _, at_k, who in self.first if at_k == k))
         if not methods:
@@ -259,12 +277,76 @@ class ExampleWriter:
         for who in identities:
             cells = [self.first[(name, k, who)][0] for name in methods]
             rows.append(np.concatenate([*cells, self.first[(methods[0], k, who)][1]], axis=1))
-        side = rows[0].shape[0]
-        title = np.full((28, side * (len(methods) + 1), 3), 255, np.uint8)
-        for column, label in enumerate([*methods, "ground truth"]):
-            scale = min(0.5, 0.9 * side / max(1, cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 1.0, 1)[0][0]))
-            cv2.putText(title, label, (column * side + 4, 19), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 1, cv2.LINE_AA)
-        return np.concatenate([title, *rows], axis=0)
+        return np.concatenate([title_strip([*methods, "ground truth"], rows[0].shape[0]), *rows], axis=0)
+
+
+def _label(image: np.ndarray, text: str, origin: tuple[int, int], colour: tuple[int, int, int]) -> None:
+    """Draw ``text`` in place, scaled down to fit 0.9 of the image width (at most scale 0.5)."""
+    import cv2
+
+    width = image.shape[1]
+    scale = min(0.5, 0.9 * width / max(1, cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 1.0, 1)[0][0]))
+    cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
+
+
+def title_strip(labels: Sequence[str], side: int) -> np.ndarray:
+    """A white strip naming figure columns of width ``side``: (28, len(labels) * side, 3) uint8."""
+    title = np.full((28, side * len(labels), 3), 255, np.uint8)
+    for column, label in enumerate(labels):
+        cell = title[:, column * side : (column + 1) * side]  # a view: drawing on it draws on the strip
+        _label(cell, label, (4, 19), (0, 0, 0))
+    return title
+
+
+class CrossFigure:
+    """``on_cross_outputs`` callback that keeps, at K = ``k``, what the cross-identity figure shows (``picture``):
+    per driven identity up to 4 driver frames (``lsr.eval.cross.figure_frames``: widest mouth, blink, head turn,
+    middle frame), the source's anchor shot and each method's composited frame at those times."""
+
+    def __init__(self, k: int) -> None:
+        self.k = k
+        # identity -> {"frames": [(why, index)], "anchor", "by" (driver name), "driver": (F, S', S', 3),
+        #              "methods": {name: (F, S, S, 3)}}
+        self.rows: dict[str, dict[str, Any]] = {}
+
+    def __call__(self, name: str, sequence: cross.CrossSequence, composited: np.ndarray) -> None:
+        if sequence.k != self.k:
+            return
+        if sequence.identity not in self.rows:
+            picks = cross.figure_frames(sequence.driver_landmarks, sequence.driver_frames.shape[1:3])
+            self.rows[sequence.identity] = {"frames": picks, "anchor": sequence.anchor_shot, "by": sequence.driver,
+                                            "driver": sequence.driver_frames[[i for _, i in picks]], "methods": {}}
+        row = self.rows[sequence.identity]
+        row["methods"][name] = composited[[i for _, i in row["frames"]]]
+
+    def picture(self) -> np.ndarray:
+        """Rows: per identity, per chosen frame; columns: driver frame (labelled with why it was chosen) | source
+        anchor | each method's composited output, in run order. (28 + rows * S, (2 + methods) * S, 3) uint8."""
+        import cv2
+
+        if not self.rows:
+            raise ConfigError(f"no cross-identity drive at K={self.k}: it needs >= 2 identities and --cross-identity")
+        methods = list(dict.fromkeys(name for row in self.rows.values() for name in row["methods"]))
+        side = next(iter(self.rows.values()))["anchor"].shape[0]
+        lines = []
+        for who, row in self.rows.items():
+            for index, (why, _) in enumerate(row["frames"]):
+                driver = row["driver"][index]
+                if driver.shape[:2] != (side, side):
+                    driver = cv2.resize(driver, (side, side), interpolation=cv2.INTER_AREA)
+                driver = driver.copy()
+                _label(driver, f"{why}: {row['by']} -> {who}", (4, side - 8), (255, 255, 0))
+                blank = np.zeros_like(row["anchor"])
+                cells = [driver, row["anchor"], *(row["methods"][name][index] if name in row["methods"] else blank
+                                                  for name in methods)]
+                lines.append(np.concatenate(cells, axis=1))
+        return np.concatenate([title_strip(["driver", "source (anchor)", *methods], side), *lines], axis=0)
+
+
+def cross_figure_path(figure: Path) -> Path:
+    """Where ``--figure F`` puts the cross-identity figure: beside F, named ``<F's stem>_cross<F's suffix>``."""
+    figure = Path(figure)
+    return figure.with_name(f"{figure.stem}_cross{figure.suffix}")
 
 
 def _fid_collector(weights: Path, device: str, then: Any) -> tuple[dict[tuple[str, int], tuple[list, list]], Any]:
@@ -327,6 +409,7 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
         raise ConfigError("no method to evaluate: pass --methods nearest_shot tps tps_mean3 and/or --weights MODEL_DIR")
     thresholds = tuple(cfg.bucket_thresholds) if cfg.bucket_thresholds else None
     examples = ExampleWriter(Path(cfg.out), cfg.examples)
+    cross_figure = CrossFigure(cfg.figure_k) if cfg.figure is not None and cfg.cross_identity else None
     frame_metrics, backbones, on_outputs = {}, {}, examples
     if cfg.lpips_weights is not None:
         from lsr.eval.lpips import load_lpips, lpips_distance
@@ -338,7 +421,7 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
         fid_features, on_outputs = _fid_collector(cfg.fid_weights, cfg.device, on_outputs)
     run = run_protocol(methods, identities, cfg.k, FaceAnalysis(detector), seed=cfg.seed, max_holdouts=cfg.max_holdouts,
                        fixed_thresholds=thresholds, cross_identity=cfg.cross_identity, on_outputs=on_outputs,
-                       frame_metrics=frame_metrics, progress=cfg.progress)
+                       on_cross_outputs=cross_figure, frame_metrics=frame_metrics, progress=cfg.progress)
     fid_results = {}
     if cfg.fid_weights is not None:
         from lsr.eval.fid import fid_from_features
@@ -359,6 +442,11 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
 
         write_image(cfg.figure, examples.comparison(cfg.figure_k))
         print(f"comparison figure (K={cfg.figure_k}: one hold-out frame per identity, methods side by side) written to {cfg.figure}")
+        if cross_figure is not None and cross_figure.rows:
+            path = cross_figure_path(cfg.figure)
+            write_image(path, cross_figure.picture())
+            print(f"cross-identity figure (K={cfg.figure_k}: driver | source anchor | composited outputs; widest mouth, "
+                  f"blink, head turn, middle frame per identity) written to {path}")
     text = markdown(summary, machine_markdown())
     markdown_path, json_path = write_report(Path(cfg.out), summary, text)
     print(text)

@@ -123,3 +123,54 @@ class TestNmke:
         assert np.isnan(metrics.nmke(np.full((68, 2), np.nan), _face_landmarks(rng)))
         with pytest.raises(ConfigError):
             metrics.nmke(np.zeros((5, 2)), np.zeros((5, 2)))
+
+
+class TestFaceRegion:
+    def test_mask_is_the_dilated_hull(self, rng):
+        landmarks = _face_landmarks(rng)
+        tight = metrics.face_mask(landmarks, (224, 224), dilate=0.0)
+        wide = metrics.face_mask(landmarks, (224, 224))
+        hull = cv2.convexHull(np.round(landmarks).astype(np.int32))
+        assert tight.sum() == pytest.approx(cv2.contourArea(hull), rel=0.05)
+        assert np.all(wide[tight]) and wide.sum() > tight.sum()
+        eyes = metrics.eye_distance(landmarks)
+        perimeter = cv2.arcLength(hull, True)  # a dilation by r adds about perimeter * r + pi r^2
+        radius = metrics.FACE_DILATION * eyes
+        assert wide.sum() - tight.sum() == pytest.approx(perimeter * radius + math.pi * radius**2, rel=0.15)
+        assert not metrics.face_mask(np.full((68, 2), np.nan), (32, 32)).any()
+        with pytest.raises(ConfigError):
+            metrics.face_mask(np.zeros((5, 2)), (32, 32))
+
+    def test_masked_mse_and_psnr(self):
+        target = np.full((2, 16, 16, 3), 100, np.uint8)
+        output = target.copy()
+        output[:, :8] += 10  # top half off by 10
+        top = np.zeros((2, 16, 16), bool)
+        top[:, :8] = True
+        assert metrics.mse(output, target, mask=top) == pytest.approx([100.0, 100.0])
+        assert metrics.mse(output, target, mask=~top) == pytest.approx([0.0, 0.0])
+        assert metrics.mse(output, target, mask=np.ones_like(top)) == pytest.approx(metrics.mse(output, target))
+        assert np.isnan(metrics.mse(output, target, mask=np.zeros_like(top))).all()
+        with pytest.raises(ConfigError):
+            metrics.mse(output, target, mask=top[:, :, :8])
+
+    def test_masked_ssim_is_the_mean_of_the_map_inside(self, rng):
+        target = rng.integers(0, 256, size=(2, 32, 32, 3), dtype=np.uint8)
+        output = target.copy()
+        output[:, :, 20:] = rng.integers(0, 256, size=(2, 32, 12, 3), dtype=np.uint8)  # right part replaced
+        left = np.zeros((2, 32, 32), bool)
+        left[:, :, :8] = True  # far from the change: the window never sees it
+        assert metrics.ssim(output, target, mask=left) == pytest.approx([1.0, 1.0], abs=1e-5)
+        assert np.all(metrics.ssim(output, target, mask=~left) < metrics.ssim(output, target))
+        everywhere = metrics.ssim(output, target, mask=np.ones_like(left))
+        assert everywhere == pytest.approx(metrics.ssim(output, target), abs=1e-6)
+        assert metrics.ssim(output[0], target[0], mask=left[0]) == pytest.approx(1.0, abs=1e-5)
+
+    def test_masked_laplacian_variance(self, rng):
+        image = rng.integers(0, 256, size=(32, 32, 3), dtype=np.uint8)
+        image[:, 16:] = 128  # flat right half
+        right = np.zeros((32, 32), bool)
+        right[2:-2, 20:-2] = True
+        assert metrics.masked_laplacian_variance(image, right) == 0.0
+        assert metrics.masked_laplacian_variance(image, ~right) > 0.0
+        assert math.isnan(metrics.masked_laplacian_variance(image, np.zeros((32, 32), bool)))

@@ -22,8 +22,9 @@ def test_report_on_synthetic_identities(tmp_path, no_face_detector):
     generate_dataset(root, identities=4, videos_per_identity=1, frames=10, size=64, test_fraction=0.5, progress=False)
     identities = load_lsr_split(root, "test", inputs=6, holdouts=4)
     assert len(identities) == 2 and all(len(i.input_frames) == 6 and len(i.holdout_frames) == 4 for i in identities)
+    cross_figure = report.CrossFigure(1)
     run = run_protocol([NearestShot(), TpsWarp(), TpsMean3()], identities, [1], FaceAnalysis(no_face_detector()),
-                       progress=False)
+                       on_cross_outputs=cross_figure, progress=False)
     run.settings["data"] = str(root)
     summary = report.summarise(run)
     text = report.markdown(summary, "| machine | |")
@@ -31,7 +32,12 @@ def test_report_on_synthetic_identities(tmp_path, no_face_detector):
     written = markdown_path.read_text()
     assert "| tps | 1 | 8 |" in written and "| tps_mean3 | 1 | 8 |" in written
     header = next(line for line in written.splitlines() if line.startswith("| method | K | frames | PSNR"))
-    assert "SSIM ↑ | sharpness →1 | ID-SIM" in header
+    assert "| PSNR face ↑ | SSIM ↑ | SSIM face ↑ | sharpness →1 | ID-SIM" in header
+    cross_header = ("| method | K | frames | mouth corr ↑ | mouth gain →1 | eye corr ↑ | yaw / pitch / roll err ° ↓ | "
+                    "NMKE ↓ | ID-SIM to source ↑ | sharpness (face) →1 | scene PSNR ↑ | scene flicker ↓ | no face |")
+    assert cross_header in written.splitlines()
+    # the fake detector finds (almost) no face: no expression to correlate; the scene is measured all the same
+    assert "| tps | 1 | 8 | n/a | n/a | n/a | " in written and "| inf | 0.00 |" in written
     assert "| FSTH | 1 | no | 16.80 | 0.570 | – | 0.259 |" in written  # the thesis table has the column, empty
     stored = json.loads(json_path.read_text())
     rows = {row["method"]: row for row in stored["rows"]}
@@ -45,6 +51,17 @@ def test_report_on_synthetic_identities(tmp_path, no_face_detector):
     assert sharpness["tps"] == pytest.approx(float(np.median(per_frame)))
     assert "median" in stored["conventions"]["sharpness"] and "- sharpness: " in written
     assert "not computed" in stored["lpips"]
+    assert all(np.isfinite(row["psnr_face"]) and 0 < row["ssim_face"] <= 1 for row in stored["rows"])
+    crossed = {row["method"]: row for row in stored["cross"]}
+    assert set(crossed) == {"nearest_shot", "tps", "tps_mean3"} and crossed["tps"]["sequences"] == 2
+    for row in crossed.values():  # every composite leaves the scene outside the head regions untouched
+        assert row["scene_psnr_infinite"] == row["frames"] == 8 and row["scene_flicker"] == 0.0
+    assert "retargeted" in stored["conventions"]["cross"] and "- face region: " in written
+    # the cross-identity figure: per identity up to 4 driver frames; driver | anchor | 3 methods
+    picture = cross_figure.picture()
+    rows = sum(len(row["frames"]) for row in cross_figure.rows.values())
+    assert 2 <= rows <= 8 and picture.shape == (28 + rows * 64, 5 * 64, 3)
+    assert report.cross_figure_path(tmp_path / "compare.png") == tmp_path / "compare_cross.png"
     for name in ("tps", "tps_mean3"):
         warp = stored["counts"]["warp_methods"][name]["K=1 self"]
         assert sum(warp.values()) == 8
@@ -89,5 +106,8 @@ def test_lsr_eval_on_two_real_identities(shared_data, tmp_path, capsys):
 
     figure = read_image(tmp_path / "compare.png")  # 2 identities x (3 methods + ground truth), under a title strip
     assert figure.shape == (28 + 2 * 224, 4 * 224, 3)
+    crossed = read_image(tmp_path / "compare_cross.png")  # driver | source anchor | 3 methods, <= 4 rows per identity
+    assert crossed.shape[1] == 5 * 224 and (crossed.shape[0] - 28) % 224 == 0
+    assert {row["method"] for row in summary["cross"]} == {"nearest_shot", "tps", "tps_mean3"}
     with pytest.raises(ConfigError, match="--figure-k"):
         EvalConfig(data=small, k=(1,), figure=tmp_path / "x.png", figure_k=8).validate()
