@@ -93,12 +93,13 @@ def set_mouth_opening(landmarks: np.ndarray, opening: np.ndarray | float) -> np.
     landmarks: (..., 68, 2); opening: (...) or a float. Returns a new float64 array of the same shape.
     """
     points = _points(landmarks).copy()
-    current, distance = mouth_opening(points), inter_ocular(points)
-    target = np.maximum(np.broadcast_to(np.asarray(opening, np.float64), current.shape), 0.0)
+    distance = inter_ocular(points)
+    target = np.maximum(np.broadcast_to(np.asarray(opening, np.float64), distance.shape), 0.0)
     eyes = (points[..., LEFT_EYE, :].mean(-2) + points[..., RIGHT_EYE, :].mean(-2)) / 2
     down = points[..., [48, 54], :].mean(-2) - eyes
     down = down / np.maximum(np.linalg.norm(down, axis=-1, keepdims=True), 1e-9)
-    shift = np.nan_to_num((target - current) * distance)[..., None] * down  # (..., 2) pixels
-    index = list(_JAW_DROP)
-    points[..., index, :] += np.asarray(list(_JAW_DROP.values()))[:, None] * shift[..., None, :]
+    index, amounts = list(_JAW_DROP), np.asarray(list(_JAW_DROP.values()))[:, None]
+    for _ in range(4):  # the gaps are point distances, not heights: a few steps settle a slanted mouth
+        shift = np.nan_to_num((target - mouth_opening(points)) * distance)[..., None] * down  # (..., 2) pixels
+        points[..., index, :] += amounts * shift[..., None, :]
     return points

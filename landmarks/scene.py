@@ -3,14 +3,16 @@
 A frame is layers that move as they do in life; only the face is synthesised:
 
 * **background and body**: the scene frame, unmoved;
-* **head** (hair, ears, the skin around the face): the scene frame moved by the head's rigid motion, the
-  similarity that takes the scene's landmarks onto the target's (fitted on ``landmarks.retarget.RIGID_INDEX``, so
-  the mouth and brows do not count as head motion). The motion fades smoothly to none at the edge of the head
-  region (``head_weight``), so the neck stretches a little and the body never moves. One coherent layer: the
-  hair is the scene's, never an average of disagreeing warps, so it cannot ghost;
-* **face**: the synthesised crop inside the face mask (the hull of the target's landmarks, with the forehead,
-  united with the hull of the moved scene face so that no old chin or cheek peeks out), feathered, and
-  colour-matched to the head layer along the seam (a smooth offset field measured just inside the face edge).
+* **head** (hair, ears, the skin around the face): the scene frame moved by the head's rigid motion (the
+  similarity scene -> target on ``landmarks.retarget.RIGID_INDEX``), which carries the hair, plus a regularised
+  TPS (``landmarks.tps.tps_map``) that lands the scene's face outline, brows, nose and eye corners on the
+  target's (the lips and eyelids do not count: they are expression). The warp fades smoothly to none at the
+  edge of the head region (``head_weight``), so the neck stretches a little and the body never moves. One
+  coherent layer: the hair is the scene's, never an average of disagreeing warps, so it cannot ghost, and the
+  scene's own cheek and chin sit where the target's are, so none peeks out beside the new face;
+* **face**: the synthesised crop inside the face mask (the hull of the target's landmarks, with the forehead),
+  feathered, and colour-matched to the head layer along the seam (a smooth offset field measured just inside
+  the face edge).
 
 Sizes are fractions of the face's crop side ``s`` in frame pixels (the VoxCeleb2 framing of
 ``landmarks.align.crop_transform``), so the composite behaves the same for a 60-pixel face in a full-body
@@ -29,6 +31,7 @@ import numpy as np
 from landmarks.align import crop_transform, invert_affine, transform_landmarks
 from landmarks.parts import NUM_LANDMARKS
 from landmarks.retarget import RIGID_INDEX, apply_similarity, similarity_procrustes
+from landmarks.tps import tps_map
 
 # Head region (fractions of the crop side s), centred above the eyes/mouth midpoint; a VoxCeleb2 crop has the
 # top of the hair about 0.35 s above that point and the chin about 0.22 s below it.
@@ -42,6 +45,7 @@ COLOUR_BAND = 0.06  # colour offsets are measured in this band just inside the f
 COLOUR_SIGMA = 0.12  # ... and spread smoothly with this Gaussian
 COLOUR_LIMIT = 40.0  # grey levels: larger offsets are lighting the face itself, not a seam
 STILL = 0.25  # pixels: a head motion smaller than this leaves the head layer untouched
+HEAD_WARP_INDEX = [*range(0, 36), 36, 39, 42, 45]  # outline, brows, nose, eye corners: not the lips and lids
 
 
 def face_side(landmarks: np.ndarray) -> float:
@@ -132,7 +136,7 @@ class Composite:
     face_alpha: np.ndarray | None = None
     """(y1 - y0, x1 - x0) float32: the face layer's weight."""
     head_motion: np.ndarray | None = None
-    """(2, 3) float64: the head's similarity, scene -> target, frame pixels."""
+    """(2, 3) float64: the head's rigid part, the similarity scene -> target on RIGID_INDEX, frame pixels."""
 
 
 def _check(frame: np.ndarray, points: np.ndarray, name: str) -> np.ndarray:
@@ -158,7 +162,6 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     rigid = list(RIGID_INDEX)
     scale, rotation, translation = similarity_procrustes(scene_points[rigid], target_points[rigid])
     motion = np.concatenate([scale * rotation, translation[:, None]], axis=1)
-    moved_scene = apply_similarity(scene_points, scale, rotation, translation)
     box = head_box([scene_points, target_points], scene.shape[:2])
     if box is None:
         return Composite(scene.copy(), None)
@@ -167,11 +170,18 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     side = face_side(target_points)
     output = scene.copy()
 
-    # head layer: identity far away, the head's inverse motion inside; one smooth field, so no seam and no hole
+    # head layer: identity far away, the scene's face outline carried onto the target's inside (a TPS on the jaw,
+    # brows, nose and eye corners); one smooth field, so no seam and no hole, and no old cheek left beside the new
     ys, xs = np.mgrid[y0:y1, x0:x1].astype(np.float32)
+    offset = np.array([x0, y0], np.float64)
+    # the rigid motion carries the whole head (hair included); a TPS, pinned at the box's edge, adds what is not rigid
+    moved = apply_similarity(scene_points, scale, rotation, translation)
+    warp = tps_map(moved[HEAD_WARP_INDEX] - offset, target_points[HEAD_WARP_INDEX] - offset, y1 - y0, x1 - x0,
+                   grid_step=4)
     inverse = invert_affine(motion)
-    source_x = inverse[0, 0] * xs + inverse[0, 1] * ys + inverse[0, 2]
-    source_y = inverse[1, 0] * xs + inverse[1, 1] * ys + inverse[1, 2]
+    moved_x, moved_y = warp.map_x + np.float32(x0), warp.map_y + np.float32(y0)
+    source_x = inverse[0, 0] * moved_x + inverse[0, 1] * moved_y + inverse[0, 2]
+    source_y = inverse[1, 0] * moved_x + inverse[1, 1] * moved_y + inverse[1, 2]
     if max(np.abs(source_x - xs).max(), np.abs(source_y - ys).max()) > STILL:
         weight = np.maximum(head_weight(scene_points, roi_hw, (x0, y0)), head_weight(target_points, roi_hw, (x0, y0)))
         map_x = (xs + weight * (source_x - xs)).astype(np.float32)
@@ -191,9 +201,8 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     footprint = cv2.warpAffine(inside_crop, roi_matrix, roi_hw[::-1], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
 
     hull = np.zeros(roi_hw, np.uint8)
-    for points in (target_points, moved_scene):
-        outline = np.round(face_outline(points) - [x0, y0]).astype(np.int32)
-        cv2.fillConvexPoly(hull, cv2.convexHull(outline), 1)
+    outline = np.round(face_outline(target_points) - [x0, y0]).astype(np.int32)
+    cv2.fillConvexPoly(hull, cv2.convexHull(outline), 1)
     outside = cv2.distanceTransform(1 - hull, cv2.DIST_L2, 3)  # pixels to the hull (0 inside)
     ramp = np.clip((FACE_MARGIN * side + FACE_FEATHER * side / 2 - outside) / (FACE_FEATHER * side), 0.0, 1.0)
     alpha = ramp * ramp * (3.0 - 2.0 * ramp) * footprint * _within_head(scene_points, target_points, roi_hw, (x0, y0))
