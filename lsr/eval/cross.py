@@ -127,10 +127,10 @@ def face_sharpness(frame: np.ndarray, frame_landmarks: np.ndarray, scene: np.nda
 
 
 def figure_frames(driver_landmarks: np.ndarray, image_size: tuple[int, int]) -> list[tuple[str, int]]:
-    """The driver frames the cross-identity figure shows: its widest mouth opening ("mouth"), its smallest eye
-    opening ("blink"), its largest |yaw| relative to its first frame ("turn") and the middle frame in time
-    ("median"). driver_landmarks: (T, 68, 2) finite -> up to 4 (label, index), one per distinct frame (labels of
-    a frame chosen twice are joined by '+')."""
+    """The driver frames the cross-identity figure shows: its widest mouth opening ("mouth"), its roundest open
+    mouth ("O": inner-lip gap over inner-lip width, among the frames opened more than the median), its smallest
+    eye opening ("blink") and its largest |yaw| relative to its first frame ("turn"). driver_landmarks: (T, 68, 2)
+    finite -> up to 4 (label, index), one per distinct frame (labels of a frame chosen twice are joined by '+')."""
     from landmarks.expression import eye_opening, mouth_opening
     from landmarks.pose import estimate_head_pose
 
@@ -141,8 +141,12 @@ def figure_frames(driver_landmarks: np.ndarray, image_size: tuple[int, int]) -> 
         return []
     yaws = np.array([estimate_head_pose(p, image_size)[0] for p in points], np.float64)
     turn = np.abs((yaws - yaws[0] + 180.0) % 360.0 - 180.0)
-    picks = {"mouth": np.nanargmax(mouth_opening(points)), "blink": np.nanargmin(eye_opening(points)),
-             "turn": np.nanargmax(turn) if np.isfinite(turn).any() else 0, "median": len(points) // 2}
+    openings = mouth_opening(points)
+    width = np.linalg.norm(points[:, 64] - points[:, 60], axis=-1) / np.maximum(
+        np.linalg.norm(points[:, 36:42].mean(1) - points[:, 42:48].mean(1), axis=-1), 1e-9)
+    roundness = np.where(openings >= np.median(openings), openings / np.maximum(width, 1e-9), -np.inf)
+    picks = {"mouth": np.nanargmax(openings), "O": int(np.argmax(roundness)), "blink": np.nanargmin(eye_opening(points)),
+             "turn": np.nanargmax(turn) if np.isfinite(turn).any() else 0}
     chosen: dict[int, list[str]] = {}
     for label, index in picks.items():
         chosen.setdefault(int(index), []).append(label)

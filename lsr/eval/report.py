@@ -298,6 +298,10 @@ def title_strip(labels: Sequence[str], side: int) -> np.ndarray:
     return title
 
 
+CROSS_FIGURE_SKIPS = ("nearest_shot",)  # a copy of a shot: no re-enactment to look at
+CROSS_FIGURE_SIDE = 176  # panel side: 5 people x 4 moments stay a picture, not a poster
+
+
 class CrossFigure:
     """``on_cross_outputs`` callback that keeps, at K = ``k``, what the cross-identity figure shows (``picture``):
     per driven identity up to 4 driver frames (``lsr.eval.cross.figure_frames``: widest mouth, blink, head turn,
@@ -326,7 +330,8 @@ class CrossFigure:
 
         if not self.rows:
             raise ConfigError(f"no cross-identity drive at K={self.k}: it needs >= 2 identities and --cross-identity")
-        methods = list(dict.fromkeys(name for row in self.rows.values() for name in row["methods"]))
+        methods = [name for name in dict.fromkeys(name for row in self.rows.values() for name in row["methods"])
+                   if name not in CROSS_FIGURE_SKIPS and not name.endswith("+ft")]  # copies and near-duplicates
         side = next(iter(self.rows.values()))["anchor"].shape[0]
         lines = []
         for who, row in self.rows.items():
@@ -339,8 +344,11 @@ class CrossFigure:
                 blank = np.zeros_like(row["anchor"])
                 cells = [driver, row["anchor"], *(row["methods"][name][index] if name in row["methods"] else blank
                                                   for name in methods)]
+                cells = [cv2.resize(c, (CROSS_FIGURE_SIDE,) * 2, interpolation=cv2.INTER_AREA) if side > CROSS_FIGURE_SIDE
+                         else c for c in cells]
                 lines.append(np.concatenate(cells, axis=1))
-        return np.concatenate([title_strip(["driver", "source (anchor)", *methods], side), *lines], axis=0)
+        shown = min(side, CROSS_FIGURE_SIDE)
+        return np.concatenate([title_strip(["driver", "source (anchor)", *methods], shown), *lines], axis=0)
 
 
 def cross_figure_path(figure: Path) -> Path:

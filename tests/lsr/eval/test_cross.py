@@ -104,11 +104,13 @@ class TestScene:
         assert math.isnan(cross.face_sharpness(scene, face, flat, face))
 
 
-def test_figure_frames_pick_mouth_blink_turn_and_middle():
-    driver = np.stack([_face(), _face(mouth=5.0), _face(eyes=0.1), _face(), _face(yaw=25.0), _face(), _face()])
-    assert cross.figure_frames(driver, (SIZE, SIZE)) == [("mouth", 1), ("blink", 2), ("turn", 4), ("median", 3)]
+def test_figure_frames_pick_mouth_o_blink_and_turn():
+    driver = np.stack([_face(), _face(mouth=5.0), _face(eyes=0.1), _face(mouth=3.0), _face(yaw=25.0), _face(), _face()])
+    driver[3, 64, 0] -= 4.0  # a narrower inner mouth: rounder than frame 1's
+    driver[3, 60, 0] += 4.0
+    assert cross.figure_frames(driver, (SIZE, SIZE)) == [("mouth", 1), ("O", 3), ("blink", 2), ("turn", 4)]
     shared = dict((index, label) for label, index in cross.figure_frames(driver[:3], (SIZE, SIZE)))
-    assert shared[1].split("+")[0] == "mouth" and "median" in shared[1].split("+")  # one frame, both reasons
+    assert shared[1].split("+")[:2] == ["mouth", "O"]  # one frame, both reasons
     assert len(shared) <= 3
     with pytest.raises(ValueError):
         cross.figure_frames(np.full((2, 68, 2), np.nan), (SIZE, SIZE))

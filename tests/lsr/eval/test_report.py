@@ -57,10 +57,10 @@ def test_report_on_synthetic_identities(tmp_path, no_face_detector):
     for row in crossed.values():  # every composite leaves the scene outside the head regions untouched
         assert row["scene_psnr_infinite"] == row["frames"] == 8 and row["scene_flicker"] == 0.0
     assert "retargeted" in stored["conventions"]["cross"] and "- face region: " in written
-    # the cross-identity figure: per identity up to 4 driver frames; driver | anchor | 3 methods
+    # the cross-identity figure: per identity up to 4 driver frames; driver | anchor | tps, tps_mean3 (no copies)
     picture = cross_figure.picture()
     rows = sum(len(row["frames"]) for row in cross_figure.rows.values())
-    assert 2 <= rows <= 8 and picture.shape == (28 + rows * 64, 5 * 64, 3)
+    assert 2 <= rows <= 8 and picture.shape == (28 + rows * 64, 4 * 64, 3)
     assert report.cross_figure_path(tmp_path / "compare.png") == tmp_path / "compare_cross.png"
     for name in ("tps", "tps_mean3"):
         warp = stored["counts"]["warp_methods"][name]["K=1 self"]
@@ -106,8 +106,9 @@ def test_lsr_eval_on_two_real_identities(shared_data, tmp_path, capsys):
 
     figure = read_image(tmp_path / "compare.png")  # 2 identities x (3 methods + ground truth), under a title strip
     assert figure.shape == (28 + 2 * 224, 4 * 224, 3)
-    crossed = read_image(tmp_path / "compare_cross.png")  # driver | source anchor | 3 methods, <= 4 rows per identity
-    assert crossed.shape[1] == 5 * 224 and (crossed.shape[0] - 28) % 224 == 0
+    crossed = read_image(tmp_path / "compare_cross.png")  # driver | anchor | 2 methods at 176 px, <= 4 rows per identity
+    side = report.CROSS_FIGURE_SIDE
+    assert crossed.shape[1] == 4 * side and (crossed.shape[0] - 28) % side == 0
     assert {row["method"] for row in summary["cross"]} == {"nearest_shot", "tps", "tps_mean3"}
     with pytest.raises(ConfigError, match="--figure-k"):
         EvalConfig(data=small, k=(1,), figure=tmp_path / "x.png", figure_k=8).validate()
