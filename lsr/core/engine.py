@@ -47,8 +47,6 @@ Mode = Literal["auto", "relative", "absolute"]
 Scene = Literal["source", "driver"]
 """What ``paste_back`` composites into: the source's own frames (its anchor shot or its video) or the driver's."""
 LayoutKind = Literal["none", "latent", "segmentation"]
-MATCHED_MOUTH = True
-"""Warp-guided models: an open mouth comes from the shot opened most like it (``landmarks.mouth``)."""
 STAGES = ("decode", "landmarks", "subject_encoding", "synthesis", "paste_back")
 
 
@@ -290,14 +288,7 @@ class ReenactorBase:
             to_network(landmark_image)[None], layout_latent, style_latent, with_layout,
             *(() if references is None else (references, masks)),
         )
-        synthesis = from_network(image[0])
-        if self.warp_references and MATCHED_MOUTH:
-            from landmarks.mouth import matched_mouth
-
-            # the shots nearest in pose disagree on the mouth and the blend half-closes it: take it from the shot
-            # opened most like the target (landmarks.mouth)
-            synthesis = matched_mouth(synthesis, crop_landmarks, subject.shots.frames, subject.shots.landmarks)
-        return synthesis, landmark_image, None if layout is None else np.asarray(layout[0], np.float32)
+        return from_network(image[0]), landmark_image, None if layout is None else np.asarray(layout[0], np.float32)
 
     def reenact(
         self,
