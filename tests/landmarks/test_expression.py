@@ -1,13 +1,11 @@
-"""landmarks.mouth (an open mouth from the shot opened most like it), set_mouth_opening and retarget_driving."""
+"""Driving expressions: set_mouth_opening, retarget_driving (the mouth as open as the driver's) and quick lips."""
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
 from landmarks.expression import mouth_opening, set_mouth_opening
-from landmarks.mouth import OUTER_LIPS, matched_mouth, mouth_region
 from landmarks.pose import project_canonical
 from landmarks.retarget import retarget_driving
 from landmarks.smooth import EXPRESSIVE_POINTS, OneEuroFilter, driving_cutoffs
@@ -17,12 +15,6 @@ SIDE = 128
 
 def _face(opening: float) -> np.ndarray:
     return set_mouth_opening(project_canonical(0, 0, 0, (SIDE, SIDE), scale=0.5).astype(np.float64), opening)
-
-
-def _shot(points: np.ndarray, lips: tuple[int, int, int]) -> np.ndarray:
-    shot = np.full((SIDE, SIDE, 3), 150, np.uint8)
-    cv2.fillPoly(shot, [np.round(points[OUTER_LIPS]).astype(np.int32)], lips)
-    return shot
 
 
 @pytest.mark.parametrize("opening", [0.0, 0.12, 0.4])
@@ -40,21 +32,6 @@ def test_retarget_driving_opens_the_mouth_as_wide_as_the_driver_even_from_an_ope
     driver = np.stack([_face(0.0), _face(0.1), _face(0.3)])
     moved = retarget_driving(driver, driver[1], source)  # the driver's reference frame is half open too
     np.testing.assert_allclose(mouth_opening(moved), mouth_opening(driver), atol=2e-3)
-
-
-def test_open_targets_take_their_mouth_from_the_shot_opened_like_them():
-    shots_landmarks = np.stack([_face(0.0), _face(0.3), _face(0.12)])
-    shots = np.stack([_shot(p, c) for p, c in zip(shots_landmarks, [(200, 0, 0), (0, 200, 0), (0, 0, 200)])])
-    image = np.full((SIDE, SIDE, 3), 150, np.uint8)
-    target = _face(0.1)
-    restored = matched_mouth(image, target, shots, shots_landmarks)
-    centre = np.round(target[OUTER_LIPS].mean(0)).astype(int)
-    pixel = restored[centre[1], centre[0]].astype(int)
-    assert pixel[2] > pixel[0] + 20 and pixel[2] > pixel[1] + 20  # the 0.12 shot (blue), not the widest (green)
-    far = mouth_region(target, SIDE) == 0
-    assert far.mean() > 0.5
-    np.testing.assert_array_equal(restored[far], image[far])
-    assert matched_mouth(image, _face(0.0), shots, shots_landmarks) is image  # a closed mouth: the generator's
 
 
 def test_driving_filter_keeps_lips_quick_and_the_head_steady():
