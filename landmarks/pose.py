@@ -137,26 +137,29 @@ def project_canonical(
     return projected.astype(np.float32)
 
 
-def estimate_head_pose(landmarks: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
+def estimate_head_pose(landmarks: np.ndarray, image_size: tuple[int, int], index: tuple[int, ...] | None = None) -> np.ndarray:
     """Yaw, pitch, roll in degrees of one face.
 
     landmarks: (68, 2) float x, y pixels; image_size: (H, W). Returns (3,) float32;
     all-NaN when the landmarks contain NaN (a missing frame).
+    index: fit only these points (e.g. ``landmarks.retarget.RIGID_INDEX``: a dropped jaw then does not read as
+    the head pitching down); None = all 68.
     """
     landmarks = np.asarray(landmarks, dtype=np.float64)
     if landmarks.shape != (NUM_LANDMARKS, 2):
         raise ValueError(f"landmarks must be (68, 2), got {landmarks.shape}")
     if not np.isfinite(landmarks).all():
         return np.full(3, np.nan, np.float32)
+    model = CANONICAL_FACE_3D
+    if index is not None:
+        model, landmarks = model[list(index)], landmarks[list(index)]
     intrinsics = camera_matrix(image_size)
     # EPnP gives a pose without an initial guess; iterative LM refines it (reprojection error).
-    ok, rvec, tvec = cv2.solvePnP(CANONICAL_FACE_3D, landmarks, intrinsics, None, flags=cv2.SOLVEPNP_EPNP)
+    ok, rvec, tvec = cv2.solvePnP(model, landmarks, intrinsics, None, flags=cv2.SOLVEPNP_EPNP)
     if ok and tvec[2, 0] > 0:
-        ok, rvec, tvec = cv2.solvePnP(
-            CANONICAL_FACE_3D, landmarks, intrinsics, None, rvec, tvec, True, cv2.SOLVEPNP_ITERATIVE
-        )
+        ok, rvec, tvec = cv2.solvePnP(model, landmarks, intrinsics, None, rvec, tvec, True, cv2.SOLVEPNP_ITERATIVE)
     else:
-        ok, rvec, tvec = cv2.solvePnP(CANONICAL_FACE_3D, landmarks, intrinsics, None, flags=cv2.SOLVEPNP_ITERATIVE)
+        ok, rvec, tvec = cv2.solvePnP(model, landmarks, intrinsics, None, flags=cv2.SOLVEPNP_ITERATIVE)
     if not ok:
         return np.full(3, np.nan, np.float32)
     rotation, _ = cv2.Rodrigues(rvec)

@@ -10,7 +10,8 @@ Per frame (``evaluate_method`` -> one record each):
   * ``output_mouth`` / ``output_eye``: ``landmarks.expression`` openings of the detected landmarks (NaN: no face);
     ``driver_mouth`` / ``driver_eye``: those of the *real* driver landmarks (not the targets);
   * ``yaw_error`` / ``pitch_error`` / ``roll_error``: |pose(detected) - pose(target)| in degrees
-    (``landmarks.pose.estimate_head_pose``, wrapped to [0, 180]);
+    (``landmarks.pose.estimate_head_pose`` on ``RIGID_INDEX``, so that a dropped jaw does not read as pitch;
+    wrapped to [0, 180]);
   * ``nmke``: detected vs target landmarks (``lsr.eval.metrics.nmke``);
   * ``idsim_source``: ID-SIM of the frame to the mean embedding of i's K shots;
   * ``sharpness_face``: Laplacian variance inside the face region (``metrics.face_mask`` of the target
@@ -45,7 +46,8 @@ CONVENTION = (
     "inter-ocular distance) with the output's detected one; mouth gain = least-squares slope (with intercept) of "
     f"output on driver mouth opening (1 = the driver's amplitude); frames without a face dropped, NaN under "
     f"{MIN_FRAMES} frames or zero variance; mean over sequences. yaw / pitch / roll err = |head pose of the "
-    "detected landmarks - that of the target landmarks| (solvePnP on a canonical face), degrees. NMKE = detected "
+    "detected landmarks - that of the target landmarks| (solvePnP of the rigid points: upper jaw, nose, eyes, on a "
+    "canonical face, so a dropped jaw is not pitch), degrees. NMKE = detected "
     "vs target landmarks over the target's eye distance. ID-SIM to source = to the mean embedding of i's K shots. "
     "sharpness (face) = Laplacian variance inside the target's face region (68-point hull dilated by "
     f"{metrics.FACE_DILATION:g} x inter-ocular distance) over that inside the anchor's face on the anchor shot; "
@@ -188,7 +190,7 @@ def prepare_sequence(k: int, identity: str, driver: str, driver_rows: np.ndarray
     shot_landmarks: (K, 68, 2) finite; driver_landmarks: (T, 68, 2) finite, T >= 1."""
     from landmarks.expression import pick_anchor
     from landmarks.pose import estimate_head_pose
-    from landmarks.retarget import retarget_driving
+    from landmarks.retarget import RIGID_INDEX, retarget_driving
     from landmarks.scene import head_region
 
     driver_landmarks = metrics.check_landmarks(driver_landmarks)
@@ -198,7 +200,7 @@ def prepare_sequence(k: int, identity: str, driver: str, driver_rows: np.ndarray
     anchor = pick_anchor(shot_landmarks, size)
     anchor_landmarks = np.asarray(shot_landmarks[anchor], np.float64)
     targets = retarget_driving(driver_landmarks, driver_landmarks[0], anchor_landmarks)  # (T, 68, 2)
-    poses = np.stack([estimate_head_pose(t, size) for t in targets]).astype(np.float64)  # (T, 3)
+    poses = np.stack([estimate_head_pose(t, size, RIGID_INDEX) for t in targets]).astype(np.float64)  # (T, 3)
     outside = np.stack([~head_region([anchor_landmarks, t], size) for t in targets])  # (T, S, S)
     return CrossSequence(int(k), identity, driver, np.asarray(driver_rows), anchor, shots[anchor], anchor_landmarks,
                          driver_frames, driver_landmarks, targets, poses, outside, source_embedding)
@@ -219,6 +221,7 @@ def evaluate_method(sequence: CrossSequence, name: str, composited: np.ndarray, 
     analysis: ``lsr.eval.protocol.FaceAnalysis`` (one detection per frame, memoised)."""
     from landmarks.expression import eye_opening, mouth_opening
     from landmarks.pose import estimate_head_pose
+    from landmarks.retarget import RIGID_INDEX
 
     size = composited.shape[1:3]
     driver_mouth, driver_eye = mouth_opening(sequence.driver_landmarks), eye_opening(sequence.driver_landmarks)
@@ -227,7 +230,7 @@ def evaluate_method(sequence: CrossSequence, name: str, composited: np.ndarray, 
         target = sequence.targets[row]
         found = analysis.landmarks(frame)
         if found is not None:
-            errors = pose_errors(estimate_head_pose(found, size), sequence.target_poses[row])
+            errors = pose_errors(estimate_head_pose(found, size, RIGID_INDEX), sequence.target_poses[row])
             mouth, eye, error = float(mouth_opening(found)), float(eye_opening(found)), float(metrics.nmke(found, target))
         else:
             errors, mouth, eye, error = np.full(3, np.nan), math.nan, math.nan, math.nan

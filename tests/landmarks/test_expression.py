@@ -42,3 +42,14 @@ def test_driving_filter_keeps_lips_quick_and_the_head_steady():
     one_euro(still)
     step = one_euro(still + 10.0)  # every point jumps 10 px
     assert np.abs(step[60] - still[60]).max() > 2 * np.abs(step[30] - still[30]).max()
+
+
+def test_pose_on_rigid_points_ignores_a_dropped_jaw():
+    from landmarks.pose import estimate_head_pose
+    from landmarks.retarget import RIGID_INDEX
+
+    face = project_canonical(5, 10, 0, (256, 256)).astype(np.float64)
+    opened = set_mouth_opening(face, 0.5)
+    rigid = estimate_head_pose(opened, (256, 256), RIGID_INDEX)
+    np.testing.assert_allclose(rigid, estimate_head_pose(face, (256, 256), RIGID_INDEX), atol=0.2)
+    np.testing.assert_allclose(rigid, [5, 10, 0], atol=1.0)
