@@ -55,10 +55,20 @@ def test_reenact_returns_playable_video_with_every_frame(app_server, app_server_
     assert panel is not None and "synthesis" in timing
 
 
-def test_paste_back_keeps_driver_frame_size(app_server, app_inputs):
-    video, *_ = call_reenact(app_server, app_inputs["source"], app_inputs["driving"], paste_back=True, watermark=False)
+def test_paste_back_puts_the_result_into_the_source_scene(app_server, app_inputs, tmp_path):
+    """The result has the source photo's size (wider than the 128^2 driver) and, far from the head, its pixels."""
+    import numpy as np
+
+    from landmarks.imageio import read_image, write_image
+
+    source = read_image(app_inputs["source"])
+    wide = np.pad(source, ((0, 0), (32, 32), (0, 0)), mode="edge")
+    write_image(tmp_path / "wide.png", wide)
+    video, *_ = call_reenact(app_server, tmp_path / "wide.png", app_inputs["driving"], paste_back=True, watermark=False)
     _, frames, _ = decode(video["video"] if isinstance(video, dict) else video)
-    assert len(frames) == 5 and frames[0].shape == (128, 128, 3)  # conftest: 5 frames of 128^2
+    assert len(frames) == 5 and frames[0].shape == (128, 192, 3)  # conftest: 5 driver frames of 128^2
+    border = np.abs(frames[0][:, :16].astype(int) - wide[:, :16]).mean()  # the padded strip, far from the head
+    assert border < 8
 
 
 def test_source_without_face_is_a_readable_error(app_server, app_inputs):
