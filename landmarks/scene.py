@@ -171,55 +171,78 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     output = scene.copy()
 
     # head layer: identity far away, the scene's face outline carried onto the target's inside (a TPS on the jaw,
-    # brows, nose and eye corners); one smooth field, so no seam and no hole, and no old cheek left beside the new
-    ys, xs = np.mgrid[y0:y1, x0:x1].astype(np.float32)
+    # brows, nose and eye corners); one smooth field, so no seam and no hole, and no old cheek left beside the new.
+    # The rigid motion carries the whole head (hair included); the TPS, pinned at the box's edge, adds what is not.
     offset = np.array([x0, y0], np.float64)
-    # the rigid motion carries the whole head (hair included); a TPS, pinned at the box's edge, adds what is not rigid
     moved = apply_similarity(scene_points, scale, rotation, translation)
     warp = tps_map(moved[HEAD_WARP_INDEX] - offset, target_points[HEAD_WARP_INDEX] - offset, y1 - y0, x1 - x0,
                    grid_step=4)
-    inverse = invert_affine(motion)
-    moved_x, moved_y = warp.map_x + np.float32(x0), warp.map_y + np.float32(y0)
-    source_x = inverse[0, 0] * moved_x + inverse[0, 1] * moved_y + inverse[0, 2]
-    source_y = inverse[1, 0] * moved_x + inverse[1, 1] * moved_y + inverse[1, 2]
-    if max(np.abs(source_x - xs).max(), np.abs(source_y - ys).max()) > STILL:
+    inverse = invert_affine(motion).astype(np.float32)
+    moved_x, moved_y = warp.map_x, warp.map_y  # box pixels; made frame pixels by the inverse's translation below
+    source_x = inverse[0, 0] * moved_x + inverse[0, 1] * moved_y + (inverse[0, 2] + inverse[0, 0] * x0 + inverse[0, 1] * y0)
+    source_y = inverse[1, 0] * moved_x + inverse[1, 1] * moved_y + (inverse[1, 2] + inverse[1, 0] * x0 + inverse[1, 1] * y0)
+    del warp, moved_x, moved_y
+    xs = np.arange(x0, x1, dtype=np.float32)[None, :]
+    ys = np.arange(y0, y1, dtype=np.float32)[:, None]
+    source_x -= xs  # now displacements (in place: a 4K frame's box is tens of megabytes per plane)
+    source_y -= ys
+    if max(np.abs(source_x).max(), np.abs(source_y).max()) > STILL:
         weight = np.maximum(head_weight(scene_points, roi_hw, (x0, y0)), head_weight(target_points, roi_hw, (x0, y0)))
-        map_x = (xs + weight * (source_x - xs)).astype(np.float32)
-        map_y = (ys + weight * (source_y - ys)).astype(np.float32)
-        output[y0:y1, x0:x1] = cv2.remap(scene, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
-    head_layer = output[y0:y1, x0:x1].astype(np.float32)
+        source_x *= weight
+        source_y *= weight
+        del weight
+        source_x += xs
+        source_y += ys
+        output[y0:y1, x0:x1] = cv2.remap(scene, source_x, source_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    del source_x, source_y
 
-    # face layer: the synthesis, exactly inverse-warped into the box
-    roi_matrix = np.asarray(crop_matrix, np.float64).copy()
-    roi_matrix[:, 2] += roi_matrix[:, :2] @ np.array([x0, y0], np.float64)
+    # face layer, in the face's own box (the hull, its margin and feather): the synthesis, exactly inverse-warped
+    reach = int(np.ceil((FACE_MARGIN + FACE_FEATHER) * side)) + 2
+    outline = face_outline(target_points)
+    fx0, fy0 = np.maximum(np.floor(outline.min(0)).astype(int) - reach, [x0, y0])
+    fx1, fy1 = np.minimum(np.ceil(outline.max(0)).astype(int) + reach + 1, [x1, y1])
+    if fx0 >= fx1 or fy0 >= fy1:
+        return Composite(output, box, None, motion)
+    face_hw = (int(fy1 - fy0), int(fx1 - fx0))
+    face_matrix = np.asarray(crop_matrix, np.float64).copy()
+    face_matrix[:, 2] += face_matrix[:, :2] @ np.array([fx0, fy0], np.float64)
     crop_side = face_crop.shape[0]
-    face = cv2.warpAffine(face_crop, roi_matrix, roi_hw[::-1], flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+    face = cv2.warpAffine(face_crop, face_matrix, face_hw[::-1], flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
                           borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
     inside_crop = np.zeros((crop_side, crop_side), np.float32)
     edge = max(1, crop_side // 32)
     inside_crop[edge:-edge, edge:-edge] = 1.0
-    footprint = cv2.warpAffine(inside_crop, roi_matrix, roi_hw[::-1], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+    footprint = cv2.warpAffine(inside_crop, face_matrix, face_hw[::-1], flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
 
-    hull = np.zeros(roi_hw, np.uint8)
-    outline = np.round(face_outline(target_points) - [x0, y0]).astype(np.int32)
-    cv2.fillConvexPoly(hull, cv2.convexHull(outline), 1)
+    hull = np.zeros(face_hw, np.uint8)
+    cv2.fillConvexPoly(hull, cv2.convexHull(np.round(outline - [fx0, fy0]).astype(np.int32)), 1)
     outside = cv2.distanceTransform(1 - hull, cv2.DIST_L2, 3)  # pixels to the hull (0 inside)
     ramp = np.clip((FACE_MARGIN * side + FACE_FEATHER * side / 2 - outside) / (FACE_FEATHER * side), 0.0, 1.0)
-    alpha = ramp * ramp * (3.0 - 2.0 * ramp) * footprint * _within_head(scene_points, target_points, roi_hw, (x0, y0))
+    alpha = ramp * ramp * (3.0 - 2.0 * ramp) * footprint * _within_head(scene_points, target_points, face_hw, (fx0, fy0))
+    del outside, ramp
 
     # colour match: a smooth offset that makes the face's edge agree with the head layer around it
+    head_layer = output[fy0:fy1, fx0:fx1].astype(np.float32)
     inside = cv2.distanceTransform(hull, cv2.DIST_L2, 3)
     band = ((hull > 0) & (inside < COLOUR_BAND * side) & (footprint > 0.99)).astype(np.float32)
     if band.sum() > 16:
         sigma = COLOUR_SIGMA * side
         difference = (head_layer - face) * band[..., None]
-        spread = blur(band, sigma)[..., None]
         global_offset = difference.sum((0, 1)) / band.sum()
-        offset = np.where(spread > 1e-3, blur(difference, sigma) / np.maximum(spread, 1e-3), global_offset)
-        face = face + np.clip(offset, -COLOUR_LIMIT, COLOUR_LIMIT)
-    blended = head_layer + (face - head_layer) * alpha[..., None]
-    output[y0:y1, x0:x1] = np.clip(np.rint(blended), 0, 255).astype(np.uint8)
-    return Composite(output, box, alpha.astype(np.float32), motion)
+        spread = blur(band, sigma)
+        colour = blur(difference, sigma)
+        del difference
+        colour /= np.maximum(spread, 1e-3)[..., None]
+        colour[spread <= 1e-3] = global_offset
+        face += np.clip(colour, -COLOUR_LIMIT, COLOUR_LIMIT, out=colour)
+        del colour
+    face -= head_layer  # blend in place: head + (face - head) * alpha
+    face *= alpha[..., None]
+    face += head_layer
+    output[fy0:fy1, fx0:fx1] = np.clip(np.rint(face, out=face), 0, 255).astype(np.uint8)
+    full_alpha = np.zeros(roi_hw, np.float32)
+    full_alpha[fy0 - y0 : fy1 - y0, fx0 - x0 : fx1 - x0] = alpha
+    return Composite(output, box, full_alpha, motion)
 
 
 def _within_head(scene_points: np.ndarray, target_points: np.ndarray, shape: tuple[int, int],

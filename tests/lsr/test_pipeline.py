@@ -109,12 +109,14 @@ def test_crop_landmark_driver_absolute_reproduces_target(reenactor):
 
 
 def test_relative_mode_first_frame_is_source_shape(reenactor):
-    """Relative motion: the driver's first frame maps onto the source's own landmarks (retarget_relative)."""
+    """Relative motion: the driver's first frame maps onto the source's own (anchor) landmarks, the mouth opened as
+    wide as the driver's (retarget_driving)."""
+    from landmarks.expression import mouth_opening, set_mouth_opening
     from landmarks.raster import draw_landmarks
 
     driver = reenactor.subject.shots.landmarks[::-1] * 1.1 + 3  # another face shape and place
     first = next(iter(reenactor(driver, landmark_space="crop", mode="relative", smooth=False)))
-    expected = draw_landmarks(reenactor.subject.reference_landmarks, 64)
+    expected = draw_landmarks(set_mouth_opening(reenactor.subject.reference_landmarks, mouth_opening(driver[0])), 64)
     assert np.abs(first.landmark_image.astype(int) - expected).max() <= 2
 
 
@@ -224,7 +226,7 @@ def test_4k_driver_streams_with_bounded_memory(reenactor, tmp_path):
     tracemalloc.start()
     try:
         count = 0
-        for output in reenactor(clip, paste_back=True):
+        for output in reenactor(clip, paste_back=True, scene="driver"):  # composited into the 4K driver frames
             assert output.image.shape == (2160, 3840, 3)
             count += 1
         _, peak = tracemalloc.get_traced_memory()
