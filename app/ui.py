@@ -62,7 +62,8 @@ def model_summary(weights: Path | None, random_init: bool) -> str:
                  f"synthesis at {output}, so detail comes from your shots")
         if config.get("reference_detail"):
             line += " (the fine detail most of the warped shots agree on, not a blur of them)"
-        line += "; fine-tuning on them (on by default) adapts it to the person"
+        line += ("; the result goes into the source's own scene (its background, body and hair), only the face is "
+                 "synthesised; fine-tuning on the shots (Options) is off by default: it measured no gain")
     if name == "the shipped default model":
         line += ". Trained on real talking-face clips and synthetic heads (MODEL_CARD.md)"
     line += "."
