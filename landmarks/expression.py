@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from landmarks.parts import LEFT_EYE, NUM_LANDMARKS, RIGHT_EYE
+from landmarks.smooth import inter_ocular_distance
 
 INNER_LIP_PAIRS = ((61, 67), (62, 66), (63, 65))
 EYE_LID_PAIRS = ((37, 41), (38, 40), (43, 47), (44, 46))
@@ -29,12 +30,6 @@ def _points(landmarks: np.ndarray) -> np.ndarray:
     return points
 
 
-def inter_ocular(landmarks: np.ndarray) -> np.ndarray:
-    """Eye-centre distance: (..., 68, 2) -> (...)."""
-    points = _points(landmarks)
-    return np.linalg.norm(points[..., LEFT_EYE, :].mean(-2) - points[..., RIGHT_EYE, :].mean(-2), axis=-1)
-
-
 def _gap(points: np.ndarray, pairs: tuple[tuple[int, int], ...]) -> np.ndarray:
     first, second = zip(*pairs)
     return np.linalg.norm(points[..., list(first), :] - points[..., list(second), :], axis=-1).mean(-1)
@@ -44,14 +39,14 @@ def mouth_opening(landmarks: np.ndarray) -> np.ndarray:
     """Inner-lip gap / inter-ocular distance (module docstring): (..., 68, 2) -> (...) float64."""
     points = _points(landmarks)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return _gap(points, INNER_LIP_PAIRS) / inter_ocular(points)
+        return _gap(points, INNER_LIP_PAIRS) / inter_ocular_distance(points)
 
 
 def eye_opening(landmarks: np.ndarray) -> np.ndarray:
     """Mean eyelid gap of both eyes / inter-ocular distance: (..., 68, 2) -> (...) float64."""
     points = _points(landmarks)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return _gap(points, EYE_LID_PAIRS) / inter_ocular(points)
+        return _gap(points, EYE_LID_PAIRS) / inter_ocular_distance(points)
 
 
 def pick_anchor(landmarks: np.ndarray, image_size: tuple[int, int]) -> int:
@@ -93,7 +88,7 @@ def set_mouth_opening(landmarks: np.ndarray, opening: np.ndarray | float) -> np.
     landmarks: (..., 68, 2); opening: (...) or a float. Returns a new float64 array of the same shape.
     """
     points = _points(landmarks).copy()
-    distance = inter_ocular(points)
+    distance = inter_ocular_distance(points)
     target = np.maximum(np.broadcast_to(np.asarray(opening, np.float64), distance.shape), 0.0)
     eyes = (points[..., LEFT_EYE, :].mean(-2) + points[..., RIGHT_EYE, :].mean(-2)) / 2
     down = points[..., [48, 54], :].mean(-2) - eyes

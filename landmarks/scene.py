@@ -28,7 +28,7 @@ import dataclasses
 import cv2
 import numpy as np
 
-from landmarks.align import crop_transform, invert_affine, transform_landmarks
+from landmarks.align import crop_transform, face_geometry, invert_affine, transform_landmarks
 from landmarks.parts import NUM_LANDMARKS
 from landmarks.retarget import RIGID_INDEX, apply_similarity, similarity_procrustes
 from landmarks.tps import tps_map
@@ -54,26 +54,37 @@ def face_side(landmarks: np.ndarray) -> float:
     return 1024.0 / float(np.sqrt(abs(np.linalg.det(matrix[:, :2]))))
 
 
-def _ellipse(landmarks: np.ndarray, side: float) -> tuple[np.ndarray, np.ndarray]:
-    """(centre (2,), semi-axes (2,)) of the head region of a face, frame pixels."""
-    points = np.asarray(landmarks, np.float64)
-    eyes = (points[36:42].mean(0) + points[42:48].mean(0)) / 2
-    mouth = (points[48] + points[54]) / 2
-    centre = (eyes + mouth) / 2 - np.array([0.0, HEAD_CENTRE_UP * side])
-    return centre, np.asarray(HEAD_SEMI_AXES) * side
+def _eyes_mouth(landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(eye midpoint, mouth centre) of a face, frame pixels (``landmarks.align.face_geometry``)."""
+    eye_left, eye_right, mouth = face_geometry(landmarks)
+    return (eye_left + eye_right) / 2, mouth
 
 
-def head_weight(landmarks: np.ndarray, shape: tuple[int, int], offset: tuple[int, int] = (0, 0),
-                side: float | None = None) -> np.ndarray:
+def _head_ellipse(landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centre (2,), semi-axes (2,)) of a face's head region, frame pixels: centred above the eyes/mouth midpoint,
+    its semi-axes fractions of the face's crop side."""
+    side = face_side(landmarks)
+    eyes, mouth = _eyes_mouth(landmarks)
+    return (eyes + mouth) / 2 - np.array([0.0, HEAD_CENTRE_UP * side]), np.asarray(HEAD_SEMI_AXES) * side
+
+
+def _ellipse_radius(landmarks: np.ndarray, shape: tuple[int, int], offset: tuple[int, int]) -> np.ndarray:
+    """Per pixel of a region, its radius in the face's head ellipse (1 on the ellipse): (H, W) float32.
+
+    landmarks: (68, 2) frame pixels; shape: (H, W) of the region; offset: (x0, y0) of the region in the frame.
+    """
+    centre, axes = _head_ellipse(landmarks)
+    xs = ((np.arange(shape[1], dtype=np.float32) + (offset[0] - centre[0])) / axes[0])[None, :]
+    ys = ((np.arange(shape[0], dtype=np.float32) + (offset[1] - centre[1])) / axes[1])[:, None]
+    return np.sqrt(xs * xs + ys * ys).astype(np.float32)
+
+
+def head_weight(landmarks: np.ndarray, shape: tuple[int, int], offset: tuple[int, int] = (0, 0)) -> np.ndarray:
     """How much each pixel moves with the head: (H, W) float32, 1 inside the inner head ellipse, 0 outside it.
 
     landmarks: (68, 2) frame pixels; shape: (H, W) of the region; offset: (x0, y0) of the region in the frame.
     """
-    side = face_side(landmarks) if side is None else side
-    centre, axes = _ellipse(landmarks, side)
-    ys, xs = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float32)
-    radius = np.sqrt(((xs + offset[0] - centre[0]) / axes[0]) ** 2 + ((ys + offset[1] - centre[1]) / axes[1]) ** 2)
-    ramp = np.clip((1.0 - radius) / (1.0 - HEAD_INNER), 0.0, 1.0)
+    ramp = np.clip((1.0 - _ellipse_radius(landmarks, shape, offset)) / (1.0 - HEAD_INNER), 0.0, 1.0)
     return (ramp * ramp * (3.0 - 2.0 * ramp)).astype(np.float32)  # smoothstep: no kink at either edge
 
 
@@ -81,7 +92,7 @@ def head_box(landmarks_list: list[np.ndarray], frame_hw: tuple[int, int], margin
     """(x0, y0, x1, y1) bounding every given face's head region, clipped to the frame; None if outside it."""
     lows, highs = [], []
     for points in landmarks_list:
-        centre, axes = _ellipse(points, face_side(points))
+        centre, axes = _head_ellipse(points)
         lows.append(centre - axes)
         highs.append(centre + axes)
     x0, y0 = np.floor(np.min(lows, 0)).astype(int) - margin
@@ -107,8 +118,7 @@ def head_region(landmarks_list: list[np.ndarray], frame_hw: tuple[int, int]) -> 
 def face_outline(landmarks: np.ndarray) -> np.ndarray:
     """The face's outline for its mask: the jaw and the brows lifted to the hairline, (27, 2) float64."""
     points = np.asarray(landmarks, np.float64)
-    eyes = (points[36:42].mean(0) + points[42:48].mean(0)) / 2
-    mouth = (points[48] + points[54]) / 2
+    eyes, mouth = _eyes_mouth(points)
     forehead = points[17:27] + FOREHEAD_LIFT * (eyes - mouth)
     return np.concatenate([points[0:17], forehead])
 
@@ -249,13 +259,8 @@ def _within_head(scene_points: np.ndarray, target_points: np.ndarray, shape: tup
                  offset: tuple[int, int]) -> np.ndarray:
     """1 inside the head regions, ramping to 0 over their outermost 5 %: the face layer never leaves them (a
     close-up's face can be as large as the frame), so ``head_region``'s complement is the scene, bit for bit."""
-    inside = np.zeros(shape, np.float32)
-    ys, xs = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float32)
-    for points in (scene_points, target_points):
-        centre, axes = _ellipse(points, face_side(points))
-        radius = np.sqrt(((xs + offset[0] - centre[0]) / axes[0]) ** 2 + ((ys + offset[1] - centre[1]) / axes[1]) ** 2)
-        inside = np.maximum(inside, np.clip((1.0 - radius) / 0.05, 0.0, 1.0))
-    return inside
+    radius = np.minimum(_ellipse_radius(scene_points, shape, offset), _ellipse_radius(target_points, shape, offset))
+    return np.clip((1.0 - radius) / 0.05, 0.0, 1.0)
 
 
 def place_in_frame(crop_landmarks: np.ndarray, crop_matrix: np.ndarray) -> np.ndarray:

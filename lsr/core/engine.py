@@ -365,13 +365,12 @@ class ReenactorBase:
         started = time.perf_counter()
         scene = next(scenes)
         stats.add("decode", time.perf_counter() - started)
-        if scene.landmarks is None:  # a video source whose face was not found yet: synthesise at the anchor's place
-            synthesis, landmark_image, layout = self.synthesize_crop(target, with_layout)
-            return scene.image, synthesis, landmark_image, layout, target
-        target = scene.place(target)
+        target = scene.place(target)  # a video source whose face was not found yet: the anchor's place
         started = time.perf_counter()
         synthesis, landmark_image, layout = self.synthesize_crop(target, with_layout)
         stats.add("synthesis", time.perf_counter() - started)
+        if scene.landmarks is None:
+            return scene.image, synthesis, landmark_image, layout, target
         started = time.perf_counter()
         output = composite_face(scene.image, scene.landmarks, place_in_frame(target, scene.matrix), synthesis,
                                 scene.matrix).frame

@@ -144,8 +144,7 @@ def figure_frames(driver_landmarks: np.ndarray, image_size: tuple[int, int]) -> 
     yaws = np.array([estimate_head_pose(p, image_size)[0] for p in points], np.float64)
     turn = np.abs((yaws - yaws[0] + 180.0) % 360.0 - 180.0)
     openings = mouth_opening(points)
-    width = np.linalg.norm(points[:, 64] - points[:, 60], axis=-1) / np.maximum(
-        np.linalg.norm(points[:, 36:42].mean(1) - points[:, 42:48].mean(1), axis=-1), 1e-9)
+    width = np.linalg.norm(points[:, 64] - points[:, 60], axis=-1) / np.maximum(metrics.eye_distance(points), 1e-9)
     roundness = np.where(openings >= np.median(openings), openings / np.maximum(width, 1e-9), -np.inf)
     picks = {"mouth": np.nanargmax(openings), "O": int(np.argmax(roundness)), "blink": np.nanargmin(eye_opening(points)),
              "turn": np.nanargmax(turn) if np.isfinite(turn).any() else 0}
