@@ -57,6 +57,9 @@ class LossConfig:
     """Weight of the VGG perceptual loss; used only when --losses.vgg-weights is given."""
     vgg_weights: OptionalPath = None
     """VGG19 (or VGGFace as VGG16) state dict with torchvision key names (.pth or .safetensors); None = off."""
+    mouth: float = 0.0
+    """L1 inside an ellipse around the target's mouth (``lsr.train.losses.mouth_mask``), on top of the whole-frame
+    terms: the mouth is about 2 % of the frame, yet what another person's driving changes most (0 = off)."""
     adversarial: float = 0.1
     """lambda_adv: non-saturating logistic generator loss."""
     latent_l2: float = 1e-3
@@ -71,7 +74,7 @@ class LossConfig:
     """Lazy R1: apply the penalty every N discriminator steps, scaled by N."""
 
     def validate(self) -> None:
-        weights = [self.l1, self.l2, self.ssim, self.feature_matching, self.vgg, self.adversarial, self.latent_l2,
+        weights = [self.l1, self.l2, self.ssim, self.mouth, self.feature_matching, self.vgg, self.adversarial, self.latent_l2,
                    self.cross_entropy, self.aux_rgb, self.r1_gamma]
         if min(weights) < 0:
             raise ConfigError("loss weights must be >= 0")
@@ -128,6 +131,9 @@ class TrainConfig:
     shots_from: Literal["video", "video_apart", "identity"] = "video"
     """Where an episode's K shots come from: the target's video (as the evaluation protocol), the half of its clip
     away from it (video_apart: no neighbour in time), or any video of the identity (lsr.data.episodes)."""
+    expression_episodes: float = 0.0
+    """Fraction of episodes whose target opens its mouth wider than any of its closed-mouthed shots, so that the
+    network learns to draw the mouth no shot shows (lsr.data.episodes; 0 = off)."""
     batch_size: int = 8
     """Global batch (episodes per step, over all processes; each of N processes gets batch / N)."""
     workers: int = 2
@@ -171,6 +177,8 @@ class TrainConfig:
                 raise ConfigError(f"--data {root} is not a folder; prepare a dataset first (see docs/TRAINING.md)")
         if self.resolution and (self.resolution < 32 or self.resolution & (self.resolution - 1)):
             raise ConfigError(f"--resolution must be 0 or a power of two >= 32, got {self.resolution}")
+        if not 0.0 <= self.expression_episodes <= 1.0:
+            raise ConfigError(f"--expression-episodes must be in [0, 1], got {self.expression_episodes}")
         if self.k < 1 or self.batch_size < 1 or self.workers < 0 or self.threads < 0:
             raise ConfigError("--k and --batch-size must be >= 1, --workers and --threads >= 0")
         if (self.reference_flow or self.reference_detail) and self.variant != "warp_guided":

@@ -27,6 +27,11 @@ does not hold the target (the evaluation protocol's inputs and hold-outs are sep
 its shots are never the target's neighbours in time). The target is never one of its own shots;
 when fewer than K other frames exist the shots are drawn with replacement.
 
+Expression episodes (``expression_episodes = p > 0``): a fraction p of episodes takes a target whose mouth is open
+wider than most of its pool's (the top ``OPEN_MOUTH_QUANTILE``) and shots whose mouths are closed (the pool's lower
+half by mouth opening, ``landmarks.expression.mouth_opening``). No shot then shows the target's mouth: the network
+must draw the mouth's interior itself, which is what another person's driving asks of it (a yawn, an "O").
+
 Determinism: episode ``i`` of a dataset with seed ``s`` (and epoch ``e``, see ``set_epoch``) is drawn
 from ``numpy.random.default_rng([s, e, i])`` and a torch generator seeded from it, so it does not
 depend on DataLoader workers or on the order items are requested.
@@ -51,6 +56,8 @@ from lsr.errors import ConfigError, DatasetError
 
 SEGMENTATION_IGNORE_INDEX = -1
 SHOTS_FROM = ("identity", "video", "video_apart")
+OPEN_MOUTH_QUANTILE = 0.75
+"""Expression episodes' targets: frames whose mouth opening is above this quantile of their pool's."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -153,8 +160,11 @@ class EpisodeDataset(Dataset):
         augment: AugmentConfig | None = None,
         with_segmentation: bool = True,
         warp_references: int = 0,
+        expression_episodes: float = 0.0,
     ) -> None:
         _check_shots(shots)
+        if not 0.0 <= expression_episodes <= 1.0:
+            raise ConfigError(f"expression_episodes must be in [0, 1], got {expression_episodes}")
         if warp_references < 0:
             raise ConfigError(f"warp_references must be >= 0, got {warp_references}")
         self.warp_references = warp_references
@@ -180,6 +190,26 @@ class EpisodeDataset(Dataset):
         self.episodes = len(self.targets) if episodes is None else int(episodes)
         if self.episodes < 1:
             raise ConfigError(f"episodes must be >= 1, got {episodes}")
+        self.expression_episodes = float(expression_episodes)
+        self._open_targets: list[FrameRef] = []
+        self._closed: dict[str | tuple[str, str], set[FrameRef]] = {}
+        if self.expression_episodes > 0:
+            self._index_mouths()
+
+    def _index_mouths(self) -> None:
+        """Per pool: the frames with the widest mouths (expression targets) and the closed half (their shots)."""
+        from landmarks.expression import mouth_opening
+
+        for key, refs in self._pools.items():
+            opening = np.array([mouth_opening(self.index.clips[r.clip].landmarks[r.frame]) for r in refs])
+            if len(refs) < 4 or not np.isfinite(opening).all() or np.ptp(opening) <= 0:
+                continue
+            wide, median = np.quantile(opening, OPEN_MOUTH_QUANTILE), np.median(opening)
+            self._open_targets.extend(r for r, o in zip(refs, opening) if o > wide)
+            self._closed[key] = {r for r, o in zip(refs, opening) if o <= median}
+        if not self._open_targets:
+            raise DatasetError("expression episodes need clips whose mouths open and close (4 or more frames each); "
+                               "none has")
 
     @property
     def size(self) -> int:
@@ -210,8 +240,14 @@ class EpisodeDataset(Dataset):
         if not 0 <= index < self.episodes:
             raise IndexError(f"episode {index} out of range ({self.episodes})")
         rng, generator = _rngs(self.seed, self.epoch, index)
-        target_ref = self.targets[int(rng.integers(len(self.targets)))]
-        pool = self._shot_pool(target_ref)
+        if self.expression_episodes > 0 and rng.random() < self.expression_episodes:
+            target_ref = self._open_targets[int(rng.integers(len(self._open_targets)))]
+            pool = self._shot_pool(target_ref)
+            closed = self._closed[self._pool_key(target_ref)]
+            pool = [ref for ref in pool if ref in closed] or pool
+        else:
+            target_ref = self.targets[int(rng.integers(len(self.targets)))]
+            pool = self._shot_pool(target_ref)
         refs = _draw_shots(rng, pool, self.shots) + [target_ref]
         loaded = [self.index.load(ref, with_segmentation=False) for ref in refs[:-1]]
         loaded.append(self.index.load(target_ref, with_segmentation=self.with_segmentation))

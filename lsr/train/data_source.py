@@ -77,6 +77,7 @@ def episode_dataset(cfg: TrainConfig, model_config: ModelConfig) -> torch.utils.
             shots_from=cfg.shots_from,
             with_segmentation=needs_segmentation,
             warp_references=model_config.warp_references if model_config.uses_references else 0,
+            expression_episodes=cfg.expression_episodes,
         )
         if needs_segmentation:
             probe = dataset[0]

@@ -24,6 +24,32 @@ def l2_loss(fake: Tensor, real: Tensor) -> Tensor:
     return (fake - real).square().mean()
 
 
+MOUTH_POINTS = slice(48, 68)  # iBUG-68 outer and inner lips
+
+
+def mouth_mask(landmarks: Tensor, size: int, grow: float = 0.35) -> Tensor:
+    """(B, 68, 2) pixel landmarks -> (B, 1, S, S) float mask: 1 inside an ellipse around the lips, grown by ``grow`` of
+    the mouth's width on every side (the chin and cheeks a mouth moves), a one-pixel soft edge."""
+    lips = landmarks[:, MOUTH_POINTS].float()
+    low, high = lips.amin(1), lips.amax(1)  # (B, 2)
+    centre = (low + high) / 2
+    width = (high[:, 0] - low[:, 0]).clamp_min(1.0)
+    semi = (high - low) / 2 + grow * width[:, None]  # (B, 2)
+    axis = torch.arange(size, device=landmarks.device, dtype=torch.float32)
+    dx = (axis[None, None, :] - centre[:, 0, None, None]) / semi[:, 0, None, None]
+    dy = (axis[None, :, None] - centre[:, 1, None, None]) / semi[:, 1, None, None]
+    radius = (dx.square() + dy.square()).sqrt()  # 1 on the ellipse
+    edge = 1.0 / semi.amin(1).clamp_min(1.0)[:, None, None]  # one pixel, in radius units
+    return ((1.0 - radius) / edge + 0.5).clamp(0.0, 1.0)[:, None]
+
+
+def masked_l1_loss(fake: Tensor, real: Tensor, mask: Tensor) -> Tensor:
+    """Mean absolute error inside ``mask`` (B, 1, H, W), per image, then over the batch (an empty mask gives 0)."""
+    error = ((fake - real).abs() * mask).sum((1, 2, 3))
+    area = mask.sum((1, 2, 3)) * fake.shape[1]
+    return (error / area.clamp_min(1.0)).mean()
+
+
 def ssim_loss(fake: Tensor, real: Tensor, window_size: int = 11) -> Tensor:
     """(1 - SSIM) / 2 on images mapped from [-1, 1] to [0, 1] (kornia's structural similarity)."""
     from kornia.losses import ssim_loss as kornia_ssim_loss

@@ -65,7 +65,8 @@ class Batch:
     shots: (B, K, 3, S, S) in [-1, 1]; shot_landmark_images: (B, K, C_lm, S, S) in [-1, 1];
     target: (B, 3, S, S) in [-1, 1]; target_landmark_image: (B, C_lm, S, S);
     target_segmentation: (B, S, S) int64 class ids, ``IGNORE_INDEX`` where unknown, or None;
-    references: (B, N, 3, S, S) in [-1, 1] and reference_masks: (B, N, 1, S, S), warp_guided only.
+    references: (B, N, 3, S, S) in [-1, 1] and reference_masks: (B, N, 1, S, S), warp_guided only;
+    target_landmarks: (B, 68, 2) pixels (the mouth term), where the dataset gives them.
     """
 
     shots: Tensor
@@ -75,6 +76,7 @@ class Batch:
     target_segmentation: Tensor | None = None
     references: Tensor | None = None
     reference_masks: Tensor | None = None
+    target_landmarks: Tensor | None = None
 
     @classmethod
     def from_dict(cls, raw: Mapping[str, Tensor], device: torch.device) -> Batch:
@@ -90,6 +92,7 @@ class Batch:
             target_segmentation=None if segmentation is None else segmentation.to(device, torch.int64),
             references=_optional(raw, "references", device),
             reference_masks=_optional(raw, "reference_masks", device),
+            target_landmarks=_optional(raw, "target_landmarks", device),
         )
 
     def oracle_one_hot(self) -> Tensor:
@@ -188,9 +191,13 @@ class StepResult:
     """The layout SPADE saw (or G^l's logits in stage 1), for previews."""
 
 
-def reconstruction_loss(fake: Tensor, real: Tensor, weights: LossWeights, perceptual: nn.Module | None) -> tuple[Tensor, dict[str, Tensor]]:
-    """L_rec of eq. 4.4: L1 + SSIM (+ L2 when weighted, + VGG perceptual when weights were given)."""
+def reconstruction_loss(fake: Tensor, real: Tensor, weights: LossWeights, perceptual: nn.Module | None,
+                        landmarks: Tensor | None = None) -> tuple[Tensor, dict[str, Tensor]]:
+    """L_rec of eq. 4.4: L1 + SSIM (+ L2 when weighted, + VGG perceptual when weights were given, + L1 around the
+    mouth when weighted and the target's ``landmarks`` (B, 68, 2) are given)."""
     terms = {"l1": losses.l1_loss(fake, real)}
+    if weights.mouth > 0 and landmarks is not None:
+        terms["mouth"] = losses.masked_l1_loss(fake, real, losses.mouth_mask(landmarks, fake.shape[-1]))
     if weights.l2 > 0:
         terms["l2"] = losses.l2_loss(fake, real)
     if weights.ssim > 0:
@@ -198,7 +205,7 @@ def reconstruction_loss(fake: Tensor, real: Tensor, weights: LossWeights, percep
     if perceptual is not None and weights.vgg > 0:
         terms["vgg"] = perceptual(fake, real)
     total = (weights.l1 * terms["l1"] + weights.l2 * terms.get("l2", 0.0) + weights.ssim * terms.get("ssim", 0.0)
-             + weights.vgg * terms.get("vgg", 0.0))
+             + weights.vgg * terms.get("vgg", 0.0) + weights.mouth * terms.get("mouth", 0.0))
     return total, terms
 
 
@@ -257,7 +264,7 @@ def generator_step(
             frame = generator.synthesize(batch.target_landmark_image, layout_latent, style_latent, oracle,
                                          references=batch.references, reference_masks=batch.reference_masks)
             fake, layout = frame.image.float(), frame.layout
-            total, rec_terms = reconstruction_loss(fake, batch.target, weights, perceptual)
+            total, rec_terms = reconstruction_loss(fake, batch.target, weights, perceptual, batch.target_landmarks)
             scalars.update({k: v.item() for k, v in rec_terms.items()})
             with frozen(discriminator):
                 fake_logits, fake_features = discriminator_with_features(discriminator, fake)

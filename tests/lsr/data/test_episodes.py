@@ -180,3 +180,20 @@ def test_warp_references_are_the_nearest_shots_warped_onto_the_target(dataset_ro
     target = item["target"]
     raw_error = (item["shots"] - target).abs().mean(dim=(1, 2, 3)).min()
     assert (item["references"][0] - target).abs().mean() < raw_error + 0.05
+
+
+def test_expression_episodes_open_the_mouth_beyond_every_shot(dataset_root: Path):
+    from landmarks.expression import mouth_opening
+
+    dataset = EpisodeDataset(dataset_root, shots=2, shots_from="identity", seed=4, episodes=12, expression_episodes=1.0)
+    plain = EpisodeDataset(dataset_root, shots=2, shots_from="identity", seed=4, episodes=12)
+    for index in range(12):
+        item = dataset[index]
+        target = mouth_opening(item["target_landmarks"].numpy())
+        shots = mouth_opening(item["shot_landmarks"].numpy())
+        assert (shots < target).all(), (index, target, shots)  # no shot shows the target's mouth
+    # Off (the default), episodes are drawn exactly as before the option existed.
+    assert torch.equal(plain[3]["target"], EpisodeDataset(dataset_root, shots=2, shots_from="identity", seed=4,
+                                                          episodes=12, expression_episodes=0.0)[3]["target"])
+    with pytest.raises(ConfigError, match="expression_episodes"):
+        EpisodeDataset(dataset_root, expression_episodes=1.5)

@@ -111,3 +111,19 @@ def test_vgg_rejects_a_wrong_state_dict(tmp_path):
     (tmp_path / "junk.pth").write_bytes(b"not a torch file")
     with pytest.raises(WeightsError, match="could not read"):
         load_vgg_features(tmp_path / "junk.pth")
+
+
+def test_mouth_mask_covers_the_lips_and_the_mouth_term_sees_only_them():
+    landmarks = torch.full((1, 68, 2), 10.0)
+    lips = torch.linspace(0, 1, 20)
+    landmarks[0, 48:68, 0] = 34 + 12 * lips  # a mouth 12 px wide, 6 px tall, centred at (40, 44)
+    landmarks[0, 48:68, 1] = 41 + 6 * (lips * 7 % 1)
+    mask = losses.mouth_mask(landmarks, 64)
+    assert mask.shape == (1, 1, 64, 64) and 0.0 <= float(mask.min()) and float(mask.max()) <= 1.0
+    assert mask[0, 0, 44, 40] == 1.0 and mask[0, 0, 44, 34] == 1.0  # the lips and their corners
+    assert mask[0, 0, 10, 10] == 0.0 and mask[0, 0, 60, 40] == 0.0  # the eyes' points, the chin's bottom
+    real = _images(0, batch=1, size=64)
+    outside = real + 0.5 * (mask == 0)  # changed where the mask is 0 only
+    assert losses.masked_l1_loss(outside, real, mask).item() == pytest.approx(0.0, abs=1e-6)
+    inside = real + 0.5 * mask
+    assert losses.masked_l1_loss(inside, real, mask).item() > 0.3

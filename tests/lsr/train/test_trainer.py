@@ -230,3 +230,18 @@ def test_several_data_roots_are_mixed(tmp_path):
     assert len(dataset) == sum(alone) and alone[1] > alone[0] > 0
     with pytest.raises(ConfigError, match="is not a folder"):
         dataclasses.replace(cfg, data=(roots[0], tmp_path / "missing")).validate()
+
+
+def test_expression_episodes_and_the_mouth_term_train_the_warp_guided_model(tmp_path):
+    """--expression-episodes and --losses.mouth reach the dataset and the loss, and the losses stay finite."""
+    stages = StagesConfig(pretrain_epochs=0, full_epochs=0, latent_epochs=1, steps_per_epoch=2)
+    cfg = tiny_train_config(tmp_path, variant="warp_guided", stages=stages, expression_episodes=0.5,
+                            losses=LossConfig(r1_every=2, mouth=2.0))
+    trainer = Trainer(cfg, keep_history=True)
+    assert trainer.dataset.expression_episodes == 0.5
+    summary = trainer.run()
+    trainer.close()
+    assert summary["skipped_steps"] == 0
+    assert all("mouth" in row and math.isfinite(row["mouth"]) for row in trainer.history)
+    with pytest.raises(Exception, match="expression-episodes"):
+        dataclasses.replace(cfg, expression_episodes=-0.1).validate()
