@@ -68,3 +68,18 @@ def machine_markdown() -> str:
     lines = ["| machine | |", "|---|---|"]
     lines += [f"| {key} | {value} |" for key, value in machine_info().items()]
     return "\n".join(lines)
+
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def shown_path(path: str | os.PathLike[str], root: Path = REPO_ROOT, home: Path | None = None) -> str:
+    """A path as benchmark tables print it: relative to the repository (``lsr/weights/default``,
+    ``../shared/data/...`` beside it), else under ``~``, else as given; never this machine's absolute layout."""
+    home = Path.home() if home is None else home
+    resolved = Path(os.path.abspath(os.path.expanduser(str(path))))
+    if resolved == root or root in resolved.parents or root.parent in resolved.parents:
+        return os.path.relpath(resolved, root)
+    if home in resolved.parents:
+        return str(Path("~") / resolved.relative_to(home))
+    return str(path)

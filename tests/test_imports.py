@@ -88,6 +88,39 @@ def test_lower_floors_do_not_import_upper_ones():
             assert not outside, f"{name} imports {sorted(outside)}"
 
 
+FLOORS = ("landmarks", "models_def", "lsr.core", "deploy", "lsr", "app")  # README's order: imports flow rightwards
+
+
+def floor_of(module: str) -> str:
+    return next(f for f in FLOORS if module == f or module.startswith(f + "."))  # lsr.core before lsr
+
+
+def floor_imports() -> dict[str, set[str]]:
+    """floor -> the other floors its modules import (README's "imports of ours")."""
+    found: dict[str, set[str]] = {floor: set() for floor in FLOORS}
+    for name, targets in import_graph(project_modules()).items():
+        found[floor_of(name)].update(floor_of(t) for t in targets if floor_of(t) != floor_of(name))
+    return found
+
+
+def test_floors_import_only_floors_to_their_left():
+    for floor, targets in floor_imports().items():
+        assert targets <= set(FLOORS[:FLOORS.index(floor)]), f"{floor} imports {sorted(targets)}"
+
+
+def test_the_readme_layout_table_shows_the_imports_that_exist():
+    rows = {}
+    for line in (ROOT / "README.md").read_text().splitlines():
+        cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[0].startswith("`") and cells[0].rstrip("`").endswith("/"):
+            folder = cells[0].strip("`").rstrip("/").replace("/", ".")
+            if folder in FLOORS:
+                rows[folder] = set() if cells[2] == "none" else {name.strip() for name in cells[2].split(",")}
+    assert set(rows) == set(FLOORS)
+    actual = floor_imports()
+    assert {floor: rows[floor] for floor in FLOORS} == actual
+
+
 def test_the_inference_core_needs_no_torch():
     """lsr.core is shared by the torch pipeline and the ONNX runtime: importing it must not import torch."""
     import subprocess

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from lsr.errors import ConfigError
+from lsr.machine import shown_path
 
 if TYPE_CHECKING:
     from lsr.config import BenchAblationConfig
@@ -223,9 +224,9 @@ def evaluation_splits(cfg: BenchAblationConfig, resolution: int) -> tuple[dict[s
     splits, skipped = {}, []
     if cfg.data is not None:
         if read_manifest(cfg.data)["splits"].get("test"):
-            splits["data_test"] = (f"Test split of `{cfg.data}`", Path(cfg.data))
+            splits["data_test"] = (f"Test split of `{shown_path(cfg.data)}`", Path(cfg.data))
         else:
-            skipped.append(f"- `{cfg.data}` has no test identities: its split was not scored")
+            skipped.append(f"- `{shown_path(cfg.data)}` has no test identities: its split was not scored")
     if cfg.synthetic_identities or not splits:
         splits["synthetic_test"] = ("Held-out synthetic identities", synthetic_test_split(cfg, resolution))
     if cfg.fsth:
@@ -257,7 +258,7 @@ def evaluate(cfg: BenchAblationConfig, name: str, root: Path, weights: dict[str,
 def setting_notes(cfg: BenchAblationConfig, state: dict[str, Any], skipped: list[str]) -> list[str]:
     """The lines above the tables: schedule, data, protocol, the splits skipped and the measured s/step."""
     steps = schedule(cfg.steps)
-    data = " + ".join(([f"`{cfg.data}` (train split)"] if cfg.data else [])
+    data = " + ".join(([f"`{shown_path(cfg.data)}` (train split)"] if cfg.data else [])
                       + ([f"{cfg.synthetic_identities} synthetic identities"] if cfg.synthetic_identities else []))
     notes = [f"Preset `{cfg.preset}`, {cfg.steps} training steps per variant (stages 1 / 2 / 3: {steps['pretrain']} / "
              f"{steps['full']} / {steps['latent']}; without G^l: – / {steps['pretrain'] + steps['full']} / "

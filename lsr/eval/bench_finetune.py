@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from lsr.machine import shown_path
+
 if TYPE_CHECKING:
     from lsr.config import BenchFinetuneConfig
 
@@ -98,8 +100,8 @@ def finetune_curve(cfg: BenchFinetuneConfig) -> tuple[list[CurveRow], dict[str, 
 
 
 def curve_markdown(rows: list[CurveRow], settings: dict[str, Any], machine: str) -> str:
-    lines = [f"K = {settings['k']} shots per identity ({len(settings['identities'])} identities of `{settings['data']}`, "
-             f"seed {settings['seed']}); model `{settings['weights']}`, Adam lr {settings['finetune_lr']:g}.", "",
+    lines = [f"K = {settings['k']} shots per identity ({len(settings['identities'])} identities of `{shown_path(settings['data'])}`, "
+             f"seed {settings['seed']}); model `{shown_path(settings['weights'])}`, Adam lr {settings['finetune_lr']:g}.", "",
              "| method | fine-tuning steps | PSNR ↑ | SSIM ↑ | sharpness →1 | fine-tuning s (median per subject) |",
              "|---|---|---|---|---|---|"]
     for row in rows:

@@ -26,6 +26,8 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
+from lsr.machine import shown_path
+
 if TYPE_CHECKING:
     from lsr.config import BenchHardConfig
 
@@ -382,8 +384,8 @@ def _cell(value: float | None, digits: int, suffix: str = "") -> str:
 
 
 def hard_markdown(results: list[CaseResult], settings: dict[str, Any], machine: str) -> str:
-    lines = [f"Model `{settings['weights']}` (no fine-tuning); real material: "
-             f"{', '.join(f'`{c}`' for c in settings['clips'])} (training clips; synthetic when absent).", "",
+    lines = [f"Model `{shown_path(settings['weights'])}` (no fine-tuning); real material: "
+             f"{', '.join(f'`{shown_path(c)}`' for c in settings['clips'])} (training clips; synthetic when absent).", "",
              "| case | what | outcome | frames out | driver frames without a face | non-finite frames | outputs with a face "
              "| PSNR vs easy twin | NMKE vs easy twin | s | ms/frame |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]

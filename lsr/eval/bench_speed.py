@@ -37,6 +37,7 @@ from lsr.eval import sections
 from lsr.eval.bench_models import conv_peak_gflops, count_gflop, frame_inputs, median_ms, time_runtime
 from lsr.eval.model_method import LsrModelMethod, scale_points
 from lsr.eval.pareto import pareto_front, plot_speed_error, write_plot
+from lsr.machine import shown_path
 
 if TYPE_CHECKING:
     from lsr.config import BenchSpeedConfig
@@ -464,7 +465,7 @@ def run_bench_speed(cfg: BenchSpeedConfig) -> dict[str, Any]:
     split_root = synthetic_split(cfg, max(weight_sizes.values(), default=min(cfg.resolutions)))
     splits = {"synthetic": load_lsr_split(split_root, "test", cfg.inputs, cfg.holdouts)}
     first = splits["synthetic"][0]
-    provenance = {"synthetic split": f"`{split_root}` (test identities {', '.join(i.name for i in splits['synthetic'])}; "
+    provenance = {"synthetic split": f"`{shown_path(split_root)}` (test identities {', '.join(i.name for i in splits['synthetic'])}; "
                                      f"{len(first.input_frames)} input + {len(first.holdout_frames)} hold-out frames each)"}
     if cfg.fsth:
         shared = Path(os.environ.get("LSR_SHARED_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))

@@ -22,6 +22,7 @@ import numpy as np
 from lsr.errors import ConfigError
 from lsr.eval import cross, idsim, metrics
 from lsr.eval.protocol import BUCKETS, EvalIdentity, EvalRun
+from lsr.machine import shown_path
 
 if TYPE_CHECKING:
     from lsr.config import EvalConfig
@@ -158,7 +159,7 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
     lines = [
         "# lsr eval: thesis §4.4 protocol",
         "",
-        f"data: `{settings.get('data', '?')}` ({len(settings['identities'])} identities: {', '.join(settings['identities'])}); "
+        f"data: `{shown_path(settings.get('data', '?'))}` ({len(settings['identities'])} identities: {', '.join(settings['identities'])}); "
         f"K = {settings['ks']}; seed {settings['seed']}; hold-outs per identity: {settings['max_holdouts'] or 'all'}",
         "",
         "## Self re-enactment (hold-out frames)",

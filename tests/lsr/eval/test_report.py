@@ -112,3 +112,13 @@ def test_lsr_eval_on_two_real_identities(shared_data, tmp_path, capsys):
     assert {row["method"] for row in summary["cross"]} == {"nearest_shot", "tps", "tps_mean3"}
     with pytest.raises(ConfigError, match="--figure-k"):
         EvalConfig(data=small, k=(1,), figure=tmp_path / "x.png", figure_k=8).validate()
+
+
+def test_tables_show_paths_relative_to_the_repository_or_home(tmp_path):
+    from lsr.machine import REPO_ROOT, shown_path
+
+    assert shown_path(REPO_ROOT / "lsr" / "weights" / "default") == "lsr/weights/default"
+    assert shown_path(REPO_ROOT.parent / "shared" / "data" / "x") == "../shared/data/x"
+    home, repo = tmp_path / "home", tmp_path / "work" / "repo"
+    assert shown_path(home / ".cache" / "lsr" / "split", root=repo, home=home) == "~/.cache/lsr/split"
+    assert shown_path(tmp_path / "elsewhere", root=repo, home=home) == str(tmp_path / "elsewhere")
