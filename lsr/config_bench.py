@@ -181,15 +181,44 @@ class BenchSpeedConfig:
 
 
 @dataclasses.dataclass
+class BenchLiveConfig:
+    """The app's live tab in Chromium with a fake camera: frame rate and camera-to-screen latency (a table with
+    machine info; needs /usr/bin/chromium and playwright)."""
+
+    weights: OptionalPath = None
+    """Model folder; default: the shipped default model."""
+    camera_video: OptionalPath = None
+    """A clip to play as the camera (its first frames, letterboxed to 640x480); default a synthetic talking person."""
+    seconds: float = 30.0
+    """Measured stream time, after the warm-up."""
+    warmup: float = 5.0
+    """Seconds of stream after the first result that are not measured."""
+    port: int = 0
+    """Port to serve the app on (127.0.0.1); 0 = a free one."""
+    screenshot: OptionalPath = None
+    """Also save a screenshot of the live tab here (PNG)."""
+    out_md: OptionalPath = None
+    """Also write the table as the 'live' section of this markdown file (e.g. BENCHMARKS.md)."""
+
+    def validate(self) -> None:
+        if self.seconds <= 0 or self.warmup < 0 or not 0 <= self.port < 65536:
+            raise ConfigError("--seconds must be > 0, --warmup >= 0 and --port in 0..65535")
+        if self.camera_video is not None and not Path(self.camera_video).is_file():
+            raise ConfigError(f"--camera-video {self.camera_video} is not a file")
+
+
+@dataclasses.dataclass
 class BenchReenactConfig:
     """Print end-to-end and per-stage fps of `lsr reenact` for each runtime (a table with machine info)."""
 
     video: OptionalPath = None
     """Driving (and source) clip; default the shared ../shared/data/clips/tpsmm_driving.mp4."""
     weights: OptionalPath = None
-    """Model folder; default a randomly initialised --preset model (speed does not depend on the weights)."""
-    preset: str = "fast"
+    """Model folder; default: the shipped default model ($LSR_WEIGHTS if set)."""
+    preset: str | None = None
+    """Time a randomly initialised model of this preset instead (speed does not depend on the weights)."""
     resolution: int = 256
+    """The --preset model's resolution."""
     frames: int = 50
     """Driving frames timed (the clip is cut to its first N frames)."""
     runtimes: tuple[Literal["torch", "onnx"], ...] = ("torch", "onnx")

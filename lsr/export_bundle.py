@@ -208,17 +208,17 @@ def graph_error(reference_path: Path, other_path: Path, inputs: Sequence[dict[st
 
 def calibration_inputs(weights: str | os.PathLike | LSRModel, source, driving, *, k: int | None = None,
                        frames: int = 32) -> list[dict[str, np.ndarray]]:
-    """Frame-graph inputs of real frames: ``driving``'s first ``frames`` landmark images and ``source``'s latents."""
-    from lsr.core.engine import to_network
+    """Frame-graph inputs of real frames: ``driving``'s first ``frames`` landmark images and ``source``'s latents
+    (and its shots warped onto them, for a warp-guided model), as ``ReenactorBase.network_inputs`` makes them."""
     from lsr.pipeline import Reenactor
 
     reenactor = Reenactor(weights)
-    subject = reenactor.encode_subject(source, k=k)
+    reenactor.encode_subject(source, k=k)
     feeds = []
     for frame in reenactor(driving):
-        if frame.landmark_image is not None:
-            feeds.append({"landmark_image": to_network(frame.landmark_image)[None],
-                          "layout_latent": subject.layout_latent, "style_latent": subject.style_latent})
+        if frame.landmarks is not None:
+            feeds.append({name: np.asarray(value, np.float32)
+                          for name, value in reenactor.network_inputs(frame.landmarks)[1].items()})
         if len(feeds) >= frames:
             break
     return feeds

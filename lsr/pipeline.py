@@ -152,13 +152,10 @@ class Reenactor(ReenactorBase):
             runtime.subject = Subject(subject.shots, subject.layout_latent, subject.style_latent, subject.source)
         max_abs, total, count = 0.0, 0.0, 0
         for points in driver_landmarks:
-            from landmarks.raster import draw_landmarks
-
-            from lsr.core.engine import to_network
-
-            landmark_image = to_network(draw_landmarks(points, self.resolution))[None]
-            outputs = [r.backend.synthesize(landmark_image, subject.layout_latent, subject.style_latent, False)[0]
-                       for r in (reference, other)]
+            inputs = reference.network_inputs(points)[1]  # a warp-guided model's warped shots included
+            extra = (inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()
+            outputs = [r.backend.synthesize(inputs["landmark_image"], inputs["layout_latent"], inputs["style_latent"],
+                                            False, *extra)[0] for r in (reference, other)]
             difference = np.abs(outputs[0] - outputs[1])
             max_abs, total, count = max(max_abs, float(difference.max())), total + float(difference.mean()), count + 1
         if count == 0:

@@ -233,17 +233,21 @@ class ReenactorBase:
 
     # ---- subject ---------------------------------------------------------------------------------------
     def encode_subject(self, source: SourceInput | SubjectShots, k: int | None = None, face_index: int = 0,
-                       anchor: int | None = None) -> Subject:
+                       anchor: int | None = None, cache: bool = True) -> Subject:
         """Load the K shots of ``source`` (images, a folder, a video or arrays; see ``lsr.core.sources``), encode and cache.
 
         k: shots to average (1..32); None = min(8, usable shots). face_index: which face of a frame with several
         (0 = the largest). anchor: which shot is the neutral face and the scene (None: the most frontal one with
         a closed mouth). Returns the cached ``Subject`` (``subject.shots.notes``: what the loader skipped or chose).
+        cache: False returns the subject without replacing the cached one (a live stream's own, ``lsr.core.live``,
+        while batch runs use the cache).
         """
         started = time.perf_counter()
         shots = source if isinstance(source, SubjectShots) else load_subject_shots(
             source, self.crop_size, k=k, detector=self.detector, face_index=face_index, anchor=anchor
         )
+        if not cache:
+            return self._encode(shots, _source_key(source))
         self.subject = self._encode(shots, _source_key(source))
         self.last_stats = ReenactStats()
         self.last_stats.add("subject_encoding", time.perf_counter() - started)
@@ -264,31 +268,48 @@ class ReenactorBase:
 
     # ---- frames ----------------------------------------------------------------------------------------
     def synthesize_crop(
-        self, crop_landmarks: np.ndarray, with_layout: bool = False, latents: tuple[np.ndarray, np.ndarray] | None = None
+        self, crop_landmarks: np.ndarray, with_layout: bool = False, latents: tuple[np.ndarray, np.ndarray] | None = None,
+        subject: Subject | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Target landmarks (68, 2) in crop pixels -> (synthesis (C, C, 3) uint8, landmark image (S, S, 3) uint8, layout).
 
         C is ``crop_size``, S the model resolution. A warp-guided model also gets the nearest shots TPS-warped
         onto the target at C (``landmarks.tps.warp_references``) and blends them with its own image at C.
         latents: (layout_latent, style_latent), (1, D) each, in place of the subject's (e.g. one shot's alone).
+        subject: an encoded subject other than the cached one (a live stream's own, ``lsr.core.live``).
         """
+        landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject)
+        image, layout = self.synthesize_inputs(inputs, with_layout)
+        return image, landmark_image, layout
+
+    def synthesize_inputs(self, inputs: dict[str, np.ndarray], with_layout: bool = False
+                          ) -> tuple[np.ndarray, np.ndarray | None]:
+        """``network_inputs``' dict -> (synthesis (C, C, 3) uint8, layout (C_l, S, S) float32 or None)."""
+        image, layout = self.backend.synthesize(
+            inputs["landmark_image"], inputs["layout_latent"], inputs["style_latent"], with_layout,
+            *((inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()),
+        )
+        return from_network(image[0]), None if layout is None else np.asarray(layout[0], np.float32)
+
+    def network_inputs(self, crop_landmarks: np.ndarray, latents: tuple[np.ndarray, np.ndarray] | None = None,
+                       subject: Subject | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """What the frame network gets for target landmarks (68, 2) in crop pixels: (landmark image (S, S, 3) uint8,
+        the named inputs of the frame graph: landmark_image (1, 3, S, S), layout_latent and style_latent (1, D), and
+        for a warp-guided model references (1, N, 3, C, C) and reference_masks (1, N, 1, C, C))."""
         from landmarks.raster import draw_landmarks
 
-        subject = self._require_subject()
+        subject = subject if subject is not None else self._require_subject()
         landmark_image = draw_landmarks(scale_points(crop_landmarks, self.resolution / self.crop_size), self.resolution)
-        references = masks = None
+        layout_latent, style_latent = latents if latents is not None else (subject.layout_latent, subject.style_latent)
+        inputs = {"landmark_image": to_network(landmark_image)[None], "layout_latent": layout_latent,
+                  "style_latent": style_latent}
         if self.warp_references:
             from landmarks.tps import warp_references
 
             warped, valid, _ = warp_references(subject.shots.frames, subject.shots.landmarks, crop_landmarks,
                                                self.warp_references)
-            references, masks = to_network(warped)[None], valid[None, :, None]  # (1, N, 3, C, C), (1, N, 1, C, C)
-        layout_latent, style_latent = latents if latents is not None else (subject.layout_latent, subject.style_latent)
-        image, layout = self.backend.synthesize(
-            to_network(landmark_image)[None], layout_latent, style_latent, with_layout,
-            *(() if references is None else (references, masks)),
-        )
-        return from_network(image[0]), landmark_image, None if layout is None else np.asarray(layout[0], np.float32)
+            inputs["references"], inputs["reference_masks"] = to_network(warped)[None], valid[None, :, None]
+        return landmark_image, inputs
 
     def reenact(
         self,

@@ -6,7 +6,7 @@ landmarks (tracking, smoothing, crop transform, retargeting, rasterising), subje
 (the generator plus its pre/post-processing), paste-back, encode (H.264 + audio mux). "synthesis only" times
 the generator alone on one landmark image, the ceiling of the end-to-end rate. Goals: end-to-end >= 0.8x
 synthesis-only; the default preset <= 33 ms/frame at 256^2. Also prints the bf16 error against fp32.
-Speed does not depend on the weights, so a randomly initialised preset stands in when --weights is absent.
+The shipped default is timed unless --weights names another model or --preset a randomly initialised one.
 """
 
 from __future__ import annotations
@@ -36,16 +36,14 @@ def trim_clip(video: Path, out: Path, frames: int) -> Path:
 
 
 def synthesis_only_ms(reenactor, repeats: int = 20) -> float:
-    """Median ms of one ``backend.synthesize`` call on a real landmark image (after one warm-up)."""
-    from lsr.core.engine import to_network
-    from landmarks.raster import draw_landmarks
-
-    subject = reenactor.subject
-    landmark_image = to_network(draw_landmarks(subject.reference_landmarks, reenactor.resolution))[None]
+    """Median ms of one frame's synthesis at the subject's anchor pose (after one warm-up): what ``lsr reenact``
+    times as its synthesis stage (the landmark image, a warp-guided model's warps of its nearest shots, the network,
+    the conversions), so it works for every variant."""
+    target = reenactor.subject.reference_landmarks
     times = []
     for _ in range(repeats + 1):
         started = time.perf_counter()
-        reenactor.backend.synthesize(landmark_image, subject.layout_latent, subject.style_latent, False)
+        reenactor.synthesize_crop(target)
         times.append(time.perf_counter() - started)
     return float(np.median(times[1:]) * 1000)
 
@@ -53,6 +51,7 @@ def synthesis_only_ms(reenactor, repeats: int = 20) -> float:
 @dataclasses.dataclass
 class _JobOptions:  # the ReenactConfig fields run_job reads
     paste_back: bool
+    scene: str = "source"
     fps: float | None = None
     relative: bool = False
     absolute: bool = False
@@ -66,8 +65,9 @@ class _JobOptions:  # the ReenactConfig fields run_job reads
 
 def run_bench_reenact(cfg: BenchReenactConfig) -> str:
     from lsr.export_bundle import export_graphs
-    from lsr.machine import machine_markdown
+    from lsr.machine import machine_markdown, shown_path
     from lsr.pipeline import Reenactor
+    from lsr.weights import resolve_weights
     from lsr.devices import resolve_device
     from lsr.reenact import Job, run_job
     from models_def import LSRModel, preset_config
@@ -77,12 +77,12 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
     rows, notes = [], []
     with tempfile.TemporaryDirectory(prefix="lsr-bench-reenact-") as temp:
         temp = Path(temp)
-        weights = cfg.weights
-        if weights is None:
+        if cfg.preset is not None:
             weights = LSRModel(preset_config(cfg.preset, resolution=cfg.resolution)).save_pretrained(temp / "weights")
             label = f"{cfg.preset} (random init) at {cfg.resolution}^2"
         else:
-            label = str(weights)
+            weights = resolve_weights(cfg.weights)
+            label = "the shipped default" if cfg.weights is None else f"`{shown_path(weights)}`"
         clip = trim_clip(video, temp / "driving.mp4", cfg.frames)
         for runtime in cfg.runtimes:
             if runtime == "onnx":

@@ -76,3 +76,23 @@ def test_frame_generator_parity_dynamic_batch(tmp_path, variant, with_layout):
 def test_layout_output_needs_a_layout_variant():
     with pytest.raises(ValueError, match="no layout map"):
         FrameGeneratorGraph(_model("baseline").frame_generator, with_layout=True)
+
+
+def test_int8_export_of_a_warp_guided_model_calibrates_with_its_warped_shots(tmp_path):
+    """`lsr export --int8` feeds the calibration the references a warp-guided frame graph needs (it failed on
+    'references' missing from the feed before)."""
+    from landmarks.video import VideoWriter
+    from lsr.cli import main
+    from lsr.data.synth import render_video
+
+    weights = _model("warp_guided").save_pretrained(tmp_path / "w")
+    clip = tmp_path / "person.mp4"
+    with VideoWriter(clip, 25) as writer:
+        for frame in render_video(5, 6, 128).frames:
+            writer.write(frame)
+    out = tmp_path / "onnx"
+    assert main(["export", "--weights", str(weights), "--out", str(out), "--int8", "--calibration-source", str(clip),
+                 "--calibration-frames", "3", "--calibration-k", "2"]) == 0
+    assert (out / "frame_generator.int8.onnx").is_file()
+    inputs = {i.name for i in _session(out / "frame_generator.int8.onnx").get_inputs()}
+    assert {"references", "reference_masks"} <= inputs
