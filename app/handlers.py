@@ -28,6 +28,12 @@ from lsr.core import MAX_K
 LOG = logging.getLogger("lsr.app")
 DISPLAY_SIDE = 256  # shots, per-shot results and side-by-side tiles are shown at least this large
 PANEL_TITLES = ("driving frame", "landmarks", "latent layout", "output")
+LIVE_NETWORK_THREADS = 1  # onnxruntime threads of the live network: on 2 cores, 1 thread ran it as fast as 2 (45 ms)
+# and 2.4x faster than its default threads while another process kept a core busy (58 against 141 ms)
+LIVE_FPS_SMOOTHING = 0.2  # weight of the newest frame interval in the fps shown
+LIVE_TRACE: list[tuple[int, float]] | None = None
+"""Set to a list by ``lsr bench live`` (which serves the app in its own process): each camera frame's (index, time in
+ms since the epoch) as the live handler takes it up, to match the browser's timestamps against."""
 
 
 def how_to_get_weights() -> str:
@@ -83,6 +89,7 @@ class ModelStore:
         self._lock = threading.Lock()
         self._torch = None
         self._onnx = None
+        self._live = None
         self._detector = None
 
     @property
@@ -124,6 +131,19 @@ class ModelStore:
 
                 self._torch = Reenactor(weights, device=resolve_device(self.device), detector=detector)
             return self._torch
+
+    def live_reenactor(self):
+        """The live tab's ``OnnxReenactor``: one network thread, so that the next camera frame's tracking and warps
+        run beside it on the other core (``LiveStream.step``); shared by every live stream."""
+        weights = self._require_weights()
+        detector = self.detector
+        with self._lock:
+            if self._live is None:
+                from deploy.runtime import OnnxReenactor
+                from lsr.reenact import onnx_bundle_folder
+
+                self._live = OnnxReenactor(onnx_bundle_folder(weights), detector=detector, threads=LIVE_NETWORK_THREADS)
+            return self._live
 
     @contextlib.contextmanager
     def finetuned(self, reenactor, steps: int) -> Iterator[float | None]:
@@ -440,3 +460,106 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
                  + (", audio kept" if audio else ""))
     return RunResult(output, stats.frames, shot_gallery(shots), averaging, panels_dir, stage_table(stats),
                      "\n".join(f"- {note}" for note in notes))
+
+
+# ---- live: the webcam drives the person (lsr.core.live) ------------------------------------------------------------
+
+
+class LiveStream:
+    """One browser tab's live stream: its encoded subject and ``LiveSession``, the layout colours, the fps meter.
+
+    Lives in the tab's ``gr.State``; a new choice of person encodes again, stopping the camera or closing the tab
+    drops it (``close``)."""
+
+    def __init__(self, session, key: tuple, kind: str) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.session, self.key, self.kind = session, key, kind
+        self.pca = None
+        self.fps: float | None = None
+        self._last_shown: float | None = None
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lsr-live")
+        self._pending = None  # the previous frame's second half, running while this frame is prepared
+
+    def step(self, frame: np.ndarray):
+        """Pipelined: prepare this frame (tracking, warps) while the worker finishes the previous one (network,
+        composite), and return that previous result; the first frame (and a frame without a face) waits for its own.
+        The browser sends the next frame as soon as this returns, so the two halves overlap on two cores."""
+        prepared = self.session.prepare(frame)
+        previous, self._pending = self._pending, None
+        if not hasattr(prepared, "inputs"):  # no face: the last good frame, once the one in flight is done
+            if previous is not None:
+                previous.result()
+            return self.session.still(prepared.note) if previous is not None else prepared
+        self._pending = self._worker.submit(self.session.finish, prepared)
+        return (previous if previous is not None else self._pending).result()
+
+    def tick(self) -> float | None:
+        """Call once per frame shown: the smoothed output rate (None until two frames)."""
+        now = time.perf_counter()
+        if self._last_shown is not None and now > self._last_shown:
+            rate = 1.0 / (now - self._last_shown)
+            self.fps = rate if self.fps is None else (1 - LIVE_FPS_SMOOTHING) * self.fps + LIVE_FPS_SMOOTHING * rate
+        self._last_shown = now
+        return self.fps
+
+    def close(self) -> None:
+        self._worker.shutdown(wait=True, cancel_futures=True)
+        self._pending = None
+        self.session = None
+        self.pca = None
+
+
+def live_person(source_files, k: int, examples_dir: Path) -> tuple[list[Path], tuple]:
+    """The shots a live stream drives: the uploaded ones, else the example person; and a key that changes with them."""
+    paths = _paths(source_files)
+    if not paths:
+        from app import examples as ex
+
+        paths = list(ex.ensure_examples(examples_dir).source_images)
+    return paths, (tuple(str(p) for p in paths), int(k))
+
+
+def live_frame(store: ModelStore, limits: Limits, stream: LiveStream | None, frame: np.ndarray | None, source_files,
+               k: int, examples_dir: Path, *, paste_back: bool = True, watermark: bool = True):
+    """One webcam frame -> (shown image, latent layout picture, status line, the stream state).
+
+    The person is encoded once per choice (uploaded shots, else the example person); a frame without a face shows the
+    last good output with a note."""
+    from lsr.core.live import LiveSession
+    from lsr.reenact import layout_panel
+
+    arrived = time.time() * 1000
+    if frame is None:
+        return gr_skip(), gr_skip(), "Start the camera to drive the person.", stream
+    paths, key = live_person(source_files, k, examples_dir)
+    key = key + (bool(paste_back), bool(watermark))
+    if stream is None or stream.key != key or stream.session is None:
+        reenactor = store.live_reenactor()
+        shots, _ = load_shots(paths, int(k), reenactor.crop_size, store.detector, limits)
+        subject = reenactor.encode_subject(shots, cache=False)
+        session = LiveSession(reenactor, subject, paste_back=paste_back, with_layout=True, watermark=watermark,
+                              detector=store.detector)
+        stream = LiveStream(session, key, reenactor.backend.layout_kind)
+    shown = stream.step(np.asarray(frame, np.uint8))
+    if LIVE_TRACE is not None:
+        LIVE_TRACE.append((stream.session.frames, arrived))
+    fps = stream.tick()
+    layout = None
+    if shown.layout is not None and stream.kind == "segmentation":
+        layout = enlarge(layout_panel(shown.layout, stream.kind, shown.layout.shape[-1]))
+    elif shown.layout is not None:
+        from lsr.layout_view import LayoutPCA
+
+        stream.pca = stream.pca or LayoutPCA()
+        layout = enlarge(stream.pca.rgb(shown.layout))
+    status = (f"{'–' if fps is None else f'{fps:.1f}'} fps · {1000 * shown.seconds:.0f} ms per frame · "
+              f"frame {shown.index}" + (f" · {shown.note}" if shown.note else ""))
+    return shown.image, layout if layout is not None else gr_skip(), status, stream
+
+
+def gr_skip():
+    """Leave an output as it is (Gradio's skip, imported where a callback needs it)."""
+    import gradio as gr
+
+    return gr.skip()

@@ -43,6 +43,20 @@ LAYOUT_HELP = """Per frame: the driving frame, the landmark image the generator 
 Drag the slider to scrub through the frames."""
 
 
+LIVE_HELP = """Your **webcam drives the person** of the first tab (the photos you gave there, or the example person
+when there are none), live. Allow the camera and press its record button. Frames that arrive while the last one is
+still being made are dropped, never queued, so what you see stays close to now; the line under the result shows
+the rate, the time per frame and the frame count. Without a face in view the last good frame stays. The network runs
+on onnxruntime (the first start exports it, a few seconds). Outputs carry the visible 'SYNTHETIC' mark unless it is
+switched off in the first tab's options."""
+LIVE_STREAM_EVERY = 0.05  # s between camera frames offered (caps the rate at 20 fps); the server keeps only the newest
+LIVE_TIME_LIMIT = 600  # s a stream may run before the camera has to be started again
+LIVE_STREAMS = 2  # live streams served at once (each holds a subject and a tracker)
+LIVE_CAMERA_SIZE = (320, 240)  # asked of the camera: enough for a face filling a webcam frame, and a quarter of the
+# pixels of 640x480 to grab, send and track
+LIVE_CAMERA = {"video": {"width": {"ideal": LIVE_CAMERA_SIZE[0]}, "height": {"ideal": LIVE_CAMERA_SIZE[1]}}}
+
+
 def model_summary(weights: Path | None, random_init: bool) -> str:
     """One line about the served model, read from its config.json (no model load)."""
     if weights is None:
@@ -135,6 +149,22 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
 
         return handlers.labelled_panel(read_image(path))
 
+    def live(frame, stream, source_files, k, in_scene, watermark):
+        with handlers.readable_errors("drive the person live"):
+            return handlers.live_frame(store, limits, stream, frame, source_files, int(k), examples_dir,
+                                       paste_back=bool(in_scene), watermark=bool(watermark))
+
+    def stop_live(stream):
+        if stream is not None:
+            stream.close()
+        return None, "Camera stopped; the person's encoding was released."
+
+    def recentre_live(stream):
+        if stream is None or stream.session is None:
+            return "Start the camera first."
+        stream.session.recentre()
+        return "Re-centred: your next face is the neutral one."
+
     def forget_session(request: gr.Request):
         files.drop(request.session_hash if request is not None else None)
 
@@ -143,55 +173,72 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
         gr.Markdown(model_summary(weights, random_init), elem_id="model-status",
                     elem_classes=["lsr-warning"] if weights is None or random_init else None)
         panels_state = gr.State("")
-        with gr.Row(equal_height=False):
-            with gr.Column():
-                gr.Markdown("### 1. Source person (K shots)")
-                source_files = gr.File(file_count="multiple", file_types=["image", "video"], elem_id="source-files",
-                                       label="Photos of one person (1-32), or one short video")
-                example_person = gr.Button("Use the example person (synthetic)", size="sm")
-                k = gr.Slider(1, cfg.max_k, value=min(4, cfg.max_k), step=1, label="K: shots to average",
-                              info="A video source is sampled to K frames; extra photos are thinned evenly.")
-                shots = gr.Gallery(label="Shots used, with detected landmarks", columns=2, height=300,
-                                   object_fit="contain", elem_id="shots")
-                source_notes = gr.Markdown()
-            with gr.Column():
-                gr.Markdown("### 2. Driving motion")
-                driving = gr.File(file_types=[".mp4", ".mov", ".avi", ".mkv", ".webm", ".npy", ".json"],
-                                  label="Driving video, or landmarks (.npy / .json, N x 68 x 2)",
-                                  elem_id="driving-file")
-                driver_example = gr.Dropdown(list(ex.DRIVER_EXAMPLES), value=ex.DRIVER_EXAMPLE_NONE,
-                                             label="...or a bundled driving example", elem_id="driver-example")
-                with gr.Accordion("Options", open=False):
-                    motion = gr.Radio(["relative", "absolute"], value="relative", label="Motion",
-                                      info="relative: the driver's motion on the source's face shape; "
-                                           "absolute: the driver's own landmarks")
-                    smooth = gr.Checkbox(True, label="Smooth the driving landmarks (One-Euro)")
-                    paste_back = gr.Checkbox(True, label="Put the result into the source's own scene",
-                                             info="the source's frame size, background, body and hair (its anchor "
-                                                  "shot, or its video's frames); otherwise the face crop")
-                    finetune_steps = gr.Slider(0, 200, value=DEFAULT_FINETUNE_STEPS, step=1,
-                                               label="Fine-tuning steps on the source",
-                                               info="thesis §4.3.5; torch runtime only (ONNX skips it)")
-                    runtime = gr.Radio(["torch", "onnx"], value="torch", label="Runtime",
-                                       info="onnx needs an `lsr export` bundle in WEIGHTS/onnx")
-                    watermark = gr.Checkbox(True, label="Visible 'SYNTHETIC' watermark")
-                run_button = gr.Button("Re-enact" if store.weights is not None else "Re-enact (no model loaded: see the top)",
-                                       variant="primary", elem_id="run", interactive=store.weights is not None)
-            with gr.Column():
-                gr.Markdown("### 3. Result")
-                video = gr.Video(label="Re-enacted video (H.264, with the driver's audio)", elem_id="result-video",
-                                 interactive=False, autoplay=False)
-                summary = gr.Markdown(elem_id="run-summary")
-        gr.Markdown("### The latent layout, frame by frame\n" + LAYOUT_HELP)
-        panel = gr.Image(label="driving frame | landmarks | latent layout | output", show_label=False,
-                         interactive=False, elem_id="layout-panel", format="png")  # titles are in the picture
-        scrubber = gr.Slider(0, 1, value=0, step=1, label="frame", interactive=False, elem_id="frame-scrubber")
-        gr.Markdown("### Latent averaging over the K shots\n" + AVERAGING_HELP)
-        averaging = gr.Gallery(label="each shot alone | the K-shot average", columns=6, height=240,
-                               elem_id="averaging")
-        with gr.Accordion("Timing per stage", open=False):
-            timing = gr.Markdown()
-
+        live_state = gr.State(None, delete_callback=lambda stream: stream is not None and stream.close())
+        with gr.Tab("Upload and re-enact", id="batch"):
+            with gr.Row(equal_height=False):
+                with gr.Column():
+                    gr.Markdown("### 1. Source person (K shots)")
+                    source_files = gr.File(file_count="multiple", file_types=["image", "video"], elem_id="source-files",
+                                           label="Photos of one person (1-32), or one short video")
+                    example_person = gr.Button("Use the example person (synthetic)", size="sm")
+                    k = gr.Slider(1, cfg.max_k, value=min(4, cfg.max_k), step=1, label="K: shots to average",
+                                  info="A video source is sampled to K frames; extra photos are thinned evenly.")
+                    shots = gr.Gallery(label="Shots used, with detected landmarks", columns=2, height=300,
+                                       object_fit="contain", elem_id="shots")
+                    source_notes = gr.Markdown()
+                with gr.Column():
+                    gr.Markdown("### 2. Driving motion")
+                    driving = gr.File(file_types=[".mp4", ".mov", ".avi", ".mkv", ".webm", ".npy", ".json"],
+                                      label="Driving video, or landmarks (.npy / .json, N x 68 x 2)",
+                                      elem_id="driving-file")
+                    driver_example = gr.Dropdown(list(ex.DRIVER_EXAMPLES), value=ex.DRIVER_EXAMPLE_NONE,
+                                                 label="...or a bundled driving example", elem_id="driver-example")
+                    with gr.Accordion("Options", open=False):
+                        motion = gr.Radio(["relative", "absolute"], value="relative", label="Motion",
+                                          info="relative: the driver's motion on the source's face shape; "
+                                               "absolute: the driver's own landmarks")
+                        smooth = gr.Checkbox(True, label="Smooth the driving landmarks (One-Euro)")
+                        paste_back = gr.Checkbox(True, label="Put the result into the source's own scene",
+                                                 info="the source's frame size, background, body and hair (its anchor "
+                                                      "shot, or its video's frames); otherwise the face crop")
+                        finetune_steps = gr.Slider(0, 200, value=DEFAULT_FINETUNE_STEPS, step=1,
+                                                   label="Fine-tuning steps on the source",
+                                                   info="thesis §4.3.5; torch runtime only (ONNX skips it)")
+                        runtime = gr.Radio(["torch", "onnx"], value="torch", label="Runtime",
+                                           info="onnx needs an `lsr export` bundle in WEIGHTS/onnx")
+                        watermark = gr.Checkbox(True, label="Visible 'SYNTHETIC' watermark")
+                    run_button = gr.Button("Re-enact" if store.weights is not None else "Re-enact (no model loaded: see the top)",
+                                           variant="primary", elem_id="run", interactive=store.weights is not None)
+                with gr.Column():
+                    gr.Markdown("### 3. Result")
+                    video = gr.Video(label="Re-enacted video (H.264, with the driver's audio)", elem_id="result-video",
+                                     interactive=False, autoplay=False)
+                    summary = gr.Markdown(elem_id="run-summary")
+            gr.Markdown("### The latent layout, frame by frame\n" + LAYOUT_HELP)
+            panel = gr.Image(label="driving frame | landmarks | latent layout | output", show_label=False,
+                             interactive=False, elem_id="layout-panel", format="png")  # titles are in the picture
+            scrubber = gr.Slider(0, 1, value=0, step=1, label="frame", interactive=False, elem_id="frame-scrubber")
+            gr.Markdown("### Latent averaging over the K shots\n" + AVERAGING_HELP)
+            averaging = gr.Gallery(label="each shot alone | the K-shot average", columns=6, height=240,
+                                   elem_id="averaging")
+            with gr.Accordion("Timing per stage", open=False):
+                timing = gr.Markdown()
+        with gr.Tab("Live: your webcam drives the person", id="live"):
+            gr.Markdown(LIVE_HELP)
+            with gr.Row(equal_height=False):
+                with gr.Column():
+                    camera = gr.Image(sources=["webcam"], streaming=True, type="numpy", label="Your camera",
+                                      elem_id="live-camera",
+                                      webcam_options=gr.WebcamOptions(mirror=False, constraints=LIVE_CAMERA))
+                    live_scene = gr.Checkbox(True, label="In the source's own scene (else the face crop)")
+                    recentre = gr.Button("Re-centre: my face now is the neutral one", size="sm")
+                with gr.Column():
+                    live_output = gr.Image(label="Re-enacted, live", interactive=False, elem_id="live-output",
+                                           format="jpeg")
+                    live_status = gr.Markdown("Start the camera to drive the person.", elem_id="live-status")
+                with gr.Column():
+                    live_layout = gr.Image(label="Latent layout, live", interactive=False, elem_id="live-layout",
+                                           format="jpeg")
         preview_inputs = dict(fn=preview_source, inputs=[source_files, k], outputs=[shots, source_notes],
                               concurrency_id=MODEL_EVENTS)
         preview_inputs["show_progress_on"] = [shots]
@@ -212,6 +259,12 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
         )
         scrubber.change(show_frame, inputs=[scrubber, panels_state], outputs=panel, concurrency_id="scrub",
                         concurrency_limit=4, show_progress="hidden")
+        live_inputs = [camera, live_state, source_files, k, live_scene, watermark]
+        camera.stream(live, inputs=live_inputs, outputs=[live_output, live_layout, live_status, live_state],
+                      stream_every=LIVE_STREAM_EVERY, time_limit=LIVE_TIME_LIMIT, concurrency_id="live",
+                      concurrency_limit=LIVE_STREAMS, show_progress="hidden", api_name="live")
+        camera.clear(stop_live, inputs=live_state, outputs=[live_state, live_status], queue=False)
+        recentre.click(recentre_live, inputs=live_state, outputs=live_status, queue=False)
         demo.unload(forget_session)
     demo.lsr_examples_dir = examples_dir  # launch() allows serving these files
     return demo, store, files

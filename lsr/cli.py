@@ -110,6 +110,7 @@ GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
         "landmarks": (config.BenchLandmarksConfig, "lsr.eval.bench_landmarks:run_bench_landmarks"),
         "train": (config.BenchTrainConfig, "lsr.train.bench:run_bench_train"),
         "reenact": (config.BenchReenactConfig, "lsr.eval.bench_reenact:run_bench_reenact"),
+        "live": (config.BenchLiveConfig, "app.bench_live:run_bench_live"),
         "models": (config.BenchModelsConfig, "lsr.eval.bench_models:run_bench_models"),
         "speed": (config.BenchSpeedConfig, "lsr.eval.bench_speed:run_bench_speed"),
         "finetune": (config.BenchFinetuneConfig, "lsr.eval.bench_finetune:run_bench_finetune"),

@@ -19,6 +19,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchModelsConfig,
     BenchSpeedConfig,
     BenchReenactConfig,
+    BenchLiveConfig,
     BenchFinetuneConfig,
     BenchHardConfig,
     BenchAblationConfig,

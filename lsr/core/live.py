@@ -1,0 +1,151 @@
+"""Live re-enactment: one camera frame in, one re-enacted frame out, for as long as a stream lasts (``lsr app``'s
+live tab).
+
+A ``LiveSession`` holds what a stream needs between frames and nothing else: the encoded subject (its own, so
+several streams and batch runs can share one backend), a landmark tracker (detection only when the face is lost),
+One-Euro smoothing at the frames' real rate, the driver's first face (relative motion is measured from it) and the
+last good output. Per frame:
+
+    camera frame -> track 68 points -> smooth -> crop -> retarget onto the subject's anchor shot
+      -> synthesise (backend) -> composite into the anchor's scene (or the face crop) -> mark as synthetic
+
+A frame without a face gives the last good output again with a note, never an error, so a stream survives a
+hand in front of the camera. ``recentre()`` makes the next face the neutral one (the driver sat down again).
+Torch-free: it runs on the torch pipeline and on the ONNX runtime alike.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from lsr.core.engine import ReenactorBase, Subject, draw_watermark
+
+MIN_FPS, MAX_FPS = 2.0, 60.0  # the One-Euro filter's rate follows the frames' spacing, within these bounds
+NO_FACE_NOTE = "no face in the camera: showing the last frame"
+
+
+@dataclasses.dataclass
+class LiveFrame:
+    """One step of a live stream."""
+
+    image: np.ndarray
+    """(H, W, 3) uint8 RGB: what to show (the anchor's scene, or the face crop)."""
+    face: bool
+    """Whether this camera frame had a face (False: ``image`` is the last good output, or the plain scene)."""
+    layout: np.ndarray | None
+    """The generator's layout for this frame (C, S, S) float32, when asked for and the model has one."""
+    landmark_image: np.ndarray | None
+    """(S, S, 3) uint8: the landmark image the generator received."""
+    seconds: float
+    """Processing time of this frame (tracking to composite)."""
+    note: str = ""
+    index: int = 0
+    """Which camera frame of the stream this is (1, 2, ...: ``LiveSession.frames`` when it was prepared)."""
+
+
+class LiveSession:
+    """A camera stream driving one subject (module docstring).
+
+    reenactor: a ``ReenactorBase`` (torch or ONNX); only its backend, detector and sizes are used, never its
+    ``subject``. subject: the encoded subject (``reenactor.encode_subject``'s result). paste_back: composite into
+    the anchor shot's frame (the source's own scene) instead of showing the face crop.
+    """
+
+    def __init__(self, reenactor: ReenactorBase, subject: Subject, *, paste_back: bool = True, smooth: bool = True,
+                 with_layout: bool = False, watermark: bool = True, detector=None) -> None:
+        from landmarks.smooth import OneEuroFilter, driving_cutoffs
+        from landmarks.track import LandmarkTracker
+        from lsr.core.scene_source import SourceScene
+
+        self.reenactor, self.subject = reenactor, subject
+        self.with_layout = with_layout and reenactor.backend.layout_kind != "none"
+        self.watermark = watermark
+        self.tracker = LandmarkTracker(detector if detector is not None else reenactor.detector)
+        self.one_euro = OneEuroFilter(25.0, driving_cutoffs()) if smooth else None
+        self.scene = next(SourceScene(subject.shots, reenactor.crop_size)) if paste_back else None
+        self.reference: np.ndarray | None = None
+        self.last: LiveFrame | None = None
+        self._last_time: float | None = None
+        self.frames = self.faces = 0
+
+    def recentre(self) -> None:
+        """The next face becomes the driver's neutral face (relative motion is measured from it)."""
+        self.reference = None
+
+    def _mark(self, image: np.ndarray) -> np.ndarray:
+        return draw_watermark(image) if self.watermark else image
+
+    def still(self, note: str, started: float | None = None) -> LiveFrame:
+        """What a frame without a face shows: the last good output (else the plain scene), with ``note``."""
+        started = time.perf_counter() if started is None else started
+        if self.one_euro is not None:
+            self.one_euro.reset()  # never smooth across a gap
+        if self.last is not None:
+            shown = self.last.image
+        else:
+            shown = self._mark(self.scene.image if self.scene is not None else self.subject.shots.frames[self.subject.shots.anchor])
+        return LiveFrame(shown, False, None, None, time.perf_counter() - started, note, self.frames)
+
+    def step(self, frame: np.ndarray, timestamp: float | None = None) -> LiveFrame:
+        """One camera frame (H, W, 3) uint8 RGB -> the re-enacted frame. timestamp: capture time in seconds (default:
+        now), which sets the smoothing's rate. ``prepare`` then ``finish``, in one go."""
+        prepared = self.prepare(frame, timestamp)
+        return prepared if isinstance(prepared, LiveFrame) else self.finish(prepared)
+
+    def prepare(self, frame: np.ndarray, timestamp: float | None = None) -> Prepared | LiveFrame:
+        """The first half of a step: track, smooth, retarget, warp the shots (the network's inputs). Returns a
+        ``LiveFrame`` at once when the frame has no face. ``finish`` may run on another thread while the next frame
+        is prepared (one stream: prepare calls in order, finish calls in order)."""
+        from landmarks.align import crop_transform, transform_landmarks
+        from landmarks.retarget import retarget_driving
+
+        started = time.perf_counter()
+        now = started if timestamp is None else float(timestamp)
+        self.frames += 1
+        points = self.tracker.update(np.ascontiguousarray(frame))
+        if points is None or not np.isfinite(points).all():
+            self._last_time = None
+            return self.still(NO_FACE_NOTE, started)
+        if self.one_euro is not None:
+            if self._last_time is not None and now > self._last_time:
+                self.one_euro.fps = float(np.clip(1.0 / (now - self._last_time), MIN_FPS, MAX_FPS))
+            points = self.one_euro(points)
+        self._last_time = now
+        crop_landmarks = transform_landmarks(points, crop_transform(points, self.reenactor.crop_size))
+        if self.reference is None:
+            self.reference = crop_landmarks
+        target = retarget_driving(crop_landmarks, self.reference, self.subject.reference_landmarks)
+        landmark_image, inputs = self.reenactor.network_inputs(target, subject=self.subject)
+        return Prepared(target, landmark_image, inputs, time.perf_counter() - started, self.frames)
+
+    def finish(self, prepared: Prepared) -> LiveFrame:
+        """The second half: the network, then the composite into the scene and the synthetic mark."""
+        from landmarks.scene import composite_face, place_in_frame
+
+        started = time.perf_counter()
+        synthesis, layout = self.reenactor.synthesize_inputs(prepared.inputs, self.with_layout)
+        image = synthesis
+        if self.scene is not None:
+            scene = self.scene
+            image = composite_face(scene.image, scene.landmarks, place_in_frame(prepared.target, scene.matrix),
+                                   synthesis, scene.matrix).frame
+        self.faces += 1
+        self.last = LiveFrame(self._mark(image), True, layout, prepared.landmark_image,
+                              prepared.seconds + time.perf_counter() - started, index=prepared.index)
+        return self.last
+
+
+@dataclasses.dataclass
+class Prepared:
+    """A frame's network inputs, between ``LiveSession.prepare`` and ``LiveSession.finish``."""
+
+    target: np.ndarray
+    """(68, 2) target landmarks in crop pixels."""
+    landmark_image: np.ndarray
+    inputs: dict[str, np.ndarray]
+    """``ReenactorBase.network_inputs``."""
+    seconds: float
+    index: int

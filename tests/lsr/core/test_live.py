@@ -1,0 +1,67 @@
+"""``lsr.core.live``: a camera stream drives one subject frame by frame (the app's live tab)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def reenactor(tmp_path_factory):
+    import torch
+
+    from lsr.pipeline import Reenactor
+    from models_def import LSRModel, preset_config
+
+    torch.manual_seed(0)
+    weights = LSRModel(preset_config("tiny")).save_pretrained(tmp_path_factory.mktemp("w") / "tiny")
+    return Reenactor(weights, device="cpu")
+
+
+def _shots(tmp_path, seed, frames, pad):
+    from landmarks.imageio import write_image
+    from lsr.data.synth import render_video
+
+    clip = render_video(seed, frames, 256)
+    paths = []
+    for index, frame in enumerate(clip.frames):
+        paths.append(tmp_path / f"{seed}_{index}.png")
+        write_image(paths[-1], np.pad(frame, ((0, 0), (pad, pad), (0, 0)), mode="edge"))
+    return paths
+
+
+def test_a_stream_drives_its_own_subject_into_its_scene_and_survives_a_lost_face(reenactor, tmp_path):
+    from lsr.core.live import LiveSession
+    from lsr.data.synth import render_video
+
+    cached = reenactor.encode_subject(_shots(tmp_path, 42, 2, pad=0), k=2)  # a batch run's
+    subject = reenactor.encode_subject(_shots(tmp_path, 41, 4, pad=48), k=4, cache=False)
+    assert reenactor.subject is cached  # the stream's own subject leaves the batch run's alone
+    session = LiveSession(reenactor, subject, with_layout=True)
+    camera = render_video(43, 6, 256).frames
+    shown = [session.step(frame, timestamp=index / 15) for index, frame in enumerate(camera)]
+    assert all(frame.face for frame in shown)
+    assert {frame.image.shape for frame in shown} == {(256, 352, 3)}  # the subject's anchor photo, not the camera's
+    assert all(np.isfinite(frame.layout).all() for frame in shown) and shown[0].landmark_image.shape == (64, 64, 3)
+    assert session.one_euro.fps == pytest.approx(15.0)  # smoothing at the frames' real rate
+    assert not np.array_equal(shown[0].image, shown[-1].image)  # it moves with the camera
+    lost = session.step(np.zeros_like(camera[0]))  # a hand in front of the camera
+    assert not lost.face and lost.note and np.array_equal(lost.image, shown[-1].image)
+    assert session.step(camera[2]).face  # and back
+    session.recentre()
+    assert session.reference is None and session.step(camera[3]).face and session.reference is not None
+    assert (session.frames, session.faces) == (9, 8)
+
+
+def test_the_face_crop_instead_of_the_scene(reenactor, tmp_path):
+    from lsr.core.live import LiveSession
+    from lsr.data.synth import render_video
+
+    subject = reenactor.encode_subject(_shots(tmp_path, 44, 2, pad=48), k=2)
+    session = LiveSession(reenactor, subject, paste_back=False, watermark=False)
+    first = session.step(np.zeros((200, 200, 3), np.uint8))  # no face yet: the anchor shot, not an error
+    assert not first.face and first.image.shape == (reenactor.crop_size, reenactor.crop_size, 3)
+    frame = session.step(render_video(45, 1, 256).frames[0])
+    assert frame.face and frame.image.shape == (reenactor.crop_size, reenactor.crop_size, 3) and frame.layout is None
