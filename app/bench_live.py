@@ -38,6 +38,7 @@ CAMERA_SIZE = (640, 480)  # (width, height) of the fake camera
 CAMERA_FPS = 25
 START_TIMEOUT_MS = 300_000  # a failure bound on shared CPUs (the first frame exports and loads the model)
 WARMUP_CALLS = 5
+SLIDER_UPDATES = 20
 
 RECORDER = """() => {
   window.__live = {grabs: [], results: [], shown: []};
@@ -220,7 +221,24 @@ def handler_loop(weights: Path | None, frames: np.ndarray, examples_dir: Path) -
     return LiveMeasure(len(calls), seconds, len(calls) / seconds, calls, processing)
 
 
-def live_markdown(browser: LiveMeasure, server: LiveMeasure | None, label: str, camera: str, machine: str) -> str:
+def slider_updates(weights: Path | None, examples_dir: Path, count: int = SLIDER_UPDATES) -> list[float]:
+    """ms of each expression-slider update (``app.handlers.edit_frame``: edit, synthesise, composite, layout) as
+    the sliders sweep, after one update that encodes the person."""
+    from app import handlers
+    from lsr.weights import resolve_weights
+
+    store = handlers.ModelStore(resolve_weights(weights), "cpu")
+    state, times = None, []
+    for step in range(count + 1):
+        values = [neutral + (high - neutral) * (step % 10) / 10 for _, low, high, neutral, _, _ in handlers.EDIT_SLIDERS]
+        started = time.perf_counter()
+        _, _, _, state = handlers.edit_frame(store, handlers.Limits(), state, None, 4, values, examples_dir)
+        times.append(1000 * (time.perf_counter() - started))
+    return times[1:]
+
+
+def live_markdown(browser: LiveMeasure, server: LiveMeasure | None, label: str, camera: str, machine: str,
+                  sliders: list[float] | None = None) -> str:
     def row(what: str, result: LiveMeasure, latency: str) -> str:
         p90 = f"{np.percentile(result.latency_ms, 90):.0f}" if result.latency_ms else "–"
         return (f"| {what} | {result.frames} | {result.seconds:.1f} | {result.fps:.1f} | {_median(result.latency_ms)} "
@@ -233,6 +251,9 @@ def live_markdown(browser: LiveMeasure, server: LiveMeasure | None, label: str, 
              row("browser and app on these 2 cores (loopback)", browser, "camera grab to picture loaded")]
     if server is not None:
         lines.append(row("the app alone: its handler back to back, no browser", server, "one call"))
+    if sliders:
+        lines += ["", f"Expression sliders: one update (edit the anchor's landmarks, synthesise, composite, colour the "
+                      f"layout) takes {statistics.median(sliders):.0f} ms, median of {len(sliders)} (goal: <= 100 ms)."]
     lines += ["",
               "Server ms per frame: tracking, retargeting, the warps, the network (onnxruntime, one thread) and the "
               "composite, of one frame (the handler overlaps one frame's network with the next one's tracking and "
@@ -302,10 +323,11 @@ def run_bench_live(cfg: BenchLiveConfig) -> LiveMeasure:
             demo.close()
             files.drop_all()
         server = handler_loop(cfg.weights, camera_frames(cfg.camera_video, 5 * CAMERA_FPS), temp / "examples")
+        sliders = slider_updates(cfg.weights, temp / "examples")
     label = "the shipped default" if cfg.weights is None else f"`{shown_path(cfg.weights)}`"
     camera = ("a synthetic talking person (lsr.data.synth)" if cfg.camera_video is None
               else f"`{shown_path(cfg.camera_video)}`")
-    text = live_markdown(result, server, label + " driving the example person", camera, machine_markdown())
+    text = live_markdown(result, server, label + " driving the example person", camera, machine_markdown(), sliders)
     sections.publish(cfg, "lsr bench live", SECTION, "Live: the webcam tab in a browser (`lsr bench live`)", text)
     return result
 

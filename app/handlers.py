@@ -169,10 +169,17 @@ class SessionFiles:
         session_dir = self.root / _safe_name(session or "anonymous")
         if session_dir.is_dir():
             for old in session_dir.iterdir():
-                shutil.rmtree(old, ignore_errors=True)
+                if not old.name.startswith("keep-"):
+                    shutil.rmtree(old, ignore_errors=True)
         run = session_dir / f"run-{uuid.uuid4().hex[:12]}"
         run.mkdir(parents=True)
         return run
+
+    def folder(self, session: str | None, name: str) -> Path:
+        """A named folder of the session that runs leave alone (e.g. a saved pose), removed with the session."""
+        folder = self.root / _safe_name(session or "anonymous") / f"keep-{_safe_name(name)}"
+        folder.mkdir(parents=True, exist_ok=True)
+        return folder
 
     def drop(self, session: str | None) -> None:
         shutil.rmtree(self.root / _safe_name(session or "anonymous"), ignore_errors=True)
@@ -563,3 +570,69 @@ def gr_skip():
     import gradio as gr
 
     return gr.skip()
+
+
+# ---- expression controls: sliders edit the anchor's landmarks (landmarks.edit) -------------------------------------
+EDIT_SLIDERS = (  # name, minimum, maximum, neutral, step, label (landmarks.edit.edit_landmarks' keywords)
+    ("yaw", -30.0, 30.0, 0.0, 1.0, "head yaw (°)"),
+    ("pitch", -20.0, 20.0, 0.0, 1.0, "head pitch (°)"),
+    ("roll", -25.0, 25.0, 0.0, 1.0, "head roll (°)"),
+    ("mouth", 0.0, 0.5, 0.0, 0.01, "mouth open (inter-ocular distances)"),
+    ("eyes", 0.0, 1.5, 1.0, 0.05, "eyes open (x the anchor's)"),
+    ("smile", -0.1, 0.15, 0.0, 0.01, "smile"),
+    ("brows", -0.1, 0.15, 0.0, 0.01, "brows up"),
+)
+
+
+class EditState:
+    """One tab's expression editor: its person's ``LiveSession`` (encoded once per choice) and the layout colours."""
+
+    def __init__(self, session, key: tuple, kind: str) -> None:
+        self.session, self.key, self.kind = session, key, kind
+        self.pca = None
+        self.target = None  # the last edited landmarks, crop pixels
+
+
+def edit_frame(store: ModelStore, limits: Limits, state: EditState | None, source_files, k: int, values: Sequence[float],
+               examples_dir: Path, *, watermark: bool = True):
+    """Slider values (``EDIT_SLIDERS`` order) -> (image in the person's scene, latent layout picture, status, state)."""
+    from landmarks.edit import edit_landmarks
+    from lsr.core.live import LiveSession
+
+    started = time.perf_counter()
+    paths, key = live_person(source_files, k, examples_dir)
+    key = key + (bool(watermark),)
+    if state is None or state.key != key:
+        reenactor = store.live_reenactor()
+        shots, _ = load_shots(paths, int(k), reenactor.crop_size, store.detector, limits)
+        subject = reenactor.encode_subject(shots, cache=False)
+        state = EditState(LiveSession(reenactor, subject, with_layout=True, watermark=watermark, detector=store.detector),
+                          key, reenactor.backend.layout_kind)
+    edits = {name: float(value) for (name, *_), value in zip(EDIT_SLIDERS, values)}
+    state.target = edit_landmarks(state.session.subject.reference_landmarks, **edits)
+    shown = state.session.render(state.target)
+    layout = None
+    if shown.layout is not None and state.kind != "segmentation":
+        from lsr.layout_view import LayoutPCA
+
+        state.pca = state.pca or LayoutPCA()
+        layout = enlarge(state.pca.rgb(shown.layout))
+    elapsed = 1000 * (time.perf_counter() - started)
+    return shown.image, layout if layout is not None else gr_skip(), f"updated in {elapsed:.0f} ms", state
+
+
+def save_pose(state: EditState | None, run_dir: Path) -> Path:
+    """The edited pose as a 2-frame landmark driver (N, 68, 2) .npy in the person's frame pixels: the anchor's own
+    face, then the edit, so ``lsr reenact --driving pose.npy`` (relative motion) puts the edit on any source."""
+    from landmarks.errors import InputFileError
+    from landmarks.imageio import atomic_output
+
+    if state is None or state.target is None:
+        raise InputFileError("move a slider first: there is no edited pose to save yet")
+    session = state.session
+    frames = np.stack([session.in_scene(session.subject.reference_landmarks), session.in_scene(state.target)])
+    path = run_dir / "pose.npy"
+    with atomic_output(path) as temp:
+        with open(temp, "wb") as handle:
+            np.save(handle, frames.astype(np.float32))
+    return path

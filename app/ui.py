@@ -49,6 +49,10 @@ still being made are dropped, never queued, so what you see stays close to now; 
 the rate, the time per frame and the frame count. Without a face in view the last good frame stays. The network runs
 on onnxruntime (the first start exports it, a few seconds). Outputs carry the visible 'SYNTHETIC' mark unless it is
 switched off in the first tab's options."""
+EDIT_HELP = """**Sliders edit the person's face** (the photos of the first tab, or the example person): head yaw,
+pitch and roll, mouth and eyes open, smile and brows move the landmarks of their most neutral shot, and the model
+draws them in that shot's scene, with the latent layout beside it. *Save the pose* writes a landmark driver
+(the neutral face, then the edit) that `lsr reenact --source SHOTS --driving pose.npy` accepts."""
 LIVE_STREAM_EVERY = 0.05  # s between camera frames offered (caps the rate at 20 fps); the server keeps only the newest
 LIVE_TIME_LIMIT = 600  # s a stream may run before the camera has to be started again
 LIVE_STREAMS = 2  # live streams served at once (each holds a subject and a tracker)
@@ -165,6 +169,15 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
         stream.session.recentre()
         return "Re-centred: your next face is the neutral one."
 
+    def edit(state, source_files, k, watermark, *values):
+        with handlers.readable_errors("edit the expression"):
+            return handlers.edit_frame(store, limits, state, source_files, int(k), values, examples_dir,
+                                       watermark=bool(watermark))
+
+    def save_pose(state, request: gr.Request):
+        with handlers.readable_errors("save the pose"):
+            return str(handlers.save_pose(state, files.folder(request.session_hash if request is not None else None, "pose")))
+
     def forget_session(request: gr.Request):
         files.drop(request.session_hash if request is not None else None)
 
@@ -174,6 +187,7 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                     elem_classes=["lsr-warning"] if weights is None or random_init else None)
         panels_state = gr.State("")
         live_state = gr.State(None, delete_callback=lambda stream: stream is not None and stream.close())
+        edit_state = gr.State(None)
         with gr.Tab("Upload and re-enact", id="batch"):
             with gr.Row(equal_height=False):
                 with gr.Column():
@@ -239,6 +253,24 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                 with gr.Column():
                     live_layout = gr.Image(label="Latent layout, live", interactive=False, elem_id="live-layout",
                                            format="jpeg")
+        with gr.Tab("Expression controls", id="edit"):
+            gr.Markdown(EDIT_HELP)
+            with gr.Row(equal_height=False):
+                with gr.Column():
+                    sliders = [gr.Slider(low, high, value=neutral, step=step, label=label, elem_id=f"edit-{name}")
+                               for name, low, high, neutral, step, label in handlers.EDIT_SLIDERS]
+                    with gr.Row():
+                        edit_reset = gr.Button("Neutral", size="sm")
+                        edit_save = gr.Button("Save the pose (.npy)", size="sm", elem_id="edit-save")
+                    edit_file = gr.File(label="Landmark driver for `lsr reenact --driving`", interactive=False,
+                                        elem_id="edit-file")
+                with gr.Column():
+                    edit_output = gr.Image(label="The person, edited", interactive=False, elem_id="edit-output",
+                                           format="jpeg")
+                    edit_status = gr.Markdown("Move a slider.", elem_id="edit-status")
+                with gr.Column():
+                    edit_layout = gr.Image(label="Latent layout", interactive=False, elem_id="edit-layout",
+                                           format="jpeg")
         preview_inputs = dict(fn=preview_source, inputs=[source_files, k], outputs=[shots, source_notes],
                               concurrency_id=MODEL_EVENTS)
         preview_inputs["show_progress_on"] = [shots]
@@ -259,6 +291,12 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
         )
         scrubber.change(show_frame, inputs=[scrubber, panels_state], outputs=panel, concurrency_id="scrub",
                         concurrency_limit=4, show_progress="hidden")
+        slider_inputs = [edit_state, source_files, k, watermark, *sliders]
+        for slider in sliders:
+            slider.change(edit, inputs=slider_inputs, outputs=[edit_output, edit_layout, edit_status, edit_state],
+                          concurrency_id="edit", concurrency_limit=2, show_progress="hidden")
+        edit_reset.click(lambda: [spec[3] for spec in handlers.EDIT_SLIDERS], outputs=sliders, queue=False)
+        edit_save.click(save_pose, inputs=edit_state, outputs=edit_file)
         live_inputs = [camera, live_state, source_files, k, live_scene, watermark]
         camera.stream(live, inputs=live_inputs, outputs=[live_output, live_layout, live_status, live_state],
                       stream_every=LIVE_STREAM_EVERY, time_limit=LIVE_TIME_LIMIT, concurrency_id="live",

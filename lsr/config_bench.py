@@ -215,7 +215,7 @@ class BenchReenactConfig:
     """Driving (and source) clip; default the shared ../shared/data/clips/tpsmm_driving.mp4."""
     weights: OptionalPath = None
     """Model folder; default: the shipped default model ($LSR_WEIGHTS if set)."""
-    preset: str | None = None
+    preset: OptionalStr = None
     """Time a randomly initialised model of this preset instead (speed does not depend on the weights)."""
     resolution: int = 256
     """The --preset model's resolution."""

@@ -11,6 +11,7 @@ last good output. Per frame:
 
 A frame without a face gives the last good output again with a note, never an error, so a stream survives a
 hand in front of the camera. ``recentre()`` makes the next face the neutral one (the driver sat down again).
+``render(target)`` draws given landmarks instead of a camera frame's (the app's expression sliders).
 Torch-free: it runs on the torch pipeline and on the ONNX runtime alike.
 """
 
@@ -120,6 +121,21 @@ class LiveSession:
         target = retarget_driving(crop_landmarks, self.reference, self.subject.reference_landmarks)
         landmark_image, inputs = self.reenactor.network_inputs(target, subject=self.subject)
         return Prepared(target, landmark_image, inputs, time.perf_counter() - started, self.frames)
+
+    def render(self, target: np.ndarray) -> LiveFrame:
+        """Target landmarks (68, 2) in the anchor's crop pixels (e.g. the anchor's own, edited by
+        ``landmarks.edit``) -> the frame, as a camera frame with that face would give it."""
+        started = time.perf_counter()
+        self.frames += 1
+        landmark_image, inputs = self.reenactor.network_inputs(target, subject=self.subject)
+        return self.finish(Prepared(np.asarray(target, np.float64), landmark_image, inputs,
+                                    time.perf_counter() - started, self.frames))
+
+    def in_scene(self, target: np.ndarray) -> np.ndarray:
+        """Crop-pixel landmarks (68, 2) -> the scene's frame pixels (the face crop's own when not pasting back)."""
+        from landmarks.scene import place_in_frame
+
+        return np.asarray(target, np.float64) if self.scene is None else place_in_frame(target, self.scene.matrix)
 
     def finish(self, prepared: Prepared) -> LiveFrame:
         """The second half: the network, then the composite into the scene and the synthetic mark."""
