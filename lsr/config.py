@@ -272,8 +272,8 @@ class ReenactConfig:
     overwrite: bool = False
     """Redo jobs whose output already exists (default: skip them, which makes reruns resume)."""
     threads: int = 0
-    """CPU threads for the networks (torch intra-op / onnxruntime intra-op); 0 = the library default. On a
-    loaded machine 1 can be much faster than torch's default (its OpenMP threads stall when descheduled)."""
+    """CPU threads for the networks (torch intra-op / onnxruntime intra-op); 0 = all cores but one, which decoding,
+    tracking and encoding use beside the network (lsr.core.overlap.network_threads)."""
     detector: Literal["hog", "cnn"] = "hog"
     progress: bool = True
 

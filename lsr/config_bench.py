@@ -226,7 +226,9 @@ class BenchReenactConfig:
     k: int = 4
     device: Literal["auto", "cpu", "cuda"] = "auto"
     threads: int = 0
-    """CPU threads for the networks (as `lsr reenact --threads`); 0 = the library default."""
+    """CPU threads for the networks (as `lsr reenact --threads`); 0 = all cores but one, as lsr reenact."""
+    out_md: OptionalPath = None
+    """Also write the table as the 'reenact' section of this markdown file (e.g. BENCHMARKS.md)."""
 
     def validate(self) -> None:
         if self.frames < 2 or self.k < 1 or self.resolution < 32:

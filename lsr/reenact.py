@@ -168,17 +168,20 @@ def onnx_bundle_folder(weights: Path) -> Path:
 
 
 def make_reenactor(cfg: ReenactConfig) -> ReenactorBase:
+    from lsr.core.overlap import network_threads
+
     weights = resolve_weights(cfg.weights)
+    threads = network_threads(cfg.threads)
     if cfg.runtime == "onnx":
         from deploy.runtime import OnnxReenactor
 
-        return OnnxReenactor(onnx_bundle_folder(weights), int8=cfg.int8, threads=cfg.threads, detector=cfg.detector)
+        return OnnxReenactor(onnx_bundle_folder(weights), int8=cfg.int8, threads=threads, detector=cfg.detector)
     from lsr.pipeline import Reenactor
 
-    if cfg.threads > 0:
+    if threads > 0:
         import torch
 
-        torch.set_num_threads(cfg.threads)  # process-wide: torch has no per-model thread pool
+        torch.set_num_threads(threads)  # process-wide: torch has no per-model thread pool
     from lsr.devices import resolve_device
 
     return Reenactor(weights, device=resolve_device(cfg.device), precision=cfg.precision, detector=cfg.detector)
@@ -247,6 +250,7 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
     than it has is an error; a video that decodes fewer frames than it declares (a cut file) is a warning.
     """
     from landmarks.video import VideoWriter
+    from lsr.core.overlap import Drain
     from lsr.layout_view import LayoutPCA
 
     info = describe_driver(driving, fps=fps)
@@ -255,26 +259,33 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
     with_layout = side_by_side is not None or panel_sink is not None
     frames = reenactor.reenact(driving, mode=mode, smooth=smooth, paste_back=paste_back, scene=scene, with_layout=with_layout,
                                landmark_space=landmark_space, landmark_size=landmark_size, progress=progress)
-    encode_seconds, first_landmarks = 0.0, None
+    first_landmarks = None
     kind, size = reenactor.backend.layout_kind, reenactor.crop_size
     pca = LayoutPCA()  # fitted on the first frame, kept for the whole video
+    encoded = [0.0]
+
+    def encode(frame) -> None:  # on the encoding thread, in frame order, behind the synthesis
+        started = time.perf_counter()
+        writer.write(draw_watermark(frame.image) if watermark else frame.image)
+        encoded[0] += time.perf_counter() - started
+        if with_layout:
+            panel = side_by_side_frame(frame, kind, size, pca)
+            if sbs_writer is not None:
+                sbs_writer.write(draw_watermark(panel) if watermark else panel)
+            if panel_sink is not None:
+                panel_sink(frame.index, panel)
+
     with contextlib.ExitStack() as stack:
         writer = stack.enter_context(VideoWriter(output, info.fps, audio_from=audio, metadata=metadata))
         sbs_writer = None
         if side_by_side is not None:
             sbs_writer = stack.enter_context(VideoWriter(side_by_side, info.fps, audio_from=audio, metadata=metadata))
-        for frame in frames:
-            if first_landmarks is None and frame.landmarks is not None:
-                first_landmarks = frame.landmarks
-            started = time.perf_counter()
-            writer.write(draw_watermark(frame.image) if watermark else frame.image)
-            encode_seconds += time.perf_counter() - started
-            if with_layout:
-                panel = side_by_side_frame(frame, kind, size, pca)
-                if sbs_writer is not None:
-                    sbs_writer.write(draw_watermark(panel) if watermark else panel)
-                if panel_sink is not None:
-                    panel_sink(frame.index, panel)
+        with Drain(encode) as drain:  # closed (every frame written) before the writers
+            for frame in frames:
+                if first_landmarks is None and frame.landmarks is not None:
+                    first_landmarks = frame.landmarks
+                drain.put(frame)
+        encode_seconds = encoded[0]
         stats = reenactor.last_stats
         if stats.frames != info.frames and info.kind != "video":
             raise LsrError(f"{driving}: produced {stats.frames} frames for {info.frames} driver frames")

@@ -433,21 +433,27 @@ class ReenactorBase:
         from landmarks.scene import composite_face, place_in_frame
         from landmarks.smooth import OneEuroFilter, driving_cutoffs
         from landmarks.track import LandmarkTracker
+        from lsr.core.overlap import prefetch
 
         size = self.crop_size
         tracker = LandmarkTracker(self.detector)
         one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
         reference = None
-        frames = iter_driver_frames(info)
+        def tracked():  # decoding and tracking on a thread, a few frames ahead of the synthesis
+            for frame in iter_driver_frames(info):
+                started = time.perf_counter()
+                yield frame, tracker.update(frame), time.perf_counter() - started
+
+        frames = prefetch(tracked())
         index = 0
         while True:
             started = time.perf_counter()
-            frame = next(frames, None)
-            stats.add("decode", time.perf_counter() - started)
-            if frame is None:
+            item = next(frames, None)
+            stats.add("decode", time.perf_counter() - started)  # what the synthesis waited for
+            if item is None:
                 break
-            started = time.perf_counter()
-            points = tracker.update(frame)
+            frame, points, tracking_seconds = item
+            started = time.perf_counter() - tracking_seconds
             if points is not None and one_euro is not None:
                 points = one_euro(points)
             matrix = crop_landmarks = None

@@ -1,0 +1,73 @@
+"""``lsr.core.overlap``: stages on threads keep order, stay bounded and never swallow an error."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from lsr.core.overlap import Drain, prefetch
+
+
+def test_prefetch_keeps_order_runs_ahead_boundedly_and_raises_in_place():
+    produced = []
+
+    def items():
+        for index in range(20):
+            produced.append(index)
+            yield index
+
+    stream = prefetch(items(), depth=3)
+    assert next(stream) == 0
+    time.sleep(0.2)
+    assert 2 <= len(produced) <= 6  # ahead of the consumer, but bounded
+    assert list(stream) == list(range(1, 20))
+
+    def failing():
+        yield 1
+        raise ValueError("bad frame 2")
+
+    stream = prefetch(failing())
+    assert next(stream) == 1
+    with pytest.raises(ValueError, match="bad frame 2"):
+        next(stream)
+
+
+def test_prefetch_stops_its_thread_when_the_consumer_stops():
+    def endless():
+        index = 0
+        while True:
+            index += 1
+            yield index
+
+    before = threading.active_count()
+    stream = prefetch(endless(), depth=2)
+    assert next(stream) == 1
+    stream.close()
+    deadline = time.time() + 5
+    while threading.active_count() > before and time.time() < deadline:
+        time.sleep(0.01)
+    assert threading.active_count() == before
+
+
+def test_drain_consumes_in_order_and_reraises():
+    seen = []
+    with Drain(lambda item: (time.sleep(0.001), seen.append(item)), depth=2) as drain:
+        for index in range(10):
+            drain.put(index)
+    assert seen == list(range(10))
+
+    def explode(item):
+        if item == 3:
+            raise OSError("disk full")
+
+    drain = Drain(explode, depth=1)
+    with pytest.raises(OSError, match="disk full"):
+        for index in range(10):
+            drain.put(index)
+            time.sleep(0.01)
+        drain.close()
+    with pytest.raises(RuntimeError, match="caller"), Drain(lambda item: None) as failing:  # the caller's error wins
+        failing.put(1)
+        raise RuntimeError("caller")
