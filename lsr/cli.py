@@ -111,6 +111,7 @@ GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
         "train": (config.BenchTrainConfig, "lsr.train.bench:run_bench_train"),
         "reenact": (config.BenchReenactConfig, "lsr.eval.bench_reenact:run_bench_reenact"),
         "live": (config.BenchLiveConfig, "app.bench_live:run_bench_live"),
+        "soak": (config.BenchSoakConfig, "app.bench_soak:run_bench_soak"),
         "models": (config.BenchModelsConfig, "lsr.eval.bench_models:run_bench_models"),
         "speed": (config.BenchSpeedConfig, "lsr.eval.bench_speed:run_bench_speed"),
         "finetune": (config.BenchFinetuneConfig, "lsr.eval.bench_finetune:run_bench_finetune"),

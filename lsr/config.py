@@ -20,6 +20,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchSpeedConfig,
     BenchReenactConfig,
     BenchLiveConfig,
+    BenchSoakConfig,
     BenchFinetuneConfig,
     BenchHardConfig,
     BenchAblationConfig,

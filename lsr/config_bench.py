@@ -208,6 +208,27 @@ class BenchLiveConfig:
 
 
 @dataclasses.dataclass
+class BenchSoakConfig:
+    """The app under a long live stream and batch re-enactments at once, on 127.0.0.1: does its resident memory
+    hold after the warm-up (a table with machine info; needs /usr/bin/chromium and playwright)?"""
+
+    weights: OptionalPath = None
+    """Model folder; default: the shipped default model."""
+    minutes: float = 10.0
+    """How long the live stream runs (the batch runs go on beside it until they are done or time is up)."""
+    batch_runs: int = 50
+    """Re-enactments sent through the /reenact API during the stream."""
+    warmup_minutes: float = 2.0
+    """Minutes not held to the +-10 % bound (the model, the ONNX export, the first runs' caches load)."""
+    out_md: OptionalPath = None
+    """Also write the table as the 'soak' section of this markdown file (e.g. BENCHMARKS.md)."""
+
+    def validate(self) -> None:
+        if self.minutes <= 0 or self.batch_runs < 0 or not 0 <= self.warmup_minutes < self.minutes:
+            raise ConfigError("--minutes must be > 0, --batch-runs >= 0 and --warmup-minutes in [0, --minutes)")
+
+
+@dataclasses.dataclass
 class BenchReenactConfig:
     """Print end-to-end and per-stage fps of `lsr reenact` for each runtime (a table with machine info)."""
 
