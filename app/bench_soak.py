@@ -46,6 +46,7 @@ class SoakResult:
     samples: list[tuple[float, float]]
     """(seconds since the start, resident MB)."""
     warmup_seconds: float
+    first_error: str | None = None
 
     @property
     def after_warmup(self) -> list[float]:
@@ -72,8 +73,9 @@ def batch_runs(url: str, count: int, source: Path, driving: Path, stop: threadin
             client.predict([handle_file(str(source))], 4, handle_file(str(driving)), "relative", True, True, 0, "onnx",
                            True, api_name="/reenact")
             result["ok"] += 1
-        except Exception:  # noqa: BLE001 - counted; the soak goes on
+        except Exception as error:  # noqa: BLE001 - counted and named; the soak goes on
             result["failed"] += 1
+            result.setdefault("first_error", f"{type(error).__name__}: {error}"[:300])
 
 
 def soak(url: str, y4m: Path, minutes: float, runs: int, warmup_minutes: float, source: Path, driving: Path) -> SoakResult:
@@ -111,7 +113,7 @@ def soak(url: str, y4m: Path, minutes: float, runs: int, warmup_minutes: float, 
             stop.set()
             browser.close()
     return SoakResult(time.perf_counter() - started, int(frames), counts["ok"], counts["failed"], samples,
-                      warmup_minutes * 60)
+                      warmup_minutes * 60, counts.get("first_error"))
 
 
 def soak_markdown(result: SoakResult, label: str, machine: str) -> str:
@@ -130,7 +132,8 @@ def soak_markdown(result: SoakResult, label: str, machine: str) -> str:
         f"{within} |" if values else "| – | – | – | – | – | – |",
         "",
         f"Resident memory sampled every {SAMPLE_SECONDS:g} s; warm-up: the first {result.warmup_seconds / 60:g} "
-        "minutes (the model, the ONNX export, the first runs' caches).",
+        "minutes (the model, the ONNX export, the first runs' caches)."
+        + (f" First failed run: {result.first_error}" if result.first_error else ""),
         "", machine,
     ])
 

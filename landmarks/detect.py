@@ -61,7 +61,9 @@ def predict_landmarks(image: np.ndarray, box: np.ndarray) -> np.ndarray:
 
     x0, y0, x1, y1 = (int(round(float(v))) for v in box)
     # dlib rectangles are inclusive of right/bottom.
-    shape = models.shape_predictor_68()(image, dlib.rectangle(x0, y0, x1 - 1, y1 - 1))
+    predictor = models.shape_predictor_68()
+    with models.DLIB_LOCK:
+        shape = predictor(image, dlib.rectangle(x0, y0, x1 - 1, y1 - 1))
     points = np.empty((NUM_LANDMARKS, 2), dtype=np.float32)
     for index, part in enumerate(shape.parts()):
         points[index] = (part.x, part.y)
@@ -139,10 +141,14 @@ class FaceDetector:
                 upsample = max(0, upsample - 1)
         found: list[tuple[np.ndarray, float]] = []
         if self.kind == "hog":
-            rects, scores, _ = models.hog_face_detector().run(small, upsample, min_score)
+            detector = models.hog_face_detector()
+            with models.DLIB_LOCK:
+                rects, scores, _ = detector.run(small, upsample, min_score)
             pairs = zip(rects, scores)
         else:
-            pairs = ((det.rect, det.confidence) for det in models.cnn_face_detector()(small, upsample))
+            detector = models.cnn_face_detector()
+            with models.DLIB_LOCK:
+                pairs = [(det.rect, det.confidence) for det in detector(small, upsample)]
         for rect, score in pairs:
             if score < min_score:
                 continue

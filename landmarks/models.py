@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import importlib.util
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +49,13 @@ def _dlib() -> Any:
     except ImportError as exc:  # dlib-bin is a hard dependency; say how to get it back
         raise ModelFilesError(f"dlib is not importable ({exc}); install it with `pip install dlib-bin`") from exc
     return dlib
+
+
+DLIB_LOCK = threading.Lock()
+"""Held around every call into the shared dlib models: one process serves several streams and runs on threads
+(the app's live tab beside batch runs, ``lsr reenact``'s tracking thread), and dlib's object detector keeps a
+mutable scanner inside (dlib's docs: concurrent use of one detector is not safe). A 10-minute soak of the app
+(``lsr bench soak``) once ended in heap corruption without it; this removes the one sharing known to be unsafe."""
 
 
 @functools.lru_cache(maxsize=None)
