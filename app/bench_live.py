@@ -15,6 +15,7 @@ time per frame that the server reports, and a screenshot of the tab is written w
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import statistics
 import tempfile
@@ -30,10 +31,11 @@ if TYPE_CHECKING:
     from lsr.config import BenchLiveConfig
 
 SECTION = "live"
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--no-first-run", "--use-fake-ui-for-media-stream",
-                 "--use-fake-device-for-media-stream", "--autoplay-policy=no-user-gesture-required"]
+CHROMIUM = Path("/usr/bin/chromium")  # Debian's (`playwright install` cannot download one here)
+HEADLESS_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--no-first-run"]  # the browser tests' too
+CHROMIUM_ARGS = [*HEADLESS_ARGS, "--use-fake-ui-for-media-stream", "--use-fake-device-for-media-stream",
+                 "--autoplay-policy=no-user-gesture-required"]
 CAMERA_SIZE = (640, 480)  # (width, height) of the fake camera
 CAMERA_FPS = 25
 START_TIMEOUT_MS = 300_000  # a failure bound on shared CPUs (the first frame exports and loads the model)
@@ -137,9 +139,14 @@ def start_stream(page) -> None:
     camera.locator("button.record-button, button[aria-label*='ecord'], button:has-text('Record')").first.click()
 
 
+def wait_for_first_result(page) -> None:
+    """Until the live tab shows its first re-enacted picture (the first frame loads the model and exports it)."""
+    page.wait_for_function("() => window.__live && window.__live.shown.length > 0", timeout=START_TIMEOUT_MS)
+
+
 def measure(page, seconds: float, warmup: float, trace: list[tuple[int, float]]) -> LiveMeasure:
     """Wait for the first result, warm up, then measure ``seconds`` of the running stream."""
-    page.wait_for_function("() => window.__live && window.__live.shown.length > 0", timeout=START_TIMEOUT_MS)
+    wait_for_first_result(page)
     time.sleep(warmup)
     begin = page.evaluate("() => Date.now()")
     time.sleep(seconds)
@@ -185,9 +192,24 @@ def summarise(record: dict[str, Any], trace: list[tuple[int, float]], begin: flo
     return LiveMeasure(len(seen), seconds, len(seen) / seconds if seconds > 0 else 0.0, latency, processing)
 
 
-def _picture(png: bytes) -> np.ndarray:
+SHOWN_PICTURE = """async () => {
+  const copy = new Image();
+  copy.src = document.querySelector('#live-output img').src;
+  await copy.decode();  // the whole picture, not one caught half-loaded while the stream replaces it
+  const canvas = document.createElement('canvas');
+  canvas.width = copy.naturalWidth; canvas.height = copy.naturalHeight;
+  canvas.getContext('2d').drawImage(copy, 0, 0);
+  return canvas.toDataURL('image/png');
+}"""
+
+
+def shown_picture(page) -> np.ndarray:
+    """(H, W, 3) uint8 RGB: the live tab's current re-enacted picture, decoded whole."""
+    import base64
+
     import cv2
 
+    png = base64.b64decode(page.evaluate(SHOWN_PICTURE).split(",", 1)[1])
     return cv2.cvtColor(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
 
 
@@ -200,18 +222,18 @@ def handler_loop(weights: Path | None, frames: np.ndarray, examples_dir: Path) -
     another machine gets from these 2 cores, minus the network (rate; per-call time as the latency floor)."""
     import cv2
 
-    from app import handlers
+    from app import handlers, live
     from lsr.weights import resolve_weights
 
     store = handlers.ModelStore(resolve_weights(weights), "cpu")
     small = [cv2.resize(frame, LIVE_CAMERA_SIZE, interpolation=cv2.INTER_AREA) for frame in frames]
     stream, calls, processing = None, [], []
     for frame in small[:WARMUP_CALLS]:
-        _, _, _, stream = handlers.live_frame(store, handlers.Limits(), stream, frame, None, 4, examples_dir)
+        _, _, _, stream = live.live_frame(store, handlers.Limits(), stream, frame, None, 4, examples_dir)
     started = time.perf_counter()
     for frame in small[WARMUP_CALLS:]:
         tick = time.perf_counter()
-        _, _, status, stream = handlers.live_frame(store, handlers.Limits(), stream, frame, None, 4, examples_dir)
+        _, _, status, stream = live.live_frame(store, handlers.Limits(), stream, frame, None, 4, examples_dir)
         calls.append(1000 * (time.perf_counter() - tick))
         line = _status_line(status)
         if line is not None and line[1] is not None:
@@ -222,17 +244,17 @@ def handler_loop(weights: Path | None, frames: np.ndarray, examples_dir: Path) -
 
 
 def slider_updates(weights: Path | None, examples_dir: Path, count: int = SLIDER_UPDATES) -> list[float]:
-    """ms of each expression-slider update (``app.handlers.edit_frame``: edit, synthesise, composite, layout) as
+    """ms of each expression-slider update (``app.live.edit_frame``: edit, synthesise, composite, layout) as
     the sliders sweep, after one update that encodes the person."""
-    from app import handlers
+    from app import handlers, live
     from lsr.weights import resolve_weights
 
     store = handlers.ModelStore(resolve_weights(weights), "cpu")
     state, times = None, []
     for step in range(count + 1):
-        values = [neutral + (high - neutral) * (step % 10) / 10 for _, low, high, neutral, _, _ in handlers.EDIT_SLIDERS]
+        values = [neutral + (high - neutral) * (step % 10) / 10 for _, low, high, neutral, _, _ in live.EDIT_SLIDERS]
         started = time.perf_counter()
-        _, _, _, state = handlers.edit_frame(store, handlers.Limits(), state, None, 4, values, examples_dir)
+        _, _, _, state = live.edit_frame(store, handlers.Limits(), state, None, 4, values, examples_dir)
         times.append(1000 * (time.perf_counter() - started))
     return times[1:]
 
@@ -263,10 +285,10 @@ def live_markdown(browser: LiveMeasure, server: LiveMeasure | None, label: str, 
     return "\n".join(lines)
 
 
-def run_live(url: str, y4m: Path, seconds: float, warmup: float, screenshot: Path | None) -> LiveMeasure:
-    """Open ``url`` (an app served by this process) in Chromium with ``y4m`` as its camera, start the live stream and
-    measure it."""
-    from app import handlers
+@contextlib.contextmanager
+def live_page(url: str, y4m: Path):
+    """Chromium (Playwright) with ``y4m`` as its camera, on ``url``'s live tab with the stream started and the page's
+    timestamp hooks (``RECORDER``) in place: yields the page; the browser closes after."""
     from lsr.errors import ConfigError
 
     if not CHROMIUM.is_file():
@@ -274,21 +296,32 @@ def run_live(url: str, y4m: Path, seconds: float, warmup: float, screenshot: Pat
     try:
         from playwright.sync_api import sync_playwright
     except ImportError as exc:
-        raise ConfigError("lsr bench live needs the playwright package: pip install -e '.[test]'") from exc
-    trace: list[tuple[int, float]] = []
-    handlers.LIVE_TRACE = trace
+        raise ConfigError("the live benchmarks need the playwright package: pip install -e '.[test]'") from exc
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=str(CHROMIUM),
                                              args=[*CHROMIUM_ARGS, f"--use-file-for-fake-video-capture={y4m}"])
         try:
-            context = browser.new_context(viewport={"width": 1400, "height": 1000}, permissions=["camera"])
-            page = context.new_page()
+            page = browser.new_context(viewport={"width": 1400, "height": 1000}, permissions=["camera"]).new_page()
             page.set_default_timeout(START_TIMEOUT_MS)
             page.add_init_script(f"({RECORDER})()")
             page.goto(url)
             start_stream(page)
+            yield page
+        finally:
+            browser.close()
+
+
+def run_live(url: str, y4m: Path, seconds: float, warmup: float, screenshot: Path | None) -> LiveMeasure:
+    """Open ``url`` (an app served by this process) in Chromium with ``y4m`` as its camera, start the live stream and
+    measure it."""
+    from app import live
+
+    trace: list[tuple[int, float]] = []
+    live.LIVE_TRACE = trace
+    try:
+        with live_page(url, y4m) as page:
             result = measure(page, seconds, warmup, trace)
-            result.output = _picture(page.locator("#live-output img").first.screenshot())
+            result.output = shown_picture(page)
             if screenshot is not None:
                 from landmarks.imageio import atomic_output
 
@@ -296,9 +329,8 @@ def run_live(url: str, y4m: Path, seconds: float, warmup: float, screenshot: Pat
                     page.screenshot(path=str(temp), full_page=False)
                 result.screenshot = Path(screenshot)
             return result
-        finally:
-            browser.close()
-            handlers.LIVE_TRACE = None
+    finally:
+        live.LIVE_TRACE = None
 
 
 def run_bench_live(cfg: BenchLiveConfig) -> LiveMeasure:

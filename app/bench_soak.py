@@ -80,27 +80,15 @@ def batch_runs(url: str, count: int, source: Path, driving: Path, stop: threadin
 
 def soak(url: str, y4m: Path, minutes: float, runs: int, warmup_minutes: float, source: Path, driving: Path) -> SoakResult:
     """Stream ``y4m`` into the live tab of ``url`` for ``minutes`` while ``runs`` batch runs go through the API."""
-    from app.bench_live import CHROMIUM, CHROMIUM_ARGS, RECORDER, START_TIMEOUT_MS, start_stream
-    from lsr.errors import ConfigError
-
-    if not CHROMIUM.is_file():
-        raise ConfigError(f"{CHROMIUM} not found: install Debian's chromium (apt-get install chromium)")
-    from playwright.sync_api import sync_playwright
+    from app.bench_live import live_page, wait_for_first_result
 
     started = time.perf_counter()
     samples: list[tuple[float, float]] = []
     counts = {"ok": 0, "failed": 0}
     stop = threading.Event()
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM),
-                                             args=[*CHROMIUM_ARGS, f"--use-file-for-fake-video-capture={y4m}"])
+    with live_page(url, y4m) as page:
         try:
-            page = browser.new_context(viewport={"width": 1400, "height": 1000}, permissions=["camera"]).new_page()
-            page.set_default_timeout(START_TIMEOUT_MS)
-            page.add_init_script(f"({RECORDER})()")
-            page.goto(url)
-            start_stream(page)
-            page.wait_for_function("() => window.__live && window.__live.shown.length > 0", timeout=START_TIMEOUT_MS)
+            wait_for_first_result(page)
             worker = threading.Thread(target=batch_runs, args=(url, runs, source, driving, stop, counts), daemon=True)
             worker.start()
             while time.perf_counter() - started < minutes * 60:
@@ -111,7 +99,6 @@ def soak(url: str, y4m: Path, minutes: float, runs: int, warmup_minutes: float, 
             worker.join()
         finally:
             stop.set()
-            browser.close()
     return SoakResult(time.perf_counter() - started, int(frames), counts["ok"], counts["failed"], samples,
                       warmup_minutes * 60, counts.get("first_error"))
 

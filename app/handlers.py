@@ -30,10 +30,6 @@ DISPLAY_SIDE = 256  # shots, per-shot results and side-by-side tiles are shown a
 PANEL_TITLES = ("driving frame", "landmarks", "latent layout", "output")
 LIVE_NETWORK_THREADS = 1  # onnxruntime threads of the live network: on 2 cores, 1 thread ran it as fast as 2 (45 ms)
 # and 2.4x faster than its default threads while another process kept a core busy (58 against 141 ms)
-LIVE_FPS_SMOOTHING = 0.2  # weight of the newest frame interval in the fps shown
-LIVE_TRACE: list[tuple[int, float]] | None = None
-"""Set to a list by ``lsr bench live`` (which serves the app in its own process): each camera frame's (index, time in
-ms since the epoch) as the live handler takes it up, to match the browser's timestamps against."""
 
 
 def how_to_get_weights() -> str:
@@ -226,7 +222,7 @@ def user_facing(message: str) -> str:
 # ---- inputs ----------------------------------------------------------------------------------------------
 
 
-def _paths(files) -> list[Path]:
+def upload_paths(files) -> list[Path]:
     """gr.File values (str paths, or objects with .name) -> paths."""
     if files is None:
         return []
@@ -271,7 +267,7 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
     from landmarks.imageio import IMAGE_SUFFIXES
     from landmarks.video import VIDEO_SUFFIXES, probe_video
 
-    paths = _paths(files)
+    paths = upload_paths(files)
     if not paths:
         raise InputFileError("no source yet: upload 1-32 photos of one person (or a short video), or load the example")
     if not 1 <= int(k) <= limits.max_k:
@@ -416,7 +412,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     from lsr.reenact import stage_table, write_reenactment
 
     reenactor = store.reenactor(runtime)  # first: without a model nothing else matters
-    driving_paths = _paths(driving)
+    driving_paths = upload_paths(driving)
     if not driving_paths:
         raise InputFileError("no driving input yet: upload a video or a landmark file (.npy/.json), or pick a bundled example")
     driving = driving_paths[0]
@@ -468,171 +464,3 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     return RunResult(output, stats.frames, shot_gallery(shots), averaging, panels_dir, stage_table(stats),
                      "\n".join(f"- {note}" for note in notes))
 
-
-# ---- live: the webcam drives the person (lsr.core.live) ------------------------------------------------------------
-
-
-class LiveStream:
-    """One browser tab's live stream: its encoded subject and ``LiveSession``, the layout colours, the fps meter.
-
-    Lives in the tab's ``gr.State``; a new choice of person encodes again, stopping the camera or closing the tab
-    drops it (``close``)."""
-
-    def __init__(self, session, key: tuple, kind: str) -> None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        self.session, self.key, self.kind = session, key, kind
-        self.pca = None
-        self.fps: float | None = None
-        self._last_shown: float | None = None
-        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lsr-live")
-        self._pending = None  # the previous frame's second half, running while this frame is prepared
-
-    def step(self, frame: np.ndarray):
-        """Pipelined: prepare this frame (tracking, warps) while the worker finishes the previous one (network,
-        composite), and return that previous result; the first frame (and a frame without a face) waits for its own.
-        The browser sends the next frame as soon as this returns, so the two halves overlap on two cores."""
-        prepared = self.session.prepare(frame)
-        previous, self._pending = self._pending, None
-        if not hasattr(prepared, "inputs"):  # no face: the last good frame, once the one in flight is done
-            if previous is not None:
-                previous.result()
-            return self.session.still(prepared.note) if previous is not None else prepared
-        self._pending = self._worker.submit(self.session.finish, prepared)
-        return (previous if previous is not None else self._pending).result()
-
-    def tick(self) -> float | None:
-        """Call once per frame shown: the smoothed output rate (None until two frames)."""
-        now = time.perf_counter()
-        if self._last_shown is not None and now > self._last_shown:
-            rate = 1.0 / (now - self._last_shown)
-            self.fps = rate if self.fps is None else (1 - LIVE_FPS_SMOOTHING) * self.fps + LIVE_FPS_SMOOTHING * rate
-        self._last_shown = now
-        return self.fps
-
-    def close(self) -> None:
-        self._worker.shutdown(wait=True, cancel_futures=True)
-        self._pending = None
-        self.session = None
-        self.pca = None
-
-
-def live_person(source_files, k: int, examples_dir: Path) -> tuple[list[Path], tuple]:
-    """The shots a live stream drives: the uploaded ones, else the example person; and a key that changes with them."""
-    paths = _paths(source_files)
-    if not paths:
-        from app import examples as ex
-
-        paths = list(ex.ensure_examples(examples_dir).source_images)
-    return paths, (tuple(str(p) for p in paths), int(k))
-
-
-def live_frame(store: ModelStore, limits: Limits, stream: LiveStream | None, frame: np.ndarray | None, source_files,
-               k: int, examples_dir: Path, *, paste_back: bool = True, watermark: bool = True):
-    """One webcam frame -> (shown image, latent layout picture, status line, the stream state).
-
-    The person is encoded once per choice (uploaded shots, else the example person); a frame without a face shows the
-    last good output with a note."""
-    from lsr.core.live import LiveSession
-    from lsr.reenact import layout_panel
-
-    arrived = time.time() * 1000
-    if frame is None:
-        return gr_skip(), gr_skip(), "Start the camera to drive the person.", stream
-    paths, key = live_person(source_files, k, examples_dir)
-    key = key + (bool(paste_back), bool(watermark))
-    if stream is None or stream.key != key or stream.session is None:
-        reenactor = store.live_reenactor()
-        shots, _ = load_shots(paths, int(k), reenactor.crop_size, store.detector, limits)
-        subject = reenactor.encode_subject(shots, cache=False)
-        session = LiveSession(reenactor, subject, paste_back=paste_back, with_layout=True, watermark=watermark,
-                              detector=store.detector)
-        stream = LiveStream(session, key, reenactor.backend.layout_kind)
-    shown = stream.step(np.asarray(frame, np.uint8))
-    if LIVE_TRACE is not None:
-        LIVE_TRACE.append((stream.session.frames, arrived))
-    fps = stream.tick()
-    layout = None
-    if shown.layout is not None and stream.kind == "segmentation":
-        layout = enlarge(layout_panel(shown.layout, stream.kind, shown.layout.shape[-1]))
-    elif shown.layout is not None:
-        from lsr.layout_view import LayoutPCA
-
-        stream.pca = stream.pca or LayoutPCA()
-        layout = enlarge(stream.pca.rgb(shown.layout))
-    status = (f"{'–' if fps is None else f'{fps:.1f}'} fps · {1000 * shown.seconds:.0f} ms per frame · "
-              f"frame {shown.index}" + (f" · {shown.note}" if shown.note else ""))
-    return shown.image, layout if layout is not None else gr_skip(), status, stream
-
-
-def gr_skip():
-    """Leave an output as it is (Gradio's skip, imported where a callback needs it)."""
-    import gradio as gr
-
-    return gr.skip()
-
-
-# ---- expression controls: sliders edit the anchor's landmarks (landmarks.edit) -------------------------------------
-EDIT_SLIDERS = (  # name, minimum, maximum, neutral, step, label (landmarks.edit.edit_landmarks' keywords)
-    ("yaw", -30.0, 30.0, 0.0, 1.0, "head yaw (°)"),
-    ("pitch", -20.0, 20.0, 0.0, 1.0, "head pitch (°)"),
-    ("roll", -25.0, 25.0, 0.0, 1.0, "head roll (°)"),
-    ("mouth", 0.0, 0.5, 0.0, 0.01, "mouth open (inter-ocular distances)"),
-    ("eyes", 0.0, 1.5, 1.0, 0.05, "eyes open (x the anchor's)"),
-    ("smile", -0.1, 0.15, 0.0, 0.01, "smile"),
-    ("brows", -0.1, 0.15, 0.0, 0.01, "brows up"),
-)
-
-
-class EditState:
-    """One tab's expression editor: its person's ``LiveSession`` (encoded once per choice) and the layout colours."""
-
-    def __init__(self, session, key: tuple, kind: str) -> None:
-        self.session, self.key, self.kind = session, key, kind
-        self.pca = None
-        self.target = None  # the last edited landmarks, crop pixels
-
-
-def edit_frame(store: ModelStore, limits: Limits, state: EditState | None, source_files, k: int, values: Sequence[float],
-               examples_dir: Path, *, watermark: bool = True):
-    """Slider values (``EDIT_SLIDERS`` order) -> (image in the person's scene, latent layout picture, status, state)."""
-    from landmarks.edit import edit_landmarks
-    from lsr.core.live import LiveSession
-
-    started = time.perf_counter()
-    paths, key = live_person(source_files, k, examples_dir)
-    key = key + (bool(watermark),)
-    if state is None or state.key != key:
-        reenactor = store.live_reenactor()
-        shots, _ = load_shots(paths, int(k), reenactor.crop_size, store.detector, limits)
-        subject = reenactor.encode_subject(shots, cache=False)
-        state = EditState(LiveSession(reenactor, subject, with_layout=True, watermark=watermark, detector=store.detector),
-                          key, reenactor.backend.layout_kind)
-    edits = {name: float(value) for (name, *_), value in zip(EDIT_SLIDERS, values)}
-    state.target = edit_landmarks(state.session.subject.reference_landmarks, **edits)
-    shown = state.session.render(state.target)
-    layout = None
-    if shown.layout is not None and state.kind != "segmentation":
-        from lsr.layout_view import LayoutPCA
-
-        state.pca = state.pca or LayoutPCA()
-        layout = enlarge(state.pca.rgb(shown.layout))
-    elapsed = 1000 * (time.perf_counter() - started)
-    return shown.image, layout if layout is not None else gr_skip(), f"updated in {elapsed:.0f} ms", state
-
-
-def save_pose(state: EditState | None, run_dir: Path) -> Path:
-    """The edited pose as a 2-frame landmark driver (N, 68, 2) .npy in the person's frame pixels: the anchor's own
-    face, then the edit, so ``lsr reenact --driving pose.npy`` (relative motion) puts the edit on any source."""
-    from landmarks.errors import InputFileError
-    from landmarks.imageio import atomic_output
-
-    if state is None or state.target is None:
-        raise InputFileError("move a slider first: there is no edited pose to save yet")
-    session = state.session
-    frames = np.stack([session.in_scene(session.subject.reference_landmarks), session.in_scene(state.target)])
-    path = run_dir / "pose.npy"
-    with atomic_output(path) as temp:
-        with open(temp, "wb") as handle:
-            np.save(handle, frames.astype(np.float32))
-    return path

@@ -19,7 +19,7 @@ from pathlib import Path
 import gradio as gr
 
 from app import examples as ex
-from app import handlers
+from app import handlers, live
 from lsr.config import DEFAULT_FINETUNE_STEPS
 from lsr.config import AppConfig
 
@@ -59,6 +59,17 @@ LIVE_STREAMS = 2  # live streams served at once (each holds a subject and a trac
 LIVE_CAMERA_SIZE = (320, 240)  # asked of the camera: enough for a face filling a webcam frame, and a quarter of the
 # pixels of 640x480 to grab, send and track
 LIVE_CAMERA = {"video": {"width": {"ideal": LIVE_CAMERA_SIZE[0]}, "height": {"ideal": LIVE_CAMERA_SIZE[1]}}}
+
+
+def result_columns(prefix: str, output_label: str, status: str, layout_label: str):
+    """Two columns of a live or expression tab: the picture with its status line, then the latent layout;
+    elem_ids ``{prefix}-output``, ``{prefix}-status``, ``{prefix}-layout`` (what the browser tests find)."""
+    with gr.Column():
+        output = gr.Image(label=output_label, interactive=False, elem_id=f"{prefix}-output", format="jpeg")
+        status_line = gr.Markdown(status, elem_id=f"{prefix}-status")
+    with gr.Column():
+        layout = gr.Image(label=layout_label, interactive=False, elem_id=f"{prefix}-layout", format="jpeg")
+    return output, status_line, layout
 
 
 def model_summary(weights: Path | None, random_init: bool) -> str:
@@ -153,9 +164,9 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
 
         return handlers.labelled_panel(read_image(path))
 
-    def live(frame, stream, source_files, k, in_scene, watermark):
+    def stream_frame(frame, stream, source_files, k, in_scene, watermark):
         with handlers.readable_errors("drive the person live"):
-            return handlers.live_frame(store, limits, stream, frame, source_files, int(k), examples_dir,
+            return live.live_frame(store, limits, stream, frame, source_files, int(k), examples_dir,
                                        paste_back=bool(in_scene), watermark=bool(watermark))
 
     def stop_live(stream):
@@ -171,12 +182,13 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
 
     def edit(state, source_files, k, watermark, *values):
         with handlers.readable_errors("edit the expression"):
-            return handlers.edit_frame(store, limits, state, source_files, int(k), values, examples_dir,
+            return live.edit_frame(store, limits, state, source_files, int(k), values, examples_dir,
                                        watermark=bool(watermark))
 
     def save_pose(state, request: gr.Request):
         with handlers.readable_errors("save the pose"):
-            return str(handlers.save_pose(state, files.folder(request.session_hash if request is not None else None, "pose")))
+            session = request.session_hash if request is not None else None
+            return str(live.save_pose(state, files.folder(session, "pose")))
 
     def forget_session(request: gr.Request):
         files.drop(request.session_hash if request is not None else None)
@@ -246,31 +258,21 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                                       webcam_options=gr.WebcamOptions(mirror=False, constraints=LIVE_CAMERA))
                     live_scene = gr.Checkbox(True, label="In the source's own scene (else the face crop)")
                     recentre = gr.Button("Re-centre: my face now is the neutral one", size="sm")
-                with gr.Column():
-                    live_output = gr.Image(label="Re-enacted, live", interactive=False, elem_id="live-output",
-                                           format="jpeg")
-                    live_status = gr.Markdown("Start the camera to drive the person.", elem_id="live-status")
-                with gr.Column():
-                    live_layout = gr.Image(label="Latent layout, live", interactive=False, elem_id="live-layout",
-                                           format="jpeg")
+                live_output, live_status, live_layout = result_columns(
+                    "live", "Re-enacted, live", "Start the camera to drive the person.", "Latent layout, live")
         with gr.Tab("Expression controls", id="edit"):
             gr.Markdown(EDIT_HELP)
             with gr.Row(equal_height=False):
                 with gr.Column():
                     sliders = [gr.Slider(low, high, value=neutral, step=step, label=label, elem_id=f"edit-{name}")
-                               for name, low, high, neutral, step, label in handlers.EDIT_SLIDERS]
+                               for name, low, high, neutral, step, label in live.EDIT_SLIDERS]
                     with gr.Row():
                         edit_reset = gr.Button("Neutral", size="sm")
                         edit_save = gr.Button("Save the pose (.npy)", size="sm", elem_id="edit-save")
                     edit_file = gr.File(label="Landmark driver for `lsr reenact --driving`", interactive=False,
                                         elem_id="edit-file")
-                with gr.Column():
-                    edit_output = gr.Image(label="The person, edited", interactive=False, elem_id="edit-output",
-                                           format="jpeg")
-                    edit_status = gr.Markdown("Move a slider.", elem_id="edit-status")
-                with gr.Column():
-                    edit_layout = gr.Image(label="Latent layout", interactive=False, elem_id="edit-layout",
-                                           format="jpeg")
+                edit_output, edit_status, edit_layout = result_columns(
+                    "edit", "The person, edited", "Move a slider.", "Latent layout")
         preview_inputs = dict(fn=preview_source, inputs=[source_files, k], outputs=[shots, source_notes],
                               concurrency_id=MODEL_EVENTS)
         preview_inputs["show_progress_on"] = [shots]
@@ -295,10 +297,10 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
         for slider in sliders:
             slider.change(edit, inputs=slider_inputs, outputs=[edit_output, edit_layout, edit_status, edit_state],
                           concurrency_id="edit", concurrency_limit=2, show_progress="hidden")
-        edit_reset.click(lambda: [spec[3] for spec in handlers.EDIT_SLIDERS], outputs=sliders, queue=False)
+        edit_reset.click(lambda: [spec[3] for spec in live.EDIT_SLIDERS], outputs=sliders, queue=False)
         edit_save.click(save_pose, inputs=edit_state, outputs=edit_file)
         live_inputs = [camera, live_state, source_files, k, live_scene, watermark]
-        camera.stream(live, inputs=live_inputs, outputs=[live_output, live_layout, live_status, live_state],
+        camera.stream(stream_frame, inputs=live_inputs, outputs=[live_output, live_layout, live_status, live_state],
                       stream_every=LIVE_STREAM_EVERY, time_limit=LIVE_TIME_LIMIT, concurrency_id="live",
                       concurrency_limit=LIVE_STREAMS, show_progress="hidden", api_name="live")
         camera.clear(stop_live, inputs=live_state, outputs=[live_state, live_status], queue=False)

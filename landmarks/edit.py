@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from landmarks.parts import LEFT_EYE, NUM_LANDMARKS, RIGHT_EYE
+from landmarks.align import face_geometry
+from landmarks.parts import NUM_LANDMARKS
 
 BROWS = slice(17, 27)
 INNER_BROWS = (21, 22)
@@ -31,7 +32,7 @@ CANONICAL_IOD = 64.0  # eye centres of landmarks.pose's canonical face, model un
 
 def _face_frame(points: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     """(centre, inter-ocular distance, unit x axis along the eye line (image-left eye to image-right eye))."""
-    left, right = points[LEFT_EYE].mean(0), points[RIGHT_EYE].mean(0)
+    left, right, _ = face_geometry(points)
     axis = right - left
     iod = float(np.linalg.norm(axis))
     if not np.isfinite(iod) or iod <= 0:

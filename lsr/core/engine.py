@@ -381,8 +381,6 @@ class ReenactorBase:
     def _into_scene(self, scenes, target: np.ndarray, with_layout: bool, stats: ReenactStats):
         """Synthesise the target (anchor crop pixels) at the next scene frame's head pose and composite it there:
         (output frame, synthesis, landmark image, layout, target in that frame's crop pixels)."""
-        from landmarks.scene import composite_face, place_in_frame
-
         started = time.perf_counter()
         scene = next(scenes)
         stats.add("decode", time.perf_counter() - started)
@@ -393,8 +391,7 @@ class ReenactorBase:
         if scene.landmarks is None:
             return scene.image, synthesis, landmark_image, layout, target
         started = time.perf_counter()
-        output = composite_face(scene.image, scene.landmarks, place_in_frame(target, scene.matrix), synthesis,
-                                scene.matrix).frame
+        output = scene.composite(target, synthesis)
         stats.add("paste_back", time.perf_counter() - started)
         return output, synthesis, landmark_image, layout, target
 

@@ -87,7 +87,8 @@ class LiveSession:
         if self.last is not None:
             shown = self.last.image
         else:
-            shown = self._mark(self.scene.image if self.scene is not None else self.subject.shots.frames[self.subject.shots.anchor])
+            shots = self.subject.shots
+            shown = self._mark(self.scene.image if self.scene is not None else shots.frames[shots.anchor])
         return LiveFrame(shown, False, None, None, time.perf_counter() - started, note, self.frames)
 
     def step(self, frame: np.ndarray, timestamp: float | None = None) -> LiveFrame:
@@ -118,18 +119,19 @@ class LiveSession:
         crop_landmarks = transform_landmarks(points, crop_transform(points, self.reenactor.crop_size))
         if self.reference is None:
             self.reference = crop_landmarks
-        target = retarget_driving(crop_landmarks, self.reference, self.subject.reference_landmarks)
+        return self._inputs(retarget_driving(crop_landmarks, self.reference, self.subject.reference_landmarks), started)
+
+    def _inputs(self, target: np.ndarray, started: float) -> Prepared:
         landmark_image, inputs = self.reenactor.network_inputs(target, subject=self.subject)
-        return Prepared(target, landmark_image, inputs, time.perf_counter() - started, self.frames)
+        return Prepared(np.asarray(target, np.float64), landmark_image, inputs, time.perf_counter() - started,
+                        self.frames)
 
     def render(self, target: np.ndarray) -> LiveFrame:
         """Target landmarks (68, 2) in the anchor's crop pixels (e.g. the anchor's own, edited by
         ``landmarks.edit``) -> the frame, as a camera frame with that face would give it."""
         started = time.perf_counter()
         self.frames += 1
-        landmark_image, inputs = self.reenactor.network_inputs(target, subject=self.subject)
-        return self.finish(Prepared(np.asarray(target, np.float64), landmark_image, inputs,
-                                    time.perf_counter() - started, self.frames))
+        return self.finish(self._inputs(target, started))
 
     def in_scene(self, target: np.ndarray) -> np.ndarray:
         """Crop-pixel landmarks (68, 2) -> the scene's frame pixels (the face crop's own when not pasting back)."""
@@ -139,15 +141,9 @@ class LiveSession:
 
     def finish(self, prepared: Prepared) -> LiveFrame:
         """The second half: the network, then the composite into the scene and the synthetic mark."""
-        from landmarks.scene import composite_face, place_in_frame
-
         started = time.perf_counter()
         synthesis, layout = self.reenactor.synthesize_inputs(prepared.inputs, self.with_layout)
-        image = synthesis
-        if self.scene is not None:
-            scene = self.scene
-            image = composite_face(scene.image, scene.landmarks, place_in_frame(prepared.target, scene.matrix),
-                                   synthesis, scene.matrix).frame
+        image = synthesis if self.scene is None else self.scene.composite(prepared.target, synthesis)
         self.faces += 1
         self.last = LiveFrame(self._mark(image), True, layout, prepared.landmark_image,
                               prepared.seconds + time.perf_counter() - started, index=prepared.index)

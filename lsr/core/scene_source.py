@@ -34,6 +34,14 @@ class SceneFrame:
     motion: tuple[float, np.ndarray, np.ndarray] | None
     """Similarity (scale, R, t) from the anchor's crop landmarks to this frame's, crop pixels."""
 
+    def composite(self, crop_landmarks: np.ndarray, synthesis: np.ndarray) -> np.ndarray:
+        """A synthesised face crop (its target landmarks in this frame's crop pixels) put into this frame
+        (``landmarks.scene.composite_face``) -> (H, W, 3) uint8."""
+        from landmarks.scene import composite_face, place_in_frame
+
+        return composite_face(self.image, self.landmarks, place_in_frame(crop_landmarks, self.matrix), synthesis,
+                              self.matrix).frame
+
     def place(self, crop_landmarks: np.ndarray) -> np.ndarray:
         """Target landmarks in the anchor's crop coordinates -> this frame's crop coordinates (68, 2)."""
         from landmarks.retarget import apply_similarity

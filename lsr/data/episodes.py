@@ -201,7 +201,7 @@ class EpisodeDataset(Dataset):
         from landmarks.expression import mouth_opening
 
         for key, refs in self._pools.items():
-            opening = np.array([mouth_opening(self.index.clips[r.clip].landmarks[r.frame]) for r in refs])
+            opening = mouth_opening(np.stack([self.index.clips[r.clip].landmarks[r.frame] for r in refs]))
             if len(refs) < 4 or not np.isfinite(opening).all() or np.ptp(opening) <= 0:
                 continue
             wide, median = np.quantile(opening, OPEN_MOUTH_QUANTILE), np.median(opening)

@@ -12,11 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from app.bench_live import CHROMIUM, HEADLESS_ARGS
+
 pytestmark = pytest.mark.slow
 
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--no-first-run"]
 WAIT_MS = 300_000  # generous: a failure bound on shared CPUs, not a speed check
 VIDEO_PLAYABLE = """() => {
     const video = document.querySelector('#result-video video');
@@ -34,7 +33,7 @@ def browser():
         pytest.skip(f"{CHROMIUM} not found: install Debian's chromium (apt-get install chromium) to run browser tests")
     sync_api = pytest.importorskip("playwright.sync_api", reason="the playwright package is not installed")
     with sync_api.sync_playwright() as playwright:
-        chromium = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        chromium = playwright.chromium.launch(executable_path=str(CHROMIUM), args=HEADLESS_ARGS)
         yield chromium
         chromium.close()
 

@@ -171,30 +171,31 @@ def test_the_app_and_lsr_reenact_write_the_same_video(tiny_app_weights, app_inpu
 def test_sliders_edit_the_person_and_the_saved_pose_drives_lsr_reenact(tiny_app_weights, tmp_path):
     """The expression tab: neutral sliders draw the anchor's own face, the mouth slider opens it, and the saved pose
     (neutral, then the edit) is a landmark driver `lsr reenact` accepts."""
+    from app import live
     from landmarks.video import iter_frames
     from lsr.cli import main
 
     store = handlers.ModelStore(tiny_app_weights, "cpu")
     examples = tmp_path / "examples"
-    neutral = [spec[3] for spec in handlers.EDIT_SLIDERS]
+    neutral = [spec[3] for spec in live.EDIT_SLIDERS]
     with pytest.raises(InputFileError, match="move a slider"):
-        handlers.save_pose(None, tmp_path)
-    image, _, status, state = handlers.edit_frame(store, handlers.Limits(), None, None, 2, neutral, examples)
+        live.save_pose(None, tmp_path)
+    image, _, status, state = live.edit_frame(store, handlers.Limits(), None, None, 2, neutral, examples)
     assert image.ndim == 3 and "ms" in status
     np.testing.assert_allclose(state.target, state.session.subject.reference_landmarks)
-    opened = [0.4 if spec[0] == "mouth" else spec[3] for spec in handlers.EDIT_SLIDERS]
-    edited, _, _, same = handlers.edit_frame(store, handlers.Limits(), state, None, 2, opened, examples)
+    opened = [0.4 if spec[0] == "mouth" else spec[3] for spec in live.EDIT_SLIDERS]
+    edited, _, _, same = live.edit_frame(store, handlers.Limits(), state, None, 2, opened, examples)
     assert same is state and not np.array_equal(edited, image)  # encoded once, drawn again
-    pose = handlers.save_pose(state, tmp_path / "pose")
+    pose = live.save_pose(state, tmp_path / "pose")
     frames = np.load(pose)
     assert frames.shape == (2, 68, 2) and not np.allclose(frames[0], frames[1])
-    source = handlers.live_person(None, 2, examples)[0][0]
+    source = live.live_person(None, 2, examples)[0][0]
     out = tmp_path / "posed.mp4"
     assert main(["reenact", "--weights", str(tiny_app_weights), "--source", str(source), "--driving", str(pose),
                  "--out", str(out), "--no-progress"]) == 0
     assert len(list(iter_frames(out))) == 2
     # saving keeps the pose while a new run replaces the previous run's files
     files = handlers.SessionFiles(tmp_path / "sessions")
-    kept = handlers.save_pose(state, files.folder("s", "pose"))
+    kept = live.save_pose(state, files.folder("s", "pose"))
     files.new_run("s")
     assert kept.is_file()
