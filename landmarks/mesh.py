@@ -1,0 +1,295 @@
+"""MediaPipe's face detector (BlazeFace, short range) and 468-point face mesh on onnxruntime: no torch, no dlib.
+
+The two networks are Google's Apache-2.0 models, converted once to ONNX by ``lsr face-models convert`` (``landmarks.convert_mediapipe``)
+(sources and checksums in ``landmarks/assets/mediapipe/SOURCES.json``). What runs around them follows
+MediaPipe's own graphs (face_detection_short_range_cpu, face_landmark_front_cpu):
+
+1. **Detection**: the frame is letterboxed into 128x128, scaled to [-1, 1]; 896 SSD anchors (strides 8, 16)
+   give boxes and 6 keypoints (eyes, nose tip, mouth, ears); sigmoid scores >= ``min_score``; weighted
+   non-maximum suppression at IoU 0.3.
+2. **Region of interest**: a square 1.5x the box's longer side, rotated so the eye line is level.
+3. **Mesh**: the region is sampled into 192x192 in [0, 1]; the net returns 468 (x, y, z) points in those
+   pixels and a face-presence logit. Points go back to the frame through the region's affine transform.
+4. **Tracking** (``landmarks.mesh_track``): the next frame's region comes from this frame's mesh (eye corners
+   33 and 263 level the square), so detection runs only when presence drops.
+
+Shapes: images (H, W, 3) uint8 RGB; boxes (4,) float32 x0, y0, x1, y1; meshes (468, 3) float32 x, y in frame
+pixels and z in the same pixel scale (smaller = nearer the camera).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import threading
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from landmarks.errors import ModelFilesError
+
+ASSETS = Path(__file__).resolve().parent / "assets" / "mediapipe"
+DETECTOR_FILE = "face_detection_short_range.onnx"
+MESH_FILE = "face_landmark.onnx"
+MESH_POINTS = 468
+DETECTOR_SIZE = 128
+MESH_SIZE = 192
+ROI_SCALE = 1.5  # MediaPipe's RectTransformationCalculator scale for both the detection and the mesh region
+EYE_CORNERS = (33, 263)  # mesh vertices of the image-left eye's outer corner and the image-right eye's outer corner
+
+
+def _session(filename: str) -> Any:
+    path = ASSETS / filename
+    if not path.is_file():
+        raise ModelFilesError(
+            f"face model {path.name} not found in {path.parent}; reinstall the package "
+            "(or rebuild it: lsr face-models convert)"
+        )
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = 1  # 2-5 ms nets: a second thread costs more in hand-off than it gains
+    options.inter_op_num_threads = 1
+    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+
+_LOCAL = threading.local()
+
+
+def session(filename: str) -> Any:
+    """One onnxruntime session per thread and model (``run`` is thread-safe, but one thread each keeps them apart)."""
+    sessions = getattr(_LOCAL, "sessions", None)
+    if sessions is None:
+        sessions = _LOCAL.sessions = {}
+    if filename not in sessions:
+        sessions[filename] = _session(filename)
+    return sessions[filename]
+
+
+@functools.lru_cache(maxsize=1)
+def ssd_anchors() -> np.ndarray:
+    """(896, 2) anchor centres in [0, 1] of the short-range detector: MediaPipe's SsdAnchorsCalculator with
+    4 layers, strides 8, 16, 16, 16, fixed anchor size, 2 anchors per layer (layers of one stride merged)."""
+    centres = []
+    for stride, per_cell in ((8, 2), (16, 6)):
+        cells = DETECTOR_SIZE // stride
+        ys, xs = np.meshgrid(np.arange(cells), np.arange(cells), indexing="ij")
+        grid = np.stack([(xs + 0.5) / cells, (ys + 0.5) / cells], axis=-1).reshape(-1, 1, 2)
+        centres.append(np.repeat(grid, per_cell, axis=1).reshape(-1, 2))
+    return np.concatenate(centres).astype(np.float32)
+
+
+@dataclasses.dataclass
+class Detection:
+    """One BlazeFace detection in frame pixels. box: (4,) x0, y0, x1, y1; keypoints: (6, 2) x, y of the
+    image-left eye, image-right eye, nose tip, mouth centre, image-left ear, image-right ear; score in [0, 1]."""
+
+    box: np.ndarray
+    keypoints: np.ndarray
+    score: float
+
+
+def _letterbox(image: np.ndarray, size: int) -> tuple[np.ndarray, float, np.ndarray]:
+    """Fit the image into size x size, centred, black bars. Returns (size, size, 3) uint8, scale, (2,) offset:
+    frame = (letterboxed - offset) / scale."""
+    height, width = image.shape[:2]
+    scale = size / max(height, width)
+    new_w, new_h = max(1, round(width * scale)), max(1, round(height * scale))
+    resized = cv2.resize(image, (new_w, new_h), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+    boxed = np.zeros((size, size, 3), np.uint8)
+    left, top = (size - new_w) // 2, (size - new_h) // 2
+    boxed[top : top + new_h, left : left + new_w] = resized
+    return boxed, scale, np.array([left, top], np.float32)
+
+
+def _iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    x0 = np.maximum(box[0], boxes[:, 0])
+    y0 = np.maximum(box[1], boxes[:, 1])
+    x1 = np.minimum(box[2], boxes[:, 2])
+    y1 = np.minimum(box[3], boxes[:, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    area = (box[2] - box[0]) * (box[3] - box[1])
+    areas = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+    return inter / np.maximum(area + areas - inter, 1e-9)
+
+
+def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
+                 threshold: float = 0.3) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """MediaPipe's WEIGHTED suppression: each cluster (IoU > threshold with its best box) becomes the
+    score-weighted mean of its boxes and keypoints, with the best score. Returns [(box, keypoints, score)]."""
+    order = np.argsort(-scores)
+    remaining = list(order)
+    kept = []
+    while remaining:
+        best = remaining[0]
+        overlaps = _iou(boxes[best], boxes[remaining])
+        cluster = [remaining[i] for i in np.flatnonzero(overlaps > threshold)]
+        weights = scores[cluster][:, None]
+        box = (boxes[cluster] * weights).sum(0) / weights.sum()
+        points = (keypoints[cluster] * weights[:, :, None]).sum(0) / weights.sum()
+        kept.append((box.astype(np.float32), points.astype(np.float32), float(scores[best])))
+        remaining = [index for index in remaining if index not in set(cluster)]
+    return kept
+
+
+def detector_input(image: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """(H, W, 3) uint8 RGB -> the detector's (1, 128, 128, 3) float32 input in [-1, 1] (letterboxed), and the
+    scale and (2,) offset that map its pixels back: frame = (input - offset) / scale."""
+    boxed, scale, offset = _letterbox(image, DETECTOR_SIZE)
+    return (boxed.astype(np.float32) / 127.5 - 1.0)[None], scale, offset
+
+
+def decode_detections(regressors: np.ndarray, logits: np.ndarray, scale: float, offset: np.ndarray,
+                      min_score: float = 0.5) -> list[Detection]:
+    """The detector's outputs -> detections in frame pixels, best first (MediaPipe's TensorsToDetections with
+    sigmoid scores, then weighted suppression). regressors: (1, 896, 16); logits: (1, 896, 1)."""
+    raw, logit = regressors[0], logits[0, :, 0].astype(np.float64)  # (896, 16), (896,)
+    scores = 1.0 / (1.0 + np.exp(-np.clip(logit, -100.0, 100.0)))  # MediaPipe's score clipping at +-100
+    keep = np.flatnonzero(scores >= min_score)
+    if keep.size == 0:
+        return []
+    anchors = ssd_anchors()[keep] * DETECTOR_SIZE  # (n, 2) in letterbox pixels
+    raw = raw[keep]
+    centre = anchors + raw[:, 0:2]
+    half = raw[:, 2:4] / 2.0
+    boxes = np.concatenate([centre - half, centre + half], axis=1)
+    points = anchors[:, None, :] + raw[:, 4:16].reshape(-1, 6, 2)
+    found = []
+    for box, keypoints, score in weighted_nms(boxes, points, scores[keep]):
+        box = ((box.reshape(2, 2) - offset) / scale).reshape(4)
+        found.append(Detection(box=box.astype(np.float32), keypoints=((keypoints - offset) / scale).astype(np.float32), score=score))
+    return found
+
+
+def detect_faces(image: np.ndarray, min_score: float = 0.5) -> list[Detection]:
+    """BlazeFace (short range) on the whole frame: detections in frame pixels, best first.
+
+    image: (H, W, 3) uint8 RGB. The short-range model sees the frame at 128 px on its longer side and finds
+    faces of about 1/8 of that side and up; ``detect_tiled`` covers smaller faces.
+    """
+    tensor, scale, offset = detector_input(image)
+    net = session(DETECTOR_FILE)
+    regressors, logits = net.run(None, {net.get_inputs()[0].name: tensor})
+    return decode_detections(regressors, logits, scale, offset, min_score)
+
+
+TILE_LEVELS = 2  # tiles of 1/2, then 1/4 of the shorter side: faces down to about 1/16 of it (a full-body shot)
+MIN_TILE = 160  # px: below this a tile adds nothing the whole frame did not see
+
+
+def _tiles(height: int, width: int, side: int) -> list[tuple[int, int]]:
+    """Top-left corners of side x side tiles overlapping by half, covering the frame (the last row/column flush)."""
+    step = max(1, side // 2)
+    tops = sorted({*range(0, max(1, height - side), step), max(0, height - side)})
+    lefts = sorted({*range(0, max(1, width - side), step), max(0, width - side)})
+    return [(top, left) for top in tops for left in lefts]
+
+
+def detect_tiled(image: np.ndarray, min_score: float = 0.5) -> list[Detection]:
+    """Whole-frame detection, then, when nothing is found, overlapping square tiles of half, then a quarter of the
+    shorter side, so that small faces reach the detector's range. Detections in frame pixels, best first."""
+    found = detect_faces(image, min_score)
+    if found:
+        return found
+    height, width = image.shape[:2]
+    candidates: list[Detection] = []
+    side = min(height, width)
+    for _ in range(TILE_LEVELS):
+        side //= 2
+        if side < MIN_TILE or candidates:
+            break
+        for top, left in _tiles(height, width, side):
+            tile = np.ascontiguousarray(image[top : top + side, left : left + side])
+            for detection in detect_faces(tile, min_score):
+                shift = np.array([left, top], np.float32)
+                candidates.append(Detection(detection.box + np.tile(shift, 2), detection.keypoints + shift, detection.score))
+    if not candidates:
+        return []
+    boxes = np.stack([d.box for d in candidates])
+    points = np.stack([d.keypoints for d in candidates])
+    scores = np.array([d.score for d in candidates], np.float32)
+    return [Detection(box, keypoints, score) for box, keypoints, score in weighted_nms(boxes, points, scores)]
+
+
+@dataclasses.dataclass(frozen=True)
+class Region:
+    """A rotated square in the frame: centre (x, y), side, and rotation in radians: the angle of the face's eye line,
+    clockwise on screen (image y points down), so the crop turns it level (MediaPipe's NormalizedRect.rotation)."""
+
+    centre: tuple[float, float]
+    side: float
+    rotation: float
+
+    def to_crop(self, size: int = MESH_SIZE) -> np.ndarray:
+        """(2, 3) affine matrix mapping frame pixels into the size x size crop."""
+        cos, sin = np.cos(self.rotation), np.sin(self.rotation)
+        scale = size / self.side
+        # crop = scale * R(-rotation) (frame - centre) + size / 2
+        rotate = np.array([[cos, sin], [-sin, cos]]) * scale
+        shift = np.array([size / 2.0, size / 2.0]) - rotate @ np.asarray(self.centre)
+        return np.concatenate([rotate, shift[:, None]], axis=1).astype(np.float64)
+
+
+def _region(centre: np.ndarray, width: float, height: float, start: np.ndarray, end: np.ndarray) -> Region:
+    """MediaPipe's DetectionsToRects (rotation from start->end level) + RectTransformation (square long, 1.5x)."""
+    rotation = -np.arctan2(-(end[1] - start[1]), end[0] - start[0])
+    side = max(width, height) * ROI_SCALE
+    return Region((float(centre[0]), float(centre[1])), float(side), float(rotation))
+
+
+def region_from_detection(detection: Detection) -> Region:
+    box = detection.box
+    centre = np.array([(box[0] + box[2]) / 2.0, (box[1] + box[3]) / 2.0])
+    return _region(centre, box[2] - box[0], box[3] - box[1], detection.keypoints[0], detection.keypoints[1])
+
+
+def region_from_mesh(mesh: np.ndarray) -> Region:
+    """The next frame's region from this frame's mesh (MediaPipe's face_landmark_landmarks_to_roi): the points'
+    box in the rotated frame, rotation levelling the outer eye corners."""
+    start, end = mesh[EYE_CORNERS[0], :2], mesh[EYE_CORNERS[1], :2]
+    rotation = -np.arctan2(-(end[1] - start[1]), end[0] - start[0])
+    cos, sin = np.cos(rotation), np.sin(rotation)
+    points = mesh[:, :2]
+    # Measure the extent in the face's own (levelled) axes, as MediaPipe does for rotated rects.
+    levelled = points @ np.array([[cos, -sin], [sin, cos]])
+    low, high = levelled.min(0), levelled.max(0)
+    middle = (low + high) / 2.0
+    centre = middle @ np.array([[cos, sin], [-sin, cos]])
+    side = float(max(high - low)) * ROI_SCALE
+    return Region((float(centre[0]), float(centre[1])), side, float(rotation))
+
+
+@dataclasses.dataclass
+class MeshResult:
+    """mesh: (468, 3) float32 in frame pixels; presence: face probability in [0, 1]; region: the crop used."""
+
+    mesh: np.ndarray
+    presence: float
+    region: Region
+
+
+def predict_mesh(image: np.ndarray, region: Region) -> MeshResult:
+    """Run the face-mesh net inside ``region`` of ``image`` ((H, W, 3) uint8 RGB)."""
+    matrix = region.to_crop(MESH_SIZE)
+    crop = cv2.warpAffine(image, matrix, (MESH_SIZE, MESH_SIZE), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    tensor = (crop.astype(np.float32) / 255.0)[None]  # (1, 192, 192, 3) in [0, 1]
+    net = session(MESH_FILE)
+    raw, flag = net.run(None, {net.get_inputs()[0].name: tensor})
+    points = raw.reshape(MESH_POINTS, 3).astype(np.float64)
+    inverse = cv2.invertAffineTransform(matrix)
+    xy = points[:, :2] @ inverse[:, :2].T + inverse[:, 2]
+    z = points[:, 2] * (region.side / MESH_SIZE)
+    mesh = np.concatenate([xy, z[:, None]], axis=1).astype(np.float32)
+    presence = float(1.0 / (1.0 + np.exp(-float(flag.reshape(-1)[0]))))
+    return MeshResult(mesh=mesh, presence=presence, region=region)
+
+
+def sources() -> dict[str, Any]:
+    """The provenance record of the shipped model files (wheel, checksums, conversion check)."""
+    path = ASSETS / "SOURCES.json"
+    if not path.is_file():
+        raise ModelFilesError(f"{path} is missing; reinstall the package")
+    return json.loads(path.read_text())
