@@ -1,7 +1,7 @@
 """Bundled synthetic examples for the app: a source person and a driving clip, generated on first use.
 
 Nothing is shipped as binary files: ``lsr.data.synth.render_video`` renders procedural talking heads
-(faces dlib finds), written once into a cache folder and reused. The folder appears complete or not at
+(faces the detectors find), written once into a cache folder and reused. The folder appears complete or not at
 all (built in a temp folder beside it, then renamed), so an interrupted first run leaves nothing half-made.
 
     examples = ensure_examples()            # ~/.cache/lsr/app_examples by default

@@ -1,6 +1,6 @@
 """The app's callbacks: a thin layer over ``lsr.pipeline`` / ``deploy`` (no Gradio layout here; see ``app.ui``).
 
-Everything heavy (torch, dlib, the model) loads on the first request, once, in ``ModelStore``. Each
+Everything heavy (torch, the face models, the model) loads on the first request, once, in ``ModelStore``. Each
 handler turns the library's typed errors (``LsrError``, ``LandmarksError``) into ``gr.Error`` so the page
 shows their message (which already says what to do). Files a run writes live in a per-session folder
 (``SessionFiles``) that is replaced by the next run and removed when the browser tab closes.
@@ -97,9 +97,9 @@ class ModelStore:
     def detector(self):
         with self._lock:
             if self._detector is None:
-                from landmarks.detect import FaceDetector
+                from landmarks.detectors import make_detector
 
-                self._detector = FaceDetector("hog")
+                self._detector = make_detector()
             return self._detector
 
     def _require_weights(self) -> Path:

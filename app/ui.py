@@ -23,7 +23,7 @@ from app import handlers, live
 from lsr.config import DEFAULT_FINETUNE_STEPS
 from lsr.config import AppConfig
 
-MODEL_EVENTS = "model"  # one concurrency group: the model and the dlib detector serve one request at a time
+MODEL_EVENTS = "model"  # one concurrency group: the model and the face detector serve one request at a time
 DELETE_CACHE = (1800, 3600)
 CSS = ".lsr-warning {border: 2px solid #e8a33d; border-radius: 8px; padding: 4px 12px; background: #fff7e8}"  # every 30 min, remove Gradio's cached uploads/outputs older than an hour
 

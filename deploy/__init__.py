@@ -1,6 +1,6 @@
 """Torch-free LSR runtime over the ONNX bundle written by ``lsr export``.
 
-``deploy.runtime.OnnxReenactor`` (numpy + onnxruntime + OpenCV + dlib via ``landmarks``) has the same API as
+``deploy.runtime.OnnxReenactor`` (numpy + onnxruntime + OpenCV via ``landmarks``; no dlib by default) has the same API as
 ``lsr.pipeline.Reenactor``; both run the frame loop of the inference core ``lsr.core`` (``lsr.core.engine``,
 inputs from ``lsr.core.sources``). Nothing heavy is imported here.
 """

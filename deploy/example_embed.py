@@ -1,6 +1,6 @@
 """Embedding example: LSR re-enactment inside another application, with no torch installed.
 
-Copy this file. It needs numpy, onnxruntime, opencv and dlib (through the ``landmarks`` toolkit) and an ONNX
+Copy this file. It needs numpy, onnxruntime and opencv (and the ``landmarks`` toolkit, whose face models run on onnxruntime) and an ONNX
 bundle made once with ``lsr export --weights MODEL_DIR --out BUNDLE``.
 
     python deploy/example_embed.py BUNDLE source.jpg driving.mp4 out.mp4     # or out_folder/ for PNG frames

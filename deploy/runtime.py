@@ -1,6 +1,6 @@
 """``OnnxReenactor``: LSR re-enactment from an ``lsr export`` bundle with onnxruntime. No torch anywhere.
 
-Needs numpy, onnxruntime, OpenCV, dlib and the ``landmarks`` toolkit. Same API as ``lsr.pipeline.Reenactor``
+Needs numpy, onnxruntime, OpenCV and the ``landmarks`` toolkit (dlib only for ``detector="hog"`` / ``"cnn"``). Same API as ``lsr.pipeline.Reenactor``
 (both are ``lsr.core.engine.ReenactorBase``; only the backend differs):
 
     reenactor = OnnxReenactor("bundle/")               # subject_encoder.onnx + frame_generator.onnx
@@ -100,11 +100,11 @@ class OnnxReenactor(ReenactorBase):
     """Torch-free re-enactment. folder: an ``lsr export`` bundle. int8: use the quantised frame generator.
 
     providers: onnxruntime execution providers (default CUDA when available, else CPU); threads: intra-op
-    threads (0 = onnxruntime's default). detector: "hog" | "cnn" (dlib). API as ``lsr.pipeline.Reenactor``.
+    threads (0 = onnxruntime's default). detector: "mesh" (the default) | "hog" | "cnn" (dlib), or a detector. API as ``lsr.pipeline.Reenactor``.
     """
 
     def __init__(self, folder: str | os.PathLike, *, int8: bool = False, providers: list[str] | None = None,
-                 threads: int = 0, detector: str | object = "hog") -> None:
+                 threads: int = 0, detector: str | object = "mesh") -> None:
         backend = OnnxBackend(folder, int8=int8, providers=providers, threads=threads)
         super().__init__(backend, detector=detector, crop_size=backend.crop_size)
 

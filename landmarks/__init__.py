@@ -1,6 +1,7 @@
-"""Landmarks toolkit: detection, tracking, smoothing, head pose, crop/paste-back,
-rasterisation and retargeting of iBUG-68 facial landmarks.
+"""Landmarks toolkit: face detection and tracking (MediaPipe's detector and 468-point mesh on onnxruntime by
+default, dlib's as an option), iBUG-68 points, smoothing, head pose, crop/paste-back, rasterisation and
+retargeting.
 
-numpy + OpenCV + dlib only; no torch. Import the submodules you need
-(``landmarks.detect``, ``landmarks.raster``, ...): nothing heavy loads here.
+numpy + OpenCV + onnxruntime (dlib only when asked for); no torch. Import the submodules you need
+(``landmarks.detectors``, ``landmarks.raster``, ...): nothing heavy loads here.
 """

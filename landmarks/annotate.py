@@ -19,14 +19,14 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from landmarks.detect import DetectorKind, FaceDetector
+from landmarks.detect import DEFAULT_DETECTOR, DetectorKind, FaceDetector
+from landmarks.detectors import make_detector, make_tracker
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.imageio import IMAGE_SUFFIXES, check_output_path, read_image, write_image, write_json, write_npy
 from landmarks.parts import NUM_LANDMARKS
 from landmarks.pose import estimate_head_pose
 from landmarks.raster import draw_landmarks
 from landmarks.smooth import jitter, smooth_sequence
-from landmarks.track import LandmarkTracker
 from landmarks.video import VIDEO_SUFFIXES, VideoWriter, iter_frames, probe_video
 
 
@@ -132,7 +132,7 @@ def _annotate_video(
     overlay: bool,
 ) -> dict[str, Any]:
     info = probe_video(path)
-    tracker = LandmarkTracker(detector, face_index=face_index)
+    tracker = make_tracker(detector, face_index=face_index)
     tracked = tracker.track_frames(iter_frames(path), total=info.frames, progress=True)
     if tracked.missing.all():
         raise NoFaceError(
@@ -174,7 +174,7 @@ def annotate_path(
     input: str | os.PathLike[str],
     out: str | os.PathLike[str],
     *,
-    detector: DetectorKind = "hog",
+    detector: DetectorKind = DEFAULT_DETECTOR,
     face_index: int = 0,
     smooth: bool = True,
     min_cutoff: float = 1.0,
@@ -189,7 +189,7 @@ def annotate_path(
     input_path, out = Path(input), Path(out)
     kind = input_kind(input_path)
     check_output_path(out, "--out", folder=True)
-    face_detector = FaceDetector(kind=detector)
+    face_detector = make_detector(detector)
     created = out  # the topmost folder this call creates: removed again if the work fails
     while not created.parent.exists():
         created = created.parent

@@ -1,4 +1,8 @@
-"""Face detection and 68-point landmarks (iBUG-68 order) with dlib.
+"""Face detectors: the common interface (``FaceDetector``, ``Face``) and dlib's HOG / CNN detector with its
+68-point shape predictor (``DlibDetector``). The default detector is MediaPipe's, in ``landmarks.mesh_track``;
+``landmarks.detectors.make_detector`` builds either by name.
+
+dlib's 68-point model is licensed for non-commercial use only; the mesh detector is Apache-2.0.
 
 Detection runs on a copy downscaled to ``max_side`` (HOG cost grows with pixel
 count); the shape predictor then runs on the full-resolution image inside the
@@ -11,6 +15,7 @@ Shapes: images are (H, W, 3) uint8 RGB (anything else goes through
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import os
 from pathlib import Path
@@ -24,7 +29,10 @@ from landmarks.errors import NoFaceError
 from landmarks.imageio import read_image, to_rgb_uint8
 from landmarks.parts import NUM_LANDMARKS
 
-DetectorKind = Literal["hog", "cnn"]
+DetectorKind = Literal["mesh", "hog", "cnn"]
+"""mesh: MediaPipe's BlazeFace + 468-point mesh on onnxruntime (Apache-2.0, the default); hog / cnn: dlib's
+detectors with its 68-point shape predictor (non-commercial model)."""
+DEFAULT_DETECTOR: DetectorKind = "mesh"
 
 
 @dataclasses.dataclass
@@ -79,7 +87,47 @@ def auto_upsample(max_side: int) -> int:
     return 2
 
 
-class FaceDetector:
+class FaceDetector(abc.ABC):
+    """What every face detector offers: all faces of an image with their 68 points, the one asked for, and the
+    smallest face it can find. ``landmarks.detectors.make_tracker`` gives the tracker that goes with it."""
+
+    kind: str
+
+    @abc.abstractmethod
+    def detect(self, image: np.ndarray | str | os.PathLike[str]) -> list[Face]:
+        """All faces, largest box first. image: path or array (see ``to_rgb_uint8``)."""
+
+    @abc.abstractmethod
+    def min_face_size(self, shape: tuple[int, ...]) -> int:
+        """About the smallest face width (pixels of an image of ``shape``) this detector finds."""
+
+    @property
+    @abc.abstractmethod
+    def settings(self) -> str:
+        """Everything that changes the detector's output, as a string (keys for cached landmarks)."""
+
+    def more_sensitive(self) -> FaceDetector | None:
+        """A slower detector that finds faces this one misses (a ground-truth retry), or None."""
+        return None
+
+    def detect_one(
+        self, image: np.ndarray | str | os.PathLike[str], face_index: int = 0, name: str | None = None
+    ) -> Face:
+        """The ``face_index``-th largest face; NoFaceError when there is none (or too few)."""
+        if name is None:
+            name = Path(image).name if isinstance(image, (str, os.PathLike)) else "the image"
+        faces = self.detect(image)
+        if not faces:
+            raise NoFaceError(f"no face found in {name}; use a photo where the face is visible and well lit")
+        if not 0 <= face_index < len(faces):
+            raise NoFaceError(
+                f"--face-index {face_index} asked for, but only {len(faces)} face(s) found in {name}; "
+                f"use a face index from 0 to {len(faces) - 1}"
+            )
+        return faces[face_index]
+
+
+class DlibDetector(FaceDetector):
     """dlib face detector + 68-point shape predictor. Models load lazily, once per process.
 
     kind: "hog" (fast, frontal) or "cnn" (mmod, slower, more robust to pose and light).
@@ -91,7 +139,7 @@ class FaceDetector:
 
     def __init__(
         self,
-        kind: DetectorKind = "hog",
+        kind: Literal["hog", "cnn"] = "hog",
         max_side: int = 640,
         upsample: int | None = None,
         min_score: float | None = None,
@@ -107,9 +155,17 @@ class FaceDetector:
         # mmod confidences are already thresholded at 0.
         self.min_score = (0.2 if kind == "hog" else 0.0) if min_score is None else min_score
 
+    @property
+    def settings(self) -> str:
+        return f"{self.kind}/{self.max_side}/{self.upsample}/{self.min_score}"
+
+    def more_sensitive(self) -> DlibDetector:
+        """One pyramid level up (finds faces half as small, about 4x slower)."""
+        upsample = self.upsample if self.upsample is not None else auto_upsample(self.max_side)
+        return DlibDetector(kind=self.kind, max_side=self.max_side, upsample=upsample + 1, min_score=self.min_score)
+
     def min_face_size(self, shape: tuple[int, ...]) -> int:
-        """About the smallest face width (pixels of an image of ``shape``) this detector finds: dlib's 80-px
-        window, halved per pyramid upsampling, in the copy scaled to ``max_side``."""
+        """dlib's 80-px window, halved per pyramid upsampling, in the copy scaled to ``max_side``."""
         longer = max(shape[:2])
         scale = min(1.0, self.max_side / longer)
         upsample = self.upsample
@@ -165,21 +221,3 @@ class FaceDetector:
             faces.append(Face(box=box, landmarks=landmarks, score=score))
         faces.sort(key=lambda face: face.area, reverse=True)
         return faces
-
-    def detect_one(
-        self, image: np.ndarray | str | os.PathLike[str], face_index: int = 0, name: str | None = None
-    ) -> Face:
-        """The ``face_index``-th largest face; NoFaceError when there is none (or too few)."""
-        if name is None:
-            name = Path(image).name if isinstance(image, (str, os.PathLike)) else "the image"
-        faces = self.detect(image)
-        if not faces:
-            raise NoFaceError(
-                f"no face found in {name}; use a frontal, well-lit photo or try --detector cnn"
-            )
-        if not 0 <= face_index < len(faces):
-            raise NoFaceError(
-                f"--face-index {face_index} asked for, but only {len(faces)} face(s) found in {name}; "
-                f"use a face index from 0 to {len(faces) - 1}"
-            )
-        return faces[face_index]

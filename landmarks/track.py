@@ -1,4 +1,6 @@
-"""Landmark tracking through a video: detect once, then follow with the shape predictor.
+"""Landmark tracking through a video with dlib: detect once, then follow with the shape predictor.
+
+(The default tracker is the face mesh's, ``landmarks.mesh_track.MeshTracker``; both share ``FrameTracker``.)
 
 Per frame (all arrays (H, W, 3) uint8 RGB; landmarks (68, 2) float32 x, y):
 
@@ -40,7 +42,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from landmarks.detect import FaceDetector, predict_landmarks
+from landmarks.detect import DlibDetector, predict_landmarks
 from landmarks.parts import NUM_LANDMARKS
 from landmarks.smooth import inter_ocular_distance
 
@@ -73,7 +75,34 @@ def box_iou(first: np.ndarray, second: np.ndarray) -> float:
     return inter / float(union) if union > 0 else 0.0
 
 
-class LandmarkTracker:
+class FrameTracker:
+    """A tracker's whole-sequence loop; subclasses give ``reset()`` and ``update(frame) -> (68, 2) | None``."""
+
+    detections: int
+
+    def reset(self) -> None:
+        raise NotImplementedError
+
+    def update(self, frame: np.ndarray) -> np.ndarray | None:
+        raise NotImplementedError
+
+    def track_frames(
+        self, frames: Iterable[np.ndarray], total: int | None = None, progress: bool = False
+    ) -> TrackResult:
+        """Track every frame of ``frames`` (each (H, W, 3) uint8 RGB); a fresh start (reset first)."""
+        self.reset()
+        rows: list[np.ndarray] = []
+        missing: list[bool] = []
+        nan_row = np.full((NUM_LANDMARKS, 2), np.nan, np.float32)
+        for frame in tqdm(frames, total=total, disable=not progress, desc="tracking", unit="frame"):
+            landmarks = self.update(frame)
+            rows.append(nan_row if landmarks is None else landmarks)
+            missing.append(landmarks is None)
+        stacked = np.stack(rows).astype(np.float32) if rows else np.zeros((0, NUM_LANDMARKS, 2), np.float32)
+        return TrackResult(landmarks=stacked, missing=np.array(missing, dtype=bool), detections=self.detections)
+
+
+class LandmarkTracker(FrameTracker):
     """Tracks one face's 68 landmarks through frames (see the module docstring for the policy).
 
     detector: used for full detections (default HOG); face_index: which face (largest first) to
@@ -84,7 +113,7 @@ class LandmarkTracker:
 
     def __init__(
         self,
-        detector: FaceDetector | None = None,
+        detector: DlibDetector | None = None,
         *,
         face_index: int = 0,
         verify_every: int = 10,
@@ -93,7 +122,7 @@ class LandmarkTracker:
         roi_min_score: float = -0.5,
         min_patch_correlation: float = 0.35,
     ) -> None:
-        self.detector = detector if detector is not None else FaceDetector()
+        self.detector = detector if detector is not None else DlibDetector()
         self.face_index = face_index
         self.verify_every = verify_every
         self.max_scale_change = max_scale_change
@@ -236,18 +265,3 @@ class LandmarkTracker:
         if landmarks is not None:
             self.last_box = self.box_from_landmarks(landmarks)
         return landmarks
-
-    def track_frames(
-        self, frames: Iterable[np.ndarray], total: int | None = None, progress: bool = False
-    ) -> TrackResult:
-        """Track every frame of ``frames`` (each (H, W, 3) uint8 RGB); a fresh start (reset first)."""
-        self.reset()
-        rows: list[np.ndarray] = []
-        missing: list[bool] = []
-        nan_row = np.full((NUM_LANDMARKS, 2), np.nan, np.float32)
-        for frame in tqdm(frames, total=total, disable=not progress, desc="tracking", unit="frame"):
-            landmarks = self.update(frame)
-            rows.append(nan_row if landmarks is None else landmarks)
-            missing.append(landmarks is None)
-        stacked = np.stack(rows).astype(np.float32) if rows else np.zeros((0, NUM_LANDMARKS, 2), np.float32)
-        return TrackResult(landmarks=stacked, missing=np.array(missing, dtype=bool), detections=self.detections)

@@ -120,6 +120,10 @@ GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
         "synth": (config.BenchSynthConfig, _run_bench_synth),
         "oracle-seg": (config.BenchOracleSegConfig, "lsr.data.oracle_seg:run_bench_oracle_seg"),
     },
+    "face-models": {
+        "convert": (config.FaceModelsConvertConfig, "landmarks.convert_mediapipe:run_convert"),
+        "fit": (config.FaceModelsFitConfig, "landmarks.mesh68:run_fit"),
+    },
 }
 
 
@@ -138,7 +142,10 @@ def _raise_terminated(signum: int, frame: Any) -> None:
     raise Terminated()
 
 
-GROUP_HELP = {"bench": "benchmarks; each prints a markdown table with machine info"}
+GROUP_HELP = {
+    "bench": "benchmarks; each prints a markdown table with machine info",
+    "face-models": "rebuild the shipped face models (MediaPipe -> ONNX) and the 68-point mapping",
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

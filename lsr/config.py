@@ -56,8 +56,9 @@ class LandmarksConfig:
     """Image file, folder of images, or video file."""
     out: Path = Path("out/landmarks")
     """Output folder: landmarks.npy (N x 68 x 2, NaN rows = missing), summary.json, overlay."""
-    detector: Literal["hog", "cnn"] = "hog"
-    """dlib face detector: HOG (fast, default) or CNN/mmod (slower, more robust to pose)."""
+    detector: Literal["mesh", "hog", "cnn"] = "mesh"
+    """Face detector and tracker: mesh (MediaPipe's detector and face mesh, Apache-2.0 models; the default), or
+    dlib's HOG (fast, frontal) or CNN/mmod (slower); dlib's 68-point model is for non-commercial use."""
     face_index: int = 0
     """Which face to use when several are found, ordered largest first."""
     smooth: bool = True
@@ -173,8 +174,8 @@ class PrepareConfig:
     """Frames sampled uniformly per clip (frames without a face are dropped); 0 = all frames, tracked (kept with NaN)."""
     framing: Literal["auto", "align", "keep"] = "auto"
     """align: crop and align on the landmarks; keep: centre square + resize; auto: keep for the LSR release layout."""
-    detector: Literal["hog", "cnn"] = "hog"
-    """dlib face detector."""
+    detector: Literal["mesh", "hog", "cnn"] = "mesh"
+    """Face detector: mesh (MediaPipe, the default) or dlib's hog / cnn."""
     official_segmaps: bool = True
     """Use an official *_segmap_merged.png beside an LSR release frame (framing keep) instead of the oracle."""
     workers: int = -1
@@ -275,7 +276,8 @@ class ReenactConfig:
     threads: int = 0
     """CPU threads for the networks (torch intra-op / onnxruntime intra-op); 0 = all cores but one, which decoding,
     tracking and encoding use beside the network (lsr.core.overlap.network_threads)."""
-    detector: Literal["hog", "cnn"] = "hog"
+    detector: Literal["mesh", "hog", "cnn"] = "mesh"
+    """Face detector and tracker: mesh (MediaPipe, the default) or dlib's hog / cnn."""
     progress: bool = True
 
     @property
@@ -408,3 +410,40 @@ class CurvesConfig:
     def validate(self) -> None:
         if not Path(self.run).is_dir():
             raise ConfigError(f"{self.run} is not a folder; give the run folder of `lsr train --out RUN`")
+
+
+@dataclasses.dataclass
+class FaceModelsConvertConfig:
+    """Rebuild the shipped face models: MediaPipe 0.10.21's face detector and face mesh, TFLite -> ONNX, checked
+    against the originals on real frames (landmarks.convert_mediapipe; needs pip install '.[convert]')."""
+
+    wheel: OptionalPath = None
+    """A downloaded mediapipe-0.10.21 wheel (checked by sha256); default: pip download it."""
+    frames: tuple[Path, ...] = ()
+    """Videos to check the conversion on (default: the ../shared clips that exist, else a seeded random image)."""
+    frames_per_video: int = 10
+    """Frames spread through each video."""
+    out: OptionalPath = None
+    """Folder for the models, SOURCES.json, LICENSE and NOTICE (default: the package's landmarks/assets/mediapipe)."""
+
+    def validate(self) -> None:
+        if self.frames_per_video < 1:
+            raise ConfigError(f"--frames-per-video must be >= 1, got {self.frames_per_video}")
+
+
+@dataclasses.dataclass
+class FaceModelsFitConfig:
+    """Fit the 68-from-mesh mapping (landmarks.mesh68, against dlib's points) and the canonical mesh of the 3D head
+    pose (landmarks.mesh_pose) on the training people's clips."""
+
+    data: tyro.conf.Positional[Path]
+    """The real_talking_heads folder (training people; the validation people are left out)."""
+    frames_per_clip: int = 6
+    """Frames spread through each clip."""
+    out: OptionalPath = None
+    """Folder for mesh68.json and mesh_canonical.json (default: the package's landmarks/assets)."""
+
+    def validate(self) -> None:
+        if self.frames_per_clip < 1:
+            raise ConfigError(f"--frames-per-clip must be >= 1, got {self.frames_per_clip}")
+

@@ -40,20 +40,36 @@ def check_metric_weights(lpips_weights: Path | None, fid_weights: Path | None) -
 
 @dataclasses.dataclass
 class BenchLandmarksConfig:
-    """Print ms/frame of detection, tracking and rasterisation on a clip (a table, with machine info)."""
+    """Print speed, detection rate, NME and jitter of both face trackers (mesh and dlib's), as tables with machine
+    info."""
 
     video: OptionalPath = None
-    """Video to time on; default: the shared real clip (../shared/data/clips/tpsmm_driving.mp4) if present."""
+    """Video to time on; default: the shared real clip (../shared/data/clips/tpsmm_driving.mp4), else the first
+    of --clips."""
     size: int = 512
-    """Frames are resized to size x size before timing (the tracking goal is stated at 512)."""
+    """Timing frames are resized to size x size (the tracking goal is stated at 512)."""
     frames: int = 100
     """Number of frames to time."""
     raster_size: int = 256
     """Resolution of the rasterised landmark image."""
+    clips: tuple[Path, ...] = ()
+    """Real clips for detection rate, NME and jitter (at their own size); empty = every .mp4 under
+    ../shared/data/clips that exists."""
+    clip_frames: int = 150
+    """At most this many frames of each clip."""
+    out_md: OptionalPath = None
+    """Also write the tables as the 'landmarks' section of this markdown file (e.g. BENCHMARKS.md)."""
+    progress: bool = False
+    """Progress bars over the clips."""
 
     def validate(self) -> None:
-        if self.size < 64 or self.frames < 1 or self.raster_size < 16:
-            raise ConfigError("--size >= 64, --frames >= 1 and --raster-size >= 16 are required")
+        if self.size < 64 or self.frames < 1 or self.raster_size < 16 or self.clip_frames < 2:
+            raise ConfigError("--size >= 64, --frames >= 1, --raster-size >= 16 and --clip-frames >= 2 are required")
+        if self.video is not None and not Path(self.video).is_file():
+            raise ConfigError(f"--video {self.video} is not a file; pass a talking-head video")
+        absent = [str(clip) for clip in self.clips if not Path(clip).is_file()]
+        if absent:
+            raise ConfigError(f"--clips: {', '.join(absent)} not found; pass existing video files")
 
 
 @dataclasses.dataclass
@@ -302,10 +318,10 @@ class EvalConfig:
     """Use only the first N identities (0 = all)."""
     seed: int = 0
     """Seed of the K-shot sampling."""
-    detector: Literal["hog", "cnn"] = "hog"
-    """dlib face detector for ground-truth and output landmarks."""
+    detector: Literal["mesh", "hog", "cnn"] = "mesh"
+    """Face detector for ground-truth and output landmarks: mesh (MediaPipe, what reenact uses by default) or dlib's."""
     detector_upsample: int = 1
-    """dlib pyramid upsampling; 1 finds the faces of 224-px crops at 1/4 the cost of 2."""
+    """dlib only: pyramid upsampling; 1 finds the faces of 224-px crops at 1/4 the cost of 2."""
     bucket_thresholds: tuple[float, ...] = ()
     """Two pose-distance thresholds (low/medium, medium/high); empty = terciles per K."""
     cross_identity: bool = True

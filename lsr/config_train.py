@@ -212,8 +212,8 @@ class FinetuneConfig:
     batch_size: int = 4
     """Shots reconstructed per step (<= K)."""
     losses: LossConfig = dataclasses.field(default_factory=LossConfig)
-    detector: Literal["hog", "cnn"] = "hog"
-    """dlib face detector for the shots."""
+    detector: Literal["mesh", "hog", "cnn"] = "mesh"
+    """Face detector for the shots: mesh (MediaPipe, the default) or dlib's hog / cnn."""
     device: Literal["auto", "cpu", "cuda"] = "auto"
     seed: int = 0
     progress: bool = True

@@ -122,7 +122,7 @@ class Reenactor(ReenactorBase):
     """Torch re-enactment (inference only). API: ``encode_subject``, ``reenact`` / ``__call__`` (``ReenactorBase``).
 
     weights: model folder (config.json + model.safetensors). device: "cpu", "cuda", ... precision: "fp32"
-    (default) or "bf16". detector: "hog" | "cnn" (dlib) for the source shots and the driver. crop_size: the
+    (default) or "bf16". detector: "mesh" (the default) | "hog" | "cnn" (dlib), or a detector, for the source shots and the driver. crop_size: the
     crop and output side (``lsr.core.engine.default_crop_size``: 2x the model resolution for warp-guided models).
     """
 
@@ -132,7 +132,7 @@ class Reenactor(ReenactorBase):
         *,
         device: str | torch.device = "cpu",
         precision: Precision = "fp32",
-        detector: str | object = "hog",
+        detector: str | object = "mesh",
         crop_size: int | None = None,
     ) -> None:
         model = weights if isinstance(weights, LSRModel) else load_model(weights)

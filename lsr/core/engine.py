@@ -1,4 +1,4 @@
-"""The re-enactment frame loop shared by both runtimes (torch-free: numpy, OpenCV, dlib via ``landmarks``).
+"""The re-enactment frame loop shared by both runtimes (torch-free: numpy, OpenCV, onnxruntime face models via ``landmarks``).
 
 ``ReenactorBase`` does everything around the two networks: subject shots -> K crops and landmark images,
 the driver -> tracked, smoothed, retargeted, cropped landmarks -> landmark images, the synthesised crop ->
@@ -187,10 +187,10 @@ def provenance_metadata(version: str | None = None, runtime: str = "torch") -> d
 class ReenactorBase:
     """Subject encoding once, then one synthesised frame per driver frame (thesis §4.3). See the module docstring.
 
-    backend: a ``SynthesisBackend``. detector: "hog" | "cnn" or a ``landmarks.detect.FaceDetector``.
+    backend: a ``SynthesisBackend``. detector: "mesh" | "hog" | "cnn" or a ``landmarks.detect.FaceDetector``.
     """
 
-    def __init__(self, backend: SynthesisBackend, *, detector: str | object = "hog", crop_size: int | None = None) -> None:
+    def __init__(self, backend: SynthesisBackend, *, detector: str | object = "mesh", crop_size: int | None = None) -> None:
         self.backend = backend
         self.crop_size = crop_size or default_crop_size(backend)
         self._detector_spec = detector
@@ -224,11 +224,11 @@ class ReenactorBase:
 
     @property
     def detector(self):
-        if self._detector is None:  # dlib models load on first use, not at construction
-            from landmarks.detect import FaceDetector
+        if self._detector is None:  # face models load on first use, not at construction
+            from landmarks.detectors import make_detector
 
             spec = self._detector_spec
-            self._detector = FaceDetector(spec) if isinstance(spec, str) else spec
+            self._detector = make_detector(spec) if isinstance(spec, str) else spec
         return self._detector
 
     # ---- subject ---------------------------------------------------------------------------------------
@@ -429,11 +429,11 @@ class ReenactorBase:
         from landmarks.align import crop_transform, transform_landmarks
         from landmarks.scene import composite_face, place_in_frame
         from landmarks.smooth import OneEuroFilter, driving_cutoffs
-        from landmarks.track import LandmarkTracker
+        from landmarks.detectors import make_tracker
         from lsr.core.overlap import prefetch
 
         size = self.crop_size
-        tracker = LandmarkTracker(self.detector)
+        tracker = make_tracker(self.detector)
         one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
         reference = None
         def tracked():  # decoding and tracking on a thread, a few frames ahead of the synthesis

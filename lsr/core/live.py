@@ -58,13 +58,13 @@ class LiveSession:
     def __init__(self, reenactor: ReenactorBase, subject: Subject, *, paste_back: bool = True, smooth: bool = True,
                  with_layout: bool = False, watermark: bool = True, detector=None) -> None:
         from landmarks.smooth import OneEuroFilter, driving_cutoffs
-        from landmarks.track import LandmarkTracker
+        from landmarks.detectors import make_tracker
         from lsr.core.scene_source import SourceScene
 
         self.reenactor, self.subject = reenactor, subject
         self.with_layout = with_layout and reenactor.backend.layout_kind != "none"
         self.watermark = watermark
-        self.tracker = LandmarkTracker(detector if detector is not None else reenactor.detector)
+        self.tracker = make_tracker(detector if detector is not None else reenactor.detector)
         self.one_euro = OneEuroFilter(25.0, driving_cutoffs()) if smooth else None
         self.scene = next(SourceScene(subject.shots, reenactor.crop_size)) if paste_back else None
         self.reference: np.ndarray | None = None

@@ -88,10 +88,10 @@ class SourceScene:
 
     def _video_frames(self, shots: SubjectShots, detector, fps: float, smooth: bool) -> Iterator[SceneFrame]:
         from landmarks.smooth import OneEuroFilter
-        from landmarks.track import LandmarkTracker
+        from landmarks.detectors import make_tracker
         from landmarks.video import iter_frames
 
-        tracker = LandmarkTracker(detector)
+        tracker = make_tracker(detector)
         one_euro = OneEuroFilter(fps) if smooth else None
         cache: list[tuple[bytes, np.ndarray | None]] = []
         last = None

@@ -1,7 +1,7 @@
 """Loading a re-enactment's inputs: the subject's K shots and the driver (torch-free, streaming).
 
 Shared by ``lsr.pipeline.Reenactor`` (torch) and ``deploy.runtime.OnnxReenactor`` (ONNX): one loader
-for both runtimes. numpy + OpenCV + dlib through the ``landmarks`` toolkit only.
+for both runtimes. numpy + OpenCV + the ``landmarks`` toolkit only.
 
 Sources (the subject, thesis §4.3.1: K shots averaged into the latents):
 * one or more image files, or a folder of images (every image with a face is usable);
@@ -169,7 +169,7 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
                        face_index: int = 0, anchor: int | None = None) -> SubjectShots:
     """Detect, crop and pick the K shots of a subject (see the module docstring for the rules).
 
-    size: crop side S (the model resolution). detector: a ``landmarks.detect.FaceDetector`` (default HOG).
+    size: crop side S (the model resolution). detector: a ``landmarks.detect.FaceDetector`` (default: the mesh detector).
     face_index: which face of a frame with several (0 = the largest). Unreadable images of a folder are skipped
     while another image is usable; what was skipped or chosen is in ``SubjectShots.notes``.
     anchor: which of the K chosen shots is the scene and the neutral face (None: the most frontal one with a
@@ -179,13 +179,13 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
     an anchor outside 0..K-1.
     """
     from landmarks.align import crop, transform_landmarks
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
     from landmarks.scene import face_side
 
     _check_k(k)
     if face_index < 0:
         raise InputFileError(f"face index must be >= 0, got {face_index}")
-    detector = detector if detector is not None else FaceDetector()
+    detector = detector if detector is not None else make_detector()
     frames, points, names, tried, unreadable, crowded, too_few, min_faces = [], [], [], [], [], 0, 0, []
     frame_points, arrays = [], {}
     for name, image in _source_candidates(source, k):
@@ -220,8 +220,7 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
         smallest = min(min_faces, default=0)
         raise NoFaceError(
             f"no face found in the source ({where}, {len(tried)} frame(s) tried); use frontal, well-lit shots of one "
-            f"person, with the face at least about {smallest} px wide (detection works on a copy at most "
-            f"{detector.max_side} px on its longer side): crop a large photo closer to the face"
+            f"person, with the face at least about {smallest} px wide: crop a large photo closer to the face"
         )
     notes = [f"skipped {exc}" for exc in unreadable]
     if crowded:

@@ -330,11 +330,11 @@ def compare_with_official(frames_dirs: Sequence[Path], detector: str = "hog") ->
 
     Landmarks come from ``landmarks.detect``. Returns (iou (19,), reference pixel share (19,), frames used).
     """
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
     from landmarks.errors import NoFaceError
     from landmarks.imageio import read_image
 
-    face_detector = FaceDetector(detector)
+    face_detector = make_detector(detector)
     predicted_maps, reference_maps = [], []
     for folder in frames_dirs:
         for rgb_path in sorted(Path(folder).glob("*_rgb.png")):

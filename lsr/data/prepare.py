@@ -74,7 +74,7 @@ class PrepareOptions:
     size: int = 256
     frames_per_clip: int = 10
     framing: Framing = "auto"
-    detector: str = "hog"
+    detector: str = "mesh"
     official_segmaps: bool = True
     smooth: bool = True
 
@@ -201,13 +201,12 @@ def _read_source_frames(source: ClipSource, frames_per_clip: int) -> tuple[list[
 
 def _detect_landmarks(frames: list[np.ndarray], detector_kind: str, track: bool, fps: float, smooth: bool) -> np.ndarray:
     """(N, 68, 2) float32 landmarks, NaN rows where no face was found."""
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector, make_tracker
     from landmarks.smooth import smooth_sequence
-    from landmarks.track import LandmarkTracker
 
-    detector = FaceDetector(detector_kind)
+    detector = make_detector(detector_kind)
     if track:
-        landmarks = LandmarkTracker(detector).track_frames(frames).landmarks
+        landmarks = make_tracker(detector).track_frames(frames).landmarks
         return smooth_sequence(landmarks, fps) if smooth else landmarks
     rows = []
     for frame in frames:

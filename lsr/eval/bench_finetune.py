@@ -53,7 +53,7 @@ def finetune_curve(cfg: BenchFinetuneConfig) -> tuple[list[CurveRow], dict[str, 
     import torch
     from tqdm import tqdm
 
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
     from lsr.eval.baselines import TpsMean3, TpsWarp
     from lsr.eval.model_method import LsrModelMethod
     from lsr.eval.protocol import detect_layout, load_fsth_sample, load_lsr_split, sample_shots
@@ -63,7 +63,7 @@ def finetune_curve(cfg: BenchFinetuneConfig) -> tuple[list[CurveRow], dict[str, 
         torch.set_num_threads(cfg.threads)
     data = cfg.resolved_data()
     if detect_layout(data) == "fsth":
-        identities = load_fsth_sample(data, FaceDetector(upsample=1), cache_dir=Path(cfg.out) / "cache", progress=cfg.progress)
+        identities = load_fsth_sample(data, make_detector(), cache_dir=Path(cfg.out) / "cache", progress=cfg.progress)
     else:
         identities = load_lsr_split(data, "test")
     identities = identities[: cfg.max_identities] if cfg.max_identities else identities

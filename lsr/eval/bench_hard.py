@@ -120,9 +120,9 @@ def yaw_preset(yaw: float):
 
 
 def _detect_all(frames: list[np.ndarray]) -> list[np.ndarray | None]:
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
 
-    detector = FaceDetector()
+    detector = make_detector()
     found = []
     for frame in frames:
         faces = detector.detect(frame)
@@ -350,7 +350,7 @@ def hard_cases(cfg: BenchHardConfig) -> tuple[list[CaseResult], dict[str, Any]]:
     import torch
     from tqdm import tqdm
 
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
     from lsr.pipeline import Reenactor
     from lsr.weights import resolve_weights
 
@@ -362,7 +362,7 @@ def hard_cases(cfg: BenchHardConfig) -> tuple[list[CaseResult], dict[str, Any]]:
         cases = [c for c in cases if c.name in cfg.cases or c.name in ("easy", "easy_synthetic")]
     weights = resolve_weights(cfg.weights)
     reenactor = Reenactor(weights, device="cpu")
-    detector = FaceDetector()
+    detector = make_detector()
     results, outputs = [], {}
     with tempfile.TemporaryDirectory(prefix="lsr-bench-hard-") as folder:
         for case in tqdm(cases, desc="bench hard", unit="case", disable=not cfg.progress):

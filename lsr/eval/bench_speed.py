@@ -445,7 +445,7 @@ def _json_ready(rows: list[dict]) -> list[dict]:
 
 def run_bench_speed(cfg: BenchSpeedConfig) -> dict[str, Any]:
     """Entry point of ``lsr bench speed`` (``lsr.config.BenchSpeedConfig``): print and write the table, JSON, plot."""
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
     from landmarks.imageio import write_json
     from lsr.eval.protocol import load_fsth_sample, load_lsr_split
     from lsr.machine import machine_info, machine_markdown
@@ -461,7 +461,7 @@ def run_bench_speed(cfg: BenchSpeedConfig) -> dict[str, Any]:
     weight_sizes = {p: load_model(w).config.resolution for p, w in weights.items()}
     out_md = Path(cfg.out_md)
     plot_path = Path(cfg.plot) if cfg.plot is not None else out_md.parent / "docs" / "bench_speed.png"
-    detector = FaceDetector(kind="hog", upsample=1)
+    detector = make_detector()
     split_root = synthetic_split(cfg, max(weight_sizes.values(), default=min(cfg.resolutions)))
     splits = {"synthetic": load_lsr_split(split_root, "test", cfg.inputs, cfg.holdouts)}
     first = splits["synthetic"][0]

@@ -264,9 +264,9 @@ def run_finetune(cfg: FinetuneConfig) -> FinetuneResult:
     discriminator, found = load_discriminator(weights, model)
     if not found:
         print(f"lsr finetune: no {DISCRIMINATOR_NAME} in {weights}; fine-tuning with a fresh discriminator")
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
 
-    shots = load_subject_shots(cfg.shots, model.config.resolution, k=cfg.k, detector=FaceDetector(cfg.detector))
+    shots = load_subject_shots(cfg.shots, model.config.resolution, k=cfg.k, detector=make_detector(cfg.detector))
     for note in shots.notes:
         print(f"lsr finetune: {note}")
     result = finetune_subject(

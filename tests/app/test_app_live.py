@@ -33,7 +33,7 @@ def test_the_webcam_drives_the_person_live(app_server, camera_file, tmp_path):
         pytest.skip(f"{CHROMIUM} not found: install Debian's chromium (apt-get install chromium) to run browser tests")
     pytest.importorskip("playwright.sync_api", reason="the playwright package is not installed")
     from app.bench_live import run_live
-    from landmarks.detect import FaceDetector
+    from landmarks.detect import DlibDetector
     from landmarks.imageio import read_image
 
     shot = tmp_path / "live.png"
@@ -42,5 +42,5 @@ def test_the_webcam_drives_the_person_live(app_server, camera_file, tmp_path):
           f"{np.median(result.latency_ms) if result.latency_ms else float('nan'):.0f} ms")
     assert result.frames >= 2 and result.latency_ms and all(ms > 0 for ms in result.latency_ms)
     assert result.output is not None and result.output.ndim == 3
-    assert FaceDetector("hog").detect(result.output), "the re-enacted frame shows no face"
+    assert DlibDetector("hog").detect(result.output), "the re-enacted frame shows no face"
     assert read_image(shot).shape[0] > 0  # the README's picture comes from `lsr bench live --screenshot`

@@ -21,9 +21,9 @@ def test_driver_limits_are_enforced_with_a_message(app_inputs):
 
 
 def test_faceless_images_are_skipped_and_named(app_inputs):
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
 
-    detector = FaceDetector()
+    detector = make_detector()
     shots, notes = handlers.load_shots([app_inputs["source"], app_inputs["no_face"]], 4, 64, detector, handlers.Limits())
     assert shots.frames.shape == (1, 64, 64, 3) and shots.landmarks.shape == (1, 68, 2)
     assert any("no_face.png: skipped" in note for note in notes)
@@ -132,15 +132,15 @@ def test_model_summary_names_the_model_and_says_what_a_warp_guided_one_does(tmp_
 def test_errors_name_the_uploaded_file_not_the_server_temp_path(app_inputs, tmp_path):
     import gradio as gr
 
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
 
     upload = tmp_path / "gradio" / "4f1c9e" / "holiday photo.png"  # where gradio keeps an upload
     upload.parent.mkdir(parents=True)
     upload.write_bytes(b"\x89PNG broken")
     with pytest.raises(gr.Error) as caught, handlers.readable_errors("load the source"):
-        handlers.load_shots([upload], 4, 64, FaceDetector(), handlers.Limits())
+        handlers.load_shots([upload], 4, 64, make_detector(), handlers.Limits())
     assert "holiday photo.png" in caught.value.message and str(tmp_path) not in caught.value.message
-    shots, notes = handlers.load_shots([app_inputs["source"], upload], 4, 64, FaceDetector(), handlers.Limits())
+    shots, notes = handlers.load_shots([app_inputs["source"], upload], 4, 64, make_detector(), handlers.Limits())
     assert len(shots.frames) == 1 and "cannot read holiday photo.png as an image: skipped" in notes
 
 

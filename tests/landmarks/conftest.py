@@ -1,4 +1,4 @@
-"""Fixtures shared by the landmarks tests: a real public-domain face photo and one cached detector."""
+"""Fixtures shared by the landmarks tests: a real public-domain face photo and cached detectors."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import skimage.data
 
-from landmarks.detect import FaceDetector
+from landmarks.detect import DlibDetector
+from landmarks.mesh_track import MeshDetector
 
 
 @pytest.fixture(scope="session")
@@ -16,5 +17,12 @@ def astronaut() -> np.ndarray:
 
 
 @pytest.fixture(scope="session")
-def detector() -> FaceDetector:
-    return FaceDetector()
+def detector() -> DlibDetector:
+    """dlib's HOG detector (the tests of landmarks.detect and landmarks.track are about it)."""
+    return DlibDetector()
+
+
+@pytest.fixture(scope="session")
+def mesh_detector() -> MeshDetector:
+    """The default detector: MediaPipe's detector and face mesh."""
+    return MeshDetector()

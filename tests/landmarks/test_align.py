@@ -185,12 +185,12 @@ class TestSmoothTransforms:
 @pytest.mark.slow
 def test_calibration_on_voxceleb_frames(shared_data):
     """On the 224x224 VoxCeleb2 frames themselves the crop is close to the identity."""
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
 
     files = sorted((shared_data / "fsth_eval_sample").glob("*/*/*/combined/*_rgb.png"))[::16]
     if not files:
         pytest.skip("no fsth_eval_sample frames")
-    detector = FaceDetector()
+    detector = make_detector()
     zooms, shifts = [], []
     for path in files:
         matrix = crop_transform(detector.detect_one(path).landmarks, 224)

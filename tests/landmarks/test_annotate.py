@@ -89,7 +89,7 @@ def test_folder_without_any_face_fails_and_leaves_no_folder(tmp_path, rng):
 def test_unwritable_out_is_one_line_before_any_work(tmp_path, astronaut, capsys, monkeypatch, case):
     import landmarks.annotate as annotate_module
 
-    monkeypatch.setattr(annotate_module, "FaceDetector", None)  # any detection would fail loudly
+    monkeypatch.setattr(annotate_module, "make_detector", None)  # any detection would fail loudly
     write_image(tmp_path / "face.png", astronaut)
     (tmp_path / "blocker").write_text("a file")
     out = "/proc/x" if case == "proc" else str(tmp_path / "blocker" / "out")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from landmarks import models
-from landmarks.detect import Face, FaceDetector
+from landmarks.detect import DlibDetector, Face
 from landmarks.errors import InputFileError, ModelFilesError, NoFaceError
 from landmarks.parts import LEFT_EYE, RIGHT_EYE
 
@@ -103,7 +103,7 @@ def test_faces_sorted_largest_first_and_index_selects(detector, astronaut):
 
 def test_cnn_detector_finds_the_face(astronaut, astronaut_face):
     crop = np.ascontiguousarray(astronaut[40:240, 120:320])  # 200x200 around the face keeps mmod fast on CPU
-    faces = FaceDetector("cnn", upsample=0).detect(crop)
+    faces = DlibDetector("cnn", upsample=0).detect(crop)
     assert len(faces) == 1
     shifted = faces[0].landmarks + np.array([120, 40], np.float32)
     assert np.abs(shifted - astronaut_face.landmarks).mean() < 5.0
@@ -112,7 +112,7 @@ def test_cnn_detector_finds_the_face(astronaut, astronaut_face):
 def test_no_face_raises(detector, rng):
     noise = rng.integers(0, 256, (300, 400, 3), dtype=np.uint8)
     assert detector.detect(noise) == []
-    with pytest.raises(NoFaceError, match="no face found in the image; use a frontal"):
+    with pytest.raises(NoFaceError, match="no face found in the image; use a photo where the face is visible"):
         detector.detect_one(noise)
     with pytest.raises(NoFaceError, match="no face found in blank"):
         detector.detect_one(np.zeros((64, 64, 3), np.uint8), name="blank")

@@ -72,8 +72,8 @@ def test_missing_landmarks_give_nan_and_bad_shape_raises():
 
 
 def test_astronaut_is_near_frontal():
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
 
     image = skimage.data.astronaut()
-    yaw, pitch, roll = estimate_head_pose(FaceDetector().detect_one(image).landmarks, image.shape[:2])
+    yaw, pitch, roll = estimate_head_pose(make_detector().detect_one(image).landmarks, image.shape[:2])
     assert abs(yaw) < 30 and abs(pitch) < 30 and abs(roll) < 15

@@ -168,14 +168,14 @@ class TestOfficialReference:
     @pytest.fixture(scope="class")
     @classmethod
     def pairs(cls, shared_data):
-        from landmarks.detect import FaceDetector
+        from landmarks.detectors import make_detector
         from landmarks.imageio import read_image
 
         root = shared_data / "fsth_eval_sample_processed"
         files = sorted(root.glob("*/id00017/*/combined/*_rgb.png"))[::4]
         if not files:
             pytest.skip(f"no *_rgb.png under {root}")
-        detector = FaceDetector()
+        detector = make_detector()
         return [
             (detector.detect_one(f).landmarks.astype(np.float64), read_image(f.with_name(f.name.replace("_rgb", "_contour"))))
             for f in files

@@ -512,9 +512,9 @@ def test_a_source_with_two_faces_uses_the_largest_and_face_index_picks(weights, 
     assert main([*args, "--out", str(tmp_path / "c.mp4"), "--face-index", "2"]) == 2
     error = capsys.readouterr().err
     assert "face index 2 asked for" in error and "lower --face-index" in error
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
 
-    faces = FaceDetector().detect(_two_faces())
+    faces = make_detector().detect(_two_faces())
     assert len(faces) == 2 and faces[0].box[0] < 256 <= faces[1].box[0]  # index 0 is the larger, left face
 
 

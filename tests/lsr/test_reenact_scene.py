@@ -132,7 +132,7 @@ def test_anchor_outside_the_shots_is_one_line(weights, tmp_path, capsys):
 
 def test_shared_clips_sun_driven_by_tpsmm(weights, shared_data, tmp_path):
     """The issue's real pair, trimmed: musetalk_sun.mp4 (a small face in a 576x768 frame) driven by tpsmm_driving.mp4."""
-    from landmarks.detect import FaceDetector
+    from landmarks.detectors import make_detector
     from landmarks.video import iter_frames
 
     clips = shared_data / "clips"
@@ -153,7 +153,7 @@ def test_shared_clips_sun_driven_by_tpsmm(weights, shared_data, tmp_path):
                  str(out), "--paste-back", "--finetune-steps", "0", "--k", "2", "--no-progress"]) == 0
     output, sources = _read(out), _read(source)
     assert output.shape == (8, *sources.shape[1:])
-    detector = FaceDetector()
+    detector = make_detector()
     for index in (0, 7):
         scene = sources[ping_pong(index, len(sources))]
         outside = _outside_head(detector.detect(scene)[0].landmarks, scene.shape[:2], grow=12)

@@ -205,10 +205,10 @@ def test_dlib_finds_near_frontal_faces() -> None:
     a systematic domain gap (dlib's shape model vs our geometry, e.g. brows on their centre line), far from
     what a mirrored or re-ordered annotation gives (> 0.3, checked below). Gate: median NMKE < 0.15.
     """
-    from landmarks.detect import FaceDetector
+    from landmarks.detect import DlibDetector
     from landmarks.parts import MIRROR_INDEX
 
-    detector = FaceDetector("hog", upsample=2, min_score=0.0)
+    detector = DlibDetector("hog", upsample=2, min_score=0.0)
     hits, errors, mirrored = [], [], []
     for i in range(12):
         clip = render_video(identity_seed_of(0, i), 21, 128)

@@ -8,7 +8,7 @@ import pytest
 class NoFaceDetector:
     """Stands in for dlib's detector (slow, and it finds no faces on tiny untrained outputs anyway)."""
 
-    kind, max_side, upsample, min_score = "fake", 64, 0, 0.0
+    kind, settings = "fake", "fake"
 
     def __init__(self, *args, **kwargs) -> None:
         pass
@@ -16,8 +16,11 @@ class NoFaceDetector:
     def detect(self, image):
         return []
 
+    def more_sensitive(self):
+        return None
+
 
 @pytest.fixture
 def no_face_detector() -> type[NoFaceDetector]:
-    """The class (tests instantiate it, or put it in place of landmarks.detect.FaceDetector)."""
+    """The class (tests instantiate it, or put it in place of landmarks.detectors.make_detector)."""
     return NoFaceDetector

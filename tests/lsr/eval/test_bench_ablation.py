@@ -83,11 +83,11 @@ def test_tiny_ablation_trains_resumes_and_ranks(tmp_path, monkeypatch, capsys, n
     import shutil
     from pathlib import Path
 
-    import landmarks.detect
+    import landmarks.detectors
     from lsr.train import trainer
     from lsr.train.checkpoint import list_checkpoints
 
-    monkeypatch.setattr(landmarks.detect, "FaceDetector", no_face_detector)
+    monkeypatch.setattr(landmarks.detectors, "make_detector", no_face_detector)
     monkeypatch.setenv("LSR_SHARED_DATA", str(tmp_path / "no_shared_data"))  # the FSTH part is skipped, with a reason
     benchmarks = tmp_path / "BENCHMARKS.md"
     shutil.copy(Path(__file__).resolve().parents[3] / "BENCHMARKS.md", benchmarks)

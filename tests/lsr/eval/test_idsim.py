@@ -17,14 +17,14 @@ def test_cosine_similarity_basics():
 
 @pytest.mark.slow
 def test_same_identity_is_more_similar_than_different(shared_data):
-    from landmarks.detect import FaceDetector
+    from landmarks.detect import DlibDetector
     from landmarks.imageio import read_image
 
     root = shared_data / "fsth_eval_sample"
     if not root.is_dir():
         pytest.skip("fsth_eval_sample not in the shared data")
     identities = sorted(p for p in (root / "train").iterdir() if p.is_dir())[:2]
-    detector = FaceDetector(upsample=1)
+    detector = DlibDetector(upsample=1)
     embeddings = {}
     for identity in identities:
         frames = sorted(identity.glob("*/combined/*_rgb.png"))

@@ -210,21 +210,12 @@ def test_config_checks_weight_files(tmp_path):
         EvalConfig(data=tmp_path, fid_weights=tmp_path / "absent.pt").validate()
 
 
-def test_report_with_lpips_and_fid(tmp_path, lpips_file, extractor_files, capsys, monkeypatch):
-    from landmarks import detect
+def test_report_with_lpips_and_fid(tmp_path, lpips_file, extractor_files, capsys, monkeypatch, no_face_detector):
+    from landmarks import detectors
     from lsr.data.synth.generate import generate_dataset
     from lsr.eval import report
 
-    class _NoFaceDetector:
-        kind, max_side, upsample, min_score = "fake", 64, 0, 0.0
-
-        def __init__(self, **kwargs):
-            pass
-
-        def detect(self, image):
-            return []
-
-    monkeypatch.setattr(detect, "FaceDetector", _NoFaceDetector)  # dlib is not what this test is about
+    monkeypatch.setattr(detectors, "make_detector", no_face_detector)  # face detection is not what this test is about
     root = tmp_path / "synth"
     generate_dataset(root, identities=4, videos_per_identity=1, frames=10, size=64, test_fraction=0.5, progress=False)
     cfg = EvalConfig(data=root, out=tmp_path / "out", k=(1,), inputs=6, holdouts=4, progress=False, examples=0,
