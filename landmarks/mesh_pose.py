@@ -91,6 +91,15 @@ def mesh_rotation(mesh: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     return kabsch(vertices[rigid], np.asarray(mesh, np.float64)[rigid])
 
 
+def yaw_of(mesh: np.ndarray, canonical_record: dict) -> float:
+    """Yaw in degrees of one (468, 3) mesh against a canonical record of ``build_canonical`` (before it is saved)."""
+    from landmarks.pose import angles_from_rotation
+
+    rigid = canonical_record["rigid"]
+    rotation, _, _ = kabsch(canonical_record["vertices"][rigid], np.asarray(mesh, np.float64)[rigid])
+    return float(angles_from_rotation(rotation)[0])
+
+
 def mesh_head_pose(mesh: np.ndarray) -> np.ndarray:
     """(468, 3) mesh -> (3,) float32 yaw, pitch, roll in degrees (``landmarks.pose`` conventions); NaN when the
     mesh has NaN."""

@@ -66,12 +66,28 @@ def test_mesh_and_its_68_points_match_dlib_on_a_real_face(astronaut, dlib_points
     assert _nme(face.landmarks, dlib_points) < 0.06
 
 
-def test_the_mapping_is_convex_and_translation_equivariant():
-    weights = mapping()
-    assert weights.shape == (68, 468) and (weights >= 0).all()
+def test_the_mapping_is_convex_off_the_jaw_and_translation_equivariant(astronaut, mesh_detector):
+    from landmarks.mesh68 import JAW, yaw_mapping
+
+    weights, yaw_weights = mapping(), yaw_mapping()
+    assert weights.shape == yaw_weights.shape == (68, 468)
+    inner = [row for row in range(68) if row not in JAW]
+    assert (weights[inner] >= 0).all() and not yaw_weights[inner].any()  # convex, no yaw term off the jaw
     np.testing.assert_allclose(weights.sum(1), 1.0, atol=1e-4)
-    mesh = np.random.default_rng(0).normal(size=(468, 3)).astype(np.float32)
-    np.testing.assert_allclose(mesh_to_68(mesh + [5.0, -3.0, 1.0]), mesh_to_68(mesh) + [5.0, -3.0], atol=1e-4)
+    np.testing.assert_allclose(yaw_weights.sum(1), 0.0, atol=1e-4)
+    mesh = mesh_detector.meshes(astronaut)[0][1].mesh
+    np.testing.assert_allclose(mesh_to_68(mesh + [5.0, -3.0, 1.0]), mesh_to_68(mesh) + [5.0, -3.0], atol=1e-3)
+    both = mesh_to_68(np.stack([mesh, mesh + [1.0, 2.0, 0.0]]))  # batched as one by one
+    np.testing.assert_allclose(both[1], mesh_to_68(mesh) + [1.0, 2.0], atol=1e-3)
+
+
+def test_the_jaw_slides_with_the_yaw_as_dlibs_silhouette_does(astronaut, mesh_detector):
+    """Without depth (no yaw) the jaw takes its yaw-0 weights; the astronaut turns a little, so the two differ there
+    and only there."""
+    mesh = mesh_detector.meshes(astronaut)[0][1].mesh
+    with_yaw, flat = mesh_to_68(mesh), mesh_to_68(mesh[:, :2])
+    assert np.abs(with_yaw[17:] - flat[17:]).max() < 1e-3
+    assert np.abs(with_yaw[:17] - flat[:17]).max() > 0.05
 
 
 def test_fit_mapping_recovers_a_known_combination():
