@@ -259,6 +259,8 @@ class BenchReenactConfig:
     frames: int = 50
     """Driving frames timed (the clip is cut to its first N frames)."""
     runtimes: tuple[Literal["torch", "onnx"], ...] = ("torch", "onnx")
+    detectors: tuple[Literal["mesh", "hog", "cnn"], ...] = ("mesh",)
+    """Face detectors (the driver's tracking and the source's shots); one row per runtime and detector."""
     paste_back: bool = True
     k: int = 4
     device: Literal["auto", "cpu", "cuda"] = "auto"

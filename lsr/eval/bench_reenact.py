@@ -85,45 +85,46 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
             weights = resolve_weights(cfg.weights)
             label = "the shipped default" if cfg.weights is None else f"`{shown_path(weights)}`"
         clip = trim_clip(video, temp / "driving.mp4", cfg.frames)
-        for runtime in cfg.runtimes:
+        for runtime, detector in [(runtime, detector) for runtime in cfg.runtimes for detector in cfg.detectors]:
             threads = network_threads(cfg.threads)  # as lsr reenact chooses them
             if runtime == "onnx":
                 from deploy.runtime import OnnxReenactor
 
-                export_graphs(Reenactor(weights).model, temp / "onnx")
-                reenactor = OnnxReenactor(temp / "onnx", threads=threads)
+                if not (temp / "onnx").is_dir():
+                    export_graphs(Reenactor(weights).model, temp / "onnx")
+                reenactor = OnnxReenactor(temp / "onnx", threads=threads, detector=detector)
             else:
                 import torch
 
                 torch.set_num_threads(threads)
-                reenactor = Reenactor(weights, device=device)
+                reenactor = Reenactor(weights, device=device, detector=detector)
             started = time.perf_counter()
             reenactor.encode_subject(clip, k=cfg.k)
             encode_subject_s = time.perf_counter() - started
             synth_ms = synthesis_only_ms(reenactor)
             started = time.perf_counter()
-            stats = run_job(reenactor, Job(clip, clip, temp / f"out_{runtime}.mp4"),
+            stats = run_job(reenactor, Job(clip, clip, temp / f"out_{runtime}_{detector}.mp4"),
                             _JobOptions(cfg.paste_back, runtime=runtime))
             wall = time.perf_counter() - started
             per_frame = {stage: 1000 * stats.seconds.get(stage, 0.0) / max(1, stats.frames)
                          for stage in ("decode", "landmarks", "synthesis", "paste_back", "encode")}
             end_to_end = stats.frames / wall
             rows.append(
-                f"| {runtime} | {stats.frames} | {stats.no_face} | {per_frame['decode']:.1f} | {per_frame['landmarks']:.1f} | "
+                f"| {runtime} | {detector} | {stats.frames} | {stats.no_face} | {per_frame['decode']:.1f} | {per_frame['landmarks']:.1f} | "
                 f"{encode_subject_s:.2f} | {per_frame['synthesis']:.1f} | {per_frame['paste_back']:.1f} | "
                 f"{per_frame['encode']:.1f} | {end_to_end:.2f} | {synth_ms:.1f} ({1000 / synth_ms:.2f} fps) | "
                 f"{end_to_end * synth_ms / 1000:.2f} |"
             )
-            if runtime == "torch":
+            if runtime == "torch" and detector == cfg.detectors[0]:
                 lm = reenactor.subject.shots.landmarks
                 notes.append(f"bf16 (torch, {device}): {reenactor.precision_error(list(lm), 'bf16')}")
     table = "\n".join([
         f"Model {label}, {cfg.frames} frames of {video.name}, paste-back {cfg.paste_back}, device {device}, "
         f"network threads {network_threads(cfg.threads)}",
         "",
-        "| runtime | frames | no face | decode ms | landmarks ms | subject encoding s | synthesis ms | paste-back ms "
+        "| runtime | detector | frames | no face | decode ms | landmarks ms | subject encoding s | synthesis ms | paste-back ms "
         "| encode ms | end-to-end fps | synthesis only ms | end-to-end / synthesis-only |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
         "",
         "Stages overlap (lsr.core.overlap): decoding and tracking run on a thread ahead of the synthesis (decode ms = "

@@ -22,12 +22,14 @@ def test_warp_guided_model_is_timed_on_both_runtimes(tmp_path):
     with VideoWriter(clip, 25) as writer:
         for frame in render_video(8, 6, 160).frames:
             writer.write(frame)
-    table = run_bench_reenact(BenchReenactConfig(video=clip, weights=weights, frames=4, k=2, threads=1))
+    table = run_bench_reenact(BenchReenactConfig(video=clip, weights=weights, frames=4, k=2, threads=1,
+                                                 detectors=("mesh", "hog")))
     rows = [line for line in table.splitlines() if line.startswith(("| torch |", "| onnx |")) and line.count("|") > 10]
-    assert len(rows) == 2
+    assert len(rows) == 4  # each runtime with each detector
+    assert [row.split("|")[2].strip() for row in rows] == ["mesh", "hog", "mesh", "hog"]
     for row in rows:
         cells = [cell.strip() for cell in row.strip("|").split("|")]
-        assert int(cells[1]) == 4 and float(cells[9]) > 0  # frames, end-to-end fps
+        assert int(cells[2]) == 4 and float(cells[10]) > 0  # frames, end-to-end fps
     assert "`" in table.splitlines()[0]  # the model named as given, not a random preset
 
 
