@@ -298,8 +298,10 @@ class EvalConfig:
     """Output folder: eval_report.md, eval_report.json, examples/, cache/ (detected landmarks)."""
     k: tuple[int, ...] = (1, 4, 8, 32)
     """K values (shots per identity), thesis Table 4.4."""
-    methods: tuple[Literal["nearest_shot", "tps", "tps_mean3"], ...] = ("nearest_shot", "tps", "tps_mean3")
-    """Methods to evaluate (the no-learning baselines of lsr.eval.baselines)."""
+    methods: tuple[Literal["nearest_shot", "tps", "tps_mean3", "mesh", "mesh_mean3"], ...] = (
+        "nearest_shot", "tps", "tps_mean3", "mesh", "mesh_mean3")
+    """Methods to evaluate (the no-learning baselines of lsr.eval.baselines); mesh and mesh_mean3 warp over the face
+    mesh and need --detector mesh (with a dlib detector they are skipped, with a note)."""
     weights: tuple[Path, ...] = ()
     """Trained LSR model folders (config.json + model.safetensors) to evaluate beside the baselines."""
     finetune_steps: int = 0
@@ -366,7 +368,7 @@ class EvalConfig:
         if not self.k or min(self.k) < 1:
             raise ConfigError(f"--k needs values >= 1, got {self.k}")
         if not self.methods and not self.weights:
-            raise ConfigError("--methods needs at least one of nearest_shot, tps, tps_mean3 (or give --weights)")
+            raise ConfigError("--methods needs at least one of nearest_shot, tps, tps_mean3, mesh, mesh_mean3 (or give --weights)")
         for folder in self.weights:
             check_weights(folder)
         if self.finetune_steps < 0 or not self.finetune_lr > 0:

@@ -8,13 +8,17 @@ them. Metrics are computed on the hold-out frames, driven by their ground-truth 
 Data sources (``load_identities``):
   * the LSR release / FSTH layout ``{train,test}/<id>/<video>/combined/NNNNN_rgb.png``:
     ``train`` = inputs, ``test`` = hold-outs; landmarks detected with ``landmarks.detect`` and
-    cached as ``<cache_dir>/landmarks_<split>_<id>.npz``;
+    cached as ``<cache_dir>/landmarks_<split>_<id>.npz``; with a mesh detector (one with ``meshes``,
+    ``landmarks.mesh_track.MeshDetector``) the 468-point meshes of the same detections too (the 68 points are
+    ``mesh_to_68`` of them);
   * an ``lsr.data.format`` dataset (manifest + clips): for each identity of the split, its
     clips' frames in clip-name order, first ``inputs`` frames = inputs, next ``holdouts`` =
     hold-outs (with fewer than inputs + holdouts frames, the first half is used as inputs);
-    landmarks from ``landmarks.npy``; the hold-outs' segmentation maps too, when every clip has them.
+    landmarks from ``landmarks.npy``; the hold-outs' segmentation maps too, when every clip has them; meshes
+    (none are stored) from a mesh detector's run on the frames (``attach_meshes``, cached like the landmarks).
 
-A method is anything with ``reenact`` (``Method``); the runner also evaluates, per method:
+A method is anything with ``reenact`` (``Method``); one that ``needs_meshes`` runs only on identities with
+meshes (otherwise it is skipped and the skip counted). The runner also evaluates, per method:
   * PSNR / SSIM on the whole frame and inside the ground truth's face region (``lsr.eval.metrics.face_mask``);
   * NMKE / ID-SIM of the output, where output landmarks come from the same detector; hold-outs
     whose ground truth has no face cannot be driven and are skipped (counted); outputs with no
@@ -53,7 +57,9 @@ class Method(Protocol):
     ``finetune(shots, shot_landmarks) -> Method``: a subject-specific method fitted on the shots only.
     A method with ``needs_target_segmentation = True`` (thesis Table 4.2's ``oracle_seg`` upper bound)
     is also passed ``target_segmentations=`` (T, S, S) uint8 ground truth of the targets, or None
-    when the data has none (the method then raises ConfigError)."""
+    when the data has none (the method then raises ConfigError). A method with ``needs_meshes = True`` (the
+    ``mesh`` baselines) is also passed ``shot_meshes=`` (K, 468, 3) and ``target_meshes=`` (T, 468, 3) float32
+    face meshes (NaN rows: none found); on identities without meshes it is skipped."""
 
     name: str
 
@@ -66,7 +72,9 @@ class Method(Protocol):
 @dataclasses.dataclass
 class EvalIdentity:
     """One test identity. frames: (N, S, S, 3) uint8; landmarks: (N, 68, 2) float32, NaN rows = no face;
-    holdout_segmentations: (N_holdout, S, S) uint8 class ids (lsr.data.classes) or None when unknown."""
+    holdout_segmentations: (N_holdout, S, S) uint8 class ids (lsr.data.classes) or None when unknown;
+    input_meshes / holdout_meshes: (N, 468, 3) float32 face meshes of the same frames (NaN rows = none found), or
+    None when the detector gives no meshes."""
 
     name: str
     input_frames: np.ndarray
@@ -74,41 +82,82 @@ class EvalIdentity:
     holdout_frames: np.ndarray
     holdout_landmarks: np.ndarray
     holdout_segmentations: np.ndarray | None = None
+    input_meshes: np.ndarray | None = None
+    holdout_meshes: np.ndarray | None = None
+
+    @property
+    def has_meshes(self) -> bool:
+        return self.input_meshes is not None and self.holdout_meshes is not None
 
 
 # ---- data -----------------------------------------------------------------------------------------
 
 
+def gives_meshes(detector: Any) -> bool:
+    """Whether ``detector`` finds face meshes (``landmarks.mesh_track.MeshDetector`` has ``meshes``)."""
+    return callable(getattr(detector, "meshes", None))
+
+
 def detect_landmarks(frames: Sequence[np.ndarray], detector: Any) -> np.ndarray:
     """Largest face's 68 landmarks per frame. frames: N x (H, W, 3) uint8 -> (N, 68, 2) float32, NaN = no face."""
-    result = np.full((len(frames), 68, 2), np.nan, np.float32)
+    return detect_faces(frames, detector)[0]
+
+
+def detect_faces(frames: Sequence[np.ndarray], detector: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    """Largest face's 68 landmarks per frame, and its mesh when the detector gives meshes (``gives_meshes``).
+
+    frames: N x (H, W, 3) uint8 -> ((N, 68, 2) float32, (N, 468, 3) float32 or None), NaN rows = no face. A mesh
+    detector's 68 points are ``mesh_to_68`` of the mesh, as its ``detect`` gives them."""
+    from landmarks.mesh68 import mesh_to_68
+    from landmarks.mesh_warp import MESH_POINTS
+
+    with_meshes = gives_meshes(detector)
+    landmarks = np.full((len(frames), 68, 2), np.nan, np.float32)
+    meshes = np.full((len(frames), MESH_POINTS, 3), np.nan, np.float32) if with_meshes else None
     retry = None
     for index, frame in enumerate(frames):
-        faces = detector.detect(frame)
-        if not faces and isinstance(getattr(detector, "upsample", None), int):
-            # ground truth should not lose a face to a cheap detection setting: retry one pyramid level up
+        faces = detector.meshes(frame) if with_meshes else detector.detect(frame)
+        if not faces:  # ground truth should not lose a face to a cheap detection setting: retry a finer one
             if retry is None:
-                retry = type(detector)(kind=detector.kind, max_side=detector.max_side, upsample=detector.upsample + 1)
-            faces = retry.detect(frame)
-        if faces:
-            result[index] = faces[0].landmarks
-    return result
+                retry = detector.more_sensitive() or detector
+            if retry is not detector:
+                faces = retry.meshes(frame) if with_meshes else retry.detect(frame)
+        if faces and meshes is not None:
+            meshes[index] = faces[0][1].mesh
+            landmarks[index] = mesh_to_68(faces[0][1].mesh)
+        elif faces:
+            landmarks[index] = faces[0].landmarks
+    return landmarks, meshes
 
 
-def _cached_landmarks(files: list[str], frames: list[np.ndarray], detector: Any, cache: Path | None) -> np.ndarray:
-    settings = f"{detector.kind}/{detector.max_side}/{detector.upsample}/{detector.min_score}/retry+1"
-    names = np.array([os.path.basename(os.path.dirname(os.path.dirname(f))) + "/" + os.path.basename(f) for f in files])
+def _cached_faces(names: np.ndarray, frames: Sequence[np.ndarray], detector: Any,
+                  cache: Path | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """``detect_faces``, stored in ``cache`` (an .npz keyed by the frames' names and the detector's settings)."""
+    with_meshes = gives_meshes(detector)
+    settings = f"{detector.settings}/retry"
+    if with_meshes:  # the 68 points are mapped from the meshes: a refitted mapping invalidates them
+        from landmarks.mesh68 import MAPPING_FILE
+
+        settings += "/mesh68:" + hashlib.blake2b(MAPPING_FILE.read_bytes(), digest_size=8).hexdigest()
     if cache is not None and cache.is_file():
         with np.load(cache, allow_pickle=False) as stored:
-            if str(stored["settings"]) == settings and np.array_equal(stored["files"], names):
-                return stored["landmarks"]
-    landmarks = detect_landmarks(frames, detector)
+            if (str(stored["settings"]) == settings and np.array_equal(stored["files"], names)
+                    and (not with_meshes or "meshes" in stored.files)):
+                return stored["landmarks"], (stored["meshes"] if with_meshes else None)
+    landmarks, meshes = detect_faces(frames, detector)
     if cache is not None:
         from landmarks.imageio import atomic_output
 
+        extra = {} if meshes is None else {"meshes": meshes}
         with atomic_output(cache) as temp, open(temp, "wb") as handle:
-            np.savez(handle, files=names, settings=np.array(settings), landmarks=landmarks)
-    return landmarks
+            np.savez(handle, files=names, settings=np.array(settings), landmarks=landmarks, **extra)
+    return landmarks, meshes
+
+
+def _cached_landmarks(files: list[str], frames: list[np.ndarray], detector: Any,
+                      cache: Path | None) -> tuple[np.ndarray, np.ndarray | None]:
+    names = np.array([os.path.basename(os.path.dirname(os.path.dirname(f))) + "/" + os.path.basename(f) for f in files])
+    return _cached_faces(names, frames, detector, cache)
 
 
 def load_fsth_sample(root: Path, detector: Any, cache_dir: Path | None = None, progress: bool = True) -> list[EvalIdentity]:
@@ -132,8 +181,10 @@ def load_fsth_sample(root: Path, detector: Any, cache_dir: Path | None = None, p
             if len({f.shape for f in frames}) != 1 or frames[0].shape[0] != frames[0].shape[1]:
                 raise DatasetError(f"{root / split / name}: frames must all be square and of one size")
             cache = None if cache_dir is None else Path(cache_dir) / f"landmarks_{split}_{name}.npz"
-            parts[split] = (np.stack(frames), _cached_landmarks(files, frames, detector, cache))
-        identities.append(EvalIdentity(name, *parts["train"], *parts["test"]))
+            parts[split] = (np.stack(frames), *_cached_landmarks(files, frames, detector, cache))
+        (inputs, input_landmarks, input_meshes), (holdouts, holdout_landmarks, holdout_meshes) = parts["train"], parts["test"]
+        identities.append(EvalIdentity(name, inputs, input_landmarks, holdouts, holdout_landmarks,
+                                       input_meshes=input_meshes, holdout_meshes=holdout_meshes))
     return identities
 
 
@@ -164,6 +215,24 @@ def load_lsr_split(root: Path, split: str = "test", inputs: int = 32, holdouts: 
         identities.append(EvalIdentity(name, all_frames[:num_inputs], all_landmarks[:num_inputs],
                                        all_frames[num_inputs:end], all_landmarks[num_inputs:end], holdout_segmentations))
     return identities
+
+
+def attach_meshes(identities: Sequence[EvalIdentity], detector: Any, cache_dir: Path | None = None,
+                  progress: bool = True) -> None:
+    """Give identities without meshes (an lsr dataset stores none) the meshes of a mesh detector's run on their
+    frames, cached as ``<cache_dir>/meshes_<id>_<input|holdout>.npz`` (keyed by the frames' content). Their
+    landmarks stay the stored ones. A detector without meshes (dlib's) attaches nothing."""
+    from tqdm import tqdm
+
+    if not gives_meshes(detector):
+        return
+    for identity in tqdm([i for i in identities if not i.has_meshes], desc="lsr eval: meshes", disable=not progress):
+        found = {}
+        for role, frames in (("input", identity.input_frames), ("holdout", identity.holdout_frames)):
+            names = np.array([f"{role}/{hashlib.blake2b(frame.tobytes(), digest_size=8).hexdigest()}" for frame in frames])
+            cache = None if cache_dir is None else Path(cache_dir) / f"meshes_{identity.name}_{role}.npz"
+            found[role] = _cached_faces(names, list(frames), detector, cache)[1]
+        identity.input_meshes, identity.holdout_meshes = found["input"], found["holdout"]
 
 
 def detect_layout(root: Path) -> str:
@@ -288,6 +357,22 @@ def _check_outputs(outputs: np.ndarray, count: int, size: tuple[int, ...], name:
                           f"{getattr(outputs, 'dtype', '')}; expected ({count}, {', '.join(map(str, size))}) uint8")
 
 
+def _retargeted_meshes(sequence: cross.CrossSequence, shot_meshes: np.ndarray, driver: EvalIdentity) -> np.ndarray:
+    """The driver's hold-out meshes moved onto the anchor shot's mesh as the sequence's 68-point targets were
+    (``landmarks.mesh_warp.retarget_mesh``: relative motion, then the driver's mouth opening), with the anchor's
+    depth. -> (T, 468, 3) float32; all NaN when the anchor or the driver's reference frame has no mesh."""
+    from landmarks.mesh_warp import MESH_POINTS, retarget_mesh
+
+    result = np.full((len(sequence.targets), MESH_POINTS, 3), np.nan, np.float32)
+    anchor_mesh = shot_meshes[sequence.anchor]
+    driver_meshes = None if driver.holdout_meshes is None else driver.holdout_meshes[sequence.driver_rows]
+    if driver_meshes is None or not (np.isfinite(anchor_mesh).all() and np.isfinite(driver_meshes[0]).all()):
+        return result
+    result[..., :2] = retarget_mesh(driver_meshes, driver_meshes[0], anchor_mesh)
+    result[..., 2] = np.where(np.isfinite(result[..., 0]), anchor_mesh[:, 2], np.nan)  # a 2D retarget: depth stays
+    return result
+
+
 def run_protocol(
     methods: Sequence[Method],
     identities: Sequence[EvalIdentity],
@@ -360,12 +445,26 @@ def run_protocol(
                     sequence = cross.prepare_sequence(k, identity.name, driver.name, driver_rows, shots, shot_landmarks,
                                                       driver.holdout_frames[driver_rows],
                                                       driver.holdout_landmarks[driver_rows], source_embedding)
+            mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
+            cross_meshes: dict[str, np.ndarray] | None = None
+            if any(getattr(method, "needs_meshes", False) for method in methods) and identity.has_meshes:
+                shot_meshes = identity.input_meshes[shot_indices]  # type: ignore[index]
+                mesh_inputs = {"shot_meshes": shot_meshes, "target_meshes": identity.holdout_meshes[driveable]}  # type: ignore[index]
+                if sequence is not None:
+                    cross_meshes = {"shot_meshes": shot_meshes,
+                                    "target_meshes": _retargeted_meshes(sequence, shot_meshes, driver)}
             for name, method, use_finetune in variants:
                 check_method_inputs(shots, shot_landmarks, target_landmarks)
+                if getattr(method, "needs_meshes", False) and mesh_inputs is None:
+                    counts.setdefault("skipped_without_meshes", {}).setdefault(name, []).append(f"K={k} {identity.name}")
+                    bar.update(1)
+                    continue
                 model = method.finetune(shots, shot_landmarks) if use_finetune else method  # type: ignore[attr-defined]
                 before = _warp_counts(model)
                 oracle = getattr(model, "needs_target_segmentation", False)  # baselines never see the ground truth
                 extra_inputs = {"target_segmentations": target_segmentations} if oracle else {}
+                if getattr(model, "needs_meshes", False):
+                    extra_inputs.update(mesh_inputs or {})
                 outputs = model.reenact(shots, shot_landmarks, target_landmarks, **extra_inputs)
                 _add_warp_counts(counts, name, k, "self", before, _warp_counts(model))
                 _check_outputs(outputs, len(targets), targets.shape[1:], name)
@@ -392,6 +491,8 @@ def run_protocol(
                     before = _warp_counts(model)
                     # the oracle sees the driving frames' segmentation, i.e. identity i+1's own (not retargeted) layout
                     extra_inputs = {"target_segmentations": driver_segmentations} if oracle else {}
+                    if getattr(model, "needs_meshes", False):
+                        extra_inputs.update(cross_meshes or {})
                     crossed = model.reenact(shots, shot_landmarks, sequence.targets, **extra_inputs)
                     _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))
                     _check_outputs(crossed, len(sequence.targets), targets.shape[1:], name)

@@ -5,7 +5,7 @@ frames = +inf, and PSNR of the mean MSE), PSNR and SSIM inside the face, SSIM, s
 Laplacian-variance ratio to the ground truth), ID-SIM, NMKE and the count of outputs without a detected
 face; ID-SIM per pose-variance bucket (thesis §4.5.1); cross-identity re-enactment (§4.4.3, retargeted and
 composited as ``lsr reenact`` does: expression, pose, NMKE, identity, sharpness and scene metrics,
-``lsr.eval.cross``); TPS warp-method counts; the thesis' Table 4.4 rows for reference; machine info.
+``lsr.eval.cross``); TPS warp-method counts; methods skipped (the mesh baselines without a mesh detector); the thesis' Table 4.4 rows for reference; machine info.
 With ``--figure``: the methods side by side on one hold-out frame per identity, and beside it
 (``<figure>_cross.<ext>``) the cross-identity figure (``CrossFigure``).
 """
@@ -203,17 +203,23 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
                          f"{_fmt(row['scene_flicker'], 2)} | {row['no_face']} |")
     warp = summary["counts"].get("warp_methods", {})
     if warp:
-        lines += ["", "## TPS warp methods used (warps: one per frame for tps, up to 3 for tps_mean3)", "",
-                  "| method | run | tps | tps_stronger | similarity | identity |", "|---|---|---|---|---|---|"]
+        lines += ["", "## TPS warp methods used (warps: one per frame for tps and mesh, up to 3 for tps_mean3 and "
+                  "mesh_mean3; for mesh warps the TPS outside the face, 'no mesh': warped by the TPS alone)", "",
+                  "| method | run | tps | tps_stronger | similarity | identity | no mesh |", "|---|---|---|---|---|---|---|"]
         for name, table in warp.items():
             for run_name, used in table.items():
                 lines.append(f"| {name} | {run_name} | {used.get('tps', 0)} | {used.get('tps_stronger', 0)} | "
-                             f"{used.get('similarity', 0)} | {used.get('identity', 0)} |")
+                             f"{used.get('similarity', 0)} | {used.get('identity', 0)} | {used.get('without_mesh', '–')} |")
     skipped = {k: v for k, v in summary["counts"]["holdouts_without_face"].items() if v}
     no_input = {k: v for k, v in summary["counts"]["inputs_without_face"].items() if v}
     lines += ["", "## Notes", ""]
     lines.append(f"- hold-out frames without a ground-truth face (cannot be driven, skipped): {skipped or 'none'}")
     lines.append(f"- input frames without a face (never drawn as shots): {no_input or 'none'}")
+    for name, why in summary["counts"].get("skipped_methods", {}).items():
+        lines.append(f"- {name}: skipped, {why}")
+    without_meshes = summary["counts"].get("skipped_without_meshes", {})
+    for name, runs in without_meshes.items():
+        lines.append(f"- {name}: skipped where the data has no face meshes ({len(runs)} of the (K, identity) runs)")
     capped = summary["counts"].get("k_capped")
     if capped:
         lines.append(f"- K larger than the input frames with a face (all of them used instead): {capped}")
@@ -391,13 +397,14 @@ def label_by_variant(models: Sequence[Any], folders: Sequence[Any]) -> list[Any]
 
 def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     """Run ``lsr eval`` (cfg: lsr.config.EvalConfig): load, evaluate the baselines, write and print the report."""
-    from landmarks.detect import FaceDetector
-    from lsr.eval.baselines import NearestShot, TpsMean3, TpsWarp
-    from lsr.eval.protocol import FaceAnalysis, detect_layout, load_fsth_sample, load_lsr_split, run_protocol
+    from landmarks.detectors import make_detector
+    from lsr.eval.baselines import MeshMean3, MeshWarp, NearestShot, TpsMean3, TpsWarp
+    from lsr.eval.protocol import (FaceAnalysis, attach_meshes, detect_layout, gives_meshes, load_fsth_sample,
+                                   load_lsr_split, run_protocol)
     from lsr.machine import machine_markdown
 
     data = cfg.resolved_data()
-    detector = FaceDetector(kind=cfg.detector, upsample=cfg.detector_upsample)
+    detector = make_detector(cfg.detector, **({"upsample": cfg.detector_upsample} if cfg.detector != "mesh" else {}))
     layout = detect_layout(data)
     if layout == "fsth":
         identities = load_fsth_sample(data, detector, cache_dir=Path(cfg.out) / "cache", progress=cfg.progress)
@@ -406,8 +413,20 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     if cfg.max_identities:
         identities = identities[: cfg.max_identities]
     available = {"nearest_shot": NearestShot, "tps": lambda: TpsWarp(regularization=cfg.tps_regularization),
-                 "tps_mean3": lambda: TpsMean3(regularization=cfg.tps_regularization)}
+                 "tps_mean3": lambda: TpsMean3(regularization=cfg.tps_regularization),
+                 "mesh": lambda: MeshWarp(regularization=cfg.tps_regularization),
+                 "mesh_mean3": lambda: MeshMean3(regularization=cfg.tps_regularization)}
     methods = [available[name]() for name in cfg.methods]
+    skipped = {}
+    if not gives_meshes(detector):  # dlib's detectors give 68 points only: the mesh baselines cannot run
+        skipped = {m.name: f"needs face meshes, which the {cfg.detector} detector does not give (use --detector mesh)"
+                   for m in methods if getattr(m, "needs_meshes", False)}
+        methods = [m for m in methods if m.name not in skipped]
+        for name, why in skipped.items():
+            print(f"lsr eval: {name} skipped: {why}")
+    elif layout != "fsth" and any(getattr(m, "needs_meshes", False) for m in methods):
+        attach_meshes(identities, detector, cache_dir=Path(cfg.out) / "cache",
+                      progress=cfg.progress)
     if cfg.weights:
         from lsr.eval.model_method import LsrModelMethod
 
@@ -415,7 +434,8 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
                                  finetune_lr=cfg.finetune_lr) for folder in cfg.weights]
         methods += label_by_variant(models, cfg.weights)
     if not methods:
-        raise ConfigError("no method to evaluate: pass --methods nearest_shot tps tps_mean3 and/or --weights MODEL_DIR")
+        raise ConfigError("no method to evaluate: pass --methods nearest_shot tps tps_mean3 (mesh, mesh_mean3 with "
+                          "--detector mesh) and/or --weights MODEL_DIR")
     thresholds = tuple(cfg.bucket_thresholds) if cfg.bucket_thresholds else None
     examples = ExampleWriter(Path(cfg.out), cfg.examples)
     cross_figure = CrossFigure(cfg.figure_k) if cfg.figure is not None and cfg.cross_identity else None
@@ -431,6 +451,8 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     run = run_protocol(methods, identities, cfg.k, FaceAnalysis(detector), seed=cfg.seed, max_holdouts=cfg.max_holdouts,
                        fixed_thresholds=thresholds, cross_identity=cfg.cross_identity, on_outputs=on_outputs,
                        on_cross_outputs=cross_figure, frame_metrics=frame_metrics, progress=cfg.progress)
+    if skipped:
+        run.counts["skipped_methods"] = skipped
     fid_results = {}
     if cfg.fid_weights is not None:
         from lsr.eval.fid import fid_from_features
@@ -443,7 +465,7 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
                             f"truth over all hold-out frames per (method, K); samples per row in the JSON 'fid_samples'"
                             + (f"; N <= D, so {min(eps):g} was added to the covariance diagonals (values are not "
                                "comparable to 50k-sample FIDs)" if eps else ""))
-    run.settings.update({"data": str(data), "layout": layout, "detector": f"{cfg.detector}, upsample {cfg.detector_upsample}",
+    run.settings.update({"data": str(data), "layout": layout, "detector": detector.settings,
                          "tps_regularization": cfg.tps_regularization})
     summary = summarise(run, fid=fid_results, backbones=backbones)
     if cfg.figure is not None:

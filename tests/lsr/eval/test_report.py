@@ -97,19 +97,20 @@ def test_lsr_eval_on_two_real_identities(shared_data, tmp_path, capsys):
     assert "## Self re-enactment" in printed and "| machine |" in printed
     assert (tmp_path / "out" / "eval_report.md").is_file()
     rows = {row["method"]: row for row in summary["rows"]}
-    assert set(rows) == {"nearest_shot", "tps", "tps_mean3"}
+    assert set(rows) == {"nearest_shot", "tps", "tps_mean3", "mesh", "mesh_mean3"}  # the default methods
     assert all(np.isfinite(row["ssim"]) and 0 < row["ssim"] < 1 for row in rows.values())
     assert all(np.isfinite(row["sharpness"]) and row["sharpness"] > 0 for row in rows.values())
     assert rows["tps"]["nmke"] < rows["nearest_shot"]["nmke"]  # warping onto the target landmarks fixes the pose
     assert list((tmp_path / "out" / "examples").glob("tps_k1_*.png"))
     from landmarks.imageio import read_image
 
-    figure = read_image(tmp_path / "compare.png")  # 2 identities x (3 methods + ground truth), under a title strip
-    assert figure.shape == (28 + 2 * 224, 4 * 224, 3)
-    crossed = read_image(tmp_path / "compare_cross.png")  # driver | anchor | 2 methods at 176 px, <= 4 rows per identity
+    figure = read_image(tmp_path / "compare.png")  # 2 identities x (5 methods + ground truth), under a title strip
+    assert figure.shape == (28 + 2 * 224, 6 * 224, 3)
+    crossed = read_image(tmp_path / "compare_cross.png")  # driver | anchor | 4 methods at 176 px, <= 4 rows per identity
     side = report.CROSS_FIGURE_SIDE
-    assert crossed.shape[1] == 4 * side and (crossed.shape[0] - 28) % side == 0
-    assert {row["method"] for row in summary["cross"]} == {"nearest_shot", "tps", "tps_mean3"}
+    assert crossed.shape[1] == 6 * side and (crossed.shape[0] - 28) % side == 0
+    assert {row["method"] for row in summary["cross"]} == {"nearest_shot", "tps", "tps_mean3", "mesh", "mesh_mean3"}
+    assert summary["counts"]["warp_methods"]["mesh"]["K=1 self"]["without_mesh"] == 0  # the mesh detector: meshes
     with pytest.raises(ConfigError, match="--figure-k"):
         EvalConfig(data=small, k=(1,), figure=tmp_path / "x.png", figure_k=8).validate()
 

@@ -1,0 +1,478 @@
+"""Piecewise-affine image warping over the 468-point face mesh (numpy + OpenCV): the dense counterpart of ``landmarks.tps``.
+
+Used by the ``mesh`` / ``mesh_mean3`` baselines of ``lsr eval`` (``lsr.eval.baselines``); the torch version of the
+same map is ``models_def.mesh_warp.mesh_warp_maps`` (tested against this one).
+
+The map is a backward map like ``landmarks.tps.tps_map``'s: output pixel p samples the source image at map(p).
+  * **Inside the face**: the target mesh is cut into triangles (``triangulation``); a pixel inside target
+    triangle t samples the source at A_t p, the affine map taking t's corners onto the same triangle of the
+    source mesh. Triangles are rasterised once (``rasterise_triangles``: each pixel centre gets the index of the
+    triangle that contains it) and the affines applied in one gather.
+  * **Outside the face** the 68-point TPS of ``landmarks.tps`` (by default on ``landmarks.mesh68.mesh_to_68`` of both
+    meshes, frame border fixed; the ``mesh`` baseline passes the ``tps`` baseline's own map) takes over, feathered
+    into the piecewise-affine
+    map over ``feather`` pixels inside the face outline and around dropped triangles (``feather_weights``;
+    default ``FEATHER_IOD`` of the target's inter-ocular distance), so there is no seam.
+  * A triangle that is degenerate (area under ``min_area`` square pixels) or folded (mirrored against the canonical
+    face) in either mesh is dropped: the weight dips around it as at the outline, and its pixels take the
+    Gaussian average of their kept neighbours' correction (the piecewise-affine map minus the TPS), so a small
+    hole leaves no speck and a large one fades into the TPS.
+
+The triangulation is ours: a Delaunay triangulation of the frontal canonical face (``frontal_canonical``: the x, y
+of ``landmarks.mesh_pose``'s canonical mesh, the mean face of the project's training people, which looks at the
+camera), without the slivers whose smallest angle is under ``MIN_ANGLE_DEGREES`` (they fold under the mesh's
+per-vertex noise). Qhull's output order may change between versions, so the triangles are stored in
+``landmarks/assets/mesh_triangles.json``; rebuild it (after a new canonical mesh) with
+
+    python -c "from landmarks.mesh_warp import write_triangulation; write_triangulation()"
+
+(tests check that the stored triangles are what ``build_triangles`` gives from the canonical mesh).
+
+Cross-identity driving moves meshes the way ``landmarks.retarget.retarget_driving`` moves 68 points:
+``retarget_mesh``.
+
+Shapes: meshes (468, 2 or 3) float x, y frame pixels (z, smaller = nearer, orders overlapping target triangles and
+feeds ``mesh_to_68``'s yaw-dependent jaw); maps (H, W) float32 source pixel coordinates.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from landmarks import tps
+from landmarks.errors import ModelFilesError
+from landmarks.mesh68 import mesh_to_68
+
+TRIANGLES_FILE = Path(__file__).resolve().parent / "assets" / "mesh_triangles.json"
+MESH_POINTS = 468
+MIN_ANGLE_DEGREES = 5.0  # canonical triangles thinner than this are slivers: dropped from the triangulation
+MIN_AREA = 1e-3  # square pixels: a flatter (or folded) triangle in either mesh goes to the TPS fallback. Small is
+# fine (a pixel inside a target triangle samples inside its source triangle); only a collapsed one has no affine
+FEATHER = 3.0  # pixels: the narrowest blend of the TPS outside the face into the piecewise-affine map
+# The blend's width by default, in target inter-ocular distances: where the triangles fold (a turned head's far cheek,
+# driven across identities) the TPS fills holes among kept triangles, and a blend narrower than a triangle leaves a
+# torn edge there. On the FSTH sample (K = 8, 12 hold-outs per identity): 3 px -> 0.3 IOD kept the face PSNR (21.65 ->
+# 21.64 dB; tps 21.55) and cut the cross-identity face sharpness from 1.13 to 1.06 of the anchor's (tps: 0.98).
+FEATHER_IOD = 0.3
+WEIGHT_SNAP = 1e-5  # feather weights this close to 1 are 1
+INTERPOLATION_NEIGHBOURS = 4  # 68 points that spread a correction onto each mesh vertex (``retarget_mesh``)
+
+
+# ---- the triangulation -----------------------------------------------------------------------------------
+
+
+def normalise_mesh(mesh: np.ndarray) -> np.ndarray:
+    """A mesh in its eyes' frame: eye midpoint at 0, the eye line level, inter-ocular distance 1 (eye centres of
+    the 68 points, ``mesh_to_68``). (468, >=2) -> (468, 2) float64."""
+    points = np.asarray(mesh, np.float64)[:, :2]
+    landmarks = mesh_to_68(points).astype(np.float64)
+    left, right = landmarks[36:42].mean(0), landmarks[42:48].mean(0)
+    axis = right - left
+    scale = float(np.linalg.norm(axis))
+    if not scale > 0:
+        raise ValueError("the mesh's eyes coincide: cannot normalise it")
+    cos, sin = axis / scale
+    level = np.array([[cos, sin], [-sin, cos]])  # rotates the eye line onto +x
+    return (points - (left + right) / 2.0) @ level.T / scale
+
+
+@functools.lru_cache(maxsize=1)
+def frontal_canonical() -> np.ndarray:
+    """(468, 2) float64: ``landmarks.mesh_pose``'s canonical mesh seen from the front (its x, y; image axes, y down),
+    eye-normalised (``normalise_mesh``). Its mouth is open (the mean of talking faces), so the lips do not touch."""
+    from landmarks.mesh_pose import canonical
+
+    frontal = normalise_mesh(canonical()[0])
+    frontal.setflags(write=False)
+    return frontal
+
+
+def signed_areas(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Signed triangle areas in image axes (x right, y down): positive for the canonical orientation.
+
+    vertices: (..., V, 2); triangles: (T, 3) int -> (..., T) float64."""
+    corners = np.asarray(vertices, np.float64)[..., triangles, :]  # (..., T, 3, 2)
+    first, second = corners[..., 1, :] - corners[..., 0, :], corners[..., 2, :] - corners[..., 0, :]
+    return 0.5 * (first[..., 0] * second[..., 1] - first[..., 1] * second[..., 0])
+
+
+def smallest_angles(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(V, 2), (T, 3) -> (T,) smallest interior angle of each triangle in degrees."""
+    corners = np.asarray(vertices, np.float64)[triangles]  # (T, 3, 2)
+    angles = []
+    for corner in range(3):
+        first = corners[:, (corner + 1) % 3] - corners[:, corner]
+        second = corners[:, (corner + 2) % 3] - corners[:, corner]
+        cosine = np.sum(first * second, -1) / np.maximum(np.linalg.norm(first, axis=-1) * np.linalg.norm(second, axis=-1), 1e-300)
+        angles.append(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+    return np.min(angles, axis=0)
+
+
+def build_triangles(canonical: np.ndarray, min_angle: float = MIN_ANGLE_DEGREES) -> np.ndarray:
+    """Delaunay triangulation of the canonical mesh without slivers. canonical: (468, 2) -> (T, 3) int32.
+
+    Every triangle is oriented with a positive ``signed_areas`` on the canonical mesh and starts at its smallest
+    vertex index; rows are sorted, so the result does not depend on Qhull's output order."""
+    from scipy.spatial import Delaunay
+
+    canonical = np.asarray(canonical, np.float64)
+    triangles = Delaunay(canonical).simplices.astype(np.int64)
+    flipped = signed_areas(canonical, triangles) < 0
+    triangles[flipped] = triangles[flipped][:, [0, 2, 1]]
+    triangles = triangles[smallest_angles(canonical, triangles) >= min_angle]
+    start = np.argmin(triangles, axis=1)
+    triangles = np.stack([np.roll(row, -shift) for row, shift in zip(triangles, start)])  # same orientation
+    return triangles[np.lexsort(triangles.T[::-1])].astype(np.int32)
+
+
+def write_triangulation(out: str | Path = TRIANGLES_FILE) -> dict[str, Any]:
+    """Rebuild the asset: ``build_triangles`` of ``frontal_canonical``, written compactly to ``out``. Returns the
+    record."""
+    from landmarks.imageio import atomic_output
+
+    triangles = build_triangles(frontal_canonical())
+    record = {
+        "about": "Delaunay triangulation of the frontal canonical face mesh (landmarks.mesh_pose), slivers dropped; "
+                 "built by landmarks.mesh_warp.write_triangulation",
+        "min_angle_degrees": MIN_ANGLE_DEGREES,
+        "triangles": triangles.tolist(),
+    }
+    with atomic_output(out) as temp:
+        temp.write_text(json.dumps(record, separators=(",", ":")) + "\n")
+    return record
+
+
+@functools.lru_cache(maxsize=1)
+def triangulation() -> np.ndarray:
+    """(T, 3) int32 vertex indices, positively oriented (``signed_areas``) on the frontal canonical face: the stored
+    triangles (``landmarks/assets/mesh_triangles.json``)."""
+    if not TRIANGLES_FILE.is_file():
+        raise ModelFilesError(f"{TRIANGLES_FILE} is missing; reinstall the package (or rebuild it: see landmarks/mesh_warp.py)")
+    triangles = np.asarray(json.loads(TRIANGLES_FILE.read_text())["triangles"], np.int32)
+    triangles.setflags(write=False)
+    return triangles
+
+
+# ---- the piecewise-affine map ----------------------------------------------------------------------------
+
+
+def triangle_affines(source: np.ndarray, target: np.ndarray, triangles: np.ndarray,
+                     min_area: float = MIN_AREA) -> tuple[np.ndarray, np.ndarray]:
+    """Per triangle, the affine map taking its target corners onto its source corners, in its first corner's
+    frame: p -> source_0 + L (p - target_0) (no large translation to cancel, as in the float32 torch version).
+
+    source, target: (V, 2) float pixels; triangles: (T, 3) int -> (affines (T, 2, 4) float64: columns L (2x2),
+    target_0, source_0; usable (T,) bool: area >= ``min_area`` in both meshes, i.e. neither degenerate nor
+    folded). Unusable triangles get the identity."""
+    source, target = np.asarray(source, np.float64), np.asarray(target, np.float64)
+    usable = (signed_areas(target, triangles) >= min_area) & (signed_areas(source, triangles) >= min_area)
+    usable &= np.isfinite(source[triangles]).all(axis=(1, 2)) & np.isfinite(target[triangles]).all(axis=(1, 2))
+    target_corners, source_corners = target[triangles], source[triangles]  # (T, 3, 2)
+    target_edges = (target_corners[:, 1:] - target_corners[:, :1]).transpose(0, 2, 1)  # (T, 2, 2) edge columns
+    source_edges = (source_corners[:, 1:] - source_corners[:, :1]).transpose(0, 2, 1)
+    target_edges[~usable] = np.eye(2)
+    source_edges[~usable] = np.eye(2)
+    # L target_edges = source_edges, solved as target_edges^T L^T = source_edges^T
+    linear = np.linalg.solve(target_edges.transpose(0, 2, 1), source_edges.transpose(0, 2, 1)).transpose(0, 2, 1)
+    return np.concatenate([linear, target_corners[:, 0, :, None], source_corners[:, 0, :, None]], axis=2), usable
+
+
+def _edge_coefficients(corners: np.ndarray) -> np.ndarray:
+    """corners: (..., 3, 2) -> (..., 3, 3) rows (a, b, c) per edge u -> v with a x + b y + c = cross(v - u, p - u),
+    >= 0 for a pixel p inside a positively oriented triangle (edges included)."""
+    start, end = corners, np.roll(corners, -1, axis=-2)
+    a = -(end[..., 1] - start[..., 1])
+    b = end[..., 0] - start[..., 0]
+    c = -(a * start[..., 0] + b * start[..., 1])
+    return np.stack([a, b, c], axis=-1)
+
+
+def triangle_ranks(priority: np.ndarray | None, count: int) -> np.ndarray:
+    """(T,) rank of each triangle where triangles overlap: the highest rank wins a pixel. priority: (T,) float
+    (e.g. minus the target triangles' depth: the nearest wins), ties by index; None = the index itself."""
+    if priority is None:
+        return np.arange(count)
+    ranks = np.empty(count, np.int64)
+    ranks[np.argsort(np.asarray(priority, np.float64), kind="stable")] = np.arange(count)
+    return ranks
+
+
+def rasterise_triangles(vertices: np.ndarray, triangles: np.ndarray, usable: np.ndarray, height: int, width: int,
+                        priority: np.ndarray | None = None) -> np.ndarray:
+    """Which triangle holds each pixel centre: (V, 2), (T, 3), (T,) bool, H, W -> (H, W) int32, -1 = none.
+
+    A pixel under several triangles (an edge they share, or overlapping ones: a turned head's nose over its far
+    cheek) gets the one of highest ``triangle_ranks(priority)``. All candidate (triangle, pixel) pairs of the
+    triangles' bounding boxes are tested at once: ~2x the face's area of work."""
+    index = np.full((height, width), -1, np.int32)
+    chosen = np.flatnonzero(usable)
+    if chosen.size == 0:
+        return index
+    ranks = triangle_ranks(priority, len(triangles))
+    corners = np.asarray(vertices, np.float64)[triangles[chosen]]  # (n, 3, 2)
+    low = np.maximum(np.ceil(corners.min(1)), 0).astype(np.int64)  # (n, 2) first pixel x, y
+    high = np.minimum(np.floor(corners.max(1)), [width - 1, height - 1]).astype(np.int64)
+    spans = np.maximum(high - low + 1, 0)  # (n, 2)
+    counts = spans[:, 0] * spans[:, 1]
+    owner = np.repeat(np.arange(len(chosen)), counts)  # (pairs,) one per pixel of each bounding box
+    offset = np.arange(owner.size) - np.repeat(np.cumsum(counts) - counts, counts)
+    row_length = np.maximum(spans[owner, 0], 1)
+    xs = (low[owner, 0] + offset % row_length).astype(np.float64)
+    ys = (low[owner, 1] + offset // row_length).astype(np.float64)
+    edges = _edge_coefficients(corners).reshape(-1, 9)[owner]  # (pairs, 9): one gather, rows a, b, c per edge
+    inside = np.ones(owner.size, bool)
+    for edge in range(3):
+        a, b, c = edges[:, 3 * edge], edges[:, 3 * edge + 1], edges[:, 3 * edge + 2]
+        inside &= a * xs + b * ys + c >= 0
+    flat = (ys[inside] * width + xs[inside]).astype(np.int64)
+    winner = np.full(height * width, -1, np.int64)
+    np.maximum.at(winner, flat, ranks[chosen[owner[inside]]])  # the highest rank per pixel
+    by_rank = np.argsort(ranks)  # rank -> triangle
+    found = winner >= 0
+    index.reshape(-1)[found] = by_rank[winner[found]]
+    return index
+
+
+def rasterise_triangles_reference(vertices: np.ndarray, triangles: np.ndarray, usable: np.ndarray,
+                                  height: int, width: int, priority: np.ndarray | None = None) -> np.ndarray:
+    """Plain reference of ``rasterise_triangles``: every pixel against every triangle, one triangle at a time in
+    rank order (a later one overwrites)."""
+    index = np.full((height, width), -1, np.int32)
+    grid_y, grid_x = np.mgrid[0:height, 0:width].astype(np.float64)
+    for number in np.argsort(triangle_ranks(priority, len(triangles))):
+        if not usable[number]:
+            continue
+        edges = _edge_coefficients(np.asarray(vertices, np.float64)[triangles[number]])  # (3, 3)
+        inside = np.ones((height, width), bool)
+        for a, b, c in edges:
+            inside &= a * grid_x + b * grid_y + c >= 0
+        index[inside] = number
+    return index
+
+
+def piecewise_affine_reference(source: np.ndarray, target: np.ndarray, triangles: np.ndarray, usable: np.ndarray,
+                               point: tuple[float, float]) -> np.ndarray | None:
+    """Plain reference of the map inside the face, one pixel at a time: the source point with the same barycentric
+    coordinates in the source triangle as ``point`` has in the (largest-index, usable) target triangle holding it.
+    (V, 2), (V, 2), (T, 3), (T,) bool, (x, y) -> (2,) float64, or None outside every usable triangle."""
+    x, y = point
+    for number in reversed(range(len(triangles))):  # the default ranks: the larger index first
+        if not usable[number]:
+            continue
+        (ax, ay), (bx, by), (cx, cy) = np.asarray(target, np.float64)[triangles[number]]
+        area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        second = ((x - ax) * (cy - ay) - (y - ay) * (cx - ax)) / area  # weight of corner b
+        third = ((bx - ax) * (y - ay) - (by - ay) * (x - ax)) / area  # weight of corner c
+        if min(second, third, 1.0 - second - third) >= 0:
+            corners = np.asarray(source, np.float64)[triangles[number]]
+            return (1.0 - second - third) * corners[0] + second * corners[1] + third * corners[2]
+    return None
+
+
+def gaussian_kernel(feather: float) -> np.ndarray:
+    """The 1-D feathering kernel: Gaussian of sigma feather / 2, radius ceil(3 sigma), summing to 1 -> (taps,) float64."""
+    sigma = feather / 2.0
+    radius = max(1, math.ceil(3.0 * sigma))
+    taps = np.arange(-radius, radius + 1, dtype=np.float64)
+    kernel = np.exp(-0.5 * (taps / sigma) ** 2)
+    return kernel / kernel.sum()
+
+
+def _blur(values: np.ndarray, feather: float) -> np.ndarray:
+    """(H, W) or (H, W, C) float32 -> the same, blurred by ``gaussian_kernel`` (reflect-101 border)."""
+    kernel = gaussian_kernel(feather).astype(np.float32)
+    return cv2.sepFilter2D(values, cv2.CV_32F, kernel, kernel, borderType=cv2.BORDER_REFLECT_101)
+
+
+def feather_weights(inside: np.ndarray, feather: float = FEATHER, blurred: np.ndarray | None = None) -> np.ndarray:
+    """Weight of the piecewise-affine map: 0 outside the face and at its outline, rising to 1 about ``feather``
+    pixels inside: clip(2 * blur(inside) - 1, 0, 1), the blur Gaussian (``gaussian_kernel``, reflect-101 border),
+    snapped to 1 within ``WEIGHT_SNAP``. Around a dropped triangle among kept ones it dips the same way (a pixel of
+    a small hole keeps a weight: ``mesh_warp_map`` fills its correction). inside: (H, W) bool -> (H, W) float32;
+    blurred: blur(inside) when already at hand."""
+    mask = np.asarray(inside, np.float32)
+    if feather <= 0:
+        return mask
+    blurred = _blur(mask, feather) if blurred is None else blurred
+    weights = np.clip(2.0 * blurred - 1.0, 0.0, 1.0)
+    weights[weights > 1.0 - WEIGHT_SNAP] = 1.0  # the float32 blur of an all-ones patch is 1 - 1e-7: deep inside is exact
+    return weights
+
+
+@dataclasses.dataclass
+class MeshWarpMap:
+    """map_x, map_y: (H, W) float32 source coordinates (like ``landmarks.tps.WarpMap``); face_weight: (H, W) float32
+    weight of the piecewise-affine map (1 - weight: the TPS fallback); fallback: the TPS map used outside the face;
+    feather: the blend's width in pixels; triangles: usable / all triangles of the triangulation."""
+
+    map_x: np.ndarray
+    map_y: np.ndarray
+    face_weight: np.ndarray
+    fallback: tps.WarpMap
+    feather: float
+    usable_triangles: int
+    triangles: int
+
+    def valid(self, source_height: int, source_width: int) -> np.ndarray:
+        """(H, W) bool: the map samples inside the source image (``landmarks.tps.WarpMap.valid``'s test)."""
+        return tps.WarpMap.valid(self, source_height, source_width)  # type: ignore[arg-type]  # reads map_x, map_y
+
+
+def _check_mesh(mesh: np.ndarray, name: str) -> np.ndarray:
+    points = np.asarray(mesh, np.float64)
+    if points.ndim != 2 or points.shape[0] != MESH_POINTS or points.shape[1] not in (2, 3):
+        raise ValueError(f"{name} must be ({MESH_POINTS}, 2 or 3), got {points.shape}")
+    return points[:, :2]
+
+
+def mesh_warp_map(
+    source_mesh: np.ndarray,
+    target_mesh: np.ndarray,
+    height: int,
+    width: int,
+    *,
+    fallback: tps.WarpMap | None = None,
+    feather: float | None = None,
+    min_area: float = MIN_AREA,
+    regularization: float = tps.DEFAULT_REGULARIZATION,
+    grid_step: int = 1,
+) -> MeshWarpMap:
+    """The backward map of the warp that moves ``source_mesh`` onto ``target_mesh`` in an (H, W) frame (module
+    docstring): piecewise affine over the triangulation inside the target face, the 68-point TPS outside.
+
+    source_mesh, target_mesh: (468, 2 or 3) frame pixels; the target's depth, when given, decides which of two
+    overlapping triangles shows (the nearer one). fallback: the map outside the face; default
+    ``tps.tps_map`` of the meshes' 68 points (border fixed; ``regularization``, ``grid_step`` as there). feather:
+    the blend's width in pixels; None = ``FEATHER_IOD`` of the target's inter-ocular distance, at least ``FEATHER``.
+    """
+    source, target = _check_mesh(source_mesh, "source_mesh"), _check_mesh(target_mesh, "target_mesh")
+    if fallback is None:  # the meshes as given: with depth, the 68 points' jaw follows the head's yaw
+        fallback = tps.tps_map(mesh_to_68(np.asarray(source_mesh)), mesh_to_68(np.asarray(target_mesh)), height, width,
+                               regularization=regularization, grid_step=grid_step)
+    if fallback.map_x.shape != (height, width):
+        raise ValueError(f"fallback map must be ({height}, {width}), got {fallback.map_x.shape}")
+    if feather is None:
+        points = mesh_to_68(target).astype(np.float64)
+        feather = max(FEATHER, FEATHER_IOD * float(np.linalg.norm(points[36:42].mean(0) - points[42:48].mean(0))))
+    triangles = triangulation()
+    affines, usable = triangle_affines(source, target, triangles, min_area)
+    depth = np.asarray(target_mesh, np.float64)[:, 2] if np.shape(target_mesh)[1] == 3 else None
+    # where target triangles overlap (a turned head), the nearest one (smaller z) shows
+    priority = -depth[triangles].mean(1) if depth is not None and np.isfinite(depth).all() else None
+    index = rasterise_triangles(target, triangles, usable, height, width, priority)
+    inside = index >= 0
+    mask = inside.astype(np.float32)
+    blurred = _blur(mask, feather) if feather > 0 else mask
+    weight = feather_weights(inside, feather, blurred)
+    fallback_map = np.stack([fallback.map_x, fallback.map_y], axis=-1)  # (H, W, 2) float32
+    # the piecewise-affine map as a correction of the TPS: correction = affine(p) - fallback(p) on the triangles
+    correction = np.zeros((height, width, 2), np.float32)
+    rows, cols = np.nonzero(inside)
+    coefficients = affines.reshape(-1, 8)[index[rows, cols]]  # (n, 8): one gather of the 2x4 rows
+    dx, dy = cols - coefficients[:, 2], rows - coefficients[:, 6]  # p - target_0
+    affine_x = coefficients[:, 3] + coefficients[:, 0] * dx + coefficients[:, 1] * dy
+    affine_y = coefficients[:, 7] + coefficients[:, 4] * dx + coefficients[:, 5] * dy
+    correction[rows, cols] = np.stack([affine_x, affine_y], axis=-1) - fallback_map[rows, cols]
+    holes = (weight > 0) & ~inside
+    if holes.any():  # a dropped triangle's pixels: its kept neighbours' correction, Gaussian-averaged (no speck)
+        # blurred in a window reaching the kernel's radius past the holes: the same values as over the whole frame
+        reach = len(gaussian_kernel(feather)) // 2 + 1
+        hole_rows, hole_cols = np.nonzero(holes)
+        top, left = max(hole_rows.min() - reach, 0), max(hole_cols.min() - reach, 0)
+        bottom, right = min(hole_rows.max() + reach + 1, height), min(hole_cols.max() + reach + 1, width)
+        window = np.ascontiguousarray(correction[top:bottom, left:right])
+        averaged = _blur(window, feather) / np.maximum(blurred[top:bottom, left:right], 1e-6)[..., None]
+        correction[hole_rows, hole_cols] = averaged[hole_rows - top, hole_cols - left]
+    moved = fallback_map + weight[..., None] * correction
+    return MeshWarpMap(moved[..., 0], moved[..., 1], weight, fallback, float(feather), int(usable.sum()), len(triangles))
+
+
+def warp_mesh(image: np.ndarray, source_mesh: np.ndarray, target_mesh: np.ndarray,
+              **settings: Any) -> tuple[np.ndarray, MeshWarpMap]:
+    """Warp ``image`` so that ``source_mesh`` lands on ``target_mesh`` (``mesh_warp_map``, then bicubic ``cv2.remap``
+    as ``landmarks.tps`` does). image: (H, W, 3) uint8 -> ((H, W, 3) uint8, the map)."""
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"image must be (H, W, 3) uint8, got {image.shape} {image.dtype}")
+    warp = mesh_warp_map(source_mesh, target_mesh, image.shape[0], image.shape[1], **settings)
+    moved = cv2.remap(image, warp.map_x, warp.map_y, tps.INTERPOLATION, borderMode=cv2.BORDER_REPLICATE)
+    return moved, warp
+
+
+# ---- cross-identity driving --------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=1)
+def spreading_weights() -> np.ndarray:
+    """(468, 68) float64: how a displacement of the 68 points spreads onto the mesh vertices (``retarget_mesh``).
+
+    Inverse-square-distance weights over each vertex's ``INTERPOLATION_NEIGHBOURS`` nearest 68 points on the
+    canonical mesh, whose mouth is open (the mean of talking faces), so lower-lip vertices follow the lower lip."""
+    canonical = frontal_canonical()
+    points = mesh_to_68(canonical).astype(np.float64)
+    distances = np.linalg.norm(canonical[:, None] - points[None], axis=-1)  # (468, 68)
+    nearest = np.argsort(distances, axis=1)[:, :INTERPOLATION_NEIGHBOURS]
+    weights = np.zeros_like(distances)
+    rows = np.arange(len(canonical))[:, None]
+    weights[rows, nearest] = 1.0 / np.maximum(distances[rows, nearest], 1e-3) ** 2
+    return weights / weights.sum(1, keepdims=True)
+
+
+def retarget_mesh(driver_meshes: np.ndarray, driver_reference: np.ndarray, source_mesh: np.ndarray,
+                  corrections: int = 3) -> np.ndarray:
+    """What ``landmarks.retarget.retarget_driving`` does to 68 points, done to the 468 mesh vertices: the driver's
+    motion relative to its reference frame moved onto the source (``retarget_relative``'s steps, with the
+    similarities fitted on the meshes' 68 points, ``RIGID_INDEX``), then the mouth as open as the driver's: the
+    68 points' change that ``landmarks.expression.set_mouth_opening`` makes is spread onto the vertices
+    (``spreading_weights``), ``corrections`` times, so that the mesh's inner lips land where it put them.
+
+    driver_meshes: (T, 468, >=2), NaN frames stay NaN; driver_reference: (468, >=2) the driver frame that maps
+    onto the source; source_mesh: (468, >=2) -> (T, 468, 2) float64. Purely 2D: the meshes' 68 points are taken
+    without depth (the jaw's yaw-0 weights), so the jaw follows the mesh's skin, not the silhouette.
+    """
+    from landmarks.expression import mouth_opening, set_mouth_opening
+    from landmarks.retarget import RIGID_INDEX, apply_similarity, similarity_procrustes
+
+    frames = np.asarray(driver_meshes, np.float64)[..., :2]
+    if frames.ndim != 3 or frames.shape[1] != MESH_POINTS:
+        raise ValueError(f"driver_meshes must be (T, {MESH_POINTS}, 2 or 3), got {np.shape(driver_meshes)}")
+    reference, source = _check_mesh(driver_reference, "driver_reference"), _check_mesh(source_mesh, "source_mesh")
+    if not (np.isfinite(reference).all() and np.isfinite(source).all()):
+        raise ValueError("driver_reference and source_mesh must be finite")
+    rigid = list(RIGID_INDEX)
+
+    def points(mesh: np.ndarray) -> np.ndarray:
+        return mesh_to_68(mesh).astype(np.float64)
+
+    def fit(first: np.ndarray, second: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        return similarity_procrustes(points(first)[rigid], points(second)[rigid])
+
+    def invert(scale: float, rotation: np.ndarray, translation: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        return 1.0 / scale, rotation.T, -(rotation.T @ translation) / scale
+
+    place = fit(reference, source)  # retarget_relative's steps 1-5, on every vertex
+    place_linear = place[0] * place[1]
+    output = np.full_like(frames, np.nan)
+    found = np.isfinite(frames).all(axis=(1, 2))
+    for index in np.flatnonzero(found):
+        motion = fit(reference, frames[index])
+        delta = apply_similarity(frames[index], *invert(*motion)) - reference
+        expressive = source + delta @ place_linear.T
+        output[index] = apply_similarity(apply_similarity(apply_similarity(expressive, *invert(*place)), *motion), *place)
+    if not found.any():
+        return output
+    # retarget_driving's mouth: the driver's opening, made on the 68 points and spread onto the vertices
+    targets = set_mouth_opening(points(output[found]), mouth_opening(points(frames[found])))
+    spread = spreading_weights()
+    moved = output[found]
+    for _ in range(corrections):
+        moved = moved + np.einsum("vp,tpc->tvc", spread, targets - points(moved))
+    output[found] = moved
+    return output
