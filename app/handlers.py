@@ -295,6 +295,7 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
     if len(paths) > MAX_K:
         raise InputFileError(f"{len(paths)} images uploaded; give at most {MAX_K} shots (K <= {MAX_K})")
     frames, points, names, notes = [], [], [], []
+    meshes: list = []
     unreadable, full_frames = [], {}
     for path in paths:  # one image = one candidate shot; a face-less or unreadable one is skipped, not fatal
         try:
@@ -308,13 +309,15 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
             continue
         frames.append(one.frames[0])
         points.append(one.landmarks[0])
+        meshes.append(None if one.meshes is None else one.meshes[0])
         names.append(path.name)
         full_frames[path.name] = (one.anchor_frame, one.anchor_frame_landmarks)  # the scene, if it is the anchor
     if not frames:
         if len(unreadable) == len(paths):
             raise unreadable[0]
         raise NoFaceError(f"no face found in the {len(paths)} uploaded image(s); upload frontal, well-lit photos of one person")
-    shots = set_anchor(spread_shots(SubjectShots(np.stack(frames), np.stack(points), names), int(k)),
+    all_meshes = np.stack(meshes) if all(mesh is not None for mesh in meshes) else None
+    shots = set_anchor(spread_shots(SubjectShots(np.stack(frames), np.stack(points), names, meshes=all_meshes), int(k)),
                        full_frames=full_frames)
     notes.insert(0, f"using {len(shots.frames)} of {len(frames)} shot(s) with a face (K={k})")
     return shots, notes

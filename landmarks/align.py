@@ -117,6 +117,14 @@ def transform_landmarks(landmarks: np.ndarray, matrix: np.ndarray) -> np.ndarray
     return points @ matrix[:, :2].T + matrix[:, 2]
 
 
+def transform_mesh(mesh: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """Apply a similarity M ((2, 3): rotation and uniform scale, as a crop transform) to a (..., 468, 3) mesh: x, y
+    as points, depth scaled by the same factor. NaN stays NaN."""
+    mesh = np.asarray(mesh, dtype=np.float64)
+    scale = float(np.sqrt(abs(np.linalg.det(_check_affine(matrix)[:, :2]))))
+    return np.concatenate([transform_landmarks(mesh[..., :2], matrix), mesh[..., 2:3] * scale], axis=-1)
+
+
 def invert_affine(matrix: np.ndarray) -> np.ndarray:
     """Inverse of a (2, 3) affine (crop -> frame for a crop transform). Raises on a singular one."""
     matrix = _check_affine(matrix)

@@ -40,12 +40,14 @@ class Face:
     """One detected face.
 
     box: (4,) float32 x0, y0, x1, y1 (x1, y1 exclusive); landmarks: (68, 2) float32 x, y;
-    score: detector confidence (HOG SVM margin or mmod confidence).
+    score: detector confidence (HOG SVM margin, mmod confidence, or BlazeFace probability);
+    mesh: (468, 3) float32 face mesh in the same pixels (the mesh detector's), else None.
     """
 
     box: np.ndarray
     landmarks: np.ndarray
     score: float
+    mesh: np.ndarray | None = None
 
     @property
     def area(self) -> float:

@@ -71,7 +71,7 @@ class MeshDetector(FaceDetector):
 
     def detect(self, image: np.ndarray | str | os.PathLike[str]) -> list[Face]:
         return [
-            Face(box=detection.box, landmarks=mesh_to_68(result.mesh), score=detection.score)
+            Face(box=detection.box, landmarks=mesh_to_68(result.mesh), score=detection.score, mesh=result.mesh)
             for detection, result in self.meshes(image)
         ]
 

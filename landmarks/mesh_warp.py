@@ -333,6 +333,48 @@ def _check_mesh(mesh: np.ndarray, name: str) -> np.ndarray:
     return points[:, :2]
 
 
+@dataclasses.dataclass(frozen=True)
+class TargetLayout:
+    """What a warp onto one target mesh needs of the target alone, made once for several sources
+    (``target_layout``; the references of a frame). index: (H, W) int32 triangle per pixel (-1: none), rasterised
+    over the triangles usable in the target; weight: (H, W) float32 feathered weight; blurred: the blurred mask;
+    feather: the blend's width in pixels."""
+
+    index: np.ndarray
+    weight: np.ndarray
+    blurred: np.ndarray
+    feather: float
+
+
+def _feather_of(target: np.ndarray, feather: float | None) -> float:
+    if feather is not None:
+        return feather
+    points = mesh_to_68(target).astype(np.float64)
+    return max(FEATHER, FEATHER_IOD * float(np.linalg.norm(points[36:42].mean(0) - points[42:48].mean(0))))
+
+
+def _layout(target: np.ndarray, depth: np.ndarray | None, usable: np.ndarray, height: int, width: int,
+            feather: float) -> TargetLayout:
+    triangles = triangulation()
+    # where target triangles overlap (a turned head), the nearest one (smaller z) shows
+    priority = -depth[triangles].mean(1) if depth is not None and np.isfinite(depth).all() else None
+    index = rasterise_triangles(target, triangles, usable, height, width, priority)
+    inside = index >= 0
+    mask = inside.astype(np.float32)
+    blurred = _blur(mask, feather) if feather > 0 else mask
+    return TargetLayout(index, feather_weights(inside, feather, blurred), blurred, float(feather))
+
+
+def target_layout(target_mesh: np.ndarray, height: int, width: int, *, feather: float | None = None,
+                  min_area: float = MIN_AREA) -> TargetLayout:
+    """The target's share of ``mesh_warp_map`` for several sources: triangles kept when usable in the target (a
+    source's folded triangles then become holes, filled as a dropped triangle's are)."""
+    target = _check_mesh(target_mesh, "target_mesh")
+    usable = (signed_areas(target, triangulation()) >= min_area) & np.isfinite(target[triangulation()]).all(axis=(1, 2))
+    depth = np.asarray(target_mesh, np.float64)[:, 2] if np.shape(target_mesh)[1] == 3 else None
+    return _layout(target, depth, usable, height, width, _feather_of(target, feather))
+
+
 def mesh_warp_map(
     source_mesh: np.ndarray,
     target_mesh: np.ndarray,
@@ -344,6 +386,7 @@ def mesh_warp_map(
     min_area: float = MIN_AREA,
     regularization: float = tps.DEFAULT_REGULARIZATION,
     grid_step: int = 1,
+    layout: TargetLayout | None = None,
 ) -> MeshWarpMap:
     """The backward map of the warp that moves ``source_mesh`` onto ``target_mesh`` in an (H, W) frame (module
     docstring): piecewise affine over the triangulation inside the target face, the 68-point TPS outside.
@@ -352,6 +395,7 @@ def mesh_warp_map(
     overlapping triangles shows (the nearer one). fallback: the map outside the face; default
     ``tps.tps_map`` of the meshes' 68 points (border fixed; ``regularization``, ``grid_step`` as there). feather:
     the blend's width in pixels; None = ``FEATHER_IOD`` of the target's inter-ocular distance, at least ``FEATHER``.
+    layout: ``target_layout`` of this target, shared by several sources (then ``feather`` is the layout's).
     """
     source, target = _check_mesh(source_mesh, "source_mesh"), _check_mesh(target_mesh, "target_mesh")
     if fallback is None:  # the meshes as given: with depth, the 68 points' jaw follows the head's yaw
@@ -359,19 +403,16 @@ def mesh_warp_map(
                                regularization=regularization, grid_step=grid_step)
     if fallback.map_x.shape != (height, width):
         raise ValueError(f"fallback map must be ({height}, {width}), got {fallback.map_x.shape}")
-    if feather is None:
-        points = mesh_to_68(target).astype(np.float64)
-        feather = max(FEATHER, FEATHER_IOD * float(np.linalg.norm(points[36:42].mean(0) - points[42:48].mean(0))))
     triangles = triangulation()
     affines, usable = triangle_affines(source, target, triangles, min_area)
-    depth = np.asarray(target_mesh, np.float64)[:, 2] if np.shape(target_mesh)[1] == 3 else None
-    # where target triangles overlap (a turned head), the nearest one (smaller z) shows
-    priority = -depth[triangles].mean(1) if depth is not None and np.isfinite(depth).all() else None
-    index = rasterise_triangles(target, triangles, usable, height, width, priority)
+    if layout is None:
+        depth = np.asarray(target_mesh, np.float64)[:, 2] if np.shape(target_mesh)[1] == 3 else None
+        layout = _layout(target, depth, usable, height, width, _feather_of(target, feather))
+        index = layout.index
+    else:  # the shared raster: this source's unusable (folded) triangles are holes
+        index = np.where((layout.index >= 0) & usable[np.maximum(layout.index, 0)], layout.index, -1)
+    feather, blurred, weight = layout.feather, layout.blurred, layout.weight
     inside = index >= 0
-    mask = inside.astype(np.float32)
-    blurred = _blur(mask, feather) if feather > 0 else mask
-    weight = feather_weights(inside, feather, blurred)
     fallback_map = np.stack([fallback.map_x, fallback.map_y], axis=-1)  # (H, W, 2) float32
     # the piecewise-affine map as a correction of the TPS: correction = affine(p) - fallback(p) on the triangles
     correction = np.zeros((height, width, 2), np.float32)
@@ -476,3 +517,43 @@ def retarget_mesh(driver_meshes: np.ndarray, driver_reference: np.ndarray, sourc
         moved = moved + np.einsum("vp,tpc->tvc", spread, targets - points(moved))
     output[found] = moved
     return output
+
+
+# ---- the warp-guided generator's references -----------------------------------------------------------------
+
+
+def warp_references_mesh(shots: np.ndarray, shot_meshes: np.ndarray, shot_landmarks: np.ndarray,
+                         target_mesh: np.ndarray, target_landmarks: np.ndarray, count: int, *,
+                         grid_step: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``landmarks.tps.warp_references`` over the face mesh: the ``count`` nearest shots (by the 68 points, the same
+    choice), each warped piecewise-affine over the mesh inside the face and by the 68-point TPS outside
+    (``mesh_warp_map``). What depends on the target alone is made once: the TPS system (``tps.tps_maps``, on a
+    coarse grid as the TPS references) and the face's raster and feathering (``target_layout``). A shot without a
+    mesh (NaN) is warped by the TPS alone.
+
+    shots: (K, S, S, 3) uint8; shot_meshes: (K, 468, 3); shot_landmarks: (K, 68, 2); target_mesh: (468, 3);
+    target_landmarks: (68, 2), all in the shots' pixels. -> (warped (count, S, S, 3) uint8, masks (count, S, S)
+    float32 in {0, 1}, indices (count,) int), as ``landmarks.tps.warp_references``.
+    """
+    shots = np.asarray(shots)
+    if shots.ndim != 4 or shots.shape[-1] != 3 or shots.dtype != np.uint8:
+        raise ValueError(f"shots must be (K, S, S, 3) uint8, got {shots.shape} {shots.dtype}")
+    if count < 1:
+        raise ValueError(f"count must be >= 1, got {count}")
+    indices = np.resize(tps.nearest_shots(shot_landmarks, target_landmarks, count), count)  # repeat when K < count
+    height, width = shots.shape[1:3]
+    unique = [int(index) for index in dict.fromkeys(indices.tolist())]  # a repeated shot (K < count) is warped once
+    fallbacks = tps.tps_maps([shot_landmarks[index] for index in unique], target_landmarks, height, width,
+                             grid_step=grid_step)
+    layout = target_layout(target_mesh, height, width)
+    warped_by_shot, mask_by_shot = {}, {}
+    for index, fallback in zip(unique, fallbacks):
+        warp = fallback
+        if np.isfinite(shot_meshes[index]).all():
+            warp = mesh_warp_map(shot_meshes[index], target_mesh, height, width, fallback=fallback, layout=layout)
+        warped_by_shot[index] = cv2.remap(shots[index], warp.map_x, warp.map_y, tps.INTERPOLATION,
+                                          borderMode=cv2.BORDER_REPLICATE)
+        mask_by_shot[index] = warp.valid(height, width)
+    warped = np.stack([warped_by_shot[int(index)] for index in indices])
+    masks = np.stack([mask_by_shot[int(index)] for index in indices]).astype(np.float32)
+    return warped, masks, indices

@@ -324,6 +324,9 @@ class EvalConfig:
     """Seed of the K-shot sampling."""
     detector: Literal["mesh", "hog", "cnn"] = "mesh"
     """Face detector for ground-truth and output landmarks: mesh (MediaPipe, what reenact uses by default) or dlib's."""
+    reference_warps: tuple[Literal["mesh", "tps"], ...] = ("mesh",)
+    """How warp-guided models' references are warped: mesh (over the face mesh, needs --detector mesh) or tps (the
+    68-point TPS); more than one adds a row per extra choice ("+tps-refs"), in the same run."""
     detector_upsample: int = 1
     """dlib only: pyramid upsampling; 1 finds the faces of 224-px crops at 1/4 the cost of 2."""
     bucket_thresholds: tuple[float, ...] = ()
@@ -369,6 +372,8 @@ class EvalConfig:
             raise ConfigError(f"--k needs values >= 1, got {self.k}")
         if not self.methods and not self.weights:
             raise ConfigError("--methods needs at least one of nearest_shot, tps, tps_mean3, mesh, mesh_mean3 (or give --weights)")
+        if not self.reference_warps:
+            raise ConfigError("--reference-warps needs at least one of mesh, tps")
         for folder in self.weights:
             check_weights(folder)
         if self.finetune_steps < 0 or not self.finetune_lr > 0:

@@ -165,6 +165,9 @@ class Reenactor(ReenactorBase):
         return error
 
 
-def subject_shots_from_training(frames: np.ndarray, landmarks: np.ndarray) -> SubjectShots:
-    """Wrap already-cropped shots ((K, S, S, 3) uint8, (K, 68, 2) crop pixels) for ``encode_subject``."""
-    return SubjectShots(np.asarray(frames, np.uint8), np.asarray(landmarks, np.float32), [f"shot#{i}" for i in range(len(frames))])
+def subject_shots_from_training(frames: np.ndarray, landmarks: np.ndarray, meshes: np.ndarray | None = None) -> SubjectShots:
+    """Wrap already-cropped shots ((K, S, S, 3) uint8, (K, 68, 2) crop pixels, optionally (K, 468, 3) meshes in
+    the same pixels) for ``encode_subject``."""
+    return SubjectShots(np.asarray(frames, np.uint8), np.asarray(landmarks, np.float32),
+                        [f"shot#{i}" for i in range(len(frames))],
+                        meshes=None if meshes is None else np.asarray(meshes, np.float32))

@@ -91,6 +91,14 @@ class Subject:
         """(68, 2) crop landmarks of the anchor shot (the most neutral): the face relative motion is applied to."""
         return self.shots.landmarks[self.shots.anchor]
 
+    @property
+    def reference_mesh(self) -> np.ndarray | None:
+        """(468, 3) crop mesh of the anchor shot, or None when the shots have no meshes."""
+        meshes = self.shots.meshes
+        if meshes is None or not np.isfinite(meshes[self.shots.anchor]).all():
+            return None
+        return meshes[self.shots.anchor]
+
 
 @dataclasses.dataclass
 class ReenactedFrame:
@@ -195,6 +203,10 @@ class ReenactorBase:
         self.crop_size = crop_size or default_crop_size(backend)
         self._detector_spec = detector
         self._detector = None
+        self._mesh_reference: np.ndarray | None = None
+        self.reference_warp: str = "mesh"
+        """How a warp-guided model's references are warped when meshes are at hand: "mesh" (piecewise affine over
+        the face mesh, TPS outside) or "tps" (the 68-point TPS everywhere)."""
         self.subject: Subject | None = None
         self.last_stats = ReenactStats()
 
@@ -269,16 +281,18 @@ class ReenactorBase:
     # ---- frames ----------------------------------------------------------------------------------------
     def synthesize_crop(
         self, crop_landmarks: np.ndarray, with_layout: bool = False, latents: tuple[np.ndarray, np.ndarray] | None = None,
-        subject: Subject | None = None,
+        subject: Subject | None = None, crop_mesh: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Target landmarks (68, 2) in crop pixels -> (synthesis (C, C, 3) uint8, landmark image (S, S, 3) uint8, layout).
 
-        C is ``crop_size``, S the model resolution. A warp-guided model also gets the nearest shots TPS-warped
-        onto the target at C (``landmarks.tps.warp_references``) and blends them with its own image at C.
+        C is ``crop_size``, S the model resolution. A warp-guided model also gets the nearest shots warped onto the
+        target at C and blends them with its own image at C: over the face mesh when ``reference_warp`` is "mesh"
+        and both the target (``crop_mesh``, (468, 3) crop pixels) and the shots have meshes
+        (``landmarks.mesh_warp.warp_references_mesh``), else by the 68-point TPS (``landmarks.tps.warp_references``).
         latents: (layout_latent, style_latent), (1, D) each, in place of the subject's (e.g. one shot's alone).
         subject: an encoded subject other than the cached one (a live stream's own, ``lsr.core.live``).
         """
-        landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject)
+        landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject, crop_mesh)
         image, layout = self.synthesize_inputs(inputs, with_layout)
         return image, landmark_image, layout
 
@@ -292,7 +306,8 @@ class ReenactorBase:
         return from_network(image[0]), None if layout is None else np.asarray(layout[0], np.float32)
 
     def network_inputs(self, crop_landmarks: np.ndarray, latents: tuple[np.ndarray, np.ndarray] | None = None,
-                       subject: Subject | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+                       subject: Subject | None = None, crop_mesh: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """What the frame network gets for target landmarks (68, 2) in crop pixels: (landmark image (S, S, 3) uint8,
         the named inputs of the frame graph: landmark_image (1, 3, S, S), layout_latent and style_latent (1, D), and
         for a warp-guided model references (1, N, 3, C, C) and reference_masks (1, N, 1, C, C))."""
@@ -304,10 +319,16 @@ class ReenactorBase:
         inputs = {"landmark_image": to_network(landmark_image)[None], "layout_latent": layout_latent,
                   "style_latent": style_latent}
         if self.warp_references:
-            from landmarks.tps import warp_references
+            shots = subject.shots
+            if self.reference_warp == "mesh" and crop_mesh is not None and shots.meshes is not None:
+                from landmarks.mesh_warp import warp_references_mesh
 
-            warped, valid, _ = warp_references(subject.shots.frames, subject.shots.landmarks, crop_landmarks,
-                                               self.warp_references)
+                warped, valid, _ = warp_references_mesh(shots.frames, shots.meshes, shots.landmarks, crop_mesh,
+                                                        crop_landmarks, self.warp_references)
+            else:
+                from landmarks.tps import warp_references
+
+                warped, valid, _ = warp_references(shots.frames, shots.landmarks, crop_landmarks, self.warp_references)
             inputs["references"], inputs["reference_masks"] = to_network(warped)[None], valid[None, :, None]
         return landmark_image, inputs
 
@@ -369,6 +390,31 @@ class ReenactorBase:
 
     __call__ = reenact
 
+    def _driving_mesh(self, mesh: np.ndarray | None, raw_points: np.ndarray, points: np.ndarray, matrix: np.ndarray,
+                      relative: bool) -> np.ndarray | None:
+        """The driver's mesh in crop pixels, moved with the 68 points' smoothing and retargeted as they are, for the
+        references' mesh warp; None when it is not needed (no warp-guided model, no meshes) or not at hand."""
+        subject = self._require_subject()
+        if (not self.warp_references or self.reference_warp != "mesh" or mesh is None or subject.shots.meshes is None
+                or not np.isfinite(mesh).all()):
+            return None
+        from landmarks.align import transform_mesh
+        from landmarks.mesh_warp import retarget_mesh, spreading_weights
+
+        mesh = np.asarray(mesh, np.float64).copy()
+        # the One-Euro filter moved the 68 points: carry that shift onto the vertices near them
+        mesh[:, :2] += spreading_weights() @ (np.asarray(points, np.float64) - raw_points)
+        crop_mesh = transform_mesh(mesh, matrix)
+        if not relative:
+            return crop_mesh
+        if self._mesh_reference is None:
+            self._mesh_reference = crop_mesh
+        source = subject.reference_mesh
+        if source is None:
+            return None
+        moved = retarget_mesh(crop_mesh[None], self._mesh_reference, source)[0]  # (468, 2)
+        return np.concatenate([moved, crop_mesh[:, 2:3]], axis=1)
+
     def _retarget(self, crop_landmarks: np.ndarray, reference: np.ndarray | None, relative: bool) -> np.ndarray:
         from landmarks.retarget import retarget_driving
 
@@ -378,15 +424,19 @@ class ReenactorBase:
         # the mouth exactly as open as the driver's.
         return retarget_driving(crop_landmarks, reference, self._require_subject().reference_landmarks)
 
-    def _into_scene(self, scenes, target: np.ndarray, with_layout: bool, stats: ReenactStats):
-        """Synthesise the target (anchor crop pixels) at the next scene frame's head pose and composite it there:
-        (output frame, synthesis, landmark image, layout, target in that frame's crop pixels)."""
+    def _into_scene(self, scenes, target: np.ndarray, with_layout: bool, stats: ReenactStats,
+                    target_mesh: np.ndarray | None = None):
+        """Synthesise the target (anchor crop pixels; its mesh, when there is one) at the next scene frame's head
+        pose and composite it there: (output frame, synthesis, landmark image, layout, target in that frame's crop
+        pixels)."""
         started = time.perf_counter()
         scene = next(scenes)
         stats.add("decode", time.perf_counter() - started)
         target = scene.place(target)  # a video source whose face was not found yet: the anchor's place
+        if target_mesh is not None:
+            target_mesh = scene.place_mesh(target_mesh)
         started = time.perf_counter()
-        synthesis, landmark_image, layout = self.synthesize_crop(target, with_layout)
+        synthesis, landmark_image, layout = self.synthesize_crop(target, with_layout, crop_mesh=target_mesh)
         stats.add("synthesis", time.perf_counter() - started)
         if scene.landmarks is None:
             return scene.image, synthesis, landmark_image, layout, target
@@ -436,10 +486,13 @@ class ReenactorBase:
         tracker = make_tracker(self.detector)
         one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
         reference = None
+        self._mesh_reference = None  # the driver's first mesh (crop pixels): its motion is what moves the source's
         def tracked():  # decoding and tracking on a thread, a few frames ahead of the synthesis
             for frame in iter_driver_frames(info):
                 started = time.perf_counter()
-                yield frame, tracker.update(frame), time.perf_counter() - started
+                points = tracker.update(frame)
+                mesh = getattr(tracker, "mesh", None)  # the mesh tracker's (468, 3); dlib's gives none
+                yield frame, points, mesh, time.perf_counter() - started
 
         frames = prefetch(tracked())
         index = 0
@@ -449,15 +502,17 @@ class ReenactorBase:
             stats.add("decode", time.perf_counter() - started)  # what the synthesis waited for
             if item is None:
                 break
-            frame, points, tracking_seconds = item
+            frame, points, mesh, tracking_seconds = item
             started = time.perf_counter() - tracking_seconds
+            raw_points = points
             if points is not None and one_euro is not None:
                 points = one_euro(points)
-            matrix = crop_landmarks = None
+            matrix = crop_landmarks = crop_mesh = None
             if points is not None and np.isfinite(points).all():
                 matrix = crop_transform(points, size)
                 crop_landmarks = transform_landmarks(points, matrix)
                 reference = crop_landmarks if reference is None else reference
+                crop_mesh = self._driving_mesh(mesh, raw_points, points, matrix, relative)
                 crop_landmarks = self._retarget(crop_landmarks, reference, relative)
             elif one_euro is not None:
                 one_euro.reset()  # never smooth across a gap
@@ -475,12 +530,12 @@ class ReenactorBase:
             stats.frames += 1
             if scenes is not None:
                 output, synthesis, landmark_image, layout, crop_landmarks = self._into_scene(
-                    scenes, crop_landmarks, with_layout, stats)
+                    scenes, crop_landmarks, with_layout, stats, crop_mesh)
                 yield ReenactedFrame(index, output, True, frame, landmark_image, synthesis, layout, crop_landmarks)
                 index += 1
                 continue
             started = time.perf_counter()
-            synthesis, landmark_image, layout = self.synthesize_crop(crop_landmarks, with_layout)
+            synthesis, landmark_image, layout = self.synthesize_crop(crop_landmarks, with_layout, crop_mesh=crop_mesh)
             stats.add("synthesis", time.perf_counter() - started)
             output = synthesis
             if paste_back:  # into the driver's own frame: its head and scene around the synthesised face
@@ -518,7 +573,12 @@ def resize_shots(shots: SubjectShots, size: int) -> SubjectShots:
         return shots
     interpolation = cv2.INTER_AREA if crop > size else cv2.INTER_LINEAR
     frames = np.stack([cv2.resize(frame, (size, size), interpolation=interpolation) for frame in shots.frames])
-    return dataclasses.replace(shots, frames=frames, landmarks=scale_points(shots.landmarks, size / crop).astype(np.float32))
+    meshes = None
+    if shots.meshes is not None:  # x, y as the landmarks; depth by the same factor
+        meshes = np.concatenate([scale_points(shots.meshes[..., :2], size / crop), shots.meshes[..., 2:] * (size / crop)],
+                                axis=-1).astype(np.float32)
+    return dataclasses.replace(shots, frames=frames, landmarks=scale_points(shots.landmarks, size / crop).astype(np.float32),
+                               meshes=meshes)
 
 
 def _source_key(source) -> str | None:

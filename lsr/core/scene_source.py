@@ -48,6 +48,15 @@ class SceneFrame:
 
         return crop_landmarks if self.motion is None else apply_similarity(crop_landmarks, *self.motion)
 
+    def place_mesh(self, crop_mesh: np.ndarray) -> np.ndarray:
+        """``place`` for a (468, 3) mesh: x, y as points, depth scaled with them."""
+        from landmarks.retarget import apply_similarity
+
+        if self.motion is None:
+            return crop_mesh
+        scale = float(self.motion[0])
+        return np.concatenate([apply_similarity(crop_mesh[:, :2], *self.motion), crop_mesh[:, 2:3] * scale], axis=1)
+
 
 class SourceScene:
     """An endless stream of ``SceneFrame``s of a subject's source (module docstring)."""

@@ -68,6 +68,10 @@ class SubjectShots:
     """(68, 2) float64: the anchor's landmarks in ``anchor_frame`` pixels."""
     video: Path | None = None
     """The source video, when the source is one: its frames, in order, are the scene."""
+    meshes: np.ndarray | None = None
+    """(K, 468, 3) float32 face meshes in crop pixels (the mesh detector's; NaN rows: none), or None (dlib's
+    detector, or shots given as crops with landmarks only): a warp-guided model then warps its references by
+    the 68-point TPS alone."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,6 +101,7 @@ def spread_shots(shots: SubjectShots, k: int) -> SubjectShots:
     names = [shots.names[i] for i in chosen] if len(shots.names) == len(shots.frames) else shots.names
     lost = shots.anchor not in chosen  # its frame went with its shot: anchor 0, composited into its crop
     return dataclasses.replace(shots, frames=shots.frames[chosen], landmarks=shots.landmarks[chosen], names=names,
+                               meshes=None if shots.meshes is None else shots.meshes[chosen],
                                anchor=0 if lost else chosen.index(shots.anchor),
                                anchor_frame=None if lost else shots.anchor_frame,
                                anchor_frame_landmarks=None if lost else shots.anchor_frame_landmarks)
@@ -178,7 +183,7 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
     Raises ``NoFaceError`` when no candidate has a face, ``InputFileError`` for unreadable input, K too large or
     an anchor outside 0..K-1.
     """
-    from landmarks.align import crop, transform_landmarks
+    from landmarks.align import crop, transform_landmarks, transform_mesh
     from landmarks.detectors import make_detector
     from landmarks.scene import face_side
 
@@ -187,6 +192,7 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
         raise InputFileError(f"face index must be >= 0, got {face_index}")
     detector = detector if detector is not None else make_detector()
     frames, points, names, tried, unreadable, crowded, too_few, min_faces = [], [], [], [], [], 0, 0, []
+    meshes: list[np.ndarray | None] = []
     frame_points, arrays = [], {}
     for name, image in _source_candidates(source, k):
         tried.append(name)
@@ -205,6 +211,7 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
         cropped, matrix = crop(image, face.landmarks, size)
         frames.append(cropped)
         points.append(transform_landmarks(face.landmarks, matrix).astype(np.float32))
+        meshes.append(None if face.mesh is None else transform_mesh(face.mesh, matrix).astype(np.float32))
         frame_points.append(np.asarray(face.landmarks, np.float64))
         names.append(name)
         if name.startswith("array#"):
@@ -235,7 +242,8 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
         )
     chosen = _spread(len(frames), k or DEFAULT_K)
     shots = SubjectShots(
-        np.stack([frames[i] for i in chosen]), np.stack([points[i] for i in chosen]), [names[i] for i in chosen], notes
+        np.stack([frames[i] for i in chosen]), np.stack([points[i] for i in chosen]), [names[i] for i in chosen], notes,
+        meshes=np.stack([meshes[i] for i in chosen]) if all(meshes[i] is not None for i in chosen) else None,
     )
     sides = [face_side(frame_points[i]) for i in chosen]
     if np.median(sides) < size:

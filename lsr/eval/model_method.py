@@ -65,6 +65,14 @@ def load_eval_model(weights: str | os.PathLike):
     return model.eval().requires_grad_(False)
 
 
+def _scale_mesh(mesh: np.ndarray, scale: float) -> np.ndarray:
+    """(..., 468, 3) mesh between crop sides: x, y as ``scale_points``, depth times ``scale``."""
+    from lsr.core.engine import scale_points
+
+    mesh = np.asarray(mesh, np.float64)
+    return np.concatenate([scale_points(mesh[..., :2], scale), mesh[..., 2:] * scale], axis=-1)
+
+
 class LsrModelMethod:
     """weights: model folder (config.json + model.safetensors). finetune_steps: steps of subject
     fine-tuning when the runner asks for the fine-tuned variant (0 = the method has no ``finetune``).
@@ -72,9 +80,11 @@ class LsrModelMethod:
     ``target_segmentations`` in ``reenact``."""
 
     def __init__(self, weights: str | os.PathLike, *, device: str = "cpu", finetune_steps: int = 0,
-                 finetune_lr: float = DEFAULT_FINETUNE_LR, name: str | None = None, reenactor=None) -> None:
+                 finetune_lr: float = DEFAULT_FINETUNE_LR, name: str | None = None, reenactor=None,
+                 reference_warp: str = "mesh") -> None:
         """reenactor: a ready ``ReenactorBase`` (e.g. ``deploy.runtime.OnnxReenactor`` over the bundle at
-        ``weights``); None = load the torch model from ``weights``."""
+        ``weights``); None = load the torch model from ``weights``. reference_warp: how a warp-guided model's
+        references are warped ("mesh": over the face mesh, given the meshes; "tps": the 68-point TPS)."""
         self.weights = Path(weights)
         self.device = device
         self.finetune_steps = finetune_steps
@@ -89,12 +99,15 @@ class LsrModelMethod:
         else:
             self.variant = reenactor.backend.config.get("variant", "")
         self.reenactor = reenactor
+        reenactor.reference_warp = reference_warp
         self.needs_target_segmentation = self.variant == "oracle_seg"
+        # the protocol then passes the shots' and targets' meshes (and skips identities without them)
+        self.needs_meshes = bool(reenactor.warp_references) and reference_warp == "mesh"
         self._encoded: bytes | None = None
         if finetune_steps <= 0:
             self.finetune = None  # type: ignore[assignment]  # the runner then evaluates the meta-learned model only
 
-    def _encode(self, shots: list[np.ndarray], shot_landmarks: np.ndarray) -> float:
+    def _encode(self, shots: list[np.ndarray], shot_landmarks: np.ndarray, shot_meshes: np.ndarray | None = None) -> float:
         """Encode the K shots at the crop side (once per distinct shot set); returns C / S.
 
         A warp-guided torch model crops at the evaluation side itself (its blend runs at any side >= its
@@ -107,24 +120,33 @@ class LsrModelMethod:
                 self._encoded = None
         size = self.reenactor.crop_size
         scale = size / shots[0].shape[0]
-        key = hashlib.blake2b(b"".join(s.tobytes() for s in shots) + shot_landmarks.tobytes(), digest_size=16).digest()
+        key = hashlib.blake2b(b"".join(s.tobytes() for s in shots) + shot_landmarks.tobytes()
+                              + (b"" if shot_meshes is None else shot_meshes.tobytes()), digest_size=16).digest()
         if key != self._encoded:
             frames = np.stack([_resize(shot, size) for shot in shots])
-            self.reenactor.encode_subject(subject_shots_from_training(frames, scale_points(shot_landmarks, scale)))
+            meshes = None if shot_meshes is None else _scale_mesh(shot_meshes, scale)
+            self.reenactor.encode_subject(subject_shots_from_training(frames, scale_points(shot_landmarks, scale), meshes))
             self._encoded = key
         return scale
 
     def reenact(self, shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray,
-                target_segmentations: np.ndarray | None = None) -> np.ndarray:
+                target_segmentations: np.ndarray | None = None, shot_meshes: np.ndarray | None = None,
+                target_meshes: np.ndarray | None = None) -> np.ndarray:
         """shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (T, 68, 2);
-        target_segmentations: (T, S, S) uint8 class ids, ground truth of the targets (``oracle_seg`` only)
-        -> (T, S, S, 3) uint8."""
+        target_segmentations: (T, S, S) uint8 class ids, ground truth of the targets (``oracle_seg`` only);
+        shot_meshes (K, 468, 3), target_meshes (T, 468, 3): face meshes for the references' mesh warp (NaN rows:
+        none; that target's references are TPS-warped) -> (T, S, S, 3) uint8."""
         check_method_inputs(shots, shot_landmarks, target_landmarks)
-        scale = self._encode(shots, shot_landmarks)
+        scale = self._encode(shots, shot_landmarks, shot_meshes)
         size = shots[0].shape[0]
         if self.needs_target_segmentation:
             return self._reenact_with_oracle(target_landmarks, target_segmentations, scale, size)
-        outputs = [_resize(self.reenactor.synthesize_crop(scale_points(points, scale))[0], size) for points in target_landmarks]
+        if target_meshes is None:
+            target_meshes = np.full((len(target_landmarks), 468, 3), np.nan, np.float32)
+        outputs = []
+        for points, mesh in zip(target_landmarks, target_meshes):
+            crop_mesh = _scale_mesh(mesh, scale) if np.isfinite(mesh).all() else None
+            outputs.append(_resize(self.reenactor.synthesize_crop(scale_points(points, scale), crop_mesh=crop_mesh)[0], size))
         return np.stack(outputs) if outputs else np.zeros((0, size, size, 3), np.uint8)
 
     def _reenact_with_oracle(self, target_landmarks: np.ndarray, target_segmentations: np.ndarray | None,
@@ -158,7 +180,8 @@ class LsrModelMethod:
     def finetune(self, shots: list[np.ndarray], shot_landmarks: np.ndarray) -> LsrModelMethod:
         """A subject-specific copy fine-tuned on the shots only (fresh weights from disk each time)."""
         check_method_inputs(shots, shot_landmarks, shot_landmarks)
-        subject = LsrModelMethod(self.weights, device=self.device, name=self.name)
+        subject = LsrModelMethod(self.weights, device=self.device, name=self.name,
+                                 reference_warp=self.reenactor.reference_warp)
         subject._encode(shots, shot_landmarks)
         from lsr.train.finetune import finetune_reenactor
 

@@ -431,8 +431,14 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
         from lsr.eval.model_method import LsrModelMethod
 
         models = [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps,
-                                 finetune_lr=cfg.finetune_lr) for folder in cfg.weights]
+                                 finetune_lr=cfg.finetune_lr, reference_warp=cfg.reference_warps[0]) for folder in cfg.weights]
         methods += label_by_variant(models, cfg.weights)
+        for warp in cfg.reference_warps[1:]:  # the same models with their references warped another way, same run
+            for model in models:
+                if model.reenactor.warp_references:
+                    methods.append(LsrModelMethod(model.weights, device=cfg.device, finetune_steps=cfg.finetune_steps,
+                                                  finetune_lr=cfg.finetune_lr, reference_warp=warp,
+                                                  name=f"{model.name}+{warp}-refs"))
     if not methods:
         raise ConfigError("no method to evaluate: pass --methods nearest_shot tps tps_mean3 (mesh, mesh_mean3 with "
                           "--detector mesh) and/or --weights MODEL_DIR")

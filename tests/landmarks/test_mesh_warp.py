@@ -250,3 +250,13 @@ class TestRetargetMesh:
             mesh_warp.retarget_mesh(driver, np.full((468, 2), np.nan), _face())
         with pytest.raises(ValueError):
             mesh_warp.retarget_mesh(driver[:, :68], driver[0], _face())
+
+
+def test_a_shared_target_layout_gives_the_per_source_map_when_nothing_folds():
+    """warp_references_mesh rasterises the target once for all its shots: with no folded source triangle that is
+    the map mesh_warp_map makes alone."""
+    source, target = _face(), _face(scale=27.0, centre=(49.0, 45.0))
+    alone = mesh_warp.mesh_warp_map(source, target, SIZE, SIZE)
+    shared = mesh_warp.mesh_warp_map(source, target, SIZE, SIZE, layout=mesh_warp.target_layout(target, SIZE, SIZE))
+    np.testing.assert_allclose(shared.map_x, alone.map_x, atol=1e-4)
+    np.testing.assert_allclose(shared.map_y, alone.map_y, atol=1e-4)

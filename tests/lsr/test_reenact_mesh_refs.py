@@ -1,0 +1,78 @@
+"""A warp-guided model's references warped over the face mesh (``reference_warp = "mesh"``): the meshes travel
+from the detector through the shots and the driver to ``landmarks.mesh_warp.warp_references_mesh``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from landmarks.mesh_warp import warp_references_mesh
+from landmarks.tps import warp_references
+
+
+@pytest.fixture(scope="module")
+def reenactor(tmp_path_factory):
+    import torch
+
+    from lsr.pipeline import Reenactor
+    from models_def import LSRModel, preset_config
+
+    torch.manual_seed(0)
+    folder = LSRModel(preset_config("tiny", variant="warp_guided")).save_pretrained(tmp_path_factory.mktemp("w") / "w")
+    return Reenactor(folder)
+
+
+@pytest.fixture(scope="module")
+def people(tmp_path_factory):
+    from landmarks.video import VideoWriter
+    from lsr.data.synth import render_video
+
+    folder = tmp_path_factory.mktemp("people")
+    paths = {}
+    for name, seed, frames in (("source", 3, 8), ("driver", 4, 6)):
+        with VideoWriter(folder / f"{name}.mp4", 25) as writer:
+            for frame in render_video(seed, frames, 192).frames:
+                writer.write(frame)
+        paths[name] = folder / f"{name}.mp4"
+    return paths
+
+
+def test_mesh_references_of_the_shots_own_pose_are_the_shots(reenactor, people):
+    subject = reenactor.encode_subject(people["source"], k=4)
+    shots = subject.shots
+    assert shots.meshes is not None and shots.meshes.shape == (len(shots.frames), 468, 3)
+    # the mesh follows the crop: its 68 points sit on the shots' landmarks
+    from landmarks.mesh68 import mesh_to_68
+
+    assert np.abs(mesh_to_68(shots.meshes) - shots.landmarks).max() < 1.0
+    warped, masks, indices = warp_references_mesh(shots.frames, shots.meshes, shots.landmarks, shots.meshes[1],
+                                                  shots.landmarks[1], 3)
+    assert indices[0] == 1 and warped.shape == (3, *shots.frames.shape[1:]) and masks.shape == warped.shape[:3]
+    difference = np.abs(warped[0].astype(float) - shots.frames[1]).mean()
+    assert difference < 2.0  # the shot onto its own mesh: itself, up to resampling
+    tps_warped, _, tps_indices = warp_references(shots.frames, shots.landmarks, shots.landmarks[1], 3)
+    np.testing.assert_array_equal(indices, tps_indices)  # the same nearest shots as the TPS references
+
+
+@pytest.mark.parametrize("warp", ["mesh", "tps"])
+def test_reenact_drives_with_either_reference_warp(reenactor, people, warp, monkeypatch):
+    import landmarks.mesh_warp as mesh_warp
+
+    calls = []
+    original = mesh_warp.warp_references_mesh
+    monkeypatch.setattr(mesh_warp, "warp_references_mesh", lambda *a, **k: calls.append(1) or original(*a, **k))
+    reenactor.reference_warp = warp
+    reenactor.encode_subject(people["source"], k=4)
+    frames = list(reenactor.reenact(people["driver"], paste_back=True))
+    assert len(frames) == 6 and all(f.has_face for f in frames)
+    assert all(np.isfinite(f.image.astype(float)).all() for f in frames)
+    assert (len(calls) == 6) == (warp == "mesh")  # one mesh-warped reference set per frame, none with "tps"
+    reenactor.reference_warp = "mesh"
+
+
+def test_dlib_shots_have_no_meshes_and_fall_back_to_tps(reenactor, people):
+    from lsr.core.sources import load_subject_shots
+    from landmarks.detectors import make_detector
+
+    shots = load_subject_shots(people["source"], reenactor.crop_size, k=4, detector=make_detector("hog"))
+    assert shots.meshes is None
