@@ -101,8 +101,8 @@ class LsrModelMethod:
         self.reenactor = reenactor
         reenactor.reference_warp = reference_warp
         self.needs_target_segmentation = self.variant == "oracle_seg"
-        # the protocol then passes the shots' and targets' meshes (and skips identities without them)
-        self.needs_meshes = bool(reenactor.warp_references) and reference_warp == "mesh"
+        # the protocol then passes the shots' and targets' meshes where it has them (TPS references where not)
+        self.uses_meshes = bool(reenactor.warp_references) and reference_warp == "mesh"
         self._encoded: bytes | None = None
         if finetune_steps <= 0:
             self.finetune = None  # type: ignore[assignment]  # the runner then evaluates the meta-learned model only

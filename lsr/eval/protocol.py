@@ -17,7 +17,8 @@ Data sources (``load_identities``):
     landmarks from ``landmarks.npy``; the hold-outs' segmentation maps too, when every clip has them; meshes
     (none are stored) from a mesh detector's run on the frames (``attach_meshes``, cached like the landmarks).
 
-A method is anything with ``reenact`` (``Method``); one that ``needs_meshes`` runs only on identities with
+A method is anything with ``reenact`` (``Method``); one that ``uses_meshes`` is given them where there are some;
+one that ``needs_meshes`` runs only on identities with
 meshes (otherwise it is skipped and the skip counted). The runner also evaluates, per method:
   * PSNR / SSIM on the whole frame and inside the ground truth's face region (``lsr.eval.metrics.face_mask``);
   * NMKE / ID-SIM of the output, where output landmarks come from the same detector; hold-outs
@@ -91,6 +92,12 @@ class EvalIdentity:
 
 
 # ---- data -----------------------------------------------------------------------------------------
+
+
+def takes_meshes(method: Any) -> bool:
+    """The method is passed meshes when there are some: it ``needs_meshes`` (skipped without) or ``uses_meshes``
+    (a warp-guided model's mesh references; TPS references without)."""
+    return bool(getattr(method, "needs_meshes", False) or getattr(method, "uses_meshes", False))
 
 
 def gives_meshes(detector: Any) -> bool:
@@ -447,7 +454,7 @@ def run_protocol(
                                                       driver.holdout_landmarks[driver_rows], source_embedding)
             mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
             cross_meshes: dict[str, np.ndarray] | None = None
-            if any(getattr(method, "needs_meshes", False) for method in methods) and identity.has_meshes:
+            if any(takes_meshes(method) for method in methods) and identity.has_meshes:
                 shot_meshes = identity.input_meshes[shot_indices]  # type: ignore[index]
                 mesh_inputs = {"shot_meshes": shot_meshes, "target_meshes": identity.holdout_meshes[driveable]}  # type: ignore[index]
                 if sequence is not None:
@@ -463,7 +470,7 @@ def run_protocol(
                 before = _warp_counts(model)
                 oracle = getattr(model, "needs_target_segmentation", False)  # baselines never see the ground truth
                 extra_inputs = {"target_segmentations": target_segmentations} if oracle else {}
-                if getattr(model, "needs_meshes", False):
+                if takes_meshes(model):
                     extra_inputs.update(mesh_inputs or {})
                 outputs = model.reenact(shots, shot_landmarks, target_landmarks, **extra_inputs)
                 _add_warp_counts(counts, name, k, "self", before, _warp_counts(model))
@@ -491,7 +498,7 @@ def run_protocol(
                     before = _warp_counts(model)
                     # the oracle sees the driving frames' segmentation, i.e. identity i+1's own (not retargeted) layout
                     extra_inputs = {"target_segmentations": driver_segmentations} if oracle else {}
-                    if getattr(model, "needs_meshes", False):
+                    if takes_meshes(model):
                         extra_inputs.update(cross_meshes or {})
                     crossed = model.reenact(shots, shot_landmarks, sequence.targets, **extra_inputs)
                     _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))

@@ -399,8 +399,8 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     """Run ``lsr eval`` (cfg: lsr.config.EvalConfig): load, evaluate the baselines, write and print the report."""
     from landmarks.detectors import make_detector
     from lsr.eval.baselines import MeshMean3, MeshWarp, NearestShot, TpsMean3, TpsWarp
-    from lsr.eval.protocol import (FaceAnalysis, attach_meshes, detect_layout, gives_meshes, load_fsth_sample,
-                                   load_lsr_split, run_protocol)
+    from lsr.eval.protocol import (FaceAnalysis, takes_meshes, attach_meshes, detect_layout, gives_meshes,
+                                   load_fsth_sample, load_lsr_split, run_protocol)
     from lsr.machine import machine_markdown
 
     data = cfg.resolved_data()
@@ -424,9 +424,6 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
         methods = [m for m in methods if m.name not in skipped]
         for name, why in skipped.items():
             print(f"lsr eval: {name} skipped: {why}")
-    elif layout != "fsth" and any(getattr(m, "needs_meshes", False) for m in methods):
-        attach_meshes(identities, detector, cache_dir=Path(cfg.out) / "cache",
-                      progress=cfg.progress)
     if cfg.weights:
         from lsr.eval.model_method import LsrModelMethod
 
@@ -439,6 +436,8 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
                     methods.append(LsrModelMethod(model.weights, device=cfg.device, finetune_steps=cfg.finetune_steps,
                                                   finetune_lr=cfg.finetune_lr, reference_warp=warp,
                                                   name=f"{model.name}+{warp}-refs"))
+    if gives_meshes(detector) and layout != "fsth" and any(takes_meshes(m) for m in methods):
+        attach_meshes(identities, detector, cache_dir=Path(cfg.out) / "cache", progress=cfg.progress)
     if not methods:
         raise ConfigError("no method to evaluate: pass --methods nearest_shot tps tps_mean3 (mesh, mesh_mean3 with "
                           "--detector mesh) and/or --weights MODEL_DIR")
