@@ -162,10 +162,6 @@ def _run_onnx(session: Any, tensor: np.ndarray) -> dict[str, np.ndarray]:
     return dict(zip(names, session.run(None, {session.get_inputs()[0].name: tensor})))
 
 
-def _sigmoid(logits: np.ndarray) -> np.ndarray:
-    return 1.0 / (1.0 + np.exp(-np.clip(logits.astype(np.float64), -100.0, 100.0)))
-
-
 def _max_abs(first: dict[str, np.ndarray], second: dict[str, np.ndarray]) -> dict[str, float]:
     if first.keys() != second.keys():
         raise ParityError(f"output names differ: TFLite {sorted(first)} vs ONNX {sorted(second)}")
@@ -178,7 +174,7 @@ def compare_frame(image: np.ndarray, nets: dict[str, tuple[Any, Any]]) -> dict[s
     tflite_detector, onnx_detector = nets[mesh.DETECTOR_FILE]
     reference, converted = tflite_detector.run(detector_in), _run_onnx(onnx_detector, detector_in)
     detector_diff = _max_abs(reference, converted)
-    score_diff = float(np.abs(_sigmoid(reference["classificators"]) - _sigmoid(converted["classificators"])).max())
+    score_diff = float(np.abs(mesh.sigmoid(reference["classificators"]) - mesh.sigmoid(converted["classificators"])).max())
     # The reference's detection picks the crop, so both mesh nets see the same pixels.
     found = mesh.decode_detections(reference["regressors"], reference["classificators"], scale, offset)
     region = mesh.region_from_detection(found[0]) if found else None
@@ -203,7 +199,7 @@ def compare_frame(image: np.ndarray, nets: dict[str, tuple[Any, Any]]) -> dict[s
         "detection_score": score_diff,
         "mesh_max_abs": mesh_diff,
         "mesh_point_px": float(np.linalg.norm(points[0][:, :2].astype(np.float64) - points[1][:, :2], axis=1).max()),
-        "presence_score": float(np.abs(_sigmoid(flags[0]) - _sigmoid(flags[1])).max()),
+        "presence_score": float(np.abs(mesh.sigmoid(flags[0]) - mesh.sigmoid(flags[1])).max()),
     }
 
 

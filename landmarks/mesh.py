@@ -135,6 +135,11 @@ def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
     return kept
 
 
+def sigmoid(logits: np.ndarray) -> np.ndarray:
+    """The nets' logits -> probabilities, float64 (MediaPipe clips detection logits at +-100)."""
+    return 1.0 / (1.0 + np.exp(-np.clip(np.asarray(logits, np.float64), -100.0, 100.0)))
+
+
 def detector_input(image: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     """(H, W, 3) uint8 RGB -> the detector's (1, 128, 128, 3) float32 input in [-1, 1] (letterboxed), and the
     scale and (2,) offset that map its pixels back: frame = (input - offset) / scale."""
@@ -146,8 +151,7 @@ def decode_detections(regressors: np.ndarray, logits: np.ndarray, scale: float, 
                       min_score: float = 0.5) -> list[Detection]:
     """The detector's outputs -> detections in frame pixels, best first (MediaPipe's TensorsToDetections with
     sigmoid scores, then weighted suppression). regressors: (1, 896, 16); logits: (1, 896, 1)."""
-    raw, logit = regressors[0], logits[0, :, 0].astype(np.float64)  # (896, 16), (896,)
-    scores = 1.0 / (1.0 + np.exp(-np.clip(logit, -100.0, 100.0)))  # MediaPipe's score clipping at +-100
+    raw, scores = regressors[0], sigmoid(logits[0, :, 0])  # (896, 16), (896,)
     keep = np.flatnonzero(scores >= min_score)
     if keep.size == 0:
         return []
@@ -283,7 +287,7 @@ def predict_mesh(image: np.ndarray, region: Region) -> MeshResult:
     xy = points[:, :2] @ inverse[:, :2].T + inverse[:, 2]
     z = points[:, 2] * (region.side / MESH_SIZE)
     mesh = np.concatenate([xy, z[:, None]], axis=1).astype(np.float32)
-    presence = float(1.0 / (1.0 + np.exp(-float(flag.reshape(-1)[0]))))
+    presence = float(sigmoid(flag.reshape(-1)[0]))
     return MeshResult(mesh=mesh, presence=presence, region=region)
 
 

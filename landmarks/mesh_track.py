@@ -20,7 +20,7 @@ import numpy as np
 from landmarks import mesh as face_mesh
 from landmarks.detect import Face, FaceDetector, as_image
 from landmarks.mesh68 import mesh_to_68
-from landmarks.track import FrameTracker, box_iou
+from landmarks.track import FrameTracker, pick_face
 
 
 def _refined(image: np.ndarray, detection: face_mesh.Detection) -> face_mesh.MeshResult:
@@ -35,6 +35,10 @@ def mesh_box(mesh: np.ndarray) -> np.ndarray:
     """(468, >=2) -> (4,) float32 bounding box of the mesh's x, y."""
     low, high = mesh[:, :2].min(0), mesh[:, :2].max(0)
     return np.concatenate([low, high]).astype(np.float32)
+
+
+def box_area(box: np.ndarray) -> float:
+    return float(np.prod(np.maximum(box[2:] - box[:2], 0.0)))
 
 
 class MeshDetector(FaceDetector):
@@ -66,7 +70,7 @@ class MeshDetector(FaceDetector):
             result = _refined(image, detection)
             if result.presence >= self.min_presence:
                 found.append((detection, result))
-        found.sort(key=lambda pair: -float(np.prod(mesh_box(pair[1].mesh)[2:] - mesh_box(pair[1].mesh)[:2])))
+        found.sort(key=lambda pair: -box_area(mesh_box(pair[1].mesh)))
         return found
 
     def detect(self, image: np.ndarray | str | os.PathLike[str]) -> list[Face]:
@@ -117,22 +121,12 @@ class MeshTracker(FrameTracker):
         found = self.detector.meshes(frame)
         if not found:
             return None
-        chosen = None
-        if self.last_box is not None:
-            overlaps = [box_iou(mesh_box(result.mesh), self.last_box) for _, result in found]
-            if max(overlaps) > 0.3:
-                chosen = found[int(np.argmax(overlaps))][1]
-        if chosen is None:
-            if self.face_index >= len(found):
-                return None
-            chosen = found[self.face_index][1]
-        return chosen.mesh
+        choice = pick_face([mesh_box(result.mesh) for _, result in found], self.last_box, self.face_index)
+        return None if choice is None else found[choice][1].mesh
 
     def update(self, frame: np.ndarray) -> np.ndarray | None:
         """Track one frame. frame: (H, W, 3) uint8 RGB. Returns (68, 2) float32 or None (missing)."""
-        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
-            raise ValueError(f"frame must be (H, W, 3) uint8 RGB, got {frame.shape} {frame.dtype}")
-        frame = np.ascontiguousarray(frame)
+        frame = self.checked_frame(frame)
         mesh = None
         if self.mesh is not None:
             result = face_mesh.predict_mesh(frame, face_mesh.region_from_mesh(self.mesh))

@@ -35,8 +35,9 @@ No frame is ever dropped: each gets landmarks or an explicit missing mark.
 
 from __future__ import annotations
 
+import abc
 import dataclasses
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import cv2
 import numpy as np
@@ -75,16 +76,36 @@ def box_iou(first: np.ndarray, second: np.ndarray) -> float:
     return inter / float(union) if union > 0 else 0.0
 
 
-class FrameTracker:
-    """A tracker's whole-sequence loop; subclasses give ``reset()`` and ``update(frame) -> (68, 2) | None``."""
+def pick_face(boxes: Sequence[np.ndarray], last_box: np.ndarray | None, face_index: int) -> int | None:
+    """Which of a detection's faces (boxes, largest first) to track: after a loss the one overlapping the last
+    tracked box (IoU > 0.3), else the ``face_index``-th; None when there are too few."""
+    if last_box is not None and boxes:
+        overlaps = [box_iou(box, last_box) for box in boxes]
+        if max(overlaps) > 0.3:
+            return int(np.argmax(overlaps))
+    return face_index if face_index < len(boxes) else None
+
+
+class FrameTracker(abc.ABC):
+    """What both trackers share: the frame check, the whole-sequence loop; each gives ``reset()`` and
+    ``update(frame) -> (68, 2) | None``."""
 
     detections: int
 
+    @abc.abstractmethod
     def reset(self) -> None:
-        raise NotImplementedError
+        """Forget the face: the next frame starts with a full detection."""
 
+    @abc.abstractmethod
     def update(self, frame: np.ndarray) -> np.ndarray | None:
-        raise NotImplementedError
+        """Track one frame. frame: (H, W, 3) uint8 RGB. Returns (68, 2) float32 or None (missing)."""
+
+    @staticmethod
+    def checked_frame(frame: np.ndarray) -> np.ndarray:
+        """The frame, contiguous; ValueError unless (H, W, 3) uint8."""
+        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+            raise ValueError(f"frame must be (H, W, 3) uint8 RGB, got {frame.shape} {frame.dtype}")
+        return np.ascontiguousarray(frame)
 
     def track_frames(
         self, frames: Iterable[np.ndarray], total: int | None = None, progress: bool = False
@@ -221,26 +242,17 @@ class LandmarkTracker(FrameTracker):
     def _detect(self, frame: np.ndarray) -> np.ndarray | None:
         self.detections += 1
         faces = self.detector.detect(frame)
-        if not faces:
+        choice = pick_face([face.box for face in faces], self.last_box, self.face_index)
+        if choice is None:
             return None
-        chosen = None
-        if self.last_box is not None:  # after a loss, prefer the face where the tracked one was
-            overlaps = [box_iou(face.box, self.last_box) for face in faces]
-            if max(overlaps) > 0.3:
-                chosen = faces[int(np.argmax(overlaps))]
-        if chosen is None:
-            if self.face_index >= len(faces):
-                return None
-            chosen = faces[self.face_index]
+        chosen = faces[choice]
         self._record_relation(chosen.box, chosen.landmarks)
         return chosen.landmarks
 
     # -- public ------------------------------------------------------------------------------
     def update(self, frame: np.ndarray) -> np.ndarray | None:
         """Track one frame. frame: (H, W, 3) uint8 RGB. Returns (68, 2) float32 or None (missing)."""
-        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
-            raise ValueError(f"frame must be (H, W, 3) uint8 RGB, got {frame.shape} {frame.dtype}")
-        frame = np.ascontiguousarray(frame)
+        frame = self.checked_frame(frame)
         landmarks = None
         if self.previous is not None:
             candidate = predict_landmarks(frame, self.box_from_landmarks(self.previous))

@@ -203,7 +203,6 @@ class ReenactorBase:
         self.crop_size = crop_size or default_crop_size(backend)
         self._detector_spec = detector
         self._detector = None
-        self._mesh_reference: np.ndarray | None = None
         self.reference_warp: str = "mesh"
         """How a warp-guided model's references are warped when meshes are at hand: "mesh" (piecewise affine over
         the face mesh, TPS outside) or "tps" (the 68-point TPS everywhere)."""
@@ -390,29 +389,33 @@ class ReenactorBase:
 
     __call__ = reenact
 
-    def _driving_mesh(self, mesh: np.ndarray | None, raw_points: np.ndarray, points: np.ndarray, matrix: np.ndarray,
-                      relative: bool) -> np.ndarray | None:
-        """The driver's mesh in crop pixels, moved with the 68 points' smoothing and retargeted as they are, for the
-        references' mesh warp; None when it is not needed (no warp-guided model, no meshes) or not at hand."""
-        subject = self._require_subject()
-        if (not self.warp_references or self.reference_warp != "mesh" or mesh is None or subject.shots.meshes is None
-                or not np.isfinite(mesh).all()):
+    def _crop_mesh(self, mesh: np.ndarray | None, raw_points: np.ndarray, points: np.ndarray,
+                   matrix: np.ndarray) -> np.ndarray | None:
+        """The driver's (468, 3) mesh in crop pixels, moved with the 68 points' smoothing, for the references' mesh
+        warp; None when it is not needed (no warp-guided model, no shot meshes) or not at hand."""
+        if (not self.warp_references or self.reference_warp != "mesh" or mesh is None
+                or self._require_subject().shots.meshes is None or not np.isfinite(mesh).all()):
             return None
         from landmarks.align import transform_mesh
-        from landmarks.mesh_warp import retarget_mesh, spreading_weights
+        from landmarks.mesh_warp import spreading_weights
 
         mesh = np.asarray(mesh, np.float64).copy()
         # the One-Euro filter moved the 68 points: carry that shift onto the vertices near them
         mesh[:, :2] += spreading_weights() @ (np.asarray(points, np.float64) - raw_points)
-        crop_mesh = transform_mesh(mesh, matrix)
-        if not relative:
+        return transform_mesh(mesh, matrix)
+
+    def _retarget_mesh(self, crop_mesh: np.ndarray | None, reference: np.ndarray | None,
+                       relative: bool) -> np.ndarray | None:
+        """``_retarget`` for the mesh (``landmarks.mesh_warp.retarget_mesh``); reference: the driver's mesh on the
+        frame the 68 points' reference came from (None: no mesh then, so no mesh references)."""
+        if crop_mesh is None or not relative:
             return crop_mesh
-        if self._mesh_reference is None:
-            self._mesh_reference = crop_mesh
-        source = subject.reference_mesh
-        if source is None:
+        from landmarks.mesh_warp import retarget_mesh
+
+        source = self._require_subject().reference_mesh
+        if reference is None or source is None:
             return None
-        moved = retarget_mesh(crop_mesh[None], self._mesh_reference, source)[0]  # (468, 2)
+        moved = retarget_mesh(crop_mesh[None], reference, source)[0]  # (468, 2)
         return np.concatenate([moved, crop_mesh[:, 2:3]], axis=1)
 
     def _retarget(self, crop_landmarks: np.ndarray, reference: np.ndarray | None, relative: bool) -> np.ndarray:
@@ -485,8 +488,7 @@ class ReenactorBase:
         size = self.crop_size
         tracker = make_tracker(self.detector)
         one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
-        reference = None
-        self._mesh_reference = None  # the driver's first mesh (crop pixels): its motion is what moves the source's
+        reference = mesh_reference = None
         def tracked():  # decoding and tracking on a thread, a few frames ahead of the synthesis
             for frame in iter_driver_frames(info):
                 started = time.perf_counter()
@@ -511,8 +513,10 @@ class ReenactorBase:
             if points is not None and np.isfinite(points).all():
                 matrix = crop_transform(points, size)
                 crop_landmarks = transform_landmarks(points, matrix)
-                reference = crop_landmarks if reference is None else reference
-                crop_mesh = self._driving_mesh(mesh, raw_points, points, matrix, relative)
+                crop_mesh = self._crop_mesh(mesh, raw_points, points, matrix)
+                if reference is None:  # the driver's first face: its motion from here is what moves the source's
+                    reference, mesh_reference = crop_landmarks, crop_mesh
+                crop_mesh = self._retarget_mesh(crop_mesh, mesh_reference, relative)
                 crop_landmarks = self._retarget(crop_landmarks, reference, relative)
             elif one_euro is not None:
                 one_euro.reset()  # never smooth across a gap
