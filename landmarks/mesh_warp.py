@@ -336,14 +336,46 @@ def _check_mesh(mesh: np.ndarray, name: str) -> np.ndarray:
 @dataclasses.dataclass(frozen=True)
 class TargetLayout:
     """What a warp onto one target mesh needs of the target alone, made once for several sources
-    (``target_layout``; the references of a frame). index: (H, W) int32 triangle per pixel (-1: none), rasterised
-    over the triangles usable in the target; weight: (H, W) float32 feathered weight; blurred: the blurred mask;
-    feather: the blend's width in pixels."""
+    (``target_layout``; the references of a frame), on the grid of ``grid_step`` pixels (``grid_shape``): index:
+    (h, w) int32 triangle per grid point (-1: none), rasterised over the triangles usable in the target; weight:
+    (h, w) float32 feathered weight; blurred: the blurred mask; feather: the blend's width in pixels (of the frame);
+    grid_step: 1 = every pixel; s > 1 = the centres of s x s blocks (``grid_points``); frame_shape: (H, W)."""
 
     index: np.ndarray
     weight: np.ndarray
     blurred: np.ndarray
     feather: float
+    grid_step: int
+    frame_shape: tuple[int, int]
+
+    @functools.cached_property
+    def frame_weight(self) -> np.ndarray:
+        """(H, W) float32: ``weight`` at every pixel of the frame (``upsample``), made once per target."""
+        return upsample(self.weight, self.grid_step, *self.frame_shape)
+
+
+def grid_shape(height: int, width: int, grid_step: int) -> tuple[int, int]:
+    """Rows and columns of the grid ``grid_points`` lays over an (H, W) frame: (ceil(H / s), ceil(W / s))."""
+    if grid_step < 1:
+        raise ValueError(f"grid_step must be >= 1, got {grid_step}")
+    return -(-height // grid_step), -(-width // grid_step)
+
+
+def grid_points(count: int, grid_step: int) -> np.ndarray:
+    """Frame coordinates of ``count`` grid points along one axis: the centres of ``grid_step``-pixel blocks,
+    s * i + (s - 1) / 2 (pixel i itself for s = 1). Bilinear upsampling by s (``upsample``) interpolates between
+    exactly these points. -> (count,) float64."""
+    return grid_step * np.arange(count, dtype=np.float64) + (grid_step - 1) / 2.0
+
+
+def upsample(values: np.ndarray, grid_step: int, height: int, width: int) -> np.ndarray:
+    """Grid values (h, w[, C]) float32 -> (H, W[, C]) float32, bilinear between the ``grid_points`` (constant past the
+    outermost ones). grid_step 1: the values themselves."""
+    if grid_step == 1:
+        return values
+    rows, cols = values.shape[:2]
+    big = cv2.resize(values, (cols * grid_step, rows * grid_step), interpolation=cv2.INTER_LINEAR)
+    return np.ascontiguousarray(big[:height, :width])
 
 
 def _feather_of(target: np.ndarray, feather: float | None) -> float:
@@ -354,25 +386,30 @@ def _feather_of(target: np.ndarray, feather: float | None) -> float:
 
 
 def _layout(target: np.ndarray, depth: np.ndarray | None, usable: np.ndarray, height: int, width: int,
-            feather: float) -> TargetLayout:
+            feather: float, grid_step: int = 1) -> TargetLayout:
     triangles = triangulation()
     # where target triangles overlap (a turned head), the nearest one (smaller z) shows
     priority = -depth[triangles].mean(1) if depth is not None and np.isfinite(depth).all() else None
-    index = rasterise_triangles(target, triangles, usable, height, width, priority)
+    rows, cols = grid_shape(height, width, grid_step)
+    on_grid = (target - (grid_step - 1) / 2.0) / grid_step  # grid point (i, j) sits at integer pixel (j, i)
+    index = rasterise_triangles(on_grid, triangles, usable, rows, cols, priority)
     inside = index >= 0
     mask = inside.astype(np.float32)
-    blurred = _blur(mask, feather) if feather > 0 else mask
-    return TargetLayout(index, feather_weights(inside, feather, blurred), blurred, float(feather))
+    grid_feather = feather / grid_step
+    blurred = _blur(mask, grid_feather) if feather > 0 else mask
+    return TargetLayout(index, feather_weights(inside, grid_feather, blurred), blurred, float(feather), grid_step,
+                        (height, width))
 
 
 def target_layout(target_mesh: np.ndarray, height: int, width: int, *, feather: float | None = None,
-                  min_area: float = MIN_AREA) -> TargetLayout:
+                  min_area: float = MIN_AREA, grid_step: int = 1) -> TargetLayout:
     """The target's share of ``mesh_warp_map`` for several sources: triangles kept when usable in the target (a
-    source's folded triangles then become holes, filled as a dropped triangle's are)."""
+    source's folded triangles then become holes, filled as a dropped triangle's are). grid_step: as in
+    ``mesh_warp_map``."""
     target = _check_mesh(target_mesh, "target_mesh")
     usable = (signed_areas(target, triangulation()) >= min_area) & np.isfinite(target[triangulation()]).all(axis=(1, 2))
     depth = np.asarray(target_mesh, np.float64)[:, 2] if np.shape(target_mesh)[1] == 3 else None
-    return _layout(target, depth, usable, height, width, _feather_of(target, feather))
+    return _layout(target, depth, usable, height, width, _feather_of(target, feather), grid_step)
 
 
 def mesh_warp_map(
@@ -393,47 +430,63 @@ def mesh_warp_map(
 
     source_mesh, target_mesh: (468, 2 or 3) frame pixels; the target's depth, when given, decides which of two
     overlapping triangles shows (the nearer one). fallback: the map outside the face; default
-    ``tps.tps_map`` of the meshes' 68 points (border fixed; ``regularization``, ``grid_step`` as there). feather:
-    the blend's width in pixels; None = ``FEATHER_IOD`` of the target's inter-ocular distance, at least ``FEATHER``.
-    layout: ``target_layout`` of this target, shared by several sources (then ``feather`` is the layout's).
+    ``tps.tps_map`` of the meshes' 68 points (border fixed; ``regularization`` as there). grid_step: 1 = exact at
+    every pixel; s > 1 = the piecewise-affine correction of the TPS is made at the centres of s x s blocks and
+    upsampled bilinearly (the map is continuous across triangles, so the error is where two triangles' affines
+    differ, at most about s / 2 times the jump of their gradients: sub-pixel at s = 2 on a face), and a default
+    fallback is ``tps_map``'s coarse-grid one. feather: the blend's width in pixels; None = ``FEATHER_IOD`` of the
+    target's inter-ocular distance, at least ``FEATHER``. layout: ``target_layout`` of this target, shared by
+    several sources (then ``feather`` and ``grid_step`` are the layout's).
     """
     source, target = _check_mesh(source_mesh, "source_mesh"), _check_mesh(target_mesh, "target_mesh")
+    step = layout.grid_step if layout is not None else grid_step
     if fallback is None:  # the meshes as given: with depth, the 68 points' jaw follows the head's yaw
         fallback = tps.tps_map(mesh_to_68(np.asarray(source_mesh)), mesh_to_68(np.asarray(target_mesh)), height, width,
-                               regularization=regularization, grid_step=grid_step)
+                               regularization=regularization, grid_step=step)
     if fallback.map_x.shape != (height, width):
         raise ValueError(f"fallback map must be ({height}, {width}), got {fallback.map_x.shape}")
     triangles = triangulation()
     affines, usable = triangle_affines(source, target, triangles, min_area)
     if layout is None:
         depth = np.asarray(target_mesh, np.float64)[:, 2] if np.shape(target_mesh)[1] == 3 else None
-        layout = _layout(target, depth, usable, height, width, _feather_of(target, feather))
+        layout = _layout(target, depth, usable, height, width, _feather_of(target, feather), step)
         index = layout.index
     else:  # the shared raster: this source's unusable (folded) triangles are holes
         index = np.where((layout.index >= 0) & usable[np.maximum(layout.index, 0)], layout.index, -1)
     feather, blurred, weight = layout.feather, layout.blurred, layout.weight
+    rows_count, cols_count = index.shape
+    if step > 1:  # the TPS at the grid points (block centres), bilinearly
+        grid_x, grid_y = np.meshgrid(grid_points(cols_count, step).astype(np.float32),
+                                     grid_points(rows_count, step).astype(np.float32))
+        fallback_grid = np.stack([cv2.remap(values, grid_x, grid_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                                  for values in (fallback.map_x, fallback.map_y)], axis=-1)  # (h, w, 2)
+    else:
+        fallback_grid = np.stack([fallback.map_x, fallback.map_y], axis=-1)  # (H, W, 2) float32
     inside = index >= 0
-    fallback_map = np.stack([fallback.map_x, fallback.map_y], axis=-1)  # (H, W, 2) float32
     # the piecewise-affine map as a correction of the TPS: correction = affine(p) - fallback(p) on the triangles
-    correction = np.zeros((height, width, 2), np.float32)
+    correction = np.zeros((rows_count, cols_count, 2), np.float32)
     rows, cols = np.nonzero(inside)
     coefficients = affines.reshape(-1, 8)[index[rows, cols]]  # (n, 8): one gather of the 2x4 rows
-    dx, dy = cols - coefficients[:, 2], rows - coefficients[:, 6]  # p - target_0
+    offset = (step - 1) / 2.0
+    dx, dy = step * cols + offset - coefficients[:, 2], step * rows + offset - coefficients[:, 6]  # p - target_0
     affine_x = coefficients[:, 3] + coefficients[:, 0] * dx + coefficients[:, 1] * dy
     affine_y = coefficients[:, 7] + coefficients[:, 4] * dx + coefficients[:, 5] * dy
-    correction[rows, cols] = np.stack([affine_x, affine_y], axis=-1) - fallback_map[rows, cols]
+    correction[rows, cols] = np.stack([affine_x, affine_y], axis=-1) - fallback_grid[rows, cols]
     holes = (weight > 0) & ~inside
     if holes.any():  # a dropped triangle's pixels: its kept neighbours' correction, Gaussian-averaged (no speck)
         # blurred in a window reaching the kernel's radius past the holes: the same values as over the whole frame
-        reach = len(gaussian_kernel(feather)) // 2 + 1
+        grid_feather = feather / step
+        reach = len(gaussian_kernel(grid_feather)) // 2 + 1
         hole_rows, hole_cols = np.nonzero(holes)
         top, left = max(hole_rows.min() - reach, 0), max(hole_cols.min() - reach, 0)
-        bottom, right = min(hole_rows.max() + reach + 1, height), min(hole_cols.max() + reach + 1, width)
+        bottom, right = min(hole_rows.max() + reach + 1, rows_count), min(hole_cols.max() + reach + 1, cols_count)
         window = np.ascontiguousarray(correction[top:bottom, left:right])
-        averaged = _blur(window, feather) / np.maximum(blurred[top:bottom, left:right], 1e-6)[..., None]
+        averaged = _blur(window, grid_feather) / np.maximum(blurred[top:bottom, left:right], 1e-6)[..., None]
         correction[hole_rows, hole_cols] = averaged[hole_rows - top, hole_cols - left]
-    moved = fallback_map + weight[..., None] * correction
-    return MeshWarpMap(moved[..., 0], moved[..., 1], weight, fallback, float(feather), int(usable.sum()), len(triangles))
+    correction *= weight[..., None]
+    map_x, map_y = (fallback_axis + upsample(np.ascontiguousarray(correction[..., axis]), step, height, width)
+                    for axis, fallback_axis in enumerate((fallback.map_x, fallback.map_y)))
+    return MeshWarpMap(map_x, map_y, layout.frame_weight, fallback, float(feather), int(usable.sum()), len(triangles))
 
 
 def warp_mesh(image: np.ndarray, source_mesh: np.ndarray, target_mesh: np.ndarray,
@@ -527,8 +580,9 @@ def warp_references_mesh(shots: np.ndarray, shot_meshes: np.ndarray, shot_landma
                          grid_step: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``landmarks.tps.warp_references`` over the face mesh: the ``count`` nearest shots (by the 68 points, the same
     choice), each warped piecewise-affine over the mesh inside the face and by the 68-point TPS outside
-    (``mesh_warp_map``). What depends on the target alone is made once: the TPS system (``tps.tps_maps``, on a
-    coarse grid as the TPS references) and the face's raster and feathering (``target_layout``). A shot without a
+    (``mesh_warp_map``), both made on the coarse grid of ``grid_step`` pixels as the TPS references are. What depends
+    on the target alone is made once: the TPS system (``tps.tps_maps``) and the face's raster and feathering
+    (``target_layout``). A shot without a
     mesh (NaN) is warped by the TPS alone.
 
     shots: (K, S, S, 3) uint8; shot_meshes: (K, 468, 3); shot_landmarks: (K, 68, 2); target_mesh: (468, 3);
@@ -545,7 +599,7 @@ def warp_references_mesh(shots: np.ndarray, shot_meshes: np.ndarray, shot_landma
     unique = [int(index) for index in dict.fromkeys(indices.tolist())]  # a repeated shot (K < count) is warped once
     fallbacks = tps.tps_maps([shot_landmarks[index] for index in unique], target_landmarks, height, width,
                              grid_step=grid_step)
-    layout = target_layout(target_mesh, height, width)
+    layout = target_layout(target_mesh, height, width, grid_step=grid_step)
     warped_by_shot, mask_by_shot = {}, {}
     for index, fallback in zip(unique, fallbacks):
         warp = fallback

@@ -260,3 +260,66 @@ def test_a_shared_target_layout_gives_the_per_source_map_when_nothing_folds():
     shared = mesh_warp.mesh_warp_map(source, target, SIZE, SIZE, layout=mesh_warp.target_layout(target, SIZE, SIZE))
     np.testing.assert_allclose(shared.map_x, alone.map_x, atol=1e-4)
     np.testing.assert_allclose(shared.map_y, alone.map_y, atol=1e-4)
+
+
+class TestCoarseGrid:
+    """grid_step > 1: the piecewise-affine correction made at block centres and upsampled (the references' speed)."""
+
+    def test_upsampling_interpolates_between_the_block_centres(self):
+        for step in (1, 2, 4):
+            rows, cols = mesh_warp.grid_shape(SIZE, SIZE, step)
+            grid_x = mesh_warp.grid_points(cols, step)
+            grid_y = mesh_warp.grid_points(rows, step)
+            values = (0.5 * grid_x[None, :] - 0.25 * grid_y[:, None] + 3.0).astype(np.float32)  # linear in x, y
+            dense = mesh_warp.upsample(values, step, SIZE, SIZE)
+            grid_x_dense, grid_y_dense = _grid(SIZE, SIZE)
+            expected = 0.5 * grid_x_dense - 0.25 * grid_y_dense + 3.0
+            within = (grid_x_dense >= grid_x[0]) & (grid_x_dense <= grid_x[-1]) & (grid_y_dense >= grid_y[0]) & (
+                grid_y_dense <= grid_y[-1])
+            assert dense.shape == (SIZE, SIZE)
+            np.testing.assert_allclose(dense[within], expected[within], atol=1e-4)
+        assert mesh_warp.grid_shape(97, 96, 4) == (25, 24)
+        with pytest.raises(ValueError):
+            mesh_warp.grid_shape(SIZE, SIZE, 0)
+
+    def test_an_affine_motion_stays_exact_inside_the_face(self):
+        source = _face()
+        matrix, shift = np.array([[1.06, 0.12], [-0.09, 0.95]]), np.array([2.5, -3.0])
+        target = source @ matrix.T + shift
+        exact = mesh_warp.mesh_warp_map(source, target, SIZE, SIZE)
+        for step in (2, 4):
+            fallback = tps.tps_map(mesh_to_68(source), mesh_to_68(target), SIZE, SIZE, grid_step=step)
+            coarse = mesh_warp.mesh_warp_map(source, target, SIZE, SIZE, fallback=fallback,
+                                             layout=mesh_warp.target_layout(target, SIZE, SIZE, grid_step=step))
+            inside = (exact.face_weight == 1.0) & (coarse.face_weight == 1.0)
+            assert inside.sum() > 400
+            # one affine everywhere inside: the only error is the TPS's curvature between grid points
+            assert np.abs(coarse.map_x - exact.map_x)[inside].max() < 0.05
+            assert np.abs(coarse.map_y - exact.map_y)[inside].max() < 0.05
+
+    def test_an_expressive_warp_is_within_a_fraction_of_a_pixel(self, rng):
+        source = _face(40.0, (48.0, 48.0)) + rng.normal(0, 0.3, (468, 2))
+        target = _face(42.0, (47.0, 49.0)) + rng.normal(0, 0.3, (468, 2))
+        exact = mesh_warp.mesh_warp_map(source, target, SIZE, SIZE)
+        for step, limit in ((2, 0.5), (4, 1.0)):  # a 96-px face with 0.3 px of noise per vertex: tiny triangles
+            coarse = mesh_warp.mesh_warp_map(source, target, SIZE, SIZE, grid_step=step)
+            error = np.hypot(coarse.map_x - exact.map_x, coarse.map_y - exact.map_y)
+            assert np.percentile(error, 99) < limit and np.median(error) < 0.1 * limit
+            assert coarse.map_x.shape == (SIZE, SIZE) and coarse.map_x.dtype == np.float32
+
+    def test_references_use_the_grid_of_the_tps_references(self, rng):
+        import inspect
+
+        image = rng.integers(0, 256, (SIZE // 4, SIZE // 4, 3), dtype=np.uint8).repeat(4, 0).repeat(4, 1)
+        shots = np.stack([image, image[:, ::-1].copy()])
+        meshes = np.stack([_face(), _face(27.0, (49.0, 45.0))])
+        meshes = np.concatenate([meshes, np.zeros((2, 468, 1))], axis=2)
+        landmarks = mesh_to_68(meshes).astype(np.float64)
+        target = np.concatenate([_face(26.5, (48.5, 44.5)), np.zeros((468, 1))], axis=1)
+        step = inspect.signature(mesh_warp.warp_references_mesh).parameters["grid_step"].default
+        assert step == inspect.signature(tps.warp_references).parameters["grid_step"].default
+        coarse, masks, _ = mesh_warp.warp_references_mesh(shots, meshes, landmarks, target, mesh_to_68(target), 2)
+        exact, _, _ = mesh_warp.warp_references_mesh(shots, meshes, landmarks, target, mesh_to_68(target), 2,
+                                                     grid_step=1)
+        assert masks.shape == (2, SIZE, SIZE)
+        assert np.abs(coarse.astype(float) - exact).mean() < 2.0  # the same images, up to sub-pixel resampling
