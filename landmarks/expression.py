@@ -81,9 +81,24 @@ _JAW_DROP = {65: 1.0, 66: 1.0, 67: 1.0, 55: 1.0, 56: 1.0, 57: 1.0, 58: 1.0, 59: 
              54: 0.4, 6: 0.9, 7: 1.0, 8: 1.0, 9: 1.0, 10: 0.9, 5: 0.7, 11: 0.7, 4: 0.4, 12: 0.4, 3: 0.15, 13: 0.15}
 
 
+def signed_mouth_gap(landmarks: np.ndarray, down: np.ndarray) -> np.ndarray:
+    """Mean height of the lower inner lip below the upper one along ``down`` (unit (..., 2)), over the inter-ocular
+    distance: (..., 68, 2) -> (...) float64. Negative: the lips cross (the lower one above the upper)."""
+    points = _points(landmarks)
+    upper, lower = zip(*INNER_LIP_PAIRS)
+    gaps = ((points[..., list(lower), :] - points[..., list(upper), :]) * down[..., None, :]).sum(-1).mean(-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return gaps / inter_ocular_distance(points)
+
+
 def set_mouth_opening(landmarks: np.ndarray, opening: np.ndarray | float) -> np.ndarray:
     """Open or close a face's mouth to a given ``mouth_opening``, moving the lower lip and the jaw along the face's
-    down direction (eyes to mouth) as a jaw drop does; the rest of the face stays. A gap never goes below 0.
+    down direction (eyes to mouth) as a jaw drop does; the rest of the face stays. The lips never cross.
+
+    First the lower lip is put ``opening`` below the upper one along the down direction (``signed_mouth_gap``: this
+    also uncrosses lips that a relative retargeting crossed, where the distance-based opening would read a crossed
+    mouth as open and push the lip the wrong way); then a few steps settle a slanted mouth's point distances, never
+    lifting the lower lip above the upper one (a closed mouth whose lips are offset sideways stays at gap 0).
 
     landmarks: (..., 68, 2); opening: (...) or a float. Returns a new float64 array of the same shape.
     """
@@ -94,7 +109,11 @@ def set_mouth_opening(landmarks: np.ndarray, opening: np.ndarray | float) -> np.
     down = points[..., [48, 54], :].mean(-2) - eyes
     down = down / np.maximum(np.linalg.norm(down, axis=-1, keepdims=True), 1e-9)
     index, amounts = list(_JAW_DROP), np.asarray(list(_JAW_DROP.values()))[:, None]
-    for _ in range(4):  # the gaps are point distances, not heights: a few steps settle a slanted mouth
-        shift = np.nan_to_num((target - mouth_opening(points)) * distance)[..., None] * down  # (..., 2) pixels
-        points[..., index, :] += amounts * shift[..., None, :]
+
+    def drop(step: np.ndarray) -> None:  # step: (...) in inter-ocular distances, positive = open
+        points[..., index, :] += amounts * (np.nan_to_num(step * distance)[..., None] * down)[..., None, :]
+
+    drop(target - signed_mouth_gap(points, down))  # the lower inner lip moves by exactly the step: one step
+    for _ in range(3):  # point distances, not heights: settle a slanted mouth, the gap kept >= 0
+        drop(np.maximum(target - mouth_opening(points), -signed_mouth_gap(points, down)))
     return points

@@ -27,6 +27,23 @@ def test_set_mouth_opening_reaches_the_opening_and_moves_only_jaw_and_lower_lip(
     assert mouth_opening(set_mouth_opening(face, -1.0)) == pytest.approx(0.0, abs=5e-3)  # never crossed lips
 
 
+@pytest.mark.parametrize("opening", [0.0, 0.1, 0.3])
+def test_set_mouth_opening_uncrosses_crossed_lips(opening):
+    """A relative retargeting can lift the lower lip above the upper one (a source's closed mouth plus a driver's
+    closing delta): the distance-based opening reads that as open, and pushing the lip "down" by the difference
+    used to drive it further up (openings of 0.57 from a 0.02 target, on real retargeted drives)."""
+    from landmarks.expression import signed_mouth_gap
+
+    face = _face(0.05)
+    crossed = face.copy()
+    crossed[[65, 66, 67], 1] -= 0.25 * np.linalg.norm(face[45] - face[36])  # the lower inner lip 0.2 IOD above the upper
+    down = np.array([0.0, 1.0])
+    assert signed_mouth_gap(crossed, down) < -0.1 and mouth_opening(crossed) > 0.1
+    fixed = set_mouth_opening(crossed, opening)
+    assert mouth_opening(fixed) == pytest.approx(opening, abs=5e-3)
+    assert signed_mouth_gap(fixed, down) == pytest.approx(opening, abs=5e-3)  # below the upper lip, not above
+
+
 def test_retarget_driving_opens_the_mouth_as_wide_as_the_driver_even_from_an_open_anchor():
     source = _face(0.15) * 1.1 + 7  # another size and place, mouth open
     driver = np.stack([_face(0.0), _face(0.1), _face(0.3)])
