@@ -29,7 +29,7 @@ per-vertex noise). Qhull's output order may change between versions, so the tria
 (tests check that the stored triangles are what ``build_triangles`` gives from the canonical mesh).
 
 Cross-identity driving moves meshes the way ``landmarks.retarget.retarget_driving`` moves 68 points:
-``retarget_mesh``.
+``landmarks.mesh_retarget``.
 
 Shapes: meshes (468, 2 or 3) float x, y frame pixels (z, smaller = nearer, orders overlapping target triangles and
 feeds ``mesh_to_68``'s yaw-dependent jaw); maps (H, W) float32 source pixel coordinates.
@@ -63,7 +63,6 @@ FEATHER = 3.0  # pixels: the narrowest blend of the TPS outside the face into th
 # 21.64 dB; tps 21.55) and cut the cross-identity face sharpness from 1.13 to 1.06 of the anchor's (tps: 0.98).
 FEATHER_IOD = 0.3
 WEIGHT_SNAP = 1e-5  # feather weights this close to 1 are 1
-INTERPOLATION_NEIGHBOURS = 4  # 68 points that spread a correction onto each mesh vertex (``retarget_mesh``)
 
 
 # ---- the triangulation -----------------------------------------------------------------------------------
@@ -498,78 +497,6 @@ def warp_mesh(image: np.ndarray, source_mesh: np.ndarray, target_mesh: np.ndarra
     warp = mesh_warp_map(source_mesh, target_mesh, image.shape[0], image.shape[1], **settings)
     moved = cv2.remap(image, warp.map_x, warp.map_y, tps.INTERPOLATION, borderMode=cv2.BORDER_REPLICATE)
     return moved, warp
-
-
-# ---- cross-identity driving --------------------------------------------------------------------------------
-
-
-@functools.lru_cache(maxsize=1)
-def spreading_weights() -> np.ndarray:
-    """(468, 68) float64: how a displacement of the 68 points spreads onto the mesh vertices (``retarget_mesh``).
-
-    Inverse-square-distance weights over each vertex's ``INTERPOLATION_NEIGHBOURS`` nearest 68 points on the
-    canonical mesh, whose mouth is open (the mean of talking faces), so lower-lip vertices follow the lower lip."""
-    canonical = frontal_canonical()
-    points = mesh_to_68(canonical).astype(np.float64)
-    distances = np.linalg.norm(canonical[:, None] - points[None], axis=-1)  # (468, 68)
-    nearest = np.argsort(distances, axis=1)[:, :INTERPOLATION_NEIGHBOURS]
-    weights = np.zeros_like(distances)
-    rows = np.arange(len(canonical))[:, None]
-    weights[rows, nearest] = 1.0 / np.maximum(distances[rows, nearest], 1e-3) ** 2
-    return weights / weights.sum(1, keepdims=True)
-
-
-def retarget_mesh(driver_meshes: np.ndarray, driver_reference: np.ndarray, source_mesh: np.ndarray,
-                  corrections: int = 3) -> np.ndarray:
-    """What ``landmarks.retarget.retarget_driving`` does to 68 points, done to the 468 mesh vertices: the driver's
-    motion relative to its reference frame moved onto the source (``retarget_relative``'s steps, with the
-    similarities fitted on the meshes' 68 points, ``RIGID_INDEX``), then the mouth as open as the driver's: the
-    68 points' change that ``landmarks.expression.set_mouth_opening`` makes is spread onto the vertices
-    (``spreading_weights``), ``corrections`` times, so that the mesh's inner lips land where it put them.
-
-    driver_meshes: (T, 468, >=2), NaN frames stay NaN; driver_reference: (468, >=2) the driver frame that maps
-    onto the source; source_mesh: (468, >=2) -> (T, 468, 2) float64. Purely 2D: the meshes' 68 points are taken
-    without depth (the jaw's yaw-0 weights), so the jaw follows the mesh's skin, not the silhouette.
-    """
-    from landmarks.expression import mouth_opening, set_mouth_opening
-    from landmarks.retarget import RIGID_INDEX, apply_similarity, similarity_procrustes
-
-    frames = np.asarray(driver_meshes, np.float64)[..., :2]
-    if frames.ndim != 3 or frames.shape[1] != MESH_POINTS:
-        raise ValueError(f"driver_meshes must be (T, {MESH_POINTS}, 2 or 3), got {np.shape(driver_meshes)}")
-    reference, source = _check_mesh(driver_reference, "driver_reference"), _check_mesh(source_mesh, "source_mesh")
-    if not (np.isfinite(reference).all() and np.isfinite(source).all()):
-        raise ValueError("driver_reference and source_mesh must be finite")
-    rigid = list(RIGID_INDEX)
-
-    def points(mesh: np.ndarray) -> np.ndarray:
-        return mesh_to_68(mesh).astype(np.float64)
-
-    def fit(first: np.ndarray, second: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-        return similarity_procrustes(points(first)[rigid], points(second)[rigid])
-
-    def invert(scale: float, rotation: np.ndarray, translation: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-        return 1.0 / scale, rotation.T, -(rotation.T @ translation) / scale
-
-    place = fit(reference, source)  # retarget_relative's steps 1-5, on every vertex
-    place_linear = place[0] * place[1]
-    output = np.full_like(frames, np.nan)
-    found = np.isfinite(frames).all(axis=(1, 2))
-    for index in np.flatnonzero(found):
-        motion = fit(reference, frames[index])
-        delta = apply_similarity(frames[index], *invert(*motion)) - reference
-        expressive = source + delta @ place_linear.T
-        output[index] = apply_similarity(apply_similarity(apply_similarity(expressive, *invert(*place)), *motion), *place)
-    if not found.any():
-        return output
-    # retarget_driving's mouth: the driver's opening, made on the 68 points and spread onto the vertices
-    targets = set_mouth_opening(points(output[found]), mouth_opening(points(frames[found])))
-    spread = spreading_weights()
-    moved = output[found]
-    for _ in range(corrections):
-        moved = moved + np.einsum("vp,tpc->tvc", spread, targets - points(moved))
-    output[found] = moved
-    return output
 
 
 # ---- the warp-guided generator's references -----------------------------------------------------------------

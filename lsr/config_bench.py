@@ -334,6 +334,10 @@ class EvalConfig:
     cross_identity: bool = True
     """Also drive each identity with the next identity's landmarks, retargeted and composited into the source's
     anchor shot as `lsr reenact` does (expression, pose, identity and scene metrics; lsr.eval.cross)."""
+    retarget: Literal["2d", "3d"] = "2d"
+    """How the cross-identity driver moves the source (landmarks.mesh_retarget.retarget_face): 2d = the 68 points'
+    relative motion, as `lsr reenact` drives; 3d = the head turned as a rotation of the source's own face mesh, the
+    expression moved in the canonical head frame (needs --detector mesh; frames without a mesh as 2d)."""
     tps_regularization: float = 1e-3
     """lambda of the TPS baselines, tps and tps_mean3 (unit-spread coordinates)."""
     examples: int = 4

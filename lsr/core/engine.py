@@ -397,7 +397,7 @@ class ReenactorBase:
                 or self._require_subject().shots.meshes is None or not np.isfinite(mesh).all()):
             return None
         from landmarks.align import transform_mesh
-        from landmarks.mesh_warp import spreading_weights
+        from landmarks.mesh_retarget import spreading_weights
 
         mesh = np.asarray(mesh, np.float64).copy()
         # the One-Euro filter moved the 68 points: carry that shift onto the vertices near them
@@ -406,11 +406,11 @@ class ReenactorBase:
 
     def _retarget_mesh(self, crop_mesh: np.ndarray | None, reference: np.ndarray | None,
                        relative: bool) -> np.ndarray | None:
-        """``_retarget`` for the mesh (``landmarks.mesh_warp.retarget_mesh``); reference: the driver's mesh on the
+        """``_retarget`` for the mesh (``landmarks.mesh_retarget.retarget_mesh``); reference: the driver's mesh on the
         frame the 68 points' reference came from (None: no mesh then, so no mesh references)."""
         if crop_mesh is None or not relative:
             return crop_mesh
-        from landmarks.mesh_warp import retarget_mesh
+        from landmarks.mesh_retarget import retarget_mesh
 
         source = self._require_subject().reference_mesh
         if reference is None or source is None:

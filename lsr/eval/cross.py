@@ -164,7 +164,8 @@ class CrossSequence:
     anchor: index into the K shots; anchor_shot: (S, S, 3) uint8; anchor_landmarks: (68, 2);
     driver_frames: (T, S', S', 3) uint8 and driver_landmarks: (T, 68, 2) the driver's real hold-outs;
     targets: (T, 68, 2) the retargeted landmarks every method is given; target_poses: (T, 3) degrees;
-    outside: (T, S, S) bool, the scene region per frame; source_embedding: (128,) mean of the K shots'."""
+    outside: (T, S, S) bool, the scene region per frame; source_embedding: (128,) mean of the K shots';
+    target_meshes: (T, 468, 3) the retargeted meshes (NaN rows: none), None without meshes."""
 
     k: int
     identity: str
@@ -179,17 +180,22 @@ class CrossSequence:
     target_poses: np.ndarray
     outside: np.ndarray
     source_embedding: np.ndarray
+    target_meshes: np.ndarray | None = None
 
 
 def prepare_sequence(k: int, identity: str, driver: str, driver_rows: np.ndarray, shots: Sequence[np.ndarray],
                      shot_landmarks: np.ndarray, driver_frames: np.ndarray, driver_landmarks: np.ndarray,
-                     source_embedding: np.ndarray) -> CrossSequence:
-    """Pick the anchor, retarget the driver onto it (its first frame as the reference, as ``lsr reenact`` does)
-    and precompute what every method's frames are measured against. shots: K x (S, S, 3) uint8;
-    shot_landmarks: (K, 68, 2) finite; driver_landmarks: (T, 68, 2) finite, T >= 1."""
+                     source_embedding: np.ndarray, *, shot_meshes: np.ndarray | None = None,
+                     driver_meshes: np.ndarray | None = None, retarget: str = "2d") -> CrossSequence:
+    """Pick the anchor, retarget the driver onto it (its first frame as the reference, as ``lsr reenact`` does:
+    ``landmarks.mesh_retarget.retarget_face`` in mode ``retarget``) and precompute what every method's frames are
+    measured against. shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2) finite; driver_landmarks: (T, 68, 2)
+    finite, T >= 1; shot_meshes (K, 468, 3) and driver_meshes (T, 468, 3): face meshes (NaN rows: none), or None.
+    target_meshes: the retargeted meshes (T, 468, 3) (NaN rows: none) when both are given."""
     from landmarks.expression import pick_anchor
+    from landmarks.mesh_retarget import retarget_face
     from landmarks.pose import estimate_head_pose
-    from landmarks.retarget import RIGID_INDEX, retarget_driving
+    from landmarks.retarget import RIGID_INDEX
     from landmarks.scene import head_region
 
     driver_landmarks = metrics.check_landmarks(driver_landmarks)
@@ -198,11 +204,14 @@ def prepare_sequence(k: int, identity: str, driver: str, driver_rows: np.ndarray
     size = shots[0].shape[:2]
     anchor = pick_anchor(shot_landmarks, size)
     anchor_landmarks = np.asarray(shot_landmarks[anchor], np.float64)
-    targets = retarget_driving(driver_landmarks, driver_landmarks[0], anchor_landmarks)  # (T, 68, 2)
+    with_meshes = shot_meshes is not None and driver_meshes is not None
+    targets, target_meshes = retarget_face(  # (T, 68, 2), (T, 468, 3) or None
+        driver_landmarks, driver_landmarks[0], anchor_landmarks, driver_meshes if with_meshes else None,
+        driver_meshes[0] if with_meshes else None, shot_meshes[anchor] if with_meshes else None, retarget)
     poses = np.stack([estimate_head_pose(t, size, RIGID_INDEX) for t in targets]).astype(np.float64)  # (T, 3)
     outside = np.stack([~head_region([anchor_landmarks, t], size) for t in targets])  # (T, S, S)
     return CrossSequence(int(k), identity, driver, np.asarray(driver_rows), anchor, shots[anchor], anchor_landmarks,
-                         driver_frames, driver_landmarks, targets, poses, outside, source_embedding)
+                         driver_frames, driver_landmarks, targets, poses, outside, source_embedding, target_meshes)
 
 
 def composite(sequence: CrossSequence, outputs: np.ndarray) -> np.ndarray:

@@ -364,22 +364,6 @@ def _check_outputs(outputs: np.ndarray, count: int, size: tuple[int, ...], name:
                           f"{getattr(outputs, 'dtype', '')}; expected ({count}, {', '.join(map(str, size))}) uint8")
 
 
-def _retargeted_meshes(sequence: cross.CrossSequence, shot_meshes: np.ndarray, driver: EvalIdentity) -> np.ndarray:
-    """The driver's hold-out meshes moved onto the anchor shot's mesh as the sequence's 68-point targets were
-    (``landmarks.mesh_warp.retarget_mesh``: relative motion, then the driver's mouth opening), with the anchor's
-    depth. -> (T, 468, 3) float32; all NaN when the anchor or the driver's reference frame has no mesh."""
-    from landmarks.mesh_warp import MESH_POINTS, retarget_mesh
-
-    result = np.full((len(sequence.targets), MESH_POINTS, 3), np.nan, np.float32)
-    anchor_mesh = shot_meshes[sequence.anchor]
-    driver_meshes = None if driver.holdout_meshes is None else driver.holdout_meshes[sequence.driver_rows]
-    if driver_meshes is None or not (np.isfinite(anchor_mesh).all() and np.isfinite(driver_meshes[0]).all()):
-        return result
-    result[..., :2] = retarget_mesh(driver_meshes, driver_meshes[0], anchor_mesh)
-    result[..., 2] = np.where(np.isfinite(result[..., 0]), anchor_mesh[:, 2], np.nan)  # a 2D retarget: depth stays
-    return result
-
-
 def run_protocol(
     methods: Sequence[Method],
     identities: Sequence[EvalIdentity],
@@ -395,6 +379,7 @@ def run_protocol(
     on_cross_outputs: Callable[[str, cross.CrossSequence, np.ndarray], None] | None = None,
     frame_metrics: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] | None = None,
     progress: bool = True,
+    retarget: str = "2d",
 ) -> EvalRun:
     """Evaluate ``methods`` on ``identities`` for each K (see the module docstring).
 
@@ -405,7 +390,8 @@ def run_protocol(
     drive (composited: (T, S, S, 3) uint8, the frames the cross metrics see). frame_metrics:
     {key: metric(outputs, targets) -> (T,)}, each value
     stored per frame in the records under its key (e.g. LPIPS). A method with ``finetune`` is also evaluated fine-tuned,
-    as "<name>+ft", when ``finetune`` is true.
+    as "<name>+ft", when ``finetune`` is true. retarget: how the cross-identity driver is moved onto the anchor
+    (``landmarks.mesh_retarget.retarget_face``'s mode; "3d" needs the identities' meshes, "2d" elsewhere).
     """
     from tqdm import tqdm
 
@@ -449,17 +435,22 @@ def run_protocol(
                 driver_rows = np.flatnonzero(np.isfinite(driver.holdout_landmarks).all(axis=(1, 2)))[: len(driveable)]
                 driver_segmentations = _rows_or_none(driver.holdout_segmentations, driver_rows)
                 if len(driver_rows):  # retargeted onto the anchor shot once; every method gets the same targets
-                    sequence = cross.prepare_sequence(k, identity.name, driver.name, driver_rows, shots, shot_landmarks,
-                                                      driver.holdout_frames[driver_rows],
-                                                      driver.holdout_landmarks[driver_rows], source_embedding)
+                    meshes = identity.has_meshes and driver.has_meshes
+                    sequence = cross.prepare_sequence(
+                        k, identity.name, driver.name, driver_rows, shots, shot_landmarks,
+                        driver.holdout_frames[driver_rows], driver.holdout_landmarks[driver_rows], source_embedding,
+                        shot_meshes=identity.input_meshes[shot_indices] if meshes else None,  # type: ignore[index]
+                        driver_meshes=driver.holdout_meshes[driver_rows] if meshes else None,  # type: ignore[index]
+                        retarget=retarget)
             mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
             cross_meshes: dict[str, np.ndarray] | None = None
             if any(takes_meshes(method) for method in methods) and identity.has_meshes:
                 shot_meshes = identity.input_meshes[shot_indices]  # type: ignore[index]
                 mesh_inputs = {"shot_meshes": shot_meshes, "target_meshes": identity.holdout_meshes[driveable]}  # type: ignore[index]
-                if sequence is not None:
-                    cross_meshes = {"shot_meshes": shot_meshes,
-                                    "target_meshes": _retargeted_meshes(sequence, shot_meshes, driver)}
+                if sequence is not None:  # NaN where the driver has no meshes: the mesh methods fall back per frame
+                    target_meshes = (np.full((len(sequence.targets), 468, 3), np.nan) if sequence.target_meshes is None
+                                     else sequence.target_meshes)
+                    cross_meshes = {"shot_meshes": shot_meshes, "target_meshes": target_meshes.astype(np.float32)}
             for name, method, use_finetune in variants:
                 check_method_inputs(shots, shot_landmarks, target_landmarks)
                 if getattr(method, "needs_meshes", False) and mesh_inputs is None:

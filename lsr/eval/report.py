@@ -193,7 +193,9 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
         lines.append(f"| {row['method']} | {row['k']} | {_fmt(row['low'])} | {_fmt(row['medium'])} | {_fmt(row['high'])} | "
                      f"{row['low_frames']}/{row['medium_frames']}/{row['high_frames']} |")
     if summary["cross"]:
-        lines += ["", "## Cross-identity re-enactment (thesis §4.4.3; retargeted, composited into the anchor shot)", "",
+        retarget = {"3d": "retargeted in 3D where there are meshes", "2d": "retargeted in 2D"}.get(
+            settings.get("retarget", "2d"), "retargeted")
+        lines += ["", f"## Cross-identity re-enactment (thesis §4.4.3; {retarget}, composited into the anchor shot)", "",
                   "| " + " | ".join(CROSS_COLUMNS) + " |", "|" + "---|" * len(CROSS_COLUMNS)]
         for row in summary["cross"]:
             angles = " / ".join(_fmt(row[f"{angle}_error"], 1) for angle in ("yaw", "pitch", "roll"))
@@ -436,7 +438,8 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
                     methods.append(LsrModelMethod(model.weights, device=cfg.device, finetune_steps=cfg.finetune_steps,
                                                   finetune_lr=cfg.finetune_lr, reference_warp=warp,
                                                   name=f"{model.name}+{warp}-refs"))
-    if gives_meshes(detector) and layout != "fsth" and any(takes_meshes(m) for m in methods):
+    retargets_meshes = cfg.cross_identity and cfg.retarget == "3d"  # the drivers' and anchors' meshes move the 68 points
+    if gives_meshes(detector) and layout != "fsth" and (retargets_meshes or any(takes_meshes(m) for m in methods)):
         attach_meshes(identities, detector, cache_dir=Path(cfg.out) / "cache", progress=cfg.progress)
     if not methods:
         raise ConfigError("no method to evaluate: pass --methods nearest_shot tps tps_mean3 (mesh, mesh_mean3 with "
@@ -455,7 +458,8 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
         fid_features, on_outputs = _fid_collector(cfg.fid_weights, cfg.device, on_outputs)
     run = run_protocol(methods, identities, cfg.k, FaceAnalysis(detector), seed=cfg.seed, max_holdouts=cfg.max_holdouts,
                        fixed_thresholds=thresholds, cross_identity=cfg.cross_identity, on_outputs=on_outputs,
-                       on_cross_outputs=cross_figure, frame_metrics=frame_metrics, progress=cfg.progress)
+                       on_cross_outputs=cross_figure, frame_metrics=frame_metrics, progress=cfg.progress,
+                       retarget=cfg.retarget)
     if skipped:
         run.counts["skipped_methods"] = skipped
     fid_results = {}
@@ -471,7 +475,7 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
                             + (f"; N <= D, so {min(eps):g} was added to the covariance diagonals (values are not "
                                "comparable to 50k-sample FIDs)" if eps else ""))
     run.settings.update({"data": str(data), "layout": layout, "detector": detector.settings,
-                         "tps_regularization": cfg.tps_regularization})
+                         "tps_regularization": cfg.tps_regularization, "retarget": cfg.retarget})
     summary = summarise(run, fid=fid_results, backbones=backbones)
     if cfg.figure is not None:
         from landmarks.imageio import write_image

@@ -1,4 +1,4 @@
-"""Piecewise-affine warping over the face mesh (landmarks.mesh_warp): triangulation, rasteriser, map, retargeting."""
+"""Piecewise-affine warping over the face mesh (landmarks.mesh_warp): triangulation, rasteriser, map."""
 
 from __future__ import annotations
 
@@ -199,57 +199,6 @@ class TestMeshWarpMap:
             mesh_warp.mesh_warp_map(face, face, SIZE, SIZE, fallback=wrong)
         with pytest.raises(ValueError, match="uint8"):
             mesh_warp.warp_mesh(np.zeros((SIZE, SIZE, 3), np.float32), face, face)
-
-
-class TestRetargetMesh:
-    def _driver(self, rng: np.random.Generator, opening: float = 0.0, jitter: float = 0.3) -> np.ndarray:
-        """(4, 468, 2): a reference frame, then turned, zoomed and jittered frames with the mouth opened by ``opening``
-        (the 68 points' jaw drop of ``set_mouth_opening``, spread onto the vertices)."""
-        from landmarks.expression import mouth_opening, set_mouth_opening
-
-        reference = _face(20.0, (50.0, 40.0))
-        points = mesh_to_68(reference).astype(np.float64)
-        opened = reference + mesh_warp.spreading_weights() @ (
-            set_mouth_opening(points, mouth_opening(points) + opening) - points)
-        frames = [reference]
-        for turn in (0.05, -0.08, 0.1):
-            rotation = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
-            frames.append((opened - 45.0) @ rotation.T * (1 + turn) + 45.0 + rng.normal(0, jitter, reference.shape))
-        return np.stack(frames)
-
-    def test_matches_the_68_point_retargeting(self, rng):
-        from landmarks.expression import mouth_opening
-        from landmarks.retarget import retarget_driving
-
-        driver = self._driver(rng, opening=0.15)
-        source = _face(30.0, (40.0, 50.0))
-        moved = mesh_warp.retarget_mesh(driver, driver[0], source)
-        assert moved.shape == (4, 468, 2)
-        np.testing.assert_allclose(moved[0], source, atol=0.05 * 30.0 * 0.1)  # the reference frame maps onto the source
-        points = [mesh_to_68(mesh).astype(np.float64) for mesh in (driver, driver[0], source)]
-        expected = retarget_driving(*points)  # what the 68 points of the same frames are driven with
-        error = np.linalg.norm(mesh_to_68(moved) - expected, axis=-1)
-        assert error.max() < 0.03 * 30.0  # within 3 % of the inter-ocular distance
-        np.testing.assert_allclose(mouth_opening(mesh_to_68(moved).astype(np.float64)),
-                                   mouth_opening(points[0]), atol=0.01)  # as open as the driver's, not relative
-
-    def test_opening_the_mouth_does_not_fold_the_mesh(self, rng):
-        triangles = mesh_warp.triangulation()
-        source = _face(30.0, (40.0, 50.0))
-        for opening in (0.0, 0.2):
-            moved = mesh_warp.retarget_mesh(self._driver(rng, opening, jitter=0.0), _face(20.0, (50.0, 40.0)), source)
-            # the lower lip's vertices went down with it: (almost) nothing folds
-            assert np.all(np.sum(mesh_warp.signed_areas(moved, triangles) < 0, axis=1) <= 0.01 * len(triangles))
-
-    def test_missing_frames_stay_missing_and_bad_inputs_raise(self, rng):
-        driver = self._driver(rng)
-        driver[2] = np.nan
-        moved = mesh_warp.retarget_mesh(driver, driver[0], _face())
-        assert np.isnan(moved[2]).all() and np.isfinite(moved[[0, 1, 3]]).all()
-        with pytest.raises(ValueError):
-            mesh_warp.retarget_mesh(driver, np.full((468, 2), np.nan), _face())
-        with pytest.raises(ValueError):
-            mesh_warp.retarget_mesh(driver[:, :68], driver[0], _face())
 
 
 def test_a_shared_target_layout_gives_the_per_source_map_when_nothing_folds():

@@ -111,13 +111,21 @@ def test_retargeted_meshes_follow_the_sequence_targets(synthetic_identities):
     source, driver = synthetic_identities
     shots, shot_landmarks, _, shot_meshes, _ = _inputs(source)
     rows = np.flatnonzero(np.isfinite(driver.holdout_landmarks).all(axis=(1, 2)))
-    sequence = cross.prepare_sequence(len(shots), source.name, driver.name, rows, shots, shot_landmarks,
-                                      driver.holdout_frames[rows], driver.holdout_landmarks[rows], np.zeros(128))
-    meshes = protocol._retargeted_meshes(sequence, shot_meshes, driver)
-    assert meshes.shape == (len(rows), 468, 3) and np.isfinite(meshes).all()
-    eyes = np.linalg.norm(sequence.targets[:, 36:42].mean(1) - sequence.targets[:, 42:48].mean(1), axis=-1)
-    error = np.linalg.norm(mesh_to_68(meshes) - sequence.targets, axis=-1).max(axis=1)
-    assert np.all(error < 0.05 * eyes)
+    sequences = {}
+    for retarget in ("2d", "3d"):
+        sequence = sequences[retarget] = cross.prepare_sequence(len(shots), source.name, driver.name, rows, shots, shot_landmarks,
+                                          driver.holdout_frames[rows], driver.holdout_landmarks[rows], np.zeros(128),
+                                          shot_meshes=shot_meshes, driver_meshes=driver.holdout_meshes[rows],
+                                          retarget=retarget)
+        meshes = sequence.target_meshes
+        assert meshes is not None and meshes.shape == (len(rows), 468, 3) and np.isfinite(meshes).all()
+        eyes = np.linalg.norm(sequence.targets[:, 36:42].mean(1) - sequence.targets[:, 42:48].mean(1), axis=-1)
+        error = np.linalg.norm(mesh_to_68(meshes) - sequence.targets, axis=-1).max(axis=1)
+        assert np.all(error < 0.05 * eyes)  # the meshes and the 68-point targets drive the same face
+    without = cross.prepare_sequence(len(shots), source.name, driver.name, rows, shots, shot_landmarks,
+                                     driver.holdout_frames[rows], driver.holdout_landmarks[rows], np.zeros(128))
+    assert without.target_meshes is None  # in 2D the 68 points do not depend on the meshes
+    np.testing.assert_allclose(without.targets, sequences["2d"].targets)
 
 
 def test_lsr_eval_with_a_detector_without_meshes_skips_the_mesh_baselines(tmp_path, monkeypatch, no_face_detector):
