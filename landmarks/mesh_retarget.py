@@ -182,7 +182,7 @@ def retarget_face(driver_landmarks: np.ndarray, driver_reference_landmarks: np.n
     mode "3d": where the driver's frame, its reference and the source have meshes, ``retarget_mesh_3d`` and the 68
     points mapped from the result (``mesh_to_68``, its jaw following the turned head's silhouette); other frames
     as "2d". mode "2d": ``landmarks.retarget.retarget_driving`` of the 68 points, and ``retarget_mesh`` of the
-    meshes (the source's depth kept).
+    meshes (with the driver frame's depth, which orders overlapping triangles as its head is turned).
 
     driver_landmarks: (T, 68, 2) (NaN frames stay NaN); driver_reference_landmarks, source_landmarks: (68, 2) finite;
     driver_meshes: (T, 468, 3) or None; driver_reference_mesh, source_mesh: (468, 3) or None (NaN = none)
@@ -205,5 +205,5 @@ def retarget_face(driver_landmarks: np.ndarray, driver_reference_landmarks: np.n
         landmarks[found] = mesh_to_68(meshes[found])
         return landmarks, meshes
     meshes[..., :2] = retarget_mesh(frames, driver_reference_mesh, source_mesh)
-    meshes[..., 2] = np.where(np.isfinite(meshes[..., 0]), np.asarray(source_mesh, np.float64)[:, 2], np.nan)
-    return landmarks, meshes
+    meshes[..., 2] = np.where(np.isfinite(meshes[..., 0]), frames[..., 2], np.nan)  # the driver's: its turn, its
+    return landmarks, meshes  # occlusions (which of two overlapping triangles shows)

@@ -237,6 +237,10 @@ class ReenactConfig:
     """Force absolute landmarks (the driver's own face shape)."""
     smooth: bool = True
     """One-Euro smoothing of the driving landmarks."""
+    retarget: Literal["2d", "3d"] = "2d"
+    """Relative motion: 2d = the driver's 68 points' motion on the source's face; 3d = the source's own face mesh
+    turned by the driver's head rotation, the expression moved in the canonical head frame (needs --detector mesh
+    and a video or image driver; elsewhere 2d). Compared by `lsr eval --retarget`."""
     paste_back: bool = False
     """Composite the re-enacted face into full frames of --scene (background and body stay, hair follows the head);
     otherwise output the crop-sized synthesis."""

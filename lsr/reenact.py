@@ -241,7 +241,7 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
                       smooth: bool = True, paste_back: bool = False, scene: str = "source", watermark: bool = False,
                       fps: float | None = None,
                       landmark_space=None, landmark_size: int | None = None, progress: bool = False,
-                      side_by_side: Path | None = None, panel_sink=None) -> WrittenVideo:
+                      side_by_side: Path | None = None, panel_sink=None, retarget: str = "2d") -> WrittenVideo:
     """The one writer of a re-enacted video, for ``lsr reenact`` and the app. The subject must be encoded.
 
     Writes ``output`` (and ``side_by_side``) atomically with the driver's fps and audio, provenance metadata and,
@@ -257,7 +257,8 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
     metadata = provenance_metadata(__version__, runtime)
     audio = driving if info.kind == "video" and info.has_audio else None
     with_layout = side_by_side is not None or panel_sink is not None
-    frames = reenactor.reenact(driving, mode=mode, smooth=smooth, paste_back=paste_back, scene=scene, with_layout=with_layout,
+    frames = reenactor.reenact(driving, mode=mode, smooth=smooth, paste_back=paste_back, scene=scene, retarget=retarget,
+                               with_layout=with_layout,
                                landmark_space=landmark_space, landmark_size=landmark_size, progress=progress)
     first_landmarks = None
     kind, size = reenactor.backend.layout_kind, reenactor.crop_size
@@ -304,7 +305,7 @@ def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | Non
         reenactor, job.driving, job.output, runtime=cfg.runtime,
         mode="relative" if cfg.relative else "absolute" if cfg.absolute else "auto", smooth=cfg.smooth,
         paste_back=cfg.paste_back, scene=cfg.scene, watermark=cfg.watermark, fps=cfg.fps, landmark_space=cfg.landmark_space,
-        landmark_size=cfg.landmark_size, progress=cfg.progress, side_by_side=side_by_side,
+        landmark_size=cfg.landmark_size, progress=cfg.progress, side_by_side=side_by_side, retarget=cfg.retarget,
     )
     for warning in written.warnings:
         print(f"lsr reenact: {warning}")

@@ -42,6 +42,7 @@ from lsr.core.sources import (
     read_landmark_array,
 )
 from landmarks.errors import InputFileError, NoFaceError
+from landmarks.mesh_retarget import RETARGET_MODES
 
 Mode = Literal["auto", "relative", "absolute"]
 Scene = Literal["source", "driver"]
@@ -343,6 +344,7 @@ class ReenactorBase:
         landmark_space: LandmarkSpace | None = None,
         landmark_size: int | None = None,
         progress: bool = False,
+        retarget: str = "2d",
     ) -> Iterator[ReenactedFrame]:
         """Stream re-enacted frames, one per driver frame, in order (a generator: nothing is held but one frame).
 
@@ -357,6 +359,10 @@ class ReenactorBase:
             the anchor shot's frame, or the source video's frames in order, back and forth), at its frame size;
             "driver", the driver's frames (dubbing; a face swap when source and driver differ). When the driver
             is the source itself both are the same. Raw landmark drivers have no frames: "driver" gives the crop.
+        retarget: how relative motion moves the source (``landmarks.mesh_retarget.retarget_face``): "2d", the 68
+            points' relative motion; "3d", the source's own face mesh turned by the driver's head rotation, the
+            expression moved in the canonical head frame (needs meshes of both faces: the mesh detector, a video or
+            image driver; elsewhere "2d").
         Face-less driver frames pass through (the scene frame, the driver frame, or its centre square resized)
         and are counted; a driver without a face in any frame raises ``NoFaceError`` after its last frame.
         """
@@ -364,6 +370,8 @@ class ReenactorBase:
             raise InputFileError(f"mode must be 'auto', 'relative' or 'absolute', got {mode!r}")
         if scene not in ("source", "driver"):
             raise InputFileError(f"scene must be 'source' or 'driver', got {scene!r}")
+        if retarget not in RETARGET_MODES:
+            raise InputFileError(f"retarget must be one of {', '.join(RETARGET_MODES)}, got {retarget!r}")
         subject = self._require_subject()
         info = describe_driver(driver)
         relative = mode == "relative" or (mode == "auto" and not _same_input(subject.source, driver))
@@ -380,7 +388,8 @@ class ReenactorBase:
             frames = self._landmark_driver(driver, info, relative, smooth, with_layout, landmark_space, landmark_size,
                                            stats, scenes)
         else:
-            frames = self._frame_driver(info, relative, smooth, paste_back and not into_source, with_layout, stats, scenes)
+            frames = self._frame_driver(info, relative, smooth, paste_back and not into_source, with_layout, stats, scenes,
+                                        retarget)
         if progress:
             from tqdm import tqdm
 
@@ -389,11 +398,15 @@ class ReenactorBase:
 
     __call__ = reenact
 
+    def _uses_mesh_references(self) -> bool:
+        return bool(self.warp_references) and self.reference_warp == "mesh"
+
     def _crop_mesh(self, mesh: np.ndarray | None, raw_points: np.ndarray, points: np.ndarray,
-                   matrix: np.ndarray) -> np.ndarray | None:
+                   matrix: np.ndarray, retarget: str = "2d") -> np.ndarray | None:
         """The driver's (468, 3) mesh in crop pixels, moved with the 68 points' smoothing, for the references' mesh
-        warp; None when it is not needed (no warp-guided model, no shot meshes) or not at hand."""
-        if (not self.warp_references or self.reference_warp != "mesh" or mesh is None
+        warp and the 3D retargeting; None when neither needs it, when the shots have no meshes, or when it is not at
+        hand."""
+        if (not (self._uses_mesh_references() or retarget == "3d") or mesh is None
                 or self._require_subject().shots.meshes is None or not np.isfinite(mesh).all()):
             return None
         from landmarks.align import transform_mesh
@@ -404,28 +417,24 @@ class ReenactorBase:
         mesh[:, :2] += spreading_weights() @ (np.asarray(points, np.float64) - raw_points)
         return transform_mesh(mesh, matrix)
 
-    def _retarget_mesh(self, crop_mesh: np.ndarray | None, reference: np.ndarray | None,
-                       relative: bool) -> np.ndarray | None:
-        """``_retarget`` for the mesh (``landmarks.mesh_retarget.retarget_mesh``); reference: the driver's mesh on the
-        frame the 68 points' reference came from (None: no mesh then, so no mesh references)."""
-        if crop_mesh is None or not relative:
-            return crop_mesh
-        from landmarks.mesh_retarget import retarget_mesh
-
-        source = self._require_subject().reference_mesh
-        if reference is None or source is None:
-            return None
-        moved = retarget_mesh(crop_mesh[None], reference, source)[0]  # (468, 2)
-        return np.concatenate([moved, crop_mesh[:, 2:3]], axis=1)
-
-    def _retarget(self, crop_landmarks: np.ndarray, reference: np.ndarray | None, relative: bool) -> np.ndarray:
-        from landmarks.retarget import retarget_driving
+    def _drive(self, crop_landmarks: np.ndarray, crop_mesh: np.ndarray | None, reference: np.ndarray,
+               mesh_reference: np.ndarray | None, relative: bool, retarget: str = "2d"
+               ) -> tuple[np.ndarray, np.ndarray | None]:
+        """What the source is driven with: (68 points, mesh for the references or None). Relative motion: the
+        driver's since its first face (reference / mesh_reference: the 68 points and mesh of that frame) on the
+        source's face (``landmarks.mesh_retarget.retarget_face`` in mode ``retarget``; FOMM / LivePortrait style,
+        the mouth exactly as open as the driver's); absolute: the driver's own."""
+        from landmarks.mesh_retarget import retarget_face
 
         if not relative:
-            return crop_landmarks
-        # Relative motion: the driver's first valid frame maps to the source's own face (FOMM/LivePortrait style),
-        # the mouth exactly as open as the driver's.
-        return retarget_driving(crop_landmarks, reference, self._require_subject().reference_landmarks)
+            return crop_landmarks, crop_mesh if self._uses_mesh_references() else None
+        subject = self._require_subject()
+        meshes = crop_mesh is not None and mesh_reference is not None and subject.reference_mesh is not None
+        landmarks, moved = retarget_face(crop_landmarks[None], reference, subject.reference_landmarks,
+                                         crop_mesh[None] if meshes else None, mesh_reference if meshes else None,
+                                         subject.reference_mesh if meshes else None, retarget)
+        mesh = moved[0] if moved is not None and np.isfinite(moved[0]).all() else None
+        return landmarks[0], mesh if self._uses_mesh_references() else None
 
     def _into_scene(self, scenes, target: np.ndarray, with_layout: bool, stats: ReenactStats,
                     target_mesh: np.ndarray | None = None):
@@ -464,7 +473,7 @@ class ReenactorBase:
             else:
                 crop_landmarks = points.astype(np.float64) * (self.crop_size / float(size or self.resolution))
             reference = crop_landmarks if reference is None else reference
-            target = self._retarget(crop_landmarks, reference, relative)
+            target, _ = self._drive(crop_landmarks, None, reference, None, relative)
             stats.add("landmarks", time.perf_counter() - started)
             stats.frames += 1
             if scenes is not None:
@@ -477,7 +486,7 @@ class ReenactorBase:
             yield ReenactedFrame(index, synthesis, True, None, landmark_image, synthesis, layout, target)
 
     def _frame_driver(self, info: DriverInfo, relative: bool, smooth: bool, paste_back: bool, with_layout: bool,
-                      stats: ReenactStats, scenes=None) -> Iterator[ReenactedFrame]:
+                      stats: ReenactStats, scenes=None, retarget: str = "2d") -> Iterator[ReenactedFrame]:
         """paste_back: into the driver's frames; scenes: a ``SourceScene`` to composite into instead."""
         from landmarks.align import crop_transform, transform_landmarks
         from landmarks.scene import composite_face, place_in_frame
@@ -513,11 +522,11 @@ class ReenactorBase:
             if points is not None and np.isfinite(points).all():
                 matrix = crop_transform(points, size)
                 crop_landmarks = transform_landmarks(points, matrix)
-                crop_mesh = self._crop_mesh(mesh, raw_points, points, matrix)
+                crop_mesh = self._crop_mesh(mesh, raw_points, points, matrix, retarget if relative else "2d")
                 if reference is None:  # the driver's first face: its motion from here is what moves the source's
                     reference, mesh_reference = crop_landmarks, crop_mesh
-                crop_mesh = self._retarget_mesh(crop_mesh, mesh_reference, relative)
-                crop_landmarks = self._retarget(crop_landmarks, reference, relative)
+                crop_landmarks, crop_mesh = self._drive(crop_landmarks, crop_mesh, reference, mesh_reference, relative,
+                                                        retarget)
             elif one_euro is not None:
                 one_euro.reset()  # never smooth across a gap
             stats.add("landmarks", time.perf_counter() - started)

@@ -76,3 +76,28 @@ def test_dlib_shots_have_no_meshes_and_fall_back_to_tps(reenactor, people):
 
     shots = load_subject_shots(people["source"], reenactor.crop_size, k=4, detector=make_detector("hog"))
     assert shots.meshes is None
+
+
+def test_reenact_retargets_in_3d_on_the_sources_own_mesh(reenactor, people, monkeypatch):
+    """--retarget 3d: the driver's meshes move the source's mesh (retarget_mesh_3d) and the 68 points are mapped
+    from it; the first driver frame still gives the source's own face; 2d is the 68 points' relative motion."""
+    import landmarks.mesh_retarget as mesh_retarget
+    from landmarks.errors import InputFileError
+
+    calls = []
+    original = mesh_retarget.retarget_mesh_3d
+    monkeypatch.setattr(mesh_retarget, "retarget_mesh_3d", lambda *a, **k: calls.append(1) or original(*a, **k))
+    subject = reenactor.encode_subject(people["source"], k=4)
+    targets = {}
+    for retarget in ("2d", "3d"):
+        frames = list(reenactor.reenact(people["driver"], retarget=retarget))
+        assert len(frames) == 6 and all(f.has_face for f in frames)
+        targets[retarget] = np.stack([f.landmarks for f in frames])
+    assert len(calls) == 6  # one per frame, 3d only
+    eyes = np.linalg.norm(subject.reference_landmarks[36:42].mean(0) - subject.reference_landmarks[42:48].mean(0))
+    # the driver's first face maps onto the source's own (its mouth aside, which takes the driver's opening)
+    np.testing.assert_allclose(targets["3d"][0, :48], subject.reference_landmarks[:48], atol=0.05 * eyes)
+    assert np.isfinite(targets["3d"]).all()
+    assert 0 < np.abs(targets["3d"] - targets["2d"]).max() < 0.5 * eyes  # another motion model, the same drive
+    with pytest.raises(InputFileError, match="retarget"):
+        reenactor.reenact(people["driver"], retarget="4d")
