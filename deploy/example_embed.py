@@ -11,7 +11,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from lsr.core.engine import draw_watermark, provenance_metadata
+from lsr.core.provenance import draw_watermark, provenance_metadata
 from deploy.runtime import OnnxReenactor
 from lsr.core.sources import describe_driver
 from landmarks.imageio import write_image

@@ -9,7 +9,7 @@ Jobs come from exactly one of
   sub-folder of images; a driving entry is a video, a sub-folder of frames, or a .npy/.json landmark file.
 
 Outputs keep the driving video's frame count, fps and audio, and carry container metadata marking them as
-synthetic (``lsr.core.engine.provenance_metadata``); ``--watermark`` adds a visible "SYNTHETIC" mark. Each output
+synthetic (``lsr.core.provenance.provenance_metadata``); ``--watermark`` adds a visible "SYNTHETIC" mark. Each output
 appears only once complete (temp file + rename), so a rerun skips finished jobs (resume) and redoes the rest.
 Output paths and inputs are checked before any model loads: an output that cannot be written (a read-only or
 missing-and-uncreatable folder, a parent that is a file), a ``--side-by-side`` equal to ``--out``, a missing source
@@ -33,7 +33,8 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from lsr.core.engine import STAGES, ReenactorBase, ReenactStats, draw_watermark, provenance_metadata, square_resize
+from lsr.core.engine import STAGES, ReenactorBase, ReenactStats, square_resize
+from lsr.core.provenance import draw_watermark, provenance_metadata
 from lsr.core.sources import LANDMARK_SUFFIXES, describe_driver
 from landmarks.errors import InputFileError, LandmarksError, OutputPathError
 from landmarks.imageio import IMAGE_SUFFIXES, check_output_path as check_writable

@@ -22,7 +22,8 @@ import time
 
 import numpy as np
 
-from lsr.core.engine import ReenactorBase, Subject, draw_watermark
+from lsr.core.engine import ReenactorBase, Subject
+from lsr.core.provenance import draw_watermark
 
 MIN_FPS, MAX_FPS = 2.0, 60.0  # the One-Euro filter's rate follows the frames' spacing, within these bounds
 NO_FACE_NOTE = "no face in the camera: showing the last frame"

@@ -122,3 +122,24 @@ class Drain(Generic[T]):
             if self._thread.is_alive():
                 self._queue.put(_END)
                 self._thread.join()
+
+
+def finish_behind(items: Iterable[T | Callable[[], T]], depth: int = 1) -> Iterator[T]:
+    """``items`` in order, where a callable item is finished (called) on a worker thread while the producer makes
+    the next items, at most ``depth`` of them in flight: a frame's last stage (the paste-back) overlaps the next
+    frame's synthesis. Items that are not callable pass through in their place. An error in a finisher is raised
+    when its item is due; the producer's own error after the items before it."""
+    from collections import deque
+    from concurrent.futures import Future, ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="lsr-finish") as pool:
+        pending: deque = deque()
+        for item in items:
+            pending.append(pool.submit(item) if callable(item) else item)
+            while len(pending) > depth:
+                done = pending.popleft()
+                yield done.result() if isinstance(done, Future) else done
+        while pending:
+            done = pending.popleft()
+            yield done.result() if isinstance(done, Future) else done
+

@@ -71,3 +71,36 @@ def test_drain_consumes_in_order_and_reraises():
     with pytest.raises(RuntimeError, match="caller"), Drain(lambda item: None) as failing:  # the caller's error wins
         failing.put(1)
         raise RuntimeError("caller")
+
+
+def test_finish_behind_keeps_order_overlaps_the_producer_and_raises_when_due():
+    from lsr.core.overlap import finish_behind
+
+    started = threading.Event()
+    threads = []
+
+    def slow(value):
+        def finish():
+            threads.append(threading.current_thread().name)
+            started.set()
+            time.sleep(0.02)
+            return value
+        return finish
+
+    def produce():
+        yield slow(0)
+        assert started.wait(5.0)  # the first finisher runs while the producer makes the next item
+        yield 1  # a plain item passes through in its place
+        yield slow(2)
+        yield slow(3)
+
+    assert list(finish_behind(produce())) == [0, 1, 2, 3]
+    assert threads and all(name.startswith("lsr-finish") for name in threads)
+
+    def failing():
+        raise ValueError("composite failed")
+
+    results = finish_behind(iter([0, failing, 2]))
+    assert next(results) == 0
+    with pytest.raises(ValueError, match="composite failed"):
+        next(results)
