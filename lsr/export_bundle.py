@@ -130,13 +130,19 @@ def onnx_cache_root() -> Path:
 def cached_bundle(weights: str | os.PathLike, cache_root: str | os.PathLike | None = None) -> Path:
     """The fp32 ONNX bundle of a model folder, exported on first use into the cache and reused after.
 
-    The cache key is a hash of config.json + model.safetensors (new weights = new bundle). The export goes into a
-    temp folder that is renamed into place, so a crashed or concurrent first use never leaves a half bundle.
+    The cache key is a hash of config.json + model.safetensors and of the graphs' code (``models_def``'s sources):
+    new weights or a changed graph = a new bundle. The export goes into a temp folder that is renamed into place, so
+    a crashed or concurrent first use never leaves a half bundle.
     """
+    import importlib.util
+
     weights = Path(weights)
     digest = hashlib.sha256()
     for name in ("config.json", "model.safetensors"):
         digest.update((weights / name).read_bytes())
+    graphs = Path(importlib.util.find_spec("models_def").origin).parent  # not imported: a cache hit needs no torch
+    for source in sorted(graphs.glob("*.py")):  # the code the graphs are traced from
+        digest.update(source.name.encode() + source.read_bytes())
     root = Path(cache_root) if cache_root is not None else onnx_cache_root()
     folder = root / digest.hexdigest()[:20]
     if (folder / SUBJECT_ENCODER_FILE).is_file() and (folder / FRAME_GENERATOR_FILE).is_file():

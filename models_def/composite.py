@@ -14,6 +14,7 @@ import math
 import torch
 import torch.nn.functional as F
 
+from models_def.blocks import channel_softmax
 from models_def.shapes import check_shape
 
 # The flow outputs are multiplied by this before the tanh: with Adam, the flow rows of G^s's last conv then learn
@@ -43,7 +44,7 @@ def blend_references(
         generated = F.interpolate(generated, size=(height, width), mode="bilinear", align_corners=False)
     masks = reference_masks[:, :, 0].clamp(0.0, 1.0)  # (B, N, H, W)
     reference_logits = blend_logits[:, :count] + INVALID_LOGIT_PENALTY * (masks - 1.0)
-    weights = torch.cat([reference_logits, blend_logits[:, count:]], dim=1).softmax(dim=1)  # (B, N + 1, H, W)
+    weights = channel_softmax(torch.cat([reference_logits, blend_logits[:, count:]], dim=1))  # (B, N + 1, H, W)
     image = (weights[:, :count, None] * references).sum(dim=1) + weights[:, count:] * generated  # (B, 3, H, W)
     return image, weights
 

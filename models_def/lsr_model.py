@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from models_def.blocks import channel_softmax
 from models_def.composite import add_reference_detail, blend_references, shift_references
 from models_def.config import NUM_SEG_CLASSES, ModelConfig
 from models_def.encoder import SubjectEncoder
@@ -112,7 +113,7 @@ class FrameGenerator(nn.Module):
         layout = layout_logits = aux_rgb = None
         if self.layout_predictor is not None:  # thesis eq. 4.3: y^l = G^l(x_t, z^l)
             layout_logits, aux_rgb = self.layout_predictor(landmark_image, layout_latent, with_aux_rgb)
-            layout = layout_logits.softmax(dim=1) if self.config.layout_activation == "softmax" else layout_logits
+            layout = channel_softmax(layout_logits) if self.config.layout_activation == "softmax" else layout_logits
         elif oracle_segmentation is not None:  # Table 4.2 upper bound: the oracle segmentation replaces G^l
             size = self.config.resolution
             check_shape("oracle_segmentation", oracle_segmentation, (batch, NUM_SEG_CLASSES, size, size))

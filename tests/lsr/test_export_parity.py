@@ -61,6 +61,9 @@ def test_frame_generator_parity_dynamic_batch(tmp_path, variant, with_layout):
         return tuple(tensors)
 
     path = export_onnx(graph, inputs(2), tmp_path / "frame.onnx", names_in, names_out, axes)
+    onnx = pytest.importorskip("onnx")
+    # a Softmax over the channels runs through transposes in ONNX Runtime (15 % of the default's frame time)
+    assert not any(node.op_type == "Softmax" for node in onnx.load(str(path)).graph.node)
     session = _session(path)
     for batch in (1, 3):
         example = inputs(batch)

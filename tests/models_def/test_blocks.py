@@ -102,3 +102,14 @@ class TestNorms:
         assert (block.norm_s is None) == shared
         inputs = (_rand(1, 3, 4, 4).requires_grad_(), _rand(1, 4, 4, 4).requires_grad_())
         assert torch.autograd.gradcheck(block.double(), inputs)
+
+
+def test_channel_softmax_is_the_softmax_over_channels_and_stays_finite():
+    from models_def.blocks import channel_softmax
+
+    x = _rand(2, 19, 9, 7)
+    torch.testing.assert_close(channel_softmax(x), x.softmax(dim=1), atol=1e-12, rtol=1e-12)
+    large = channel_softmax(x.float() * 1e4)  # exp of the raw logits would overflow
+    assert torch.isfinite(large).all()
+    torch.testing.assert_close(large.sum(dim=1), torch.ones(2, 9, 7), atol=1e-6, rtol=0)
+
