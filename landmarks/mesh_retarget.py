@@ -110,20 +110,13 @@ def open_mouth_as(meshes: np.ndarray, drivers: np.ndarray, corrections: int = 3)
     targets = set_mouth_opening(points(moved), mouth_opening(points(drivers)))
     spread = spreading_weights()
     for _ in range(corrections):
-        moved = moved + np.einsum("vp,tpc->tvc", spread, targets - points(moved))
+        moved = moved + spread @ (targets - points(moved))  # (468, 68) @ (T, 68, 2)
     return moved
 
 
-def head_frame(mesh: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """The similarity placing the canonical head on ``mesh``: (rotation (3, 3), scale, translation (3,)) with
-    mesh ~ scale * rotation @ canonical + translation on the rigid vertices (``landmarks.mesh_pose.mesh_rotation``)."""
-    from landmarks.mesh_pose import mesh_rotation
-
-    return mesh_rotation(mesh)
-
-
 def to_head_frame(mesh: np.ndarray, frame: tuple[np.ndarray, float, np.ndarray]) -> np.ndarray:
-    """(468, 3) frame pixels -> (468, 3) canonical head coordinates under ``frame`` (``head_frame``'s inverse)."""
+    """(468, 3) frame pixels -> (468, 3) canonical head coordinates under ``frame``, the similarity
+    (rotation, scale, translation) of ``landmarks.mesh_pose.mesh_rotation`` that places the canonical head there."""
     rotation, scale, translation = frame
     return (np.asarray(mesh, np.float64) - translation) @ rotation / scale
 
@@ -133,7 +126,7 @@ def retarget_mesh_3d(driver_meshes: np.ndarray, driver_reference: np.ndarray, so
     """The driver's motion since ``driver_reference`` moved onto ``source_mesh`` in 3D (module docstring), then the
     mouth as open as the driver's (``open_mouth_as``).
 
-    Per frame t, with head frames (R, s, T) of ``head_frame`` and c(.) = ``to_head_frame``:
+    Per frame t, with head frames (R, s, T) of ``landmarks.mesh_pose.mesh_rotation`` and c(.) = ``to_head_frame``:
       expression  e_t = c_t(driver_t) - c_ref(driver_ref)            (canonical units: face size cancels)
       rotation    R = R_t R_ref^T R_source                           (the driver's turn since its reference)
       scale       s = s_source * s_t / s_ref
@@ -151,7 +144,9 @@ def retarget_mesh_3d(driver_meshes: np.ndarray, driver_reference: np.ndarray, so
     source = _check_mesh(source_mesh, "source_mesh", (3,))
     if not (np.isfinite(reference).all() and np.isfinite(source).all()):
         raise ValueError("driver_reference and source_mesh must be finite")
-    reference_frame, source_frame = head_frame(reference), head_frame(source)
+    from landmarks.mesh_pose import mesh_rotation
+
+    reference_frame, source_frame = mesh_rotation(reference), mesh_rotation(source)
     reference_rotation, reference_scale, reference_translation = reference_frame
     source_rotation, source_scale, source_translation = source_frame
     neutral, own = to_head_frame(reference, reference_frame), to_head_frame(source, source_frame)
@@ -159,7 +154,7 @@ def retarget_mesh_3d(driver_meshes: np.ndarray, driver_reference: np.ndarray, so
     output = np.full_like(frames, np.nan)
     found = np.isfinite(frames).all(axis=(1, 2))
     for index in np.flatnonzero(found):
-        frame = head_frame(frames[index])
+        frame = mesh_rotation(frames[index])
         rotation, scale, translation = frame
         expression = to_head_frame(frames[index], frame) - neutral
         turned = rotation @ reference_rotation.T @ source_rotation
