@@ -236,25 +236,36 @@ class OnnxModelMethod(LsrModelMethod):
 
 
 def identity_calibration(method: LsrModelMethod, identities, frames: int = 32, k: int = 8) -> list[dict[str, np.ndarray]]:
-    """Frame-graph inputs from the identities' *input* frames (never the hold-outs that are scored):
-    each identity's latents from its first K inputs, landmark images of its inputs."""
-    from lsr.core.engine import to_network
-    from landmarks.raster import draw_landmarks
+    """Frame-graph inputs from the identities' *input* frames (never the hold-outs that are scored), as
+    ``ReenactorBase.network_inputs`` makes them for ``lsr reenact`` at the exported graph's crop side
+    (``default_crop_size``): each identity's latents from its first K inputs, landmark images of its inputs and, for
+    a warp-guided model, its shots warped onto them."""
+    import cv2
 
+    from lsr.core.engine import default_crop_size
+    from lsr.pipeline import subject_shots_from_training
+
+    reenactor = method.reenactor
+    previous, crop = reenactor.crop_size, default_crop_size(reenactor.backend)
+    reenactor.crop_size = crop
     feeds: list[dict[str, np.ndarray]] = []
     per_identity = max(1, math.ceil(frames / max(1, len(identities))))
-    for identity in identities:
-        usable = np.flatnonzero(np.isfinite(identity.input_landmarks).all(axis=(1, 2)))
-        if not len(usable):
-            continue
-        shots = [identity.input_frames[i] for i in usable[:k]]
-        scale = method._encode(shots, identity.input_landmarks[usable[:k]].astype(np.float64))
-        subject = method.reenactor.subject
-        for index in usable[:per_identity]:
-            points = scale_points(identity.input_landmarks[index], scale)
-            landmark_image = to_network(draw_landmarks(points, method.reenactor.resolution))[None]
-            feeds.append({"landmark_image": landmark_image, "layout_latent": subject.layout_latent,
-                          "style_latent": subject.style_latent})
+    try:
+        for identity in identities:
+            usable = np.flatnonzero(np.isfinite(identity.input_landmarks).all(axis=(1, 2)))
+            if not len(usable):
+                continue
+            scale = crop / identity.input_frames.shape[1]
+            shots = np.stack([cv2.resize(identity.input_frames[i], (crop, crop), interpolation=cv2.INTER_AREA
+                                         if scale < 1 else cv2.INTER_CUBIC) for i in usable[:k]])
+            points = scale_points(identity.input_landmarks[usable].astype(np.float64), scale)
+            reenactor.encode_subject(subject_shots_from_training(shots, points[:k]))
+            for target in points[:per_identity]:
+                _, inputs = reenactor.network_inputs(target)
+                feeds.append({name: np.asarray(value, np.float32) for name, value in inputs.items()})
+    finally:  # the method encodes its own shots again at its own side
+        reenactor.crop_size = previous
+        method._encoded = None
     return feeds[:frames]
 
 

@@ -128,7 +128,8 @@ def test_end_to_end_writes_section_json_and_plot(tmp_path):
 
 @pytest.mark.slow
 def test_warp_guided_rows_time_the_warps_too(tmp_path):
-    """A warp-guided model's per-frame path is its shots' TPS warps + the network: both timed, and their sum."""
+    """A warp-guided model's per-frame path is its shots' TPS warps + the network: both timed, and their sum; its
+    int8 graph is calibrated on real inputs, the warped shots included (a traceback before)."""
     import torch
 
     from lsr.data.synth import generate_dataset
@@ -139,10 +140,11 @@ def test_warp_guided_rows_time_the_warps_too(tmp_path):
     weights = LSRModel(preset_config("tiny", variant="warp_guided")).save_pretrained(tmp_path / "warp")
     split = tmp_path / "split"
     generate_dataset(split, identities=2, videos_per_identity=1, frames=12, size=64, seed=3, test_fraction=0.5, progress=False)
-    cfg = BenchSpeedConfig(presets=("tiny",), resolutions=(64,), runtimes=("eager", "onnxruntime"), weights=(f"tiny={weights}",),
+    cfg = BenchSpeedConfig(presets=("tiny",), resolutions=(64,), runtimes=("eager", "onnxruntime", "int8"), weights=(f"tiny={weights}",),
                            k=(2,), runs=2, warmup=0, encoder_runs=1, out_md=tmp_path / "B.md", synthetic_root=split,
                            threads=1, progress=False)
     rows = run_bench_speed(cfg)["rows"]
+    assert {row["runtime"] for row in rows} >= {"int8"}
     for row in rows:
         assert row["warp_ms"] > 0 and row["total_ms"] == pytest.approx(row["frame_ms"] + row["warp_ms"])
         assert 0 < row["error_synthetic"]["2"]["psnr"] < 100
