@@ -11,7 +11,6 @@ The shipped default is timed unless --weights names another model or --preset a 
 
 from __future__ import annotations
 
-import dataclasses
 import tempfile
 import time
 from pathlib import Path
@@ -48,19 +47,14 @@ def synthesis_only_ms(reenactor, repeats: int = 20) -> float:
     return float(np.median(times[1:]) * 1000)
 
 
-@dataclasses.dataclass
-class _JobOptions:  # the ReenactConfig fields run_job reads
-    paste_back: bool
-    scene: str = "source"
-    fps: float | None = None
-    relative: bool = False
-    absolute: bool = False
-    smooth: bool = True
-    watermark: bool = False
-    landmark_space: str | None = None
-    landmark_size: int | None = None
-    progress: bool = False
-    runtime: str = "torch"
+def _job_options(paste_back: bool, runtime: str):
+    """What ``run_job`` reads of a ``ReenactConfig``: its defaults (so a new reenact option is benched at its default)
+    with this run's paste-back and runtime, and no progress bar."""
+    from lsr.config import ReenactConfig
+
+    options = ReenactConfig()
+    options.paste_back, options.runtime, options.progress = paste_back, runtime, False
+    return options
 
 
 def run_bench_reenact(cfg: BenchReenactConfig) -> str:
@@ -104,7 +98,7 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
             synth_ms = synthesis_only_ms(reenactor)
             started = time.perf_counter()
             stats = run_job(reenactor, Job(clip, clip, temp / f"out_{runtime}_{detector}.mp4"),
-                            _JobOptions(cfg.paste_back, runtime=runtime))
+                            _job_options(cfg.paste_back, runtime))
             wall = time.perf_counter() - started
             per_frame = {stage: 1000 * stats.seconds.get(stage, 0.0) / max(1, stats.frames)
                          for stage in ("decode", "landmarks", "synthesis", "paste_back", "encode")}
