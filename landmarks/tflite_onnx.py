@@ -205,11 +205,17 @@ class _Builder:
         self.set(int(op.Outputs(0)), self.activation(out, options.FusedActivationFunction()), layout)
 
     def prelu(self, op: Any) -> None:
+        """PReLU as relu(x) - slope * relu(-x): the same values (the slopes may be negative or above 1, so no max
+        trick), and onnxruntime's PRelu kernel broadcasts the per-channel slope slowly (the face mesh net: 4.4 ->
+        2.7 ms on one thread, PRelu 2.6 ms of it)."""
         source, alpha_index = int(op.Inputs(0)), int(op.Inputs(1))
         alpha = self.constant(alpha_index)  # (1, 1, C) or (C,)
         slope = alpha.reshape(-1)[:, None, None]  # (C, 1, 1): broadcasts over NCHW
-        out = self.node("PRelu", [self.value(source, "nchw"), self.add_initializer("alpha", slope)], "prelu")
-        self.set(int(op.Outputs(0)), out, "nchw")
+        x = self.value(source, "nchw")
+        positive = self.node("Relu", [x], "prelu_positive")
+        negative = self.node("Relu", [self.node("Neg", [x], "prelu_negated")], "prelu_negative")
+        scaled = self.node("Mul", [negative, self.add_initializer("alpha", slope)], "prelu_scaled")
+        self.set(int(op.Outputs(0)), self.node("Sub", [positive, scaled], "prelu"), "nchw")
 
     def relu(self, op: Any) -> None:
         source = int(op.Inputs(0))
