@@ -123,8 +123,8 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
         "",
         "Stages overlap (lsr.core.overlap): decoding and tracking run on a thread ahead of the synthesis (decode ms = "
         "what the synthesis waited for; landmarks ms = tracking there plus smoothing and retargeting), encoding on "
-        "one behind it; the network keeps the calling thread with all cores but one. Paste-back still runs between "
-        "syntheses.",
+        "one behind it, and each frame's paste-back on a worker while the next frame is synthesised (paste-back ms "
+        "= its time there, sharing the cores); the network keeps the calling thread with all cores but one.",
         "Goals: end-to-end >= 20 fps and >= 0.8 x synthesis-only; the per-frame path <= 25 ms at 256^2.",
         *notes,
         "",
