@@ -1,10 +1,10 @@
 """Cross-identity re-enactment metrics of ``lsr eval`` (thesis §4.4.3, extended to see the re-enactment itself).
 
 Identity i is driven by identity i+1's hold-out landmarks the way ``lsr reenact`` drives it: retargeted
-(``landmarks.retarget.retarget_driving``, the driver's first frame mapped onto the anchor shot's face; the
-anchor is ``landmarks.expression.pick_anchor`` of the K shots), and every method's output composited into the
-anchor shot (``landmarks.scene.composite_face``, what ``lsr reenact --paste-back`` delivers). All metrics are
-on the composited frame; its landmarks are detected once per frame.
+(``landmarks.mesh_retarget.retarget_face`` in the mode of ``--retarget``, the driver's first frame mapped onto the
+anchor shot's face; the anchor is ``landmarks.expression.pick_anchor`` of the K shots), and every method's output
+composited into the anchor shot (``landmarks.scene.composite_face``, what ``lsr reenact --paste-back`` delivers).
+All metrics are on the composited frame; its landmarks are detected once per frame.
 
 Per frame (``evaluate_method`` -> one record each):
   * ``output_mouth`` / ``output_eye``: ``landmarks.expression`` openings of the detected landmarks (NaN: no face);
@@ -39,7 +39,10 @@ MIN_FRAMES = 3  # fewer paired frames than this: no correlation or gain (NaN)
 
 CONVENTION = (
     "identity i driven by identity i+1's hold-out landmarks as `lsr reenact` drives it: retargeted "
-    "(retarget_driving: relative motion, the mouth as open as the driver's; the driver's first frame mapped onto the anchor shot = pick_anchor of the K shots: most "
+    "(landmarks.mesh_retarget.retarget_face, --retarget: 2d = retarget_driving's relative motion of the 68 "
+    "points, 3d = the anchor's own mesh turned by the driver's head rotation, expression in the canonical head "
+    "frame; either way the mouth as open as the driver's; the driver's first frame mapped onto the anchor shot = "
+    "pick_anchor of the K shots: most "
     "frontal, closed mouth), every method's output composited into the anchor shot (composite_face); all metrics "
     "on the composited frame, its landmarks detected once. mouth / eye corr = Pearson correlation, per driven "
     "sequence, of the driver's real (not retargeted) mouth / eye opening (inner-lip / eyelid gap over the "
