@@ -23,16 +23,9 @@ import functools
 import numpy as np
 
 from landmarks.mesh68 import mesh_to_68
-from landmarks.mesh_warp import MESH_POINTS, frontal_canonical
+from landmarks.mesh_warp import MESH_POINTS, check_mesh, frontal_canonical
 
 INTERPOLATION_NEIGHBOURS = 4  # 68 points that spread a correction onto each mesh vertex
-
-
-def _check_mesh(mesh: np.ndarray, name: str, columns: tuple[int, ...] = (2, 3)) -> np.ndarray:
-    points = np.asarray(mesh, np.float64)
-    if points.ndim != 2 or points.shape[0] != MESH_POINTS or points.shape[1] not in columns:
-        raise ValueError(f"{name} must be ({MESH_POINTS}, {' or '.join(map(str, columns))}), got {points.shape}")
-    return points[:, :2] if columns == (2, 3) else points
 
 
 @functools.lru_cache(maxsize=1)
@@ -62,12 +55,12 @@ def retarget_mesh(driver_meshes: np.ndarray, driver_reference: np.ndarray, sourc
     onto the source; source_mesh: (468, >=2) -> (T, 468, 2) float64. Purely 2D: the meshes' 68 points are taken
     without depth (the jaw's yaw-0 weights), so the jaw follows the mesh's skin, not the silhouette.
     """
-    from landmarks.retarget import RIGID_INDEX, apply_similarity, similarity_procrustes
+    from landmarks.retarget import RIGID_INDEX, apply_similarity, invert_similarity, similarity_procrustes
 
     frames = np.asarray(driver_meshes, np.float64)[..., :2]
     if frames.ndim != 3 or frames.shape[1] != MESH_POINTS:
         raise ValueError(f"driver_meshes must be (T, {MESH_POINTS}, 2 or 3), got {np.shape(driver_meshes)}")
-    reference, source = _check_mesh(driver_reference, "driver_reference"), _check_mesh(source_mesh, "source_mesh")
+    reference, source = check_mesh(driver_reference, "driver_reference"), check_mesh(source_mesh, "source_mesh")
     if not (np.isfinite(reference).all() and np.isfinite(source).all()):
         raise ValueError("driver_reference and source_mesh must be finite")
     rigid = list(RIGID_INDEX)
@@ -78,18 +71,16 @@ def retarget_mesh(driver_meshes: np.ndarray, driver_reference: np.ndarray, sourc
     def fit(first: np.ndarray, second: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
         return similarity_procrustes(points(first)[rigid], points(second)[rigid])
 
-    def invert(scale: float, rotation: np.ndarray, translation: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-        return 1.0 / scale, rotation.T, -(rotation.T @ translation) / scale
-
     place = fit(reference, source)  # retarget_relative's steps 1-5, on every vertex
     place_linear = place[0] * place[1]
     output = np.full_like(frames, np.nan)
     found = np.isfinite(frames).all(axis=(1, 2))
     for index in np.flatnonzero(found):
         motion = fit(reference, frames[index])
-        delta = apply_similarity(frames[index], *invert(*motion)) - reference
+        delta = apply_similarity(frames[index], *invert_similarity(*motion)) - reference
         expressive = source + delta @ place_linear.T
-        output[index] = apply_similarity(apply_similarity(apply_similarity(expressive, *invert(*place)), *motion), *place)
+        in_driver_frame = apply_similarity(expressive, *invert_similarity(*place))
+        output[index] = apply_similarity(apply_similarity(in_driver_frame, *motion), *place)
     if found.any():
         output[found] = open_mouth_as(output[found], frames[found], corrections)
     return output
@@ -140,8 +131,8 @@ def retarget_mesh_3d(driver_meshes: np.ndarray, driver_reference: np.ndarray, so
     frames = np.asarray(driver_meshes, np.float64)
     if frames.ndim != 3 or frames.shape[1:] != (MESH_POINTS, 3):
         raise ValueError(f"driver_meshes must be (T, {MESH_POINTS}, 3), got {np.shape(driver_meshes)}")
-    reference = _check_mesh(driver_reference, "driver_reference", (3,))
-    source = _check_mesh(source_mesh, "source_mesh", (3,))
+    reference = check_mesh(driver_reference, "driver_reference", depth=True)
+    source = check_mesh(source_mesh, "source_mesh", depth=True)
     if not (np.isfinite(reference).all() and np.isfinite(source).all()):
         raise ValueError("driver_reference and source_mesh must be finite")
     from landmarks.mesh_pose import mesh_rotation

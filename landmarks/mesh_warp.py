@@ -331,11 +331,13 @@ class MeshWarpMap:
         return tps.WarpMap.valid(self, source_height, source_width)  # type: ignore[arg-type]  # reads map_x, map_y
 
 
-def _check_mesh(mesh: np.ndarray, name: str) -> np.ndarray:
+def check_mesh(mesh: np.ndarray, name: str, *, depth: bool = False) -> np.ndarray:
+    """A (468, 2 or 3) mesh as float64: its x, y (468, 2), or with ``depth`` its (468, 3), which it must then have;
+    anything else raises ValueError naming ``name``."""
     points = np.asarray(mesh, np.float64)
-    if points.ndim != 2 or points.shape[0] != MESH_POINTS or points.shape[1] not in (2, 3):
-        raise ValueError(f"{name} must be ({MESH_POINTS}, 2 or 3), got {points.shape}")
-    return points[:, :2]
+    if points.ndim != 2 or points.shape[0] != MESH_POINTS or points.shape[1] not in ((3,) if depth else (2, 3)):
+        raise ValueError(f"{name} must be ({MESH_POINTS}, {'3' if depth else '2 or 3'}), got {points.shape}")
+    return points if depth else points[:, :2]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -411,7 +413,7 @@ def target_layout(target_mesh: np.ndarray, height: int, width: int, *, feather: 
     """The target's share of ``mesh_warp_map`` for several sources: triangles kept when usable in the target (a
     source's folded triangles then become holes, filled as a dropped triangle's are). grid_step: as in
     ``mesh_warp_map``."""
-    target = _check_mesh(target_mesh, "target_mesh")
+    target = check_mesh(target_mesh, "target_mesh")
     usable = (signed_areas(target, triangulation()) >= min_area) & np.isfinite(target[triangulation()]).all(axis=(1, 2))
     depth = np.asarray(target_mesh, np.float64)[:, 2] if np.shape(target_mesh)[1] == 3 else None
     return _layout(target, depth, usable, height, width, _feather_of(target, feather), grid_step)
@@ -443,7 +445,7 @@ def mesh_warp_map(
     target's inter-ocular distance, at least ``FEATHER``. layout: ``target_layout`` of this target, shared by
     several sources (then ``feather`` and ``grid_step`` are the layout's).
     """
-    source, target = _check_mesh(source_mesh, "source_mesh"), _check_mesh(target_mesh, "target_mesh")
+    source, target = check_mesh(source_mesh, "source_mesh"), check_mesh(target_mesh, "target_mesh")
     step = layout.grid_step if layout is not None else grid_step
     if fallback is None:  # the meshes as given: with depth, the 68 points' jaw follows the head's yaw
         fallback = tps.tps_map(mesh_to_68(np.asarray(source_mesh)), mesh_to_68(np.asarray(target_mesh)), height, width,

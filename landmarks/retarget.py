@@ -59,7 +59,8 @@ def apply_similarity(points: np.ndarray, scale: float, rotation: np.ndarray, tra
     return points @ (scale * np.asarray(rotation)).T + np.asarray(translation)
 
 
-def _invert_similarity(scale: float, rotation: np.ndarray, translation: np.ndarray):
+def invert_similarity(scale: float, rotation: np.ndarray, translation: np.ndarray):
+    """The inverse of ``apply_similarity``'s (scale, R, t): (1 / scale, R^T, -R^T t / scale)."""
     inverse_rotation = rotation.T
     return 1.0 / scale, inverse_rotation, -(inverse_rotation @ translation) / scale
 
@@ -112,14 +113,14 @@ def retarget_relative(driver: np.ndarray, driver_reference: np.ndarray, source: 
     reference = _check_shape(driver_reference, "driver_reference", finite=True)
     source_points = _check_shape(source, "source", finite=True)
     place_scale, place_rotation, place_translation = _fit_rigid(reference, source_points)
-    unplace = _invert_similarity(place_scale, place_rotation, place_translation)
+    unplace = invert_similarity(place_scale, place_rotation, place_translation)
     place_linear = place_scale * place_rotation
     output = np.full_like(frames, np.nan)
     for index, frame in enumerate(frames):
         if not np.isfinite(frame).all():
             continue
         motion = _fit_rigid(reference, frame)  # step 1
-        expression_delta = apply_similarity(frame, *_invert_similarity(*motion)) - reference  # step 2
+        expression_delta = apply_similarity(frame, *invert_similarity(*motion)) - reference  # step 2
         expressive_source = source_points + expression_delta @ place_linear.T  # steps 3-4
         in_driver_frame = apply_similarity(expressive_source, *unplace)  # step 5: P^-1, H_t, P
         moved = apply_similarity(in_driver_frame, *motion)

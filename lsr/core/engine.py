@@ -419,16 +419,8 @@ class ReenactorBase:
         started = time.perf_counter()
         synthesis, landmark_image, layout = self.synthesize_crop(target, with_layout, crop_mesh=target_mesh)
         stats.add("synthesis", time.perf_counter() - started)
-
-        def finish() -> ReenactedFrame:
-            output = scene.image
-            if scene.landmarks is not None:
-                started = time.perf_counter()
-                output = scene.composite(target, synthesis)
-                stats.add("paste_back", time.perf_counter() - started)
-            return ReenactedFrame(index, output, True, driver_frame, landmark_image, synthesis, layout, target)
-
-        return finish
+        frame = ReenactedFrame(index, scene.image, True, driver_frame, landmark_image, synthesis, layout, target)
+        return functools.partial(_paste_into_scene, frame, scene, stats)
 
     def _landmark_driver(self, driver, info: DriverInfo, relative: bool, smooth: bool, with_layout: bool,
                          landmark_space, landmark_size, stats: ReenactStats, scenes=None) -> Iterator[ReenactedFrame]:
@@ -534,6 +526,16 @@ class ReenactorBase:
         if self.subject is None:
             raise NoFaceError("no subject encoded yet: call encode_subject(source) before re-enacting")
         return self.subject
+
+
+def _paste_into_scene(frame: ReenactedFrame, scene, stats: ReenactStats) -> ReenactedFrame:
+    """``frame`` (its image the scene frame) with the synthesis composited into that scene frame at the frame's
+    target (``SceneFrame.composite``); a scene frame whose face was not found stays as it is."""
+    if scene.landmarks is not None:
+        started = time.perf_counter()
+        frame.image = scene.composite(frame.landmarks, frame.synthesis)
+        stats.add("paste_back", time.perf_counter() - started)
+    return frame
 
 
 def _paste_into_driver(frame: ReenactedFrame, points: np.ndarray, matrix: np.ndarray,

@@ -240,9 +240,7 @@ def identity_calibration(method: LsrModelMethod, identities, frames: int = 32, k
     ``ReenactorBase.network_inputs`` makes them for ``lsr reenact`` at the exported graph's crop side
     (``default_crop_size``): each identity's latents from its first K inputs, landmark images of its inputs and, for
     a warp-guided model, its shots warped onto them."""
-    import cv2
-
-    from lsr.core.engine import default_crop_size
+    from lsr.core.engine import default_crop_size, resize_shots
     from lsr.pipeline import subject_shots_from_training
 
     reenactor = method.reenactor
@@ -255,11 +253,10 @@ def identity_calibration(method: LsrModelMethod, identities, frames: int = 32, k
             usable = np.flatnonzero(np.isfinite(identity.input_landmarks).all(axis=(1, 2)))
             if not len(usable):
                 continue
-            scale = crop / identity.input_frames.shape[1]
-            shots = np.stack([cv2.resize(identity.input_frames[i], (crop, crop), interpolation=cv2.INTER_AREA
-                                         if scale < 1 else cv2.INTER_CUBIC) for i in usable[:k]])
-            points = scale_points(identity.input_landmarks[usable].astype(np.float64), scale)
-            reenactor.encode_subject(subject_shots_from_training(shots, points[:k]))
+            shots = np.stack([identity.input_frames[i] for i in usable[:k]])
+            reenactor.encode_subject(resize_shots(subject_shots_from_training(shots, identity.input_landmarks[usable[:k]]),
+                                                  crop))
+            points = scale_points(identity.input_landmarks[usable].astype(np.float64), crop / shots.shape[1])
             for target in points[:per_identity]:
                 _, inputs = reenactor.network_inputs(target)
                 feeds.append({name: np.asarray(value, np.float32) for name, value in inputs.items()})
