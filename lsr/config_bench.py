@@ -327,6 +327,9 @@ class EvalConfig:
     reference_warps: tuple[Literal["mesh", "tps"], ...] = ("mesh",)
     """How warp-guided models' references are warped: mesh (over the face mesh, needs --detector mesh) or tps (the
     68-point TPS); more than one adds a row per extra choice ("+tps-refs"), in the same run."""
+    mouths: tuple[Literal["nearest", "blend"], ...] = ("nearest",)
+    """A warp-guided model's mouth: nearest (from the nearest warped shot, landmarks.nearest_mouth) or blend (the
+    network's blend of all its shots); more than one adds a row per extra choice ("+blend-mouth"), same run."""
     detector_upsample: int = 1
     """dlib only: pyramid upsampling; 1 finds the faces of 224-px crops at 1/4 the cost of 2."""
     bucket_thresholds: tuple[float, ...] = ()
@@ -378,6 +381,8 @@ class EvalConfig:
             raise ConfigError("--methods needs at least one of nearest_shot, tps, tps_mean3, mesh, mesh_mean3 (or give --weights)")
         if not self.reference_warps:
             raise ConfigError("--reference-warps needs at least one of mesh, tps")
+        if not self.mouths:
+            raise ConfigError("--mouths needs at least one of nearest, blend")
         for folder in self.weights:
             check_weights(folder)
         if self.finetune_steps < 0 or not self.finetune_lr > 0:

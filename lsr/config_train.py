@@ -122,10 +122,14 @@ class TrainConfig:
     reference_detail: float = 0.0
     """warp_guided: > 0 puts the per-pixel median of the warped shots' detail on the blend's low band, split at a
     Gaussian of this fraction of the crop side (0.0117 = 3 px at 256^2); 0 = the blend as it is."""
+    crop_scale: int = 0
+    """warp_guided: the crop (blend and output) side over the resolution that the saved model runs at (training
+    itself runs at the resolution): 4 makes a 64^2 network output 256^2; 0 = the preset's (2)."""
     synthetic_identities: int = 0
     """Train on this many procedural synthetic identities: alone, or mixed with --data (real clips)."""
     init_from: OptionalPath = None
-    """Start from this model folder (same preset) instead of random weights; channels a variant adds start at zero."""
+    """Start from this model folder (same preset) instead of random weights; channels a variant adds start at zero;
+    at another --resolution G^s's start grid is resampled and D starts fresh."""
     k: Annotated[int, tyro.conf.arg(aliases=("--k-shots",))] = 4
     """K: shots per training episode (--k-shots: the old name, kept for one release)."""
     shots_from: Literal["video", "video_apart", "identity"] = "video"
@@ -175,6 +179,8 @@ class TrainConfig:
         for root in self.data:
             if not Path(root).is_dir():
                 raise ConfigError(f"--data {root} is not a folder; prepare a dataset first (see docs/TRAINING.md)")
+        if self.crop_scale not in (0, 1, 2, 4, 8):
+            raise ConfigError(f"--crop-scale must be 0 (the preset's), 1, 2, 4 or 8, got {self.crop_scale}")
         if self.resolution and (self.resolution < 32 or self.resolution & (self.resolution - 1)):
             raise ConfigError(f"--resolution must be 0 or a power of two >= 32, got {self.resolution}")
         if not 0.0 <= self.expression_episodes <= 1.0:

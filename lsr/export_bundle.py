@@ -77,7 +77,7 @@ def bundle_metadata(config: ModelConfig, crop_size: int | None = None) -> dict[s
         "model_config": json.dumps(config.to_dict(), sort_keys=True),
         "warp_references": str(warp_references),
         # the side of the references a warp_guided graph takes (and of its image); the model resolution otherwise
-        "crop_size": str(crop_size or config.resolution * (2 if warp_references else 1)),
+        "crop_size": str(crop_size or config.resolution * (config.crop_scale if warp_references else 1)),
     }
 
 

@@ -66,6 +66,7 @@ class TorchBackend:
         self.resolution = model.config.resolution
         self.layout_kind: LayoutKind = model.config.layout_kind  # type: ignore[assignment]
         self.warp_references = model.config.warp_references if model.config.uses_references else 0
+        self.crop_scale = model.config.crop_scale
 
     def _autocast(self):
         # bf16 via autocast keeps norms/softmax in fp32 where torch deems it necessary (fp32 is the default).

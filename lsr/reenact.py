@@ -173,19 +173,23 @@ def make_reenactor(cfg: ReenactConfig) -> ReenactorBase:
 
     weights = resolve_weights(cfg.weights)
     threads = network_threads(cfg.threads)
+    reenactor: ReenactorBase
     if cfg.runtime == "onnx":
         from deploy.runtime import OnnxReenactor
 
-        return OnnxReenactor(onnx_bundle_folder(weights), int8=cfg.int8, threads=threads, detector=cfg.detector)
-    from lsr.pipeline import Reenactor
+        reenactor = OnnxReenactor(onnx_bundle_folder(weights), int8=cfg.int8, threads=threads, detector=cfg.detector)
+    else:
+        from lsr.pipeline import Reenactor
 
-    if threads > 0:
-        import torch
+        if threads > 0:
+            import torch
 
-        torch.set_num_threads(threads)  # process-wide: torch has no per-model thread pool
-    from lsr.devices import resolve_device
+            torch.set_num_threads(threads)  # process-wide: torch has no per-model thread pool
+        from lsr.devices import resolve_device
 
-    return Reenactor(weights, device=resolve_device(cfg.device), precision=cfg.precision, detector=cfg.detector)
+        reenactor = Reenactor(weights, device=resolve_device(cfg.device), precision=cfg.precision, detector=cfg.detector)
+    reenactor.mouth = cfg.mouth
+    return reenactor
 
 
 # ---- side-by-side -----------------------------------------------------------------------------------------

@@ -20,7 +20,7 @@ VARIANTS: tuple[str, ...] = ("baseline", "spade_landmarks", "learned_seg", "late
 # Variants whose per-frame path runs the layout predictor G^l (the others have no layout latent to use).
 LAYOUT_PREDICTOR_VARIANTS: tuple[str, ...] = ("learned_seg", "latent_layout", "warp_guided")
 # Fields added after models were first saved, with the value that keeps an older config.json's behaviour.
-LATER_FIELDS: dict[str, object] = {"warp_references": 3, "reference_flow": 0.0, "reference_detail": 0.0}
+LATER_FIELDS: dict[str, object] = {"warp_references": 3, "reference_flow": 0.0, "reference_detail": 0.0, "crop_scale": 2}
 
 
 class ModelConfigError(ValueError):
@@ -82,6 +82,10 @@ class ModelConfig:
     """warp_guided only: > 0 replaces the blend's fine detail with the per-pixel median of the references' detail
     (``models_def.composite.add_reference_detail``), split at a Gaussian of this fraction of the crop side (3/256 at
     256^2: 0.0117); 0 = the blend as it is. A fixed operation on the output: it can be switched on for trained weights."""
+    crop_scale: int = 2
+    """warp_guided only: the crop side (where the shots are warped and blended, and the output's side) over the
+    network's resolution: 2 = a 128^2 network blends and outputs at 256^2, 4 = a 64^2 one. An inference setting:
+    training runs at the network's resolution, the blend at any side >= it."""
 
     def __post_init__(self) -> None:
         def fail(message: str) -> None:
@@ -108,6 +112,8 @@ class ModelConfig:
             fail(f"reference_flow must be in [0, 0.25] (a fraction of the crop side); got {self.reference_flow!r}")
         if not (isinstance(self.reference_detail, (int, float)) and 0 <= self.reference_detail <= 0.1):
             fail(f"reference_detail must be in [0, 0.1] (a fraction of the crop side); got {self.reference_detail!r}")
+        if self.crop_scale not in (1, 2, 4, 8):
+            fail(f"crop_scale must be 1, 2, 4 or 8; got {self.crop_scale!r}")
         if self.resolution & (self.resolution - 1):
             fail(f"resolution must be a power of two (e.g. 64, 128, 256); got {self.resolution}")
         # Every blur-pool needs an input of at least 2 pixels; the generator starts at >= 1 pixel; the

@@ -175,6 +175,8 @@ class ReenactorBase:
         self.reference_warp: str = "mesh"
         """How a warp-guided model's references are warped when meshes are at hand: "mesh" (piecewise affine over
         the face mesh, TPS outside) or "tps" (the 68-point TPS everywhere)."""
+        self.mouth: str = "nearest"
+        """A warp-guided model's mouth: "nearest" (the nearest warped shot's: ``landmarks.nearest_mouth``) or "blend"."""
         self.subject: Subject | None = None
         self.last_stats = ReenactStats()
 
@@ -261,17 +263,24 @@ class ReenactorBase:
         subject: an encoded subject other than the cached one (a live stream's own, ``lsr.core.live``).
         """
         landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject, crop_mesh)
-        image, layout = self.synthesize_inputs(inputs, with_layout)
+        image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks)
         return image, landmark_image, layout
 
-    def synthesize_inputs(self, inputs: dict[str, np.ndarray], with_layout: bool = False
-                          ) -> tuple[np.ndarray, np.ndarray | None]:
-        """``network_inputs``' dict -> (synthesis (C, C, 3) uint8, layout (C_l, S, S) float32 or None)."""
+    def synthesize_inputs(self, inputs: dict[str, np.ndarray], with_layout: bool = False,
+                          crop_landmarks: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """``network_inputs``' dict -> (synthesis (C, C, 3) uint8, layout (C_l, S, S) float32 or None). Given the
+        target's ``crop_landmarks`` and ``mouth`` "nearest", the mouth is the nearest warped shot's."""
         image, layout = self.backend.synthesize(
             inputs["landmark_image"], inputs["layout_latent"], inputs["style_latent"], with_layout,
             *((inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()),
         )
-        return from_network(image[0]), None if layout is None else np.asarray(layout[0], np.float32)
+        image = from_network(image[0])
+        if crop_landmarks is not None and self.mouth == "nearest" and "references" in inputs:
+            from landmarks.nearest_mouth import keep_nearest_mouth
+
+            image = keep_nearest_mouth(image, from_network(inputs["references"][0, 0]),
+                                       inputs["reference_masks"][0, 0, 0], crop_landmarks)
+        return image, None if layout is None else np.asarray(layout[0], np.float32)
 
     def network_inputs(self, crop_landmarks: np.ndarray, latents: tuple[np.ndarray, np.ndarray] | None = None,
                        subject: Subject | None = None, crop_mesh: np.ndarray | None = None
@@ -552,9 +561,10 @@ def _paste_into_driver(frame: ReenactedFrame, points: np.ndarray, matrix: np.nda
 
 
 def default_crop_size(backend: SynthesisBackend) -> int:
-    """The crop (and output) side for a backend: twice the model resolution for a warp-guided model (detail comes
-    from the warped shots, the network runs at its own resolution), else the model resolution."""
-    return int(backend.resolution) * (2 if getattr(backend, "warp_references", 0) else 1)
+    """The crop (and output) side: ``crop_scale`` (model config) times the model resolution for a warp-guided model
+    (detail comes from the warped shots, the network runs at its own resolution), else the model resolution."""
+    scale = int(getattr(backend, "crop_scale", 2)) if getattr(backend, "warp_references", 0) else 1
+    return int(backend.resolution) * scale
 
 
 def scale_points(points: np.ndarray, scale: float) -> np.ndarray:

@@ -59,10 +59,12 @@ def frame_inputs(config: ModelConfig, names: list[str]) -> tuple[torch.Tensor, .
             tensors.append(torch.rand(1, config.landmark_channels, size, size, generator=generator) * 2 - 1)
         elif name.endswith("latent"):
             tensors.append(torch.randn(1, config.latent_dim, generator=generator))
-        elif name == "references":  # warp_guided: the warped shots at the default crop side (2x the resolution)
-            tensors.append(torch.rand(1, config.warp_references, 3, 2 * size, 2 * size, generator=generator) * 2 - 1)
+        elif name == "references":  # warp_guided: the warped shots at the default crop side (crop_scale x the resolution)
+            crop = config.crop_scale * size
+            tensors.append(torch.rand(1, config.warp_references, 3, crop, crop, generator=generator) * 2 - 1)
         elif name == "reference_masks":
-            tensors.append(torch.ones(1, config.warp_references, 1, 2 * size, 2 * size))
+            crop = config.crop_scale * size
+            tensors.append(torch.ones(1, config.warp_references, 1, crop, crop))
         else:  # oracle_segmentation: one-hot
             labels = torch.randint(0, 19, (1, size, size), generator=generator)
             tensors.append(torch.nn.functional.one_hot(labels, 19).permute(0, 3, 1, 2).float())

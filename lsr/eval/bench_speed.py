@@ -206,7 +206,7 @@ def time_warps(config, identities, runs: int, warmup: int) -> float | None:
 
     if not config.uses_references or not identities:
         return None
-    identity, crop = identities[0], 2 * config.resolution
+    identity, crop = identities[0], config.crop_scale * config.resolution
     usable = np.flatnonzero(np.isfinite(identity.input_landmarks).all(axis=(1, 2)))
     scale = crop / identity.input_frames.shape[1]
     shots = np.stack([cv2.resize(identity.input_frames[i], (crop, crop), interpolation=cv2.INTER_LINEAR) for i in usable[:8]])
@@ -321,7 +321,11 @@ def bench_rows(cfg: BenchSpeedConfig, weights: dict[str, Path], splits: dict[str
             model = trained
         else:
             torch.manual_seed(0)
-            config = trained.config.replace(resolution=resolution) if trained is not None else preset_config(preset, resolution=resolution)
+            if trained is not None:  # the trained model's widths at another network side, blending at its crop side
+                crop = trained.config.crop_scale * trained.config.resolution
+                config = trained.config.replace(resolution=resolution, crop_scale=min(8, max(1, crop // resolution)))
+            else:
+                config = preset_config(preset, resolution=resolution)
             model = LSRModel(config).eval().requires_grad_(False)
         graph = FrameGeneratorGraph(model.frame_generator, with_layout=False).eval()
         names = frame_graph_io(model.frame_generator, with_layout=False)[0]

@@ -81,10 +81,11 @@ class LsrModelMethod:
 
     def __init__(self, weights: str | os.PathLike, *, device: str = "cpu", finetune_steps: int = 0,
                  finetune_lr: float = DEFAULT_FINETUNE_LR, name: str | None = None, reenactor=None,
-                 reference_warp: str = "mesh") -> None:
+                 reference_warp: str = "mesh", mouth: str = "nearest") -> None:
         """reenactor: a ready ``ReenactorBase`` (e.g. ``deploy.runtime.OnnxReenactor`` over the bundle at
         ``weights``); None = load the torch model from ``weights``. reference_warp: how a warp-guided model's
-        references are warped ("mesh": over the face mesh, given the meshes; "tps": the 68-point TPS)."""
+        references are warped ("mesh": over the face mesh, given the meshes; "tps": the 68-point TPS). mouth: a
+        warp-guided model's mouth ("nearest": the nearest warped shot's; "blend": the network's)."""
         self.weights = Path(weights)
         self.device = device
         self.finetune_steps = finetune_steps
@@ -100,6 +101,7 @@ class LsrModelMethod:
             self.variant = reenactor.backend.config.get("variant", "")
         self.reenactor = reenactor
         reenactor.reference_warp = reference_warp
+        reenactor.mouth = mouth
         self.needs_target_segmentation = self.variant == "oracle_seg"
         # the protocol then passes the shots' and targets' meshes where it has them (TPS references where not)
         self.uses_meshes = bool(reenactor.warp_references) and reference_warp == "mesh"
@@ -181,7 +183,7 @@ class LsrModelMethod:
         """A subject-specific copy fine-tuned on the shots only (fresh weights from disk each time)."""
         check_method_inputs(shots, shot_landmarks, shot_landmarks)
         subject = LsrModelMethod(self.weights, device=self.device, name=self.name,
-                                 reference_warp=self.reenactor.reference_warp)
+                                 reference_warp=self.reenactor.reference_warp, mouth=self.reenactor.mouth)
         subject._encode(shots, shot_landmarks)
         from lsr.train.finetune import finetune_reenactor
 

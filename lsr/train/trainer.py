@@ -48,6 +48,8 @@ def model_config_for(cfg: TrainConfig) -> ModelConfig:
         overrides["reference_flow"] = cfg.reference_flow
     if cfg.reference_detail:
         overrides["reference_detail"] = cfg.reference_detail
+    if cfg.crop_scale:
+        overrides["crop_scale"] = cfg.crop_scale
     return preset_config(cfg.preset, **overrides)
 
 

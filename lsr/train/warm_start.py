@@ -7,6 +7,10 @@ model first behaves like the old one on its old inputs (for the new logits: a un
 warm-started with more references (``--warp-references``) keeps each old reference's and mask's channels, and
 the new references start silent (see ``_reference_slots``). Equalised-LR
 convs scale their weights by 1/sqrt(fan_in) at run time, so widened inputs are rescaled to keep the old output.
+
+A model of another resolution (``--resolution``; every layer is convolutional but two) is warm-started too: G^s's
+learned start grid (``style_to_input``, resolution / 2^upsamplings cells a side) is resampled to the new grid
+(area-averaged down, repeated up), and D, whose depth follows the resolution, starts fresh.
 """
 
 from __future__ import annotations
@@ -75,10 +79,28 @@ def _remap_references(name: str, old: torch.Tensor, new: torch.Tensor, old_confi
     return None
 
 
+def _resampled_start(name: str, old: torch.Tensor, new: torch.Tensor, channels: int) -> torch.Tensor | None:
+    """G^s's ``style_to_input`` (rows: channels x side x side start cells) moved to the new model's start grid
+    (None: not that parameter, or not a square grid change). Down: each new cell the mean of the old cells it
+    covers; up: each old cell repeated over the new cells it covers."""
+    if "style_to_input" not in name or old.shape[1:] != new.shape[1:]:
+        return None
+    old_side, new_side = math.isqrt(old.shape[0] // channels), math.isqrt(new.shape[0] // channels)
+    if channels * old_side**2 != old.shape[0] or channels * new_side**2 != new.shape[0]:
+        return None
+    grid = old.reshape(channels, old_side, old_side, -1).permute(0, 3, 1, 2)  # (C, D or 1, side, side)
+    if new_side < old_side:
+        grid = torch.nn.functional.adaptive_avg_pool2d(grid, new_side)
+    else:
+        grid = torch.nn.functional.interpolate(grid, size=(new_side, new_side), mode="nearest")
+    return grid.permute(0, 2, 3, 1).reshape(new.shape).contiguous()
+
+
 def warm_start(model: LSRModel, discriminator: Discriminator, folder: str | Path) -> list[str]:
     """Load ``folder`` (config.json + model.safetensors [+ discriminator.safetensors]) into the new nets in place.
 
-    Returns the names of the widened parameters. Raises WeightsError on anything else that does not fit.
+    Returns the names of the widened (or, at another resolution, resampled) parameters. Raises WeightsError on
+    anything else that does not fit.
     """
     from lsr.train.finetune import load_discriminator
 
@@ -94,6 +116,8 @@ def warm_start(model: LSRModel, discriminator: Discriminator, folder: str | Path
                            "warm-start from a model of the same preset")
     recount = (source.config.uses_references and model.config.uses_references
                and source.config.warp_references != model.config.warp_references)
+    resized = source.config.resolution != model.config.resolution
+    generator = model.frame_generator.image_generator
     widened, merged = [], {}
     for name, new in new_state.items():
         old = old_state[name]
@@ -101,9 +125,13 @@ def warm_start(model: LSRModel, discriminator: Discriminator, folder: str | Path
             merged[name] = old
             continue
         remapped = _remap_references(name, old, new, source.config, model.config) if recount else None
+        if remapped is None and resized and generator is not None:
+            remapped = _resampled_start(name, old, new, generator.start_channels)
         merged[name] = remapped if remapped is not None else _widened(name, old, new)
         widened.append(name)
     model.load_state_dict(merged)
+    if resized:  # D's depth follows the resolution: it starts fresh
+        return widened
     old_discriminator, found = load_discriminator(folder, source)
     if found:
         discriminator.load_state_dict(old_discriminator.state_dict())

@@ -46,7 +46,7 @@ def test_reenact_returns_playable_video_with_every_frame(app_server, app_server_
     assert streams["video"] == "h264" and streams.get("audio") == "aac"  # the driver's audio is kept
     assert len(frames) == driver_frames
     config = json.loads((app_server_weights / "config.json").read_text())
-    crop = config["resolution"] * (2 if config["variant"] == "warp_guided" else 1)  # lsr.core.engine.default_crop_size
+    crop = config["resolution"] * (config.get("crop_scale", 2) if config["variant"] == "warp_guided" else 1)  # default_crop_size
     assert frames[0].shape == (crop, crop, 3)  # the served model's crop (no paste-back)
     assert float(np.std(frames[0])) > 1.0  # a picture, not a blank frame
     assert "synthetic" in comment  # provenance metadata

@@ -101,3 +101,26 @@ def test_reenact_retargets_in_3d_on_the_sources_own_mesh(reenactor, people, monk
     assert 0 < np.abs(targets["3d"] - targets["2d"]).max() < 0.5 * eyes  # another motion model, the same drive
     with pytest.raises(InputFileError, match="retarget"):
         reenactor.reenact(people["driver"], retarget="4d")
+
+
+def test_the_mouth_comes_from_the_nearest_reference_unless_told_to_blend(reenactor, people):
+    """``mouth`` "nearest": the synthesis' mouth region is the first (nearest) warped shot's
+    (``landmarks.nearest_mouth``), the rest the network's; "blend": the network's alone."""
+    from landmarks.nearest_mouth import mouth_weight
+
+    subject = reenactor.encode_subject(people["source"], k=4)
+    target = subject.shots.landmarks[2] + np.array([1.5, -1.0])  # near a shot, not on it
+    _, inputs = reenactor.network_inputs(target)
+    nearest = np.clip(np.rint((np.moveaxis(inputs["references"][0, 0], 0, -1) + 1) * 127.5), 0, 255)
+    reenactor.mouth = "blend"
+    blended, _, _ = reenactor.synthesize_crop(target)
+    reenactor.mouth = "nearest"
+    kept, _, _ = reenactor.synthesize_crop(target)
+    weight, (x0, y0, x1, y1) = mouth_weight(target, blended.shape[:2])
+    full = np.zeros(blended.shape[:2], np.float32)
+    full[y0:y1, x0:x1] = weight * inputs["reference_masks"][0, 0, 0, y0:y1, x0:x1]
+    inside, outside = full > 0.999, full == 0
+    assert inside.sum() > 50 and outside.mean() > 0.8
+    assert np.abs(kept[inside].astype(float) - nearest[inside]).max() <= 1.0
+    np.testing.assert_array_equal(kept[outside], blended[outside])
+    assert np.abs(blended[inside].astype(float) - nearest[inside]).mean() > 2.0  # the tiny net's own mouth differs

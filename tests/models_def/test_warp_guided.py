@@ -208,8 +208,29 @@ def test_median_over_references_is_the_median(count):
     torch.testing.assert_close(median_over_references(values), expected, atol=1e-6, rtol=0)
 
 
+def test_low_band_is_the_gaussian_blur_made_at_half_resolution():
+    import cv2
+
+    from models_def.composite import HALF_RESOLUTION_MIN_SIGMA, gaussian_blur, low_band
+
+    rng = np.random.default_rng(0)
+    # a face-like image: smooth shading plus texture at every scale
+    noise = rng.random((3, 64, 64)).astype(np.float32)
+    image = torch.from_numpy(np.stack([cv2.GaussianBlur(c, (0, 0), 1.0) + 0.3 * c for c in noise]))[None]
+    exact, half = gaussian_blur(image, 3.0), low_band(image, 3.0)
+    inner = (slice(None), slice(None), slice(8, -8), slice(8, -8))  # the borders' padding differs
+    assert ((half - exact)[inner] ** 2).mean() < 1e-3 * ((image - exact)[inner] ** 2).mean()
+    torch.testing.assert_close(low_band(torch.full((1, 2, 16, 16), 0.3), 3.0), torch.full((1, 2, 16, 16), 0.3))
+    # below the threshold and on odd sides: the exact blur
+    small_sigma = HALF_RESOLUTION_MIN_SIGMA / 2
+    torch.testing.assert_close(low_band(image, small_sigma), gaussian_blur(image, small_sigma), atol=0, rtol=0)
+    odd = image[..., :63, :63]
+    torch.testing.assert_close(low_band(odd, 3.0), gaussian_blur(odd, 3.0), atol=0, rtol=0)
+
+
 def test_reference_detail_keeps_what_most_references_agree_on():
-    from models_def.composite import add_reference_detail, gaussian_blur
+    from models_def.composite import add_reference_detail
+    from models_def.composite import low_band as gaussian_blur  # the split the detail uses
 
     generator = torch.Generator().manual_seed(0)
     shared = torch.rand(1, 3, 24, 24, generator=generator) * 2 - 1
@@ -262,3 +283,57 @@ def test_onnx_frame_graph_matches_torch(tmp_path, reference_flow, reference_deta
     tolerance = 1e-3 if reference_flow else 1e-4
     assert np.abs(image - expected.image.numpy()).max() <= tolerance
     assert np.abs(layout - expected.layout.numpy()).max() <= 1e-4
+
+
+@pytest.mark.parametrize("scale", [0.5, 2.0], ids=["down", "up"])
+def test_warm_start_at_another_resolution_resamples_the_start_grid(tmp_path, scale):
+    """--resolution with --init-from: every conv is copied, G^s's learned start grid (style_to_input) is
+    area-averaged down or repeated up, and D (whose depth follows the resolution) starts fresh."""
+    import torch.nn.functional as F
+
+    from lsr.train.warm_start import warm_start
+    from models_def import Discriminator
+
+    torch.manual_seed(0)
+    old_config = preset_config("tiny", variant="warp_guided")
+    old = LSRModel(old_config)
+    folder = old.save_pretrained(tmp_path / "old")
+    config = preset_config("tiny", variant="warp_guided", resolution=int(old_config.resolution * scale))
+    model, discriminator = LSRModel(config), Discriminator(config)
+    fresh_discriminator = {k: v.clone() for k, v in discriminator.state_dict().items()}
+    resampled = warm_start(model, discriminator, folder)
+    assert sorted(resampled) == ["frame_generator.image_generator.style_to_input.bias",
+                                 "frame_generator.image_generator.style_to_input.weight"]
+    old_generator, generator = old.frame_generator.image_generator, model.frame_generator.image_generator
+    latent = torch.randn(3, config.latent_dim)
+    channels = generator.start_channels
+    with torch.no_grad():
+        before = old_generator.style_to_input(latent).view(3, channels, old_generator.start_size, old_generator.start_size)
+        after = generator.style_to_input(latent).view(3, channels, generator.start_size, generator.start_size)
+    expected = F.avg_pool2d(before, 2) if scale < 1 else F.interpolate(before, scale_factor=2, mode="nearest")
+    torch.testing.assert_close(after, expected, atol=1e-5, rtol=0)
+    for name, value in model.state_dict().items():  # the rest: copied as is
+        if "style_to_input" not in name:
+            torch.testing.assert_close(value, old.state_dict()[name], atol=0, rtol=0)
+    for name, value in discriminator.state_dict().items():
+        torch.testing.assert_close(value, fresh_discriminator[name], atol=0, rtol=0)
+
+
+def test_crop_scale_sets_the_crop_side_of_every_runtime_and_is_checked(tmp_path):
+    import json
+
+    from lsr.core.engine import default_crop_size
+    from lsr.export_bundle import bundle_metadata
+    from lsr.pipeline import TorchBackend
+
+    config = preset_config("tiny", variant="warp_guided", crop_scale=4)
+    assert default_crop_size(TorchBackend(LSRModel(config))) == 4 * config.resolution
+    assert bundle_metadata(config)["crop_size"] == str(4 * config.resolution)  # what the ONNX runtime crops at
+    with pytest.raises(ValueError, match="crop_scale"):
+        preset_config("tiny", variant="warp_guided", crop_scale=3)
+    # a model saved before the field blends at twice its resolution, as it did
+    folder = LSRModel(preset_config("tiny", variant="warp_guided")).save_pretrained(tmp_path / "old")
+    saved = json.loads((folder / "config.json").read_text())
+    saved.pop("crop_scale")
+    (folder / "config.json").write_text(json.dumps(saved))
+    assert LSRModel.from_pretrained(folder).config.crop_scale == 2

@@ -1,0 +1,74 @@
+"""The mouth from the nearest warped shot (landmarks.nearest_mouth): where it goes, and that nothing else moves."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from landmarks.expression import set_mouth_opening
+from landmarks.nearest_mouth import MOUTH_MARGIN, keep_nearest_mouth, mouth_weight
+from landmarks.pose import project_canonical
+from landmarks.smooth import inter_ocular_distance
+
+SIDE = 256
+
+
+def _face(opening: float = 0.3) -> np.ndarray:
+    return set_mouth_opening(project_canonical(0, 0, 0, (SIDE, SIDE), scale=0.5).astype(np.float64), opening)
+
+
+def _full(weight_box: tuple[np.ndarray, tuple[int, int, int, int]]) -> np.ndarray:
+    weight, (x0, y0, x1, y1) = weight_box
+    full = np.zeros((SIDE, SIDE), np.float32)
+    full[y0:y1, x0:x1] = weight
+    return full
+
+
+def test_mouth_weight_covers_the_lips_and_their_margin_and_nothing_far_away():
+    face = _face()
+    full = _full(mouth_weight(face, (SIDE, SIDE)))
+    eyes = float(inter_ocular_distance(face))
+    lips = face[48:60]
+    centre = np.round(lips.mean(axis=0)).astype(int)
+    assert full[centre[1], centre[0]] == pytest.approx(1.0, abs=1e-3)  # inside the open mouth
+    for x, y in np.round(lips).astype(int):  # every outer-lip point, and the skin just beyond it, fully taken
+        assert full[y, x] > 0.99
+    below = np.round(face[57] + [0, 0.6 * MOUTH_MARGIN * eyes]).astype(int)
+    assert full[below[1], below[0]] > 0.5
+    for far in (face[8], face[30], face[36], face[45], face[0], face[16]):  # chin, nose tip, eyes, jaw ends
+        x, y = np.round(far).astype(int)
+        assert full[y, x] < 1e-3
+    assert 0.0 <= full.min() and full.max() <= 1.0
+
+
+def test_keep_nearest_mouth_takes_the_mouth_from_the_nearest_shot_only_where_its_warp_is_valid():
+    face = _face()
+    image = np.full((SIDE, SIDE, 3), 40, np.uint8)
+    nearest = np.full((SIDE, SIDE, 3), 200, np.uint8)
+    valid = np.ones((SIDE, SIDE), np.float32)
+    out = keep_nearest_mouth(image, nearest, valid, face)
+    centre = np.round(face[48:60].mean(axis=0)).astype(int)
+    assert (out[centre[1], centre[0]] == 200).all()
+    weight = _full(mouth_weight(face, (SIDE, SIDE)))
+    untouched = weight == 0
+    assert (out[untouched] == 40).all() and untouched.mean() > 0.8  # the rest of the face is the network's
+    between = (weight > 0.2) & (weight < 0.8)  # a feathered edge, no hard seam
+    assert between.any() and ((out[between] > 40) & (out[between] < 200)).all()
+    # where the nearest warp sampled outside its shot, the network's pixels stay
+    valid[:, : centre[0]] = 0.0
+    half = keep_nearest_mouth(image, nearest, valid, face)
+    assert (half[:, : centre[0]] == 40).all() and (half[centre[1], centre[0] + 2] == 200).all()
+    assert (image == 40).all()  # the input is not written
+
+
+def test_keep_nearest_mouth_leaves_images_without_a_usable_mouth_alone():
+    image = np.full((SIDE, SIDE, 3), 40, np.uint8)
+    nearest = np.full((SIDE, SIDE, 3), 200, np.uint8)
+    valid = np.ones((SIDE, SIDE), np.float32)
+    missing = np.full((68, 2), np.nan)
+    assert keep_nearest_mouth(image, nearest, valid, missing) is image
+    outside = _face() + 3 * SIDE  # a face entirely beyond the crop
+    assert mouth_weight(outside, (SIDE, SIDE)) is None
+    assert keep_nearest_mouth(image, nearest, valid, outside) is image
+    with pytest.raises(ValueError, match="uint8"):
+        keep_nearest_mouth(image.astype(np.float32), nearest, valid, _face())
