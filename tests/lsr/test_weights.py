@@ -33,7 +33,8 @@ def test_shipped_weights_load_and_fit_the_package_budget():
     assert sum(files.values()) / 2**20 <= MAX_MB
     model = LSRModel.from_pretrained(DEFAULT_WEIGHTS)
     config = json.loads((DEFAULT_WEIGHTS / "config.json").read_text())
-    assert model.config.resolution == config["resolution"] == 128
+    assert model.config.resolution == config["resolution"] == 64
+    assert model.config.crop_scale * model.config.resolution == 256  # the network at 64^2, the blend and output at 256^2
     assert model.config.variant == "warp_guided"  # LSR (latent layout) with the warp path of thesis §4.5.6
     for tensor in model.state_dict().values():
         assert bool(tensor.isfinite().all())
