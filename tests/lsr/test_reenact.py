@@ -549,3 +549,12 @@ def test_export_to_an_unwritable_folder_is_one_line_before_the_model_loads(weigh
         assert main(["export", "--weights", str(weights), "--out", str(out)]) == 2
         err = capsys.readouterr().err
         assert err.startswith("lsr: error: --out") and err.count("\n") == 1 and str(tmp_path / "blocker") in err
+
+
+@pytest.mark.parametrize("mouth", ["nearest", "blend"])
+def test_reenact_mouth_option_reaches_the_reenactor(weights, mouth):
+    from lsr.config import ReenactConfig
+    from lsr.reenact import make_reenactor
+
+    assert ReenactConfig().mouth == "nearest"
+    assert make_reenactor(ReenactConfig(weights=weights, mouth=mouth)).mouth == mouth
