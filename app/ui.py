@@ -86,11 +86,13 @@ def model_summary(weights: Path | None, random_init: bool) -> str:
     size = config.get("resolution", "?")
     line = f"Model: {name} (variant `{config.get('variant', '?')}`, {size}x{size} network)"
     if config.get("variant") == "warp_guided":
-        output = f"{2 * size}x{2 * size}" if isinstance(size, int) else "twice that size"
+        scale = config.get("crop_scale", 2)  # models_def.config.LATER_FIELDS: older configs blend at twice the side
+        output = f"{scale * size}x{scale * size}" if isinstance(size, int) and isinstance(scale, int) else "a larger side"
         line += (f". It warps the source shots nearest to each driving pose onto it and blends them with its own "
                  f"synthesis at {output}, so detail comes from your shots")
         if config.get("reference_detail"):
             line += " (the fine detail most of the warped shots agree on, not a blur of them)"
+        line += "; the mouth comes from the nearest warped shot, so it opens as wide as the driver's"
         line += ("; the result goes into the source's own scene (its background, body and hair), only the face is "
                  "synthesised; fine-tuning on the shots (Options) is off by default: it measured no gain")
     if name == "the shipped default model":

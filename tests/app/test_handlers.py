@@ -125,8 +125,9 @@ def test_model_summary_names_the_model_and_says_what_a_warp_guided_one_does(tmp_
     folder = LSRModel(preset_config("tiny", variant="warp_guided")).save_pretrained(tmp_path / "my_model")
     line = model_summary(folder, False)
     assert "`my_model`" in line and str(tmp_path) not in line  # the folder's name, not a machine path
-    assert "warp_guided" in line and "128x128" in line
-    assert "the shipped default model" in model_summary(DEFAULT_WEIGHTS, False)
+    assert "warp_guided" in line and "64x64 network" in line and "at 128x128" in line  # tiny: 64^2, crop_scale 2
+    default = model_summary(DEFAULT_WEIGHTS, False)
+    assert "the shipped default model" in default and "64x64 network" in default and "at 256x256" in default
 
 
 def test_errors_name_the_uploaded_file_not_the_server_temp_path(app_inputs, tmp_path):
