@@ -263,23 +263,25 @@ class ReenactorBase:
         subject: an encoded subject other than the cached one (a live stream's own, ``lsr.core.live``).
         """
         landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject, crop_mesh)
-        image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks)
+        image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks, subject)
         return image, landmark_image, layout
 
     def synthesize_inputs(self, inputs: dict[str, np.ndarray], with_layout: bool = False,
-                          crop_landmarks: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-        """``network_inputs``' dict -> (synthesis (C, C, 3) uint8, layout (C_l, S, S) float32 or None). Given the
-        target's ``crop_landmarks`` and ``mouth`` "nearest", the mouth is the nearest warped shot's."""
+                          crop_landmarks: np.ndarray | None = None, subject: Subject | None = None
+                          ) -> tuple[np.ndarray, np.ndarray | None]:
+        """``network_inputs``' dict -> (synthesis (C, C, 3) uint8, layout (C_l, S, S) float32 or None). ``crop_landmarks``
+        given, ``mouth`` "nearest": the mouth of ``subject``'s nearest warped shot as ``landmarks.nearest_mouth`` says."""
         image, layout = self.backend.synthesize(
             inputs["landmark_image"], inputs["layout_latent"], inputs["style_latent"], with_layout,
             *((inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()),
         )
         image = from_network(image[0])
         if crop_landmarks is not None and self.mouth == "nearest" and "references" in inputs:
-            from landmarks.nearest_mouth import keep_nearest_mouth
+            from landmarks.nearest_mouth import keep_nearest_mouth, mouth_strength
 
-            image = keep_nearest_mouth(image, from_network(inputs["references"][0, 0]),
-                                       inputs["reference_masks"][0, 0, 0], crop_landmarks)
+            strength = mouth_strength(crop_landmarks, (subject or self._require_subject()).shots.landmarks, self.warp_references)
+            image = keep_nearest_mouth(image, from_network(inputs["references"][0, 0]), inputs["reference_masks"][0, 0, 0],
+                                       crop_landmarks, strength)
         return image, None if layout is None else np.asarray(layout[0], np.float32)
 
     def network_inputs(self, crop_landmarks: np.ndarray, latents: tuple[np.ndarray, np.ndarray] | None = None,
@@ -329,13 +331,11 @@ class ReenactorBase:
         mode: "relative" (driver motion on the source's face shape), "absolute" (the driver's landmarks), or
             "auto": absolute when the driver is the source file itself, else relative.
         smooth: One-Euro smoothing of the driver landmarks (and so of the crop framing).
-        paste_back: composite the re-enacted face into full frames (``landmarks.scene.composite_face``: the
-            scene's background and body stay, its hair follows the head rigidly, the face is the synthesis);
-            otherwise the output is the (C, C) synthesis.
-        scene: what paste_back composites into: "source", the source's own scene (``lsr.core.scene_source``:
-            the anchor shot's frame, or the source video's frames in order, back and forth), at its frame size;
-            "driver", the driver's frames (dubbing; a face swap when source and driver differ). When the driver
-            is the source itself both are the same. Raw landmark drivers have no frames: "driver" gives the crop.
+        paste_back: composite the face into full frames (``landmarks.scene.composite_face``: background and body
+            stay, hair follows the head rigidly); otherwise the output is the (C, C) synthesis.
+        scene: what paste_back composites into: "source", the source's scene (``lsr.core.scene_source``: the
+            anchor shot's frame, or the source video's frames back and forth), at its size; "driver", the driver's
+            frames (dubbing; a face swap across people; raw landmark drivers have none: the crop).
         retarget: how relative motion moves the source (``landmarks.mesh_retarget.retarget_face``): "2d", the 68
             points' relative motion; "3d", the source's own face mesh turned by the driver's head rotation, the
             expression moved in the canonical head frame (needs meshes of both faces: the mesh detector, a video or

@@ -143,7 +143,8 @@ class LiveSession:
     def finish(self, prepared: Prepared) -> LiveFrame:
         """The second half: the network, then the composite into the scene and the synthetic mark."""
         started = time.perf_counter()
-        synthesis, layout = self.reenactor.synthesize_inputs(prepared.inputs, self.with_layout, prepared.target)
+        synthesis, layout = self.reenactor.synthesize_inputs(prepared.inputs, self.with_layout, prepared.target,
+                                                             self.subject)
         image = synthesis if self.scene is None else self.scene.composite(prepared.target, synthesis)
         self.faces += 1
         self.last = LiveFrame(self._mark(image), True, layout, prepared.landmark_image,

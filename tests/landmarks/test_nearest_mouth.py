@@ -72,3 +72,23 @@ def test_keep_nearest_mouth_leaves_images_without_a_usable_mouth_alone():
     assert keep_nearest_mouth(image, nearest, valid, outside) is image
     with pytest.raises(ValueError, match="uint8"):
         keep_nearest_mouth(image.astype(np.float32), nearest, valid, _face())
+
+
+def test_mouth_strength_is_how_far_the_target_opens_beyond_the_references():
+    """0 where most of the nearest shots open as wide as the target (their blend is right), 1 from CLOSED_MOUTH
+    beyond their median; a strength of 0 leaves the image as it is."""
+    from landmarks.expression import CLOSED_MOUTH
+    from landmarks.nearest_mouth import mouth_strength
+
+    shots = np.stack([_face(o) for o in (0.02, 0.03, 0.04, 0.3, 0.35)])  # mostly closed, two open
+    assert mouth_strength(_face(0.04), shots, 5) == pytest.approx(0.0, abs=0.05)  # the median shot
+    assert mouth_strength(_face(0.04 + CLOSED_MOUTH / 2), shots, 5) == pytest.approx(0.5, abs=0.1)
+    assert mouth_strength(_face(0.3), shots, 5) == 1.0
+    open_shots = np.stack([_face(o) for o in (0.28, 0.3, 0.32, 0.31, 0.29)])
+    assert mouth_strength(_face(0.3), open_shots, 5) == pytest.approx(0.0, abs=0.05)  # the shots show this mouth
+    assert mouth_strength(_face(0.3), shots[:1], 5) == 1.0  # K < count: the one shot repeated
+    image = np.full((SIDE, SIDE, 3), 40, np.uint8)
+    assert keep_nearest_mouth(image, image + 100, np.ones((SIDE, SIDE), np.float32), _face(), 0.0) is image
+    half = keep_nearest_mouth(image, image + 100, np.ones((SIDE, SIDE), np.float32), _face(), 0.5)
+    centre = np.round(_face()[48:60].mean(axis=0)).astype(int)
+    assert half[centre[1], centre[0], 0] == 90

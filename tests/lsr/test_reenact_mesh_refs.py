@@ -104,12 +104,23 @@ def test_reenact_retargets_in_3d_on_the_sources_own_mesh(reenactor, people, monk
 
 
 def test_the_mouth_comes_from_the_nearest_reference_unless_told_to_blend(reenactor, people):
-    """``mouth`` "nearest": the synthesis' mouth region is the first (nearest) warped shot's
-    (``landmarks.nearest_mouth``), the rest the network's; "blend": the network's alone."""
+    """``mouth`` "nearest": where the target opens wider than its shots, the synthesis' mouth region is the first
+    (nearest) warped shot's (``landmarks.nearest_mouth``), the rest the network's; "blend": the network's alone."""
     from landmarks.nearest_mouth import mouth_weight
 
     subject = reenactor.encode_subject(people["source"], k=4)
-    target = subject.shots.landmarks[2] + np.array([1.5, -1.0])  # near a shot, not on it
+    from landmarks.expression import mouth_opening, set_mouth_opening
+    from landmarks.nearest_mouth import mouth_strength
+
+    closed = int(np.argmin(mouth_opening(subject.shots.landmarks)))
+    target = subject.shots.landmarks[closed] + np.array([1.5, -1.0])  # near the most closed shot, not on it
+    assert mouth_strength(target, subject.shots.landmarks, reenactor.warp_references) == 0.0  # no wider than its shots
+    reenactor.mouth = "nearest"
+    unchanged, _, _ = reenactor.synthesize_crop(target)
+    reenactor.mouth = "blend"
+    np.testing.assert_array_equal(unchanged, reenactor.synthesize_crop(target)[0])  # their blend is kept
+    target = set_mouth_opening(target, 0.5)  # wider than any shot's
+    assert mouth_strength(target, subject.shots.landmarks, reenactor.warp_references) == 1.0
     _, inputs = reenactor.network_inputs(target)
     nearest = np.clip(np.rint((np.moveaxis(inputs["references"][0, 0], 0, -1) + 1) * 127.5), 0, 255)
     reenactor.mouth = "blend"
