@@ -92,7 +92,7 @@ def model_summary(weights: Path | None, random_init: bool) -> str:
                  f"synthesis at {output}, so detail comes from your shots")
         if config.get("reference_detail"):
             line += " (the fine detail most of the warped shots agree on, not a blur of them)"
-        line += "; the mouth comes from the nearest warped shot, so it opens as wide as the driver's"
+        line += "; where the driver opens the mouth wider than the shots do, it comes from the nearest warped shot"
         line += ("; the result goes into the source's own scene (its background, body and hair), only the face is "
                  "synthesised; fine-tuning on the shots (Options) is off by default: it measured no gain")
     if name == "the shipped default model":
