@@ -414,7 +414,7 @@ def section_markdown(cfg: BenchSpeedConfig, rows: list[dict], peak: float, prove
         lines.append(f"- {name}: {text}")
     lines += [
         f"- ms: median of {cfg.runs} warm runs, batch 1 (encode K=32: median of {cfg.encoder_runs}); the per-frame path is "
-        "G^l + G^s (``FrameGeneratorGraph``; warp_guided: with the blend at the crop side, 2x the resolution); warp ms: "
+        "G^l + G^s (``FrameGeneratorGraph``; warp_guided: with the blend at the crop side, crop_scale x the resolution); warp ms: "
         "a warp-guided model's TPS warps of its nearest shots (numpy, one thread); total = both; % conv peak = GFLOP/frame ÷ time ÷ the fp32 conv peak "
         f"measured in this run ({peak:.0f} GFLOP/s; int8 rows against the same fp32 peak).",
         "- GFLOP = 2 × multiply-accumulates of convs/matmuls (``FlopCounterMode``).",
