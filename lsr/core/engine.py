@@ -280,8 +280,9 @@ class ReenactorBase:
             from landmarks.nearest_mouth import keep_nearest_mouth, mouth_strength
 
             strength = mouth_strength(crop_landmarks, (subject or self._require_subject()).shots.landmarks, self.warp_references)
-            image = keep_nearest_mouth(image, from_network(inputs["references"][0, 0]), inputs["reference_masks"][0, 0, 0],
-                                       crop_landmarks, strength)
+            if strength > 0:  # most frames: the shots show this mouth, so the reference is not even converted
+                image = keep_nearest_mouth(image, from_network(inputs["references"][0, 0]),
+                                           inputs["reference_masks"][0, 0, 0], crop_landmarks, strength)
         return image, None if layout is None else np.asarray(layout[0], np.float32)
 
     def network_inputs(self, crop_landmarks: np.ndarray, latents: tuple[np.ndarray, np.ndarray] | None = None,
@@ -563,8 +564,7 @@ def _paste_into_driver(frame: ReenactedFrame, points: np.ndarray, matrix: np.nda
 def default_crop_size(backend: SynthesisBackend) -> int:
     """The crop (and output) side: ``crop_scale`` (model config) times the model resolution for a warp-guided model
     (detail comes from the warped shots, the network runs at its own resolution), else the model resolution."""
-    scale = int(getattr(backend, "crop_scale", 2)) if getattr(backend, "warp_references", 0) else 1
-    return int(backend.resolution) * scale
+    return int(backend.resolution) * (int(getattr(backend, "crop_scale", 2)) if getattr(backend, "warp_references", 0) else 1)
 
 
 def scale_points(points: np.ndarray, scale: float) -> np.ndarray:

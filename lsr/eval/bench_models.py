@@ -53,17 +53,16 @@ def conv_peak_gflops(runs: int) -> float:
 def frame_inputs(config: ModelConfig, names: list[str]) -> tuple[torch.Tensor, ...]:
     generator = torch.Generator().manual_seed(0)
     size = config.resolution
+    crop = config.crop_scale * size  # warp_guided: the warped shots at the default crop side
     tensors = []
     for name in names:
         if name == "landmark_image":
             tensors.append(torch.rand(1, config.landmark_channels, size, size, generator=generator) * 2 - 1)
         elif name.endswith("latent"):
             tensors.append(torch.randn(1, config.latent_dim, generator=generator))
-        elif name == "references":  # warp_guided: the warped shots at the default crop side (crop_scale x the resolution)
-            crop = config.crop_scale * size
+        elif name == "references":
             tensors.append(torch.rand(1, config.warp_references, 3, crop, crop, generator=generator) * 2 - 1)
         elif name == "reference_masks":
-            crop = config.crop_scale * size
             tensors.append(torch.ones(1, config.warp_references, 1, crop, crop))
         else:  # oracle_segmentation: one-hot
             labels = torch.randint(0, 19, (1, size, size), generator=generator)
