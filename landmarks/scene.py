@@ -5,7 +5,7 @@ A frame is layers that move as they do in life; only the face is synthesised:
 * **background and body**: the scene frame, unmoved;
 * **head** (hair, ears, the skin around the face): the scene frame moved by the head's rigid motion (the
   similarity scene -> target on ``landmarks.retarget.RIGID_INDEX``), which carries the hair, plus a regularised
-  TPS (``landmarks.tps.tps_map``) that lands the scene's face outline, brows, nose and eye corners on the
+  TPS (``landmarks.tps.tps_grid_map``) that lands the scene's face outline, brows, nose and eye corners on the
   target's (the lips and eyelids do not count: they are expression). The warp fades smoothly to none at the
   edge of the head region (``head_weight``), so the neck stretches a little and the body never moves. One
   coherent layer: the hair is the scene's, never an average of disagreeing warps, so it cannot ghost, and the
@@ -31,7 +31,7 @@ import numpy as np
 from landmarks.align import crop_transform, face_geometry, invert_affine, transform_landmarks
 from landmarks.parts import NUM_LANDMARKS
 from landmarks.retarget import RIGID_INDEX, apply_similarity, similarity_procrustes
-from landmarks.tps import tps_map
+from landmarks.tps import tps_grid_map
 
 # Head region (fractions of the crop side s), centred above the eyes/mouth midpoint; a VoxCeleb2 crop has the
 # top of the hair about 0.35 s above that point and the chin about 0.22 s below it.
@@ -46,6 +46,7 @@ COLOUR_SIGMA = 0.12  # ... and spread smoothly with this Gaussian
 COLOUR_LIMIT = 40.0  # grey levels: larger offsets are lighting the face itself, not a seam
 STILL = 0.25  # pixels: a head motion smaller than this leaves the head layer untouched
 HEAD_WARP_INDEX = [*range(0, 36), 36, 39, 42, 45]  # outline, brows, nose, eye corners: not the lips and lids
+HEAD_GRID_CELLS = 48  # the head layer's field is made every side / 48 pixels (at least 4) and interpolated
 
 
 def face_side(landmarks: np.ndarray) -> float:
@@ -73,10 +74,35 @@ def _ellipse_radius(landmarks: np.ndarray, shape: tuple[int, int], offset: tuple
 
     landmarks: (68, 2) frame pixels; shape: (H, W) of the region; offset: (x0, y0) of the region in the frame.
     """
+    return _radius_at(landmarks, np.arange(shape[1], dtype=np.float32) + offset[0],
+                      np.arange(shape[0], dtype=np.float32) + offset[1])
+
+
+def _radius_at(landmarks: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """The head ellipse's radius on the grid of frame columns ``xs`` (W,) by rows ``ys`` (H,): (H, W) float32."""
     centre, axes = _head_ellipse(landmarks)
-    xs = ((np.arange(shape[1], dtype=np.float32) + (offset[0] - centre[0])) / axes[0])[None, :]
-    ys = ((np.arange(shape[0], dtype=np.float32) + (offset[1] - centre[1])) / axes[1])[:, None]
-    return np.sqrt(xs * xs + ys * ys).astype(np.float32)
+    across = ((np.asarray(xs, np.float32) - np.float32(centre[0])) / np.float32(axes[0]))[None, :]
+    down = ((np.asarray(ys, np.float32) - np.float32(centre[1])) / np.float32(axes[1]))[:, None]
+    return np.sqrt(across * across + down * down)
+
+
+def _smooth_weight(radius: np.ndarray) -> np.ndarray:
+    """Head weight from the ellipse radius: 1 inside ``HEAD_INNER``, smoothstep to 0 on the ellipse."""
+    ramp = np.clip((1.0 - radius) / (1.0 - HEAD_INNER), 0.0, 1.0)
+    return (ramp * ramp * (3.0 - 2.0 * ramp)).astype(np.float32)  # smoothstep: no kink at either edge
+
+
+def _inside_heads(landmarks_list: list[np.ndarray], shape: tuple[int, int], offset: tuple[int, int]) -> np.ndarray:
+    """(H, W) uint8 (1 inside) of a region: inside any of the faces' head ellipses shrunk by 1.5 pixels (rasterised, so
+    cheap). Outside it the head weight is at most ~1.5 / (0.3 semi-axis) of a smoothstep's start: nothing moves."""
+    mask = np.zeros(shape, np.uint8)
+    for points in landmarks_list:
+        centre, axes = _head_ellipse(points)
+        centre = np.round((centre - offset) * 16).astype(int)
+        axes = np.round(np.maximum(axes - 1.5, 0.0) * 16).astype(int)
+        cv2.ellipse(mask, (int(centre[0]), int(centre[1])), (int(axes[0]), int(axes[1])), 0, 0, 360, 1, -1,
+                    cv2.LINE_8, 4)
+    return mask
 
 
 def head_weight(landmarks: np.ndarray, shape: tuple[int, int], offset: tuple[int, int] = (0, 0)) -> np.ndarray:
@@ -84,8 +110,7 @@ def head_weight(landmarks: np.ndarray, shape: tuple[int, int], offset: tuple[int
 
     landmarks: (68, 2) frame pixels; shape: (H, W) of the region; offset: (x0, y0) of the region in the frame.
     """
-    ramp = np.clip((1.0 - _ellipse_radius(landmarks, shape, offset)) / (1.0 - HEAD_INNER), 0.0, 1.0)
-    return (ramp * ramp * (3.0 - 2.0 * ramp)).astype(np.float32)  # smoothstep: no kink at either edge
+    return _smooth_weight(_ellipse_radius(landmarks, shape, offset))
 
 
 def head_box(landmarks_list: list[np.ndarray], frame_hw: tuple[int, int], margin: int = 2) -> tuple[int, int, int, int] | None:
@@ -183,28 +208,32 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     # head layer: identity far away, the scene's face outline carried onto the target's inside (a TPS on the jaw,
     # brows, nose and eye corners); one smooth field, so no seam and no hole, and no old cheek left beside the new.
     # The rigid motion carries the whole head (hair included); the TPS, pinned at the box's edge, adds what is not.
+    # The field is smooth, so it is made (TPS, rigid part, head weight) on a grid of cells HEAD_GRID_CELLS to the
+    # face side and densified once: the per-pixel work is one interpolation and the remap.
     offset = np.array([x0, y0], np.float64)
     moved = apply_similarity(scene_points, scale, rotation, translation)
-    warp = tps_map(moved[HEAD_WARP_INDEX] - offset, target_points[HEAD_WARP_INDEX] - offset, y1 - y0, x1 - x0,
-                   grid_step=4)
-    inverse = invert_affine(motion).astype(np.float32)
-    moved_x, moved_y = warp.map_x, warp.map_y  # box pixels; made frame pixels by the inverse's translation below
-    source_x = inverse[0, 0] * moved_x + inverse[0, 1] * moved_y + (inverse[0, 2] + inverse[0, 0] * x0 + inverse[0, 1] * y0)
-    source_y = inverse[1, 0] * moved_x + inverse[1, 1] * moved_y + (inverse[1, 2] + inverse[1, 0] * x0 + inverse[1, 1] * y0)
-    del warp, moved_x, moved_y
-    xs = np.arange(x0, x1, dtype=np.float32)[None, :]
-    ys = np.arange(y0, y1, dtype=np.float32)[:, None]
-    source_x -= xs  # now displacements (in place: a 4K frame's box is tens of megabytes per plane)
-    source_y -= ys
-    if max(np.abs(source_x).max(), np.abs(source_y).max()) > STILL:
-        weight = np.maximum(head_weight(scene_points, roi_hw, (x0, y0)), head_weight(target_points, roi_hw, (x0, y0)))
-        source_x *= weight
-        source_y *= weight
-        del weight
-        source_x += xs
-        source_y += ys
-        output[y0:y1, x0:x1] = cv2.remap(scene, source_x, source_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
-    del source_x, source_y
+    step = max(4, round(side / HEAD_GRID_CELLS))
+    warp = tps_grid_map(moved[HEAD_WARP_INDEX] - offset, target_points[HEAD_WARP_INDEX] - offset, y1 - y0, x1 - x0,
+                        grid_step=step)
+    inverse = invert_affine(motion)
+    grid_x, grid_y = warp.grid.xs + x0, warp.grid.ys + y0  # frame pixels of the grid's columns and rows
+    moved_x, moved_y = warp.map_x + x0, warp.map_y + y0  # frame pixels of the moved head each grid point shows
+    shift_x = inverse[0, 0] * moved_x + inverse[0, 1] * moved_y + inverse[0, 2] - grid_x[None, :]
+    shift_y = inverse[1, 0] * moved_x + inverse[1, 1] * moved_y + inverse[1, 2] - grid_y[:, None]
+    if max(np.abs(shift_x).max(), np.abs(shift_y).max()) > STILL:
+        weight = np.maximum(_smooth_weight(_radius_at(scene_points, grid_x, grid_y)),
+                            _smooth_weight(_radius_at(target_points, grid_x, grid_y)))
+        source_x = warp.densify(shift_x * weight)
+        source_x += np.arange(x0, x1, dtype=np.float32)[None, :]
+        source_y = warp.densify(shift_y * weight)
+        source_y += np.arange(y0, y1, dtype=np.float32)[:, None]
+        moved_head = cv2.remap(scene, source_x, source_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+        del source_x, source_y
+        # interpolated, the field leaks a sub-pixel shift just past the ellipses: the scene stays there, bit for bit
+        outside = _inside_heads([scene_points, target_points], roi_hw, (x0, y0)) == 0
+        cv2.copyTo(scene[y0:y1, x0:x1], outside.view(np.uint8), moved_head)  # in place (numpy's masked copy: 5x slower)
+        output[y0:y1, x0:x1] = moved_head
+        del moved_head, outside
 
     # face layer, in the face's own box (the hull, its margin and feather): the synthesis, exactly inverse-warped
     reach = int(np.ceil((FACE_MARGIN + FACE_FEATHER) * side)) + 2
@@ -238,7 +267,7 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     if band.sum() > 16:
         sigma = COLOUR_SIGMA * side
         difference = (head_layer - face) * band[..., None]
-        global_offset = difference.sum((0, 1)) / band.sum()
+        global_offset = np.array(cv2.sumElems(difference)[:3]) / cv2.sumElems(band)[0]  # numpy's strided sum: 10x slower
         spread = blur(band, sigma)
         colour = blur(difference, sigma)
         del difference
@@ -256,9 +285,14 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
 
 
 def _within_head(scene_points: np.ndarray, target_points: np.ndarray, shape: tuple[int, int],
-                 offset: tuple[int, int]) -> np.ndarray:
+                 offset: tuple[int, int]) -> np.ndarray | float:
     """1 inside the head regions, ramping to 0 over their outermost 5 %: the face layer never leaves them (a
-    close-up's face can be as large as the frame), so ``head_region``'s complement is the scene, bit for bit."""
+    close-up's face can be as large as the frame), so ``head_region``'s complement is the scene, bit for bit.
+    (H, W) float32, or 1.0 when the whole region lies inside one of them (an ellipse is convex: its corners do)."""
+    corners_x = np.array([offset[0], offset[0] + shape[1] - 1], np.float32)
+    corners_y = np.array([offset[1], offset[1] + shape[0] - 1], np.float32)
+    if any(_radius_at(points, corners_x, corners_y).max() <= 0.95 for points in (scene_points, target_points)):
+        return 1.0
     radius = np.minimum(_ellipse_radius(scene_points, shape, offset), _ellipse_radius(target_points, shape, offset))
     return np.clip((1.0 - radius) / 0.05, 0.0, 1.0)
 

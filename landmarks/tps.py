@@ -258,6 +258,7 @@ class _Grid:
         if self.step == 1:
             self.points = _pixel_grid(height, width)
             self.shape = (height, width)
+            self.ys, self.xs = np.arange(height, dtype=np.float64), np.arange(width, dtype=np.float64)
             return
         self.ys = np.unique(np.append(np.arange(0, height, self.step, dtype=np.float64), height - 1.0))
         self.xs = np.unique(np.append(np.arange(0, width, self.step, dtype=np.float64), width - 1.0))
@@ -285,25 +286,52 @@ def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarra
                      borderMode=cv2.BORDER_REPLICATE)
 
 
-def tps_map(
-    source_points: np.ndarray,
-    target_points: np.ndarray,
-    height: int,
-    width: int,
-    *,
-    regularization: float = DEFAULT_REGULARIZATION,
-    merge_distance: float = DEFAULT_MERGE_DISTANCE,
-    max_condition: float = DEFAULT_MAX_CONDITION,
-    max_folded_fraction: float = DEFAULT_MAX_FOLDED_FRACTION,
-    fix_border: bool = True,
-    grid_step: int = 1,
-) -> WarpMap:
+@dataclasses.dataclass
+class GridMap:
+    """``tps_map``'s backward map on its evaluation grid, before it is made dense: for callers that do more smooth
+    per-pixel work on it (``landmarks.scene``'s head layer) at the grid's cost, then densify once.
+
+    grid: where the map was evaluated (``grid.ys``, ``grid.xs``: pixel rows and columns, ends included);
+    map_x, map_y: ``grid.shape`` source pixel coordinates there; the rest as ``WarpMap``."""
+
+    grid: _Grid
+    map_x: np.ndarray
+    map_y: np.ndarray
+    method: str
+    regularization: float
+    folded_fraction: float
+    reason: str
+
+    def densify(self, values: np.ndarray) -> np.ndarray:
+        """Values on the grid (``grid.shape``) -> (H, W) float32 at every pixel, interpolated bilinearly."""
+        return self.grid.densify(values)
+
+    def dense(self) -> WarpMap:
+        return WarpMap(self.densify(self.map_x), self.densify(self.map_y), self.method, self.regularization,
+                       self.folded_fraction, self.reason)
+
+
+def tps_map(source_points: np.ndarray, target_points: np.ndarray, height: int, width: int, *,
+            regularization: float = DEFAULT_REGULARIZATION, merge_distance: float = DEFAULT_MERGE_DISTANCE,
+            max_condition: float = DEFAULT_MAX_CONDITION, max_folded_fraction: float = DEFAULT_MAX_FOLDED_FRACTION,
+            fix_border: bool = True, grid_step: int = 1) -> WarpMap:
     """The backward map of the warp that moves ``source_points`` onto ``target_points`` in an (H, W) frame.
 
     source_points, target_points: (N, 2) x, y pixels (rows with NaN in either are ignored). grid_step: see
     ``_Grid`` (1 = exact; > 1 evaluates and checks folds on a coarse grid). Never raises for degenerate point
     sets (falls back, see the module docstring).
     """
+    return tps_grid_map(source_points, target_points, height, width, regularization=regularization,
+                        merge_distance=merge_distance, max_condition=max_condition,
+                        max_folded_fraction=max_folded_fraction, fix_border=fix_border, grid_step=grid_step).dense()
+
+
+def tps_grid_map(source_points: np.ndarray, target_points: np.ndarray, height: int, width: int, *,
+                 regularization: float = DEFAULT_REGULARIZATION, merge_distance: float = DEFAULT_MERGE_DISTANCE,
+                 max_condition: float = DEFAULT_MAX_CONDITION,
+                 max_folded_fraction: float = DEFAULT_MAX_FOLDED_FRACTION, fix_border: bool = True,
+                 grid_step: int = 1) -> GridMap:
+    """``tps_map`` on its grid, not yet dense (``GridMap``); the same arguments, the same fallbacks."""
     source_points = np.asarray(source_points, np.float64)
     target_points = np.asarray(target_points, np.float64)
     if source_points.shape != target_points.shape or source_points.ndim != 2 or source_points.shape[1] != 2:
@@ -324,21 +352,18 @@ def tps_map(
             reasons.append(str(exc))
             break  # more regularisation does not help a system without spread / affine rank
         map_x, map_y = grid.evaluate(spline.dense)  # source x, y per output pixel (on the grid)
-        # folds are judged on the grid: only an accepted map is made dense
-        folds = folded_fraction(map_x, map_y)
+        folds = folded_fraction(map_x, map_y)  # judged on the grid
         if np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)) and folds <= max_folded_fraction:
             method = "tps" if attempt == 0 else "tps_stronger"
-            return WarpMap(grid.densify(map_x), grid.densify(map_y), method, regularization * factor, folds,
-                           "; ".join(reasons))
+            return GridMap(grid, map_x, map_y, method, regularization * factor, folds, "; ".join(reasons))
         reasons.append(f"lambda {regularization * factor:.3g}: {folds:.2%} of pixels folded")
     matrix = fit_similarity(landmark_targets, landmark_sources) if len(landmark_targets) >= 2 else None
-    if matrix is not None:
-        dense = _Grid(height, width, 1)
-        map_x, map_y = dense.evaluate(lambda p: p @ matrix[:, :2].T + matrix[:, 2])
-        return WarpMap(dense.densify(map_x), dense.densify(map_y), "similarity", 0.0, 0.0, "; ".join(reasons))
+    if matrix is not None:  # affine: bilinear densifying is exact
+        map_x, map_y = grid.evaluate(lambda p: p @ matrix[:, :2].T + matrix[:, 2])
+        return GridMap(grid, map_x, map_y, "similarity", 0.0, 0.0, "; ".join(reasons))
     reasons.append("no similarity: landmarks have no spread")
-    grid_y, grid_x = np.mgrid[0:height, 0:width].astype(np.float32)
-    return WarpMap(grid_x, grid_y, "identity", 0.0, 0.0, "; ".join(reasons))
+    map_x, map_y = grid.evaluate(lambda p: p)
+    return GridMap(grid, map_x, map_y, "identity", 0.0, 0.0, "; ".join(reasons))
 
 
 # tps_map's keyword options and their defaults: the settings every warp of this module forwards

@@ -91,3 +91,23 @@ def test_anchor_is_the_frontal_closed_mouth_shot():
     assert pick_anchor(shots, image) == 2
     shots[2] = np.nan
     assert pick_anchor(shots, image) in (1, 3)  # never a shot without landmarks
+
+
+@pytest.mark.parametrize("scale", [0.3, 1.4])
+def test_small_and_close_up_faces_change_nothing_outside_their_head_region(rng, scale):
+    """The head layer's field is made on a grid (a step of the face side / HEAD_GRID_CELLS) and interpolated; a small
+    face (the smallest step) and a close-up whose head leaves the frame still leave every pixel outside
+    ``head_region`` bit for bit, and move the face."""
+    import cv2
+
+    noise = cv2.GaussianBlur(rng.random((*SIZE, 3)).astype(np.float32), (0, 0), 3)
+    scene = np.clip((noise - noise.mean()) / noise.std() * 50 + 128, 0, 255).astype(np.uint8)
+    points = project_canonical(0, 0, 0, SIZE, scale=scale, translation=(10, 20)).astype(np.float64)
+    target = points * 1.03 + [5.0, -3.0]  # the head moves and grows a little
+    matrix = crop_transform(target, 128)
+    result = composite_face(scene, points, target, np.full((128, 128, 3), 90, np.uint8), matrix)
+    region = head_region([points, target], SIZE)
+    assert 0 < region.mean() < 1
+    np.testing.assert_array_equal(result.frame[~region], scene[~region])
+    nose = np.round(target[30]).astype(int)
+    assert np.abs(result.frame[nose[1], nose[0]].astype(int) - 90).max() < 45  # the face is there

@@ -113,3 +113,22 @@ def test_sub_pixel_warp_keeps_fine_detail(rng):
         return cv2.Laplacian(cv2.cvtColor(x, cv2.COLOR_RGB2GRAY).astype(np.float64), cv2.CV_64F)[8:-8, 8:-8].var()
 
     assert detail(result.image) / detail(image) > 0.8
+
+
+@pytest.mark.parametrize("shift", [(3.0, 1.0), None])
+def test_the_grid_map_is_the_dense_map_before_densifying(rng, shift):
+    """``tps_grid_map`` keeps the map on its grid (ends included): densified it is ``tps_map``'s, and at the grid's
+    rows and columns the dense map is the grid's values; a fallback (collinear points: a similarity) likewise."""
+    target = _points(rng) if shift is not None else np.stack([np.linspace(20, 70, 12)] * 2, axis=1)
+    source = target + (shift if shift is not None else [3.0, 1.0])
+    grid = tps.tps_grid_map(source, target, 90, 70, grid_step=8, fix_border=shift is not None)
+    assert grid.method == ("tps" if shift is not None else "similarity")
+    assert grid.grid.ys[0] == 0 and grid.grid.ys[-1] == 89 and grid.grid.xs[-1] == 69
+    dense = tps.tps_map(source, target, 90, 70, grid_step=8, fix_border=shift is not None)
+    np.testing.assert_allclose(grid.dense().map_x, dense.map_x, atol=1e-4)
+    rows, cols = grid.grid.ys.astype(int), grid.grid.xs.astype(int)
+    np.testing.assert_allclose(dense.map_x[np.ix_(rows, cols)], grid.map_x, atol=1e-3)
+    np.testing.assert_allclose(dense.map_y[np.ix_(rows, cols)], grid.map_y, atol=1e-3)
+    if shift is None:  # affine: exact at every pixel
+        ys, xs = np.mgrid[0:90, 0:70]
+        np.testing.assert_allclose(dense.map_x, xs + 3.0, atol=1e-3)
