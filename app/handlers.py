@@ -366,7 +366,8 @@ def latent_averaging(reenactor, shots, target_landmarks: np.ndarray) -> list[tup
     target_landmarks: (68, 2) crop pixels (the first driven frame's target). A warp-guided model warps the same
     nearest shots for every panel, so the panels differ by the latents only.
     """
-    from lsr.core.engine import resize_shots, to_network
+    from lsr.core.engine import to_network
+    from lsr.core.sources import resize_shots
     from landmarks.raster import draw_landmarks
 
     size = reenactor.resolution

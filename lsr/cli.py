@@ -170,6 +170,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         cfg.validate()
+        from lsr.core.overlap import single_blas_thread
+
+        single_blas_thread()  # the frame loops' stages fill the cores; OpenBLAS's spinning threads only take them
         _resolve(runners[type(cfg)])(cfg)
     except user_errors as exc:
         print(f"lsr: error: {exc}", file=sys.stderr)

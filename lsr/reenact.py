@@ -286,6 +286,7 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
         sbs_writer = None
         if side_by_side is not None:
             sbs_writer = stack.enter_context(VideoWriter(side_by_side, info.fps, audio_from=audio, metadata=metadata))
+        stack.callback(frames.close)  # stopped early (an error, Ctrl-C): the stages' threads stop before the writers
         with Drain(encode) as drain:  # closed (every frame written) before the writers
             for frame in frames:
                 if first_landmarks is None and frame.landmarks is not None:

@@ -20,6 +20,7 @@ crop coordinates; absolute mode uses the driver's crop landmarks as they are.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import os
@@ -40,16 +41,18 @@ from lsr.core.sources import (
     iter_driver_frames,
     load_subject_shots,
     read_landmark_array,
+    resize_shots,
+    scale_points,
 )
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.mesh_retarget import RETARGET_MODES
-from lsr.core.overlap import finish_behind
+from lsr.core.overlap import finish_behind, prefetch
 
 Mode = Literal["auto", "relative", "absolute"]
 Scene = Literal["source", "driver"]
 """What ``paste_back`` composites into: the source's own frames (its anchor shot or its video) or the driver's."""
 LayoutKind = Literal["none", "latent", "segmentation"]
-STAGES = ("decode", "landmarks", "subject_encoding", "synthesis", "paste_back")
+STAGES = ("decode", "landmarks", "subject_encoding", "warps", "synthesis", "paste_back")
 
 
 class SynthesisBackend(Protocol):
@@ -139,6 +142,15 @@ class ReenactStats:
         self.no_face += other.no_face
         for stage, seconds in other.seconds.items():
             self.add(stage, seconds)
+
+
+@dataclasses.dataclass
+class _Prepared:
+    """A face frame ready for the network: the frame so far, the network's inputs, its paste-back (or None)."""
+
+    frame: ReenactedFrame
+    inputs: dict[str, np.ndarray]
+    finish: Callable[[ReenactedFrame], ReenactedFrame] | None
 
 
 def to_network(images: np.ndarray) -> np.ndarray:
@@ -363,17 +375,13 @@ class ReenactorBase:
             scenes = SourceScene(subject.shots, self.crop_size, detector=self.detector, fps=info.fps, smooth=smooth)
         if info.kind == "landmarks":
             read_landmark_array(driver, landmark_space=landmark_space, landmark_size=landmark_size)  # fail early
-            frames = self._landmark_driver(driver, info, relative, smooth, with_layout, landmark_space, landmark_size,
-                                           stats, scenes)
+            frames = self._landmark_driver(driver, info, relative, smooth, landmark_space, landmark_size, stats, scenes)
         else:
-            frames = self._frame_driver(info, relative, smooth, paste_back and not into_source, with_layout, stats, scenes,
-                                        retarget)
-        frames = finish_behind(frames)  # each frame's paste-back overlaps the next one's synthesis
-        if progress:
-            from tqdm import tqdm
-
-            frames = tqdm(frames, total=info.frames, desc="reenact", unit="frame", dynamic_ncols=True)
-        return iter(frames)  # checks above run now; frames are produced lazily
+            frames = self._frame_driver(info, relative, smooth, paste_back and not into_source, stats, scenes, retarget)
+        # three overlapping stages: the frames prepared (decoded, tracked, retargeted, the shots warped) on a thread
+        # ahead, the network here, each frame's paste-back on a worker behind (lsr.core.overlap)
+        frames = finish_behind(self._synthesized(prefetch(frames), with_layout, stats))
+        return _with_progress(frames, info.frames) if progress else frames  # checks above run now; frames lazily
 
     __call__ = reenact
 
@@ -415,25 +423,49 @@ class ReenactorBase:
         mesh = moved[0] if moved is not None and np.isfinite(moved[0]).all() else None
         return landmarks[0], mesh if self._uses_mesh_references() else None
 
-    def _into_scene(self, scenes, index: int, driver_frame: np.ndarray | None, target: np.ndarray, with_layout: bool,
-                    stats: ReenactStats, target_mesh: np.ndarray | None = None) -> Callable[[], ReenactedFrame]:
-        """Synthesise the target (anchor crop pixels; its mesh, when there is one) at the next scene frame's head
-        pose now, and return the frame's finisher: compositing it into that scene frame (run behind the loop,
-        overlapping the next synthesis: ``lsr.core.overlap.finish_behind``)."""
+    def _prepare(self, index: int, driver_frame: np.ndarray | None, target: np.ndarray, stats: ReenactStats,
+                 target_mesh: np.ndarray | None = None, finish: Callable | None = None, image: np.ndarray | None = None
+                 ) -> _Prepared:
+        """A face frame made ready for the network (on the preparing thread): the target's landmark image and, for a
+        warp-guided model, its nearest shots warped onto it. finish: the frame's paste-back (run behind the loop);
+        image: the frame's picture until then (None: the synthesis)."""
         started = time.perf_counter()
+        landmark_image, inputs = self.network_inputs(target, crop_mesh=target_mesh)
+        stats.add("warps", time.perf_counter() - started)
+        return _Prepared(ReenactedFrame(index, image, True, driver_frame, landmark_image, None, None, target), inputs,
+                         finish)
+
+    def _synthesized(self, items, with_layout: bool, stats: ReenactStats) -> Iterator[ReenactedFrame | Callable]:
+        """The network on each prepared frame, here (the items come from the preparing thread); the frames, or their
+        finishers (``lsr.core.overlap.finish_behind``), in order. decode = what the network waited for."""
+        with contextlib.closing(items):  # stopped early: the preparing threads stop too
+            while True:
+                started = time.perf_counter()
+                item = next(items, None)
+                stats.add("decode", time.perf_counter() - started)
+                if item is None:
+                    return
+                if isinstance(item, _Prepared):
+                    started, frame = time.perf_counter(), item.frame
+                    frame.synthesis, frame.layout = self.synthesize_inputs(item.inputs, with_layout, frame.landmarks)
+                    stats.add("synthesis", time.perf_counter() - started)
+                    frame.image = frame.synthesis if frame.image is None else frame.image
+                    item = frame if item.finish is None else functools.partial(item.finish, frame)
+                yield item
+
+    def _into_scene(self, scenes, index: int, driver_frame: np.ndarray | None, target: np.ndarray,
+                    stats: ReenactStats, target_mesh: np.ndarray | None = None) -> _Prepared:
+        """The target (anchor crop pixels; its mesh, when there is one) prepared at the next scene frame's head pose,
+        its finisher compositing the synthesis into that scene frame."""
         scene = next(scenes)
-        stats.add("decode", time.perf_counter() - started)
         target = scene.place(target)  # a video source whose face was not found yet: the anchor's place
         if target_mesh is not None:
             target_mesh = scene.place_mesh(target_mesh)
-        started = time.perf_counter()
-        synthesis, landmark_image, layout = self.synthesize_crop(target, with_layout, crop_mesh=target_mesh)
-        stats.add("synthesis", time.perf_counter() - started)
-        frame = ReenactedFrame(index, scene.image, True, driver_frame, landmark_image, synthesis, layout, target)
-        return functools.partial(_paste_into_scene, frame, scene, stats)
+        return self._prepare(index, driver_frame, target, stats, target_mesh,
+                             functools.partial(_paste_into_scene, scene=scene, stats=stats), scene.image)
 
-    def _landmark_driver(self, driver, info: DriverInfo, relative: bool, smooth: bool, with_layout: bool,
-                         landmark_space, landmark_size, stats: ReenactStats, scenes=None) -> Iterator[ReenactedFrame]:
+    def _landmark_driver(self, driver, info: DriverInfo, relative: bool, smooth: bool, landmark_space, landmark_size,
+                         stats: ReenactStats, scenes=None) -> Iterator[ReenactedFrame | _Prepared]:
         from landmarks.align import crop_transform, transform_landmarks
         from landmarks.smooth import OneEuroFilter, driving_cutoffs
 
@@ -451,16 +483,11 @@ class ReenactorBase:
             target, _ = self._drive(crop_landmarks, None, reference, None, relative)
             stats.add("landmarks", time.perf_counter() - started)
             stats.frames += 1
-            if scenes is not None:
-                yield self._into_scene(scenes, index, None, target, with_layout, stats)
-                continue
-            started = time.perf_counter()
-            synthesis, landmark_image, layout = self.synthesize_crop(target, with_layout)
-            stats.add("synthesis", time.perf_counter() - started)
-            yield ReenactedFrame(index, synthesis, True, None, landmark_image, synthesis, layout, target)
+            yield (self._into_scene(scenes, index, None, target, stats) if scenes is not None
+                   else self._prepare(index, None, target, stats))
 
-    def _frame_driver(self, info: DriverInfo, relative: bool, smooth: bool, paste_back: bool, with_layout: bool,
-                      stats: ReenactStats, scenes=None, retarget: str = "2d") -> Iterator[ReenactedFrame]:
+    def _frame_driver(self, info: DriverInfo, relative: bool, smooth: bool, paste_back: bool, stats: ReenactStats,
+                      scenes=None, retarget: str = "2d") -> Iterator[ReenactedFrame | _Prepared]:
         """paste_back: into the driver's frames; scenes: a ``SourceScene`` to composite into instead."""
         from landmarks.align import crop_transform, transform_landmarks
         from landmarks.smooth import OneEuroFilter, driving_cutoffs
@@ -480,13 +507,7 @@ class ReenactorBase:
 
         frames = prefetch(tracked())
         index = 0
-        while True:
-            started = time.perf_counter()
-            item = next(frames, None)
-            stats.add("decode", time.perf_counter() - started)  # what the synthesis waited for
-            if item is None:
-                break
-            frame, points, mesh, tracking_seconds = item
+        for frame, points, mesh, tracking_seconds in frames:
             started = time.perf_counter() - tracking_seconds
             raw_points = points
             if points is not None and one_euro is not None:
@@ -515,18 +536,10 @@ class ReenactorBase:
                 continue
             stats.frames += 1
             if scenes is not None:
-                yield self._into_scene(scenes, index, frame, crop_landmarks, with_layout, stats, crop_mesh)
-                index += 1
-                continue
-            started = time.perf_counter()
-            synthesis, landmark_image, layout = self.synthesize_crop(crop_landmarks, with_layout, crop_mesh=crop_mesh)
-            stats.add("synthesis", time.perf_counter() - started)
-            if paste_back:  # into the driver's own frame (its head and scene around the face), behind the loop
-                yield functools.partial(_paste_into_driver, ReenactedFrame(
-                    index, synthesis, True, frame, landmark_image, synthesis, layout, crop_landmarks), points, matrix,
-                    stats)
-            else:
-                yield ReenactedFrame(index, synthesis, True, frame, landmark_image, synthesis, layout, crop_landmarks)
+                yield self._into_scene(scenes, index, frame, crop_landmarks, stats, crop_mesh)
+            else:  # paste_back: into the driver's own frame (its head and scene around the face), behind the loop
+                yield self._prepare(index, frame, crop_landmarks, stats, crop_mesh, functools.partial(
+                    _paste_into_driver, points=points, matrix=matrix, stats=stats) if paste_back else None)
             index += 1
         if stats.frames and stats.no_face == stats.frames:  # a writer that is still open discards its file
             raise NoFaceError(f"no face found in any of the {stats.frames} frame(s) of the driver {info.path}; "
@@ -536,6 +549,14 @@ class ReenactorBase:
         if self.subject is None:
             raise NoFaceError("no subject encoded yet: call encode_subject(source) before re-enacting")
         return self.subject
+
+
+def _with_progress(frames: Iterator[ReenactedFrame], total: int) -> Iterator[ReenactedFrame]:
+    """``frames`` under a progress bar; closing this closes them (their threads stop)."""
+    from tqdm import tqdm
+
+    with contextlib.closing(frames), tqdm(frames, total=total, desc="reenact", unit="frame", dynamic_ncols=True) as bar:
+        yield from bar
 
 
 def _paste_into_scene(frame: ReenactedFrame, scene, stats: ReenactStats) -> ReenactedFrame:
@@ -565,27 +586,6 @@ def default_crop_size(backend: SynthesisBackend) -> int:
     """The crop (and output) side: ``crop_scale`` (model config) times the model resolution for a warp-guided model
     (detail comes from the warped shots, the network runs at its own resolution), else the model resolution."""
     return int(backend.resolution) * (int(getattr(backend, "crop_scale", 2)) if getattr(backend, "warp_references", 0) else 1)
-
-
-def scale_points(points: np.ndarray, scale: float) -> np.ndarray:
-    """Landmarks between crop sides, pixel centres at integers: (p + 0.5) * scale - 0.5."""
-    points = np.asarray(points, np.float64)
-    return points if scale == 1 else (points + 0.5) * scale - 0.5
-
-
-def resize_shots(shots: SubjectShots, size: int) -> SubjectShots:
-    """Shots cropped at another side -> (K, size, size, 3) crops with their landmarks scaled (the same shots)."""
-    crop = shots.frames.shape[1]
-    if crop == size:
-        return shots
-    interpolation = cv2.INTER_AREA if crop > size else cv2.INTER_LINEAR
-    frames = np.stack([cv2.resize(frame, (size, size), interpolation=interpolation) for frame in shots.frames])
-    meshes = None
-    if shots.meshes is not None:  # x, y as the landmarks; depth by the same factor
-        meshes = np.concatenate([scale_points(shots.meshes[..., :2], size / crop), shots.meshes[..., 2:] * (size / crop)],
-                                axis=-1).astype(np.float32)
-    return dataclasses.replace(shots, frames=frames, landmarks=scale_points(shots.landmarks, size / crop).astype(np.float32),
-                               meshes=meshes)
 
 
 def _source_key(source) -> str | None:

@@ -1,9 +1,11 @@
-"""Overlapping the stages of a frame loop on threads with bounded queues (``lsr reenact``'s decode and encode).
+"""Overlapping the stages of a frame loop on threads with bounded queues (``lsr reenact``'s stages).
 
-The network keeps the calling thread; decoding runs ahead of it (``prefetch``) and encoding behind it (``Drain``),
-each at most ``depth`` frames away, so memory stays bounded and a slow stage only slows its own thread. Video
-decoding and encoding (PyAV), OpenCV and onnxruntime release the GIL, so on two cores the stages really overlap.
-An error on a worker thread is raised in the caller, at the next frame or at ``close``; nothing is lost silently.
+The network keeps the calling thread. The frames are made ready on threads ahead of it (``prefetch``: decoding and
+tracking on one, smoothing, retargeting and the warps of the shots on the next), each frame's paste-back runs on a
+worker behind it (``finish_behind``) and encoding behind that (``Drain``), each at most ``depth`` frames away, so
+memory stays bounded and a slow stage only slows its own thread. Video decoding and encoding (PyAV), OpenCV, numpy
+and onnxruntime release the GIL, so on two cores the stages really overlap (with ``single_blas_thread``). An error on
+a worker thread is raised in the caller, at the next frame or at ``close``; nothing is lost silently.
 """
 
 from __future__ import annotations
@@ -33,6 +35,43 @@ def network_threads(requested: int = 0) -> int:
     return max(1, cores - 1)
 
 
+BLAS_SETTERS = ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads", "openblas_set_num_threads64_",
+                "openblas_set_num_threads")  # numpy's bundled OpenBLAS (numpy 2) and a system one
+
+
+def single_blas_thread() -> bool:
+    """Run numpy's BLAS (OpenBLAS) on one thread, unless OPENBLAS_NUM_THREADS / OMP_NUM_THREADS say otherwise; True
+    when a BLAS was set. The frame loop's stages already fill the cores, and OpenBLAS's idle threads spin: on 2 cores
+    they burned ~35 ms of CPU a frame in ``lsr reenact`` (onnx, the shared tpsmm_driving.mp4 with paste-back: 86-92
+    against 53-57 ms of CPU a frame, 22 against 31-34 fps), and one thread is also faster for the warps' small
+    products alone (synthesis-only 26 against 28 ms). Process-wide: the ``lsr``
+    command calls it; a program embedding the runtime may too. Linux (reads /proc/self/maps); elsewhere False."""
+    import ctypes
+    import os
+    import re
+
+    import numpy  # noqa: F401 - loads the BLAS this sets
+
+    if os.environ.get("OPENBLAS_NUM_THREADS") or os.environ.get("OMP_NUM_THREADS"):
+        return False
+    try:
+        with open("/proc/self/maps", encoding="utf-8", errors="replace") as maps:
+            paths = sorted(set(re.findall(r"(/\S*openblas\S*\.so\S*)", maps.read())))
+    except OSError:
+        return False
+    found = False
+    for path in paths:
+        try:
+            library = ctypes.CDLL(path)
+        except OSError:
+            continue
+        setter = next((getattr(library, name) for name in BLAS_SETTERS if hasattr(library, name)), None)
+        if setter is not None:
+            setter(1)
+            found = True
+    return found
+
+
 class _Failure:
     def __init__(self, error: BaseException) -> None:
         self.error = error
@@ -57,6 +96,8 @@ def prefetch(items: Iterable[T], depth: int = DEPTH) -> Iterator[T]:
             buffer.put(_END)
         except BaseException as error:  # noqa: BLE001 - handed to the consumer
             buffer.put(_Failure(error))
+        finally:
+            _close(items)  # here, where it ran: a nested stage's own thread stops before this one ends
 
     thread = threading.Thread(target=produce, name="lsr-prefetch", daemon=True)
     thread.start()
@@ -134,12 +175,22 @@ def finish_behind(items: Iterable[T | Callable[[], T]], depth: int = 1) -> Itera
 
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="lsr-finish") as pool:
         pending: deque = deque()
-        for item in items:
-            pending.append(pool.submit(item) if callable(item) else item)
-            while len(pending) > depth:
+        try:
+            for item in items:
+                pending.append(pool.submit(item) if callable(item) else item)
+                while len(pending) > depth:
+                    done = pending.popleft()
+                    yield done.result() if isinstance(done, Future) else done
+            while pending:
                 done = pending.popleft()
                 yield done.result() if isinstance(done, Future) else done
-        while pending:
-            done = pending.popleft()
-            yield done.result() if isinstance(done, Future) else done
+        finally:  # stopped early (an error, a close): the stages before this one stop too, their threads joined
+            _close(items)
+
+
+def _close(items) -> None:
+    """Close a generator (running its ``finally`` blocks: an upstream ``prefetch`` joins its thread); others: nothing."""
+    close = getattr(items, "close", None)
+    if close is not None:
+        close()
 

@@ -31,6 +31,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Literal
 
+import cv2
 import numpy as np
 
 from landmarks.errors import InputFileError, NoFaceError
@@ -366,3 +367,24 @@ def iter_driver_frames(info: DriverInfo) -> Iterator[np.ndarray]:
             )
         expected = frame.shape
         yield frame
+
+
+def scale_points(points: np.ndarray, scale: float) -> np.ndarray:
+    """Landmarks between crop sides, pixel centres at integers: (p + 0.5) * scale - 0.5."""
+    points = np.asarray(points, np.float64)
+    return points if scale == 1 else (points + 0.5) * scale - 0.5
+
+
+def resize_shots(shots: SubjectShots, size: int) -> SubjectShots:
+    """Shots cropped at another side -> (K, size, size, 3) crops with their landmarks scaled (the same shots)."""
+    crop = shots.frames.shape[1]
+    if crop == size:
+        return shots
+    interpolation = cv2.INTER_AREA if crop > size else cv2.INTER_LINEAR
+    frames = np.stack([cv2.resize(frame, (size, size), interpolation=interpolation) for frame in shots.frames])
+    meshes = None
+    if shots.meshes is not None:  # x, y as the landmarks; depth by the same factor
+        meshes = np.concatenate([scale_points(shots.meshes[..., :2], size / crop), shots.meshes[..., 2:] * (size / crop)],
+                                axis=-1).astype(np.float32)
+    return dataclasses.replace(shots, frames=frames, landmarks=scale_points(shots.landmarks, size / crop).astype(np.float32),
+                               meshes=meshes)

@@ -35,7 +35,8 @@ from lsr.config_bench import check_weights
 from lsr.errors import ConfigError
 from lsr.eval import sections
 from lsr.eval.bench_models import conv_peak_gflops, count_gflop, frame_inputs, median_ms, time_runtime
-from lsr.eval.model_method import LsrModelMethod, scale_points
+from lsr.core.sources import scale_points
+from lsr.eval.model_method import LsrModelMethod
 from lsr.eval.pareto import pareto_front, plot_speed_error, write_plot
 from lsr.machine import shown_path
 
@@ -240,7 +241,8 @@ def identity_calibration(method: LsrModelMethod, identities, frames: int = 32, k
     ``ReenactorBase.network_inputs`` makes them for ``lsr reenact`` at the exported graph's crop side
     (``default_crop_size``): each identity's latents from its first K inputs, landmark images of its inputs and, for
     a warp-guided model, its shots warped onto them."""
-    from lsr.core.engine import default_crop_size, resize_shots
+    from lsr.core.engine import default_crop_size
+    from lsr.core.sources import resize_shots
     from lsr.pipeline import subject_shots_from_training
 
     reenactor = method.reenactor

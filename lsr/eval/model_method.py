@@ -21,13 +21,9 @@ import cv2
 import numpy as np
 
 from lsr.core import DEFAULT_FINETUNE_LR
+from lsr.core.sources import scale_points
 from lsr.errors import ConfigError, WeightsError
 from lsr.eval.baselines import check_method_inputs
-
-
-def scale_points(points: np.ndarray, scale: float) -> np.ndarray:
-    """x, y pixel centres at integers: (p + 0.5) * scale - 0.5."""
-    return (np.asarray(points, np.float64) + 0.5) * scale - 0.5
 
 
 def _resize(image: np.ndarray, size: int) -> np.ndarray:
@@ -67,8 +63,6 @@ def load_eval_model(weights: str | os.PathLike):
 
 def _scale_mesh(mesh: np.ndarray, scale: float) -> np.ndarray:
     """(..., 468, 3) mesh between crop sides: x, y as ``scale_points``, depth times ``scale``."""
-    from lsr.core.engine import scale_points
-
     mesh = np.asarray(mesh, np.float64)
     return np.concatenate([scale_points(mesh[..., :2], scale), mesh[..., 2:] * scale], axis=-1)
 

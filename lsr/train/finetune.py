@@ -191,7 +191,7 @@ def finetune_reenactor(reenactor, steps: int, *, lr: float = DEFAULT_FINETUNE_LR
     The latents stay those of ``encode_subject`` (fixed during fine-tuning, as in the thesis); D comes from beside
     the weights (``lsr train`` saves it) or starts fresh. Inference knows nothing of training: fine-tuning is
     composed on top of it here, by ``lsr reenact``, the app and ``lsr eval``. Returns the ``FinetuneResult``."""
-    from lsr.core.engine import resize_shots
+    from lsr.core.sources import resize_shots
     from lsr.errors import ConfigError
 
     model = getattr(reenactor.backend, "model", None)

@@ -135,3 +135,27 @@ def test_the_mouth_comes_from_the_nearest_reference_unless_told_to_blend(reenact
     assert np.abs(kept[inside].astype(float) - nearest[inside]).max() <= 1.0
     np.testing.assert_array_equal(kept[outside], blended[outside])
     assert np.abs(blended[inside].astype(float) - nearest[inside]).mean() > 2.0  # the tiny net's own mouth differs
+
+
+def test_the_stages_overlap_on_threads_and_give_the_frames_of_the_sequential_path(reenactor, people, monkeypatch):
+    """``reenact`` prepares each frame (the shots warped onto its target) on a thread ahead of the network, which runs
+    on the calling thread; the frames are those of ``synthesize_crop`` one at a time, in order."""
+    import threading
+
+    subject = reenactor.encode_subject(people["source"], k=4)
+    targets = subject.shots.landmarks[[2, 0, 3, 1]] + np.array([1.5, -0.5])
+    threads = {"warps": set(), "network": set()}
+    inputs, synthesize = reenactor.network_inputs, reenactor.backend.synthesize
+    monkeypatch.setattr(reenactor, "network_inputs", lambda *a, **k: threads["warps"].add(threading.get_ident())
+                        or inputs(*a, **k))
+    monkeypatch.setattr(reenactor.backend, "synthesize", lambda *a, **k: threads["network"].add(threading.get_ident())
+                        or synthesize(*a, **k))
+    frames = list(reenactor.reenact(targets, landmark_space="crop", landmark_size=reenactor.crop_size, mode="absolute",
+                                    smooth=False))
+    assert threads["network"] == {threading.get_ident()} and threading.get_ident() not in threads["warps"]
+    assert [frame.index for frame in frames] == [0, 1, 2, 3]
+    for frame, target in zip(frames, targets):
+        np.testing.assert_allclose(frame.landmarks, target, atol=1e-4)  # read as float32
+        np.testing.assert_array_equal(frame.image, reenactor.synthesize_crop(frame.landmarks)[0])
+    stages = reenactor.last_stats.seconds
+    assert stages["warps"] > 0 and stages["synthesis"] > 0

@@ -104,3 +104,27 @@ def test_finish_behind_keeps_order_overlaps_the_producer_and_raises_when_due():
     assert next(results) == 0
     with pytest.raises(ValueError, match="composite failed"):
         next(results)
+
+
+def test_single_blas_thread_sets_numpys_openblas_to_one_thread_unless_the_environment_says():
+    """In a fresh process (the setting is process-wide): numpy's OpenBLAS is set to one thread, and left alone when
+    OPENBLAS_NUM_THREADS is given."""
+    import os
+    import subprocess
+    import sys
+
+    probe = ("import ctypes, re; from lsr.core.overlap import single_blas_thread, BLAS_SETTERS; "
+             "done = single_blas_thread(); "
+             "paths = sorted(set(re.findall(r'(/\\S*openblas\\S*\\.so\\S*)', open('/proc/self/maps').read()))); "
+             "lib = ctypes.CDLL(paths[0]) if paths else None; "
+             "get = next((getattr(lib, n.replace('set_', 'get_')) for n in BLAS_SETTERS if lib is not None and hasattr(lib, n)), None); "
+             "print(done, get() if get else 'none')")
+    env = {key: value for key, value in os.environ.items() if key not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, check=True)
+    done, threads = result.stdout.split()
+    if threads == "none":
+        pytest.skip("numpy here does not use OpenBLAS")
+    assert done == "True" and threads == "1"
+    env["OPENBLAS_NUM_THREADS"] = "2"
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, check=True)
+    assert result.stdout.split()[0] == "False"
