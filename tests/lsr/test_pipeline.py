@@ -236,3 +236,47 @@ def test_4k_driver_streams_with_bounded_memory(reenactor, tmp_path):
     assert peak < 0.5 * decoded_bytes, f"peak {peak / 1e6:.0f} MB traced for a {decoded_bytes / 1e6:.0f} MB clip"
     rss_growth_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss_before
     assert rss_growth_kb * 1024 < decoded_bytes
+
+
+@pytest.mark.parametrize("variant", ["latent_layout", "warp_guided", "spade_landmarks"])
+def test_one_frame_runs_traced_with_the_eager_result_and_follows_the_model(variant, rng):
+    """TorchBackend traces the frame generator for one-frame fp32 CPU calls (GIL-free beside the frame loop's
+    threads): the image and layout equal the eager ones; the trace shares the weights (an in-place change shows) and
+    a new model (fine-tuning swaps one in) drops it; batches run eagerly."""
+    import torch
+
+    from lsr.pipeline import TorchBackend
+    from models_def import LSRModel, preset_config
+
+    torch.manual_seed(0)
+    model = LSRModel(preset_config("tiny", variant=variant))
+    backend = TorchBackend(model)
+    size, dim = model.config.resolution, model.config.latent_dim
+    inputs = [rng.uniform(-1, 1, (1, 3, size, size)).astype(np.float32), rng.normal(size=(1, dim)).astype(np.float32),
+              rng.normal(size=(1, dim)).astype(np.float32)]
+    if model.config.uses_references:
+        crop, count = size * model.config.crop_scale, model.config.warp_references
+        inputs += [rng.uniform(-1, 1, (1, count, 3, crop, crop)).astype(np.float32),
+                   np.ones((1, count, 1, crop, crop), np.float32)]
+
+    def eager(with_layout):
+        with torch.inference_mode():
+            references = dict(zip(("references", "reference_masks"), (torch.from_numpy(a) for a in inputs[3:])))
+            outputs = model.frame_generator.synthesize(*(torch.from_numpy(a) for a in inputs[:3]), None, **references)
+        return outputs.image.numpy(), None if outputs.layout is None or not with_layout else outputs.layout.numpy()
+
+    for with_layout in (False, True):
+        image, layout = backend.synthesize(*inputs[:3], with_layout, *inputs[3:])
+        expected_image, expected_layout = eager(with_layout)
+        np.testing.assert_allclose(image, expected_image, atol=1e-5)
+        assert (layout is None) == (expected_layout is None)
+        if layout is not None:
+            np.testing.assert_allclose(layout, expected_layout, atol=1e-5)
+    assert len(backend._traced) == (1 if model.config.layout_kind == "none" else 2)  # one trace per output set
+    with torch.no_grad():
+        next(model.frame_generator.parameters()).add_(0.05)  # as an optimiser step does
+    np.testing.assert_allclose(backend.synthesize(*inputs[:3], False, *inputs[3:])[0], eager(False)[0], atol=1e-5)
+    backend.model = backend.model  # e.g. fine-tuning's copy, swapped in and back
+    assert not backend._traced
+    batch = [np.concatenate([a, a]) for a in inputs]
+    assert backend.synthesize(*batch[:3], False, *batch[3:])[0].shape[0] == 2 and not backend._traced
