@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from lsr.core.overlap import single_blas_thread
 from lsr.core.provenance import draw_watermark, provenance_metadata
 from deploy.runtime import OnnxReenactor
 from lsr.core.sources import describe_driver
@@ -20,6 +21,7 @@ from landmarks.video import VideoWriter
 
 def reenact_to(bundle: str, source: str, driving: str, out: str) -> int:
     """Re-enact ``source`` with ``driving`` into ``out`` (.mp4, or a folder of PNGs). Returns the frame count."""
+    single_blas_thread()  # numpy's BLAS on one thread: the frame loop's stages need the cores its idle threads spin on
     reenactor = OnnxReenactor(bundle)  # loads both graphs once
     reenactor.encode_subject(source)  # K shots -> latents, cached on the reenactor
     info = describe_driver(driving)  # frame count, fps, size, audio
