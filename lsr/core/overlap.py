@@ -44,8 +44,8 @@ def single_blas_thread() -> bool:
     when a BLAS was set. The frame loop's stages already fill the cores, and OpenBLAS's idle threads spin: on 2 cores
     they burned ~35 ms of CPU a frame in ``lsr reenact`` (onnx, the shared tpsmm_driving.mp4 with paste-back: 86-92
     against 53-57 ms of CPU a frame, 22 against 31-34 fps), and one thread is also faster for the warps' small
-    products alone (synthesis-only 26 against 28 ms). Process-wide: the ``lsr``
-    command calls it; a program embedding the runtime may too. Linux (reads /proc/self/maps); elsewhere False."""
+    products alone (synthesis-only 26 against 28 ms). Process-wide: the ``lsr`` command calls it; a program
+    embedding the runtime may too (``deploy/example_embed.py``). Linux (reads /proc/self/maps); elsewhere False."""
     import ctypes
     import os
     import re
