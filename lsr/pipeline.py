@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import threading
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Literal
@@ -51,6 +52,9 @@ def load_model(weights: str | os.PathLike) -> LSRModel:
             "video does not have; re-enact with a latent_layout, learned_seg or spade_landmarks model"
         )
     return model.eval().requires_grad_(False)
+
+
+_TRACING = threading.Lock()  # one trace at a time: warnings.catch_warnings changes process-wide state
 
 
 class _FrameCall(torch.nn.Module):
@@ -106,7 +110,7 @@ class TorchBackend:
 
         key = (with_layout, *(tuple(tensor.shape) for tensor in tensors))
         if key not in self._traced:
-            with warnings.catch_warnings():  # shapes read as Python numbers (keyed above) and the deprecation notice
+            with _TRACING, warnings.catch_warnings():  # shapes read as Python numbers (keyed above); the deprecation
                 warnings.simplefilter("ignore", torch.jit.TracerWarning)
                 warnings.simplefilter("ignore", FutureWarning)
                 try:
