@@ -69,18 +69,19 @@ def _head_ellipse(landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (eyes + mouth) / 2 - np.array([0.0, HEAD_CENTRE_UP * side]), np.asarray(HEAD_SEMI_AXES) * side
 
 
-def _ellipse_radius(landmarks: np.ndarray, shape: tuple[int, int], offset: tuple[int, int]) -> np.ndarray:
-    """Per pixel of a region, its radius in the face's head ellipse (1 on the ellipse): (H, W) float32.
+def _ellipse_radius(ellipse: tuple[np.ndarray, np.ndarray], shape: tuple[int, int], offset: tuple[int, int]
+                    ) -> np.ndarray:
+    """Per pixel of a region, its radius in a head ellipse (``_head_ellipse``; 1 on the ellipse): (H, W) float32.
 
-    landmarks: (68, 2) frame pixels; shape: (H, W) of the region; offset: (x0, y0) of the region in the frame.
+    shape: (H, W) of the region; offset: (x0, y0) of the region in the frame.
     """
-    return _radius_at(landmarks, np.arange(shape[1], dtype=np.float32) + offset[0],
+    return _radius_at(ellipse, np.arange(shape[1], dtype=np.float32) + offset[0],
                       np.arange(shape[0], dtype=np.float32) + offset[1])
 
 
-def _radius_at(landmarks: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
-    """The head ellipse's radius on the grid of frame columns ``xs`` (W,) by rows ``ys`` (H,): (H, W) float32."""
-    centre, axes = _head_ellipse(landmarks)
+def _radius_at(ellipse: tuple[np.ndarray, np.ndarray], xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """A head ellipse's radius on the grid of frame columns ``xs`` (W,) by rows ``ys`` (H,): (H, W) float32."""
+    centre, axes = ellipse
     across = ((np.asarray(xs, np.float32) - np.float32(centre[0])) / np.float32(axes[0]))[None, :]
     down = ((np.asarray(ys, np.float32) - np.float32(centre[1])) / np.float32(axes[1]))[:, None]
     return np.sqrt(across * across + down * down)
@@ -92,13 +93,13 @@ def _smooth_weight(radius: np.ndarray) -> np.ndarray:
     return (ramp * ramp * (3.0 - 2.0 * ramp)).astype(np.float32)  # smoothstep: no kink at either edge
 
 
-def _inside_heads(landmarks_list: list[np.ndarray], shape: tuple[int, int], offset: tuple[int, int]) -> np.ndarray:
-    """(H, W) uint8 (1 inside) of a region: inside any of the faces' head ellipses shrunk by 1.5 pixels (rasterised, so
+def _inside_heads(ellipses: list[tuple[np.ndarray, np.ndarray]], shape: tuple[int, int], offset: tuple[int, int]
+                  ) -> np.ndarray:
+    """(H, W) uint8 (1 inside) of a region: inside any of the head ellipses shrunk by 1.5 pixels (rasterised, so
     cheap, and never past the true ellipse). In the 1.5-pixel ring left out the head weight is below
     3 (1.5 / (0.3 b))^2 for the shorter semi-axis b: under 0.015 for a face side of 200 pixels."""
     mask = np.zeros(shape, np.uint8)
-    for points in landmarks_list:
-        centre, axes = _head_ellipse(points)
+    for centre, axes in ellipses:
         centre = np.round((centre - offset) * 16).astype(int)
         axes = np.round(np.maximum(axes - 1.5, 0.0) * 16).astype(int)
         cv2.ellipse(mask, (int(centre[0]), int(centre[1])), (int(axes[0]), int(axes[1])), 0, 0, 360, 1, -1,
@@ -111,16 +112,19 @@ def head_weight(landmarks: np.ndarray, shape: tuple[int, int], offset: tuple[int
 
     landmarks: (68, 2) frame pixels; shape: (H, W) of the region; offset: (x0, y0) of the region in the frame.
     """
-    return _smooth_weight(_ellipse_radius(landmarks, shape, offset))
+    return _smooth_weight(_ellipse_radius(_head_ellipse(landmarks), shape, offset))
 
 
 def head_box(landmarks_list: list[np.ndarray], frame_hw: tuple[int, int], margin: int = 2) -> tuple[int, int, int, int] | None:
     """(x0, y0, x1, y1) bounding every given face's head region, clipped to the frame; None if outside it."""
-    lows, highs = [], []
-    for points in landmarks_list:
-        centre, axes = _head_ellipse(points)
-        lows.append(centre - axes)
-        highs.append(centre + axes)
+    return _box_of([_head_ellipse(points) for points in landmarks_list], frame_hw, margin)
+
+
+def _box_of(ellipses: list[tuple[np.ndarray, np.ndarray]], frame_hw: tuple[int, int], margin: int = 2
+            ) -> tuple[int, int, int, int] | None:
+    """``head_box`` of the head ellipses themselves."""
+    lows = [centre - axes for centre, axes in ellipses]
+    highs = [centre + axes for centre, axes in ellipses]
     x0, y0 = np.floor(np.min(lows, 0)).astype(int) - margin
     x1, y1 = np.ceil(np.max(highs, 0)).astype(int) + margin + 1
     height, width = frame_hw
@@ -198,7 +202,8 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     rigid = list(RIGID_INDEX)
     scale, rotation, translation = similarity_procrustes(scene_points[rigid], target_points[rigid])
     motion = np.concatenate([scale * rotation, translation[:, None]], axis=1)
-    box = head_box([scene_points, target_points], scene.shape[:2])
+    ellipses = [_head_ellipse(scene_points), _head_ellipse(target_points)]  # made once: every layer needs them
+    box = _box_of(ellipses, scene.shape[:2])
     if box is None:
         return Composite(scene.copy(), None)
     x0, y0, x1, y1 = box
@@ -222,8 +227,7 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     shift_x = inverse[0, 0] * moved_x + inverse[0, 1] * moved_y + inverse[0, 2] - grid_x[None, :]
     shift_y = inverse[1, 0] * moved_x + inverse[1, 1] * moved_y + inverse[1, 2] - grid_y[:, None]
     if max(np.abs(shift_x).max(), np.abs(shift_y).max()) > STILL:
-        weight = np.maximum(_smooth_weight(_radius_at(scene_points, grid_x, grid_y)),
-                            _smooth_weight(_radius_at(target_points, grid_x, grid_y)))
+        weight = np.maximum(*(_smooth_weight(_radius_at(ellipse, grid_x, grid_y)) for ellipse in ellipses))
         source_x = warp.densify(shift_x * weight)
         source_x += np.arange(x0, x1, dtype=np.float32)[None, :]
         source_y = warp.densify(shift_y * weight)
@@ -231,7 +235,7 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
         moved_head = cv2.remap(scene, source_x, source_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
         del source_x, source_y
         # interpolated, the field leaks a sub-pixel shift just past the ellipses: the scene stays there, bit for bit
-        outside = _inside_heads([scene_points, target_points], roi_hw, (x0, y0)) == 0
+        outside = _inside_heads(ellipses, roi_hw, (x0, y0)) == 0
         cv2.copyTo(scene[y0:y1, x0:x1], outside.view(np.uint8), moved_head)  # in place (numpy's masked copy: 5x slower)
         output[y0:y1, x0:x1] = moved_head
         del moved_head, outside
@@ -258,7 +262,7 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     cv2.fillConvexPoly(hull, cv2.convexHull(np.round(outline - [fx0, fy0]).astype(np.int32)), 1)
     outside = cv2.distanceTransform(1 - hull, cv2.DIST_L2, 3)  # pixels to the hull (0 inside)
     ramp = np.clip((FACE_MARGIN * side + FACE_FEATHER * side / 2 - outside) / (FACE_FEATHER * side), 0.0, 1.0)
-    alpha = ramp * ramp * (3.0 - 2.0 * ramp) * footprint * _within_head(scene_points, target_points, face_hw, (fx0, fy0))
+    alpha = ramp * ramp * (3.0 - 2.0 * ramp) * footprint * _within_head(ellipses, face_hw, (fx0, fy0))
     del outside, ramp
 
     # colour match: a smooth offset that makes the face's edge agree with the head layer around it
@@ -285,16 +289,16 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     return Composite(output, box, full_alpha, motion)
 
 
-def _within_head(scene_points: np.ndarray, target_points: np.ndarray, shape: tuple[int, int],
-                 offset: tuple[int, int]) -> np.ndarray | float:
+def _within_head(ellipses: list[tuple[np.ndarray, np.ndarray]], shape: tuple[int, int], offset: tuple[int, int]
+                 ) -> np.ndarray | float:
     """1 inside the head regions, ramping to 0 over their outermost 5 %: the face layer never leaves them (a
     close-up's face can be as large as the frame), so ``head_region``'s complement is the scene, bit for bit.
     (H, W) float32, or 1.0 when the whole region lies inside one of them (an ellipse is convex: its corners do)."""
     corners_x = np.array([offset[0], offset[0] + shape[1] - 1], np.float32)
     corners_y = np.array([offset[1], offset[1] + shape[0] - 1], np.float32)
-    if any(_radius_at(points, corners_x, corners_y).max() <= 0.95 for points in (scene_points, target_points)):
+    if any(_radius_at(ellipse, corners_x, corners_y).max() <= 0.95 for ellipse in ellipses):
         return 1.0
-    radius = np.minimum(_ellipse_radius(scene_points, shape, offset), _ellipse_radius(target_points, shape, offset))
+    radius = np.minimum(*(_ellipse_radius(ellipse, shape, offset) for ellipse in ellipses))
     return np.clip((1.0 - radius) / 0.05, 0.0, 1.0)
 
 

@@ -287,20 +287,14 @@ def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarra
 
 
 @dataclasses.dataclass
-class GridMap:
+class GridMap(WarpMap):
     """``tps_map``'s backward map on its evaluation grid, before it is made dense: for callers that do more smooth
     per-pixel work on it (``landmarks.scene``'s head layer) at the grid's cost, then densify once.
 
-    grid: where the map was evaluated (``grid.ys``, ``grid.xs``: pixel rows and columns, ends included);
-    map_x, map_y: ``grid.shape`` source pixel coordinates there; the rest as ``WarpMap``."""
+    A ``WarpMap`` whose map_x, map_y are ``grid.shape`` source pixel coordinates at the grid's points (``grid.ys``,
+    ``grid.xs``: pixel rows and columns, ends included); ``dense`` makes it the per-pixel one."""
 
     grid: _Grid
-    map_x: np.ndarray
-    map_y: np.ndarray
-    method: str
-    regularization: float
-    folded_fraction: float
-    reason: str
 
     def densify(self, values: np.ndarray) -> np.ndarray:
         """Values on the grid (``grid.shape``) -> (H, W) float32 at every pixel, interpolated bilinearly."""
@@ -355,15 +349,15 @@ def tps_grid_map(source_points: np.ndarray, target_points: np.ndarray, height: i
         folds = folded_fraction(map_x, map_y)  # judged on the grid
         if np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)) and folds <= max_folded_fraction:
             method = "tps" if attempt == 0 else "tps_stronger"
-            return GridMap(grid, map_x, map_y, method, regularization * factor, folds, "; ".join(reasons))
+            return GridMap(map_x, map_y, method, regularization * factor, folds, "; ".join(reasons), grid)
         reasons.append(f"lambda {regularization * factor:.3g}: {folds:.2%} of pixels folded")
     matrix = fit_similarity(landmark_targets, landmark_sources) if len(landmark_targets) >= 2 else None
     if matrix is not None:  # affine: bilinear densifying is exact
         map_x, map_y = grid.evaluate(lambda p: p @ matrix[:, :2].T + matrix[:, 2])
-        return GridMap(grid, map_x, map_y, "similarity", 0.0, 0.0, "; ".join(reasons))
+        return GridMap(map_x, map_y, "similarity", 0.0, 0.0, "; ".join(reasons), grid)
     reasons.append("no similarity: landmarks have no spread")
     map_x, map_y = grid.evaluate(lambda p: p)
-    return GridMap(grid, map_x, map_y, "identity", 0.0, 0.0, "; ".join(reasons))
+    return GridMap(map_x, map_y, "identity", 0.0, 0.0, "; ".join(reasons), grid)
 
 
 # tps_map's keyword options and their defaults: the settings every warp of this module forwards

@@ -28,6 +28,7 @@ import torch
 from lsr.core.engine import LayoutKind, ReenactorBase, Subject
 from lsr.core.sources import SubjectShots
 from lsr.errors import ConfigError, WeightsError
+from lsr.export import FrameGeneratorGraph
 from models_def import LSRModel
 
 Precision = Literal["fp32", "bf16"]
@@ -55,20 +56,6 @@ def load_model(weights: str | os.PathLike) -> LSRModel:
 
 
 _TRACING = threading.Lock()  # one trace at a time: warnings.catch_warnings changes process-wide state
-
-
-class _FrameCall(torch.nn.Module):
-    """The frame generator as one traceable call: (landmark image, latents[, references, masks]) -> image[, layout]."""
-
-    def __init__(self, frame_generator: torch.nn.Module, with_layout: bool) -> None:
-        super().__init__()
-        self.frame_generator, self.with_layout = frame_generator, with_layout
-
-    def forward(self, landmark_image, layout_latent, style_latent, *references):
-        warped, masks = references if references else (None, None)
-        outputs = self.frame_generator.synthesize(landmark_image, layout_latent, style_latent, None, references=warped,
-                                                  reference_masks=masks)
-        return (outputs.image, outputs.layout) if self.with_layout else outputs.image
 
 
 class TorchBackend:
@@ -114,8 +101,8 @@ class TorchBackend:
                 warnings.simplefilter("ignore", torch.jit.TracerWarning)
                 warnings.simplefilter("ignore", FutureWarning)
                 try:
-                    self._traced[key] = torch.jit.trace(_FrameCall(self.model.frame_generator, with_layout), tensors,
-                                                        check_trace=False)
+                    self._traced[key] = torch.jit.trace(FrameGeneratorGraph(self.model.frame_generator, with_layout),
+                                                        tensors, check_trace=False)
                 except Exception:  # noqa: BLE001 - any failure to trace leaves the exact eager path
                     self._traced[key] = None
         return self._traced[key]
@@ -151,7 +138,8 @@ class TorchBackend:
         with_layout = with_layout and self.model.config.layout_kind != "none"
         if (oracle is None and len(landmark_image) == 1 and self.precision == "fp32" and self.device.type == "cpu"
                 and (warped is None) == (masks is None)):
-            inputs = (self._tensor(landmark_image), self._tensor(layout_latent), self._tensor(style_latent),
+            latents = (layout_latent, style_latent) if self.model.config.uses_layout_predictor else (style_latent,)
+            inputs = (self._tensor(landmark_image), *map(self._tensor, latents),  # the ONNX export's frame graph
                       *((warped, masks) if warped is not None else ()))
             traced = self._traced_frame(with_layout, inputs)
             if traced is not None:

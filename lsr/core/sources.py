@@ -382,9 +382,12 @@ def resize_shots(shots: SubjectShots, size: int) -> SubjectShots:
         return shots
     interpolation = cv2.INTER_AREA if crop > size else cv2.INTER_LINEAR
     frames = np.stack([cv2.resize(frame, (size, size), interpolation=interpolation) for frame in shots.frames])
-    meshes = None
-    if shots.meshes is not None:  # x, y as the landmarks; depth by the same factor
-        meshes = np.concatenate([scale_points(shots.meshes[..., :2], size / crop), shots.meshes[..., 2:] * (size / crop)],
-                                axis=-1).astype(np.float32)
+    meshes = None if shots.meshes is None else scale_mesh(shots.meshes, size / crop).astype(np.float32)
     return dataclasses.replace(shots, frames=frames, landmarks=scale_points(shots.landmarks, size / crop).astype(np.float32),
                                meshes=meshes)
+
+
+def scale_mesh(mesh: np.ndarray, scale: float) -> np.ndarray:
+    """(..., 468, 3) mesh between crop sides: x, y as ``scale_points``, depth times ``scale`` -> float64."""
+    mesh = np.asarray(mesh, np.float64)
+    return np.concatenate([scale_points(mesh[..., :2], scale), mesh[..., 2:] * scale], axis=-1)

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from lsr.core import DEFAULT_FINETUNE_LR
-from lsr.core.sources import scale_points
+from lsr.core.sources import scale_mesh, scale_points
 from lsr.errors import ConfigError, WeightsError
 from lsr.eval.baselines import check_method_inputs
 
@@ -59,12 +59,6 @@ def load_eval_model(weights: str | os.PathLike):
     except ValueError as exc:  # models_def.ModelConfigError names the problem with the folder
         raise WeightsError(str(exc)) from exc
     return model.eval().requires_grad_(False)
-
-
-def _scale_mesh(mesh: np.ndarray, scale: float) -> np.ndarray:
-    """(..., 468, 3) mesh between crop sides: x, y as ``scale_points``, depth times ``scale``."""
-    mesh = np.asarray(mesh, np.float64)
-    return np.concatenate([scale_points(mesh[..., :2], scale), mesh[..., 2:] * scale], axis=-1)
 
 
 class LsrModelMethod:
@@ -120,7 +114,7 @@ class LsrModelMethod:
                               + (b"" if shot_meshes is None else shot_meshes.tobytes()), digest_size=16).digest()
         if key != self._encoded:
             frames = np.stack([_resize(shot, size) for shot in shots])
-            meshes = None if shot_meshes is None else _scale_mesh(shot_meshes, scale)
+            meshes = None if shot_meshes is None else scale_mesh(shot_meshes, scale)
             self.reenactor.encode_subject(subject_shots_from_training(frames, scale_points(shot_landmarks, scale), meshes))
             self._encoded = key
         return scale
@@ -141,7 +135,7 @@ class LsrModelMethod:
             target_meshes = np.full((len(target_landmarks), 468, 3), np.nan, np.float32)
         outputs = []
         for points, mesh in zip(target_landmarks, target_meshes):
-            crop_mesh = _scale_mesh(mesh, scale) if np.isfinite(mesh).all() else None
+            crop_mesh = scale_mesh(mesh, scale) if np.isfinite(mesh).all() else None
             outputs.append(_resize(self.reenactor.synthesize_crop(scale_points(points, scale), crop_mesh=crop_mesh)[0], size))
         return np.stack(outputs) if outputs else np.zeros((0, size, size, 3), np.uint8)
 
