@@ -34,6 +34,7 @@ import functools
 import numpy as np
 
 from landmarks.expression import CLOSED_MOUTH, mouth_opening
+from landmarks.mesh_pose import canonical, mesh_rotation, to_head_frame
 
 EXPRESSION_GAIN = 1.25
 """How many times the shot -> target expression around the mouth is applied, at most."""
@@ -43,36 +44,18 @@ lips' centre, none beyond 1.5 times it (a linear ramp between)."""
 
 
 @functools.lru_cache(maxsize=1)
-def _canonical() -> tuple[np.ndarray, np.ndarray]:
-    """(canonical vertices (468, 3), rigid mask (468,)), read once."""
-    from landmarks.mesh_pose import canonical
-
-    vertices, rigid = canonical()
-    vertices.setflags(write=False)
-    return vertices, rigid
-
-
-@functools.lru_cache(maxsize=1)
 def mouth_weights() -> np.ndarray:
     """(468,) float64 in [0, 1]: how much of each mesh vertex's expression is amplified (1 around the inner lips,
     0 from the eyes up), on the canonical mesh's x, y."""
     from landmarks.mesh68 import mesh_to_68
 
-    vertices = _canonical()[0]
+    vertices = canonical()[0]
     points = mesh_to_68(vertices[:, :2]).astype(np.float64)  # (68, 2)
     distance = float(np.linalg.norm(points[36:42].mean(0) - points[42:48].mean(0)))
     ramp = np.linalg.norm(vertices[:, :2] - points[60:68].mean(0), axis=1) / (MOUTH_REACH * distance)
     weights = np.clip(1.5 - ramp, 0.0, 1.0)
     weights.setflags(write=False)
     return weights
-
-
-def _frame(mesh: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """``landmarks.mesh_pose.mesh_rotation`` (canonical -> mesh) with the canonical mesh read once."""
-    from landmarks.mesh_pose import kabsch
-
-    vertices, rigid = _canonical()
-    return kabsch(vertices[rigid], mesh[rigid])
 
 
 def mouth_gain(shot_landmarks: np.ndarray, target_landmarks: np.ndarray, gain: float = EXPRESSION_GAIN) -> float:
@@ -92,8 +75,6 @@ def amplify_mouth(shot_mesh: np.ndarray, target_mesh: np.ndarray, gain: float) -
         raise ValueError(f"meshes must be (468, 3), got {shot.shape} and {target.shape}")
     if gain == 1.0 or not (np.isfinite(shot).all() and np.isfinite(target).all()):
         return shot
-    rotation, scale, translation = _frame(shot)
-    target_rotation, target_scale, target_translation = _frame(target)
-    difference = ((target - target_translation) @ target_rotation / target_scale
-                  - (shot - translation) @ rotation / scale)  # (468, 3) canonical units
+    rotation, scale, _ = frame = mesh_rotation(shot)
+    difference = to_head_frame(target, mesh_rotation(target)) - to_head_frame(shot, frame)  # canonical units
     return shot - (gain - 1.0) * mouth_weights()[:, None] * (scale * difference @ rotation.T)

@@ -91,6 +91,13 @@ def mesh_rotation(mesh: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     return kabsch(vertices[rigid], np.asarray(mesh, np.float64)[rigid])
 
 
+def to_head_frame(mesh: np.ndarray, frame: tuple[np.ndarray, float, np.ndarray]) -> np.ndarray:
+    """(468, 3) frame pixels -> (468, 3) canonical head coordinates under ``frame``, the similarity
+    (rotation, scale, translation) of ``mesh_rotation`` that places the canonical head there."""
+    rotation, scale, translation = frame
+    return (np.asarray(mesh, np.float64) - translation) @ rotation / scale
+
+
 def yaw_of(mesh: np.ndarray, canonical_record: dict) -> float:
     """Yaw in degrees of one (468, 3) mesh against a canonical record of ``build_canonical`` (before it is saved)."""
     from landmarks.pose import angles_from_rotation

@@ -105,19 +105,13 @@ def open_mouth_as(meshes: np.ndarray, drivers: np.ndarray, corrections: int = 3)
     return moved
 
 
-def to_head_frame(mesh: np.ndarray, frame: tuple[np.ndarray, float, np.ndarray]) -> np.ndarray:
-    """(468, 3) frame pixels -> (468, 3) canonical head coordinates under ``frame``, the similarity
-    (rotation, scale, translation) of ``landmarks.mesh_pose.mesh_rotation`` that places the canonical head there."""
-    rotation, scale, translation = frame
-    return (np.asarray(mesh, np.float64) - translation) @ rotation / scale
-
-
 def retarget_mesh_3d(driver_meshes: np.ndarray, driver_reference: np.ndarray, source_mesh: np.ndarray,
                      corrections: int = 3) -> np.ndarray:
     """The driver's motion since ``driver_reference`` moved onto ``source_mesh`` in 3D (module docstring), then the
     mouth as open as the driver's (``open_mouth_as``).
 
-    Per frame t, with head frames (R, s, T) of ``landmarks.mesh_pose.mesh_rotation`` and c(.) = ``to_head_frame``:
+    Per frame t, with head frames (R, s, T) of ``landmarks.mesh_pose.mesh_rotation`` and c(.) = its
+    ``to_head_frame``:
       expression  e_t = c_t(driver_t) - c_ref(driver_ref)            (canonical units: face size cancels)
       rotation    R = R_t R_ref^T R_source                           (the driver's turn since its reference)
       scale       s = s_source * s_t / s_ref
@@ -135,7 +129,7 @@ def retarget_mesh_3d(driver_meshes: np.ndarray, driver_reference: np.ndarray, so
     source = check_mesh(source_mesh, "source_mesh", depth=True)
     if not (np.isfinite(reference).all() and np.isfinite(source).all()):
         raise ValueError("driver_reference and source_mesh must be finite")
-    from landmarks.mesh_pose import mesh_rotation
+    from landmarks.mesh_pose import mesh_rotation, to_head_frame
 
     reference_frame, source_frame = mesh_rotation(reference), mesh_rotation(source)
     reference_rotation, reference_scale, reference_translation = reference_frame
