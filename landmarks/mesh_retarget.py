@@ -22,6 +22,7 @@ import functools
 
 import numpy as np
 
+from landmarks.eyelids import lids_as_driver
 from landmarks.mesh68 import mesh_to_68
 from landmarks.mesh_warp import MESH_POINTS, check_mesh, frontal_canonical
 
@@ -162,7 +163,9 @@ def retarget_face(driver_landmarks: np.ndarray, driver_reference_landmarks: np.n
     mode "3d": where the driver's frame, its reference and the source have meshes, ``retarget_mesh_3d`` and the 68
     points mapped from the result (``mesh_to_68``, its jaw following the turned head's silhouette); other frames
     as "2d". mode "2d": ``landmarks.retarget.retarget_driving`` of the 68 points, and ``retarget_mesh`` of the
-    meshes (with the driver frame's depth, which orders overlapping triangles as its head is turned).
+    meshes (with the driver frame's depth, which orders overlapping triangles as its head is turned). Either way
+    the lids close as the driver's do, in proportion to the source's own eyes (``landmarks.eyelids.lids_as_driver``,
+    which ``retarget_driving`` applies to the 68 points).
 
     driver_landmarks: (T, 68, 2) (NaN frames stay NaN); driver_reference_landmarks, source_landmarks: (68, 2) finite;
     driver_meshes: (T, 468, 3) or None; driver_reference_mesh, source_mesh: (468, 3) or None (NaN = none)
@@ -180,10 +183,12 @@ def retarget_face(driver_landmarks: np.ndarray, driver_reference_landmarks: np.n
     if not (np.isfinite(driver_reference_mesh).all() and np.isfinite(source_mesh).all()):
         return landmarks, meshes
     if mode == "3d":
-        meshes = retarget_mesh_3d(frames, driver_reference_mesh, source_mesh)
+        meshes = lids_as_driver(retarget_mesh_3d(frames, driver_reference_mesh, source_mesh), frames,
+                                driver_reference_mesh, source_mesh)
         found = np.isfinite(meshes).all(axis=(1, 2))
         landmarks[found] = mesh_to_68(meshes[found])
         return landmarks, meshes
     meshes[..., :2] = retarget_mesh(frames, driver_reference_mesh, source_mesh)
     meshes[..., 2] = np.where(np.isfinite(meshes[..., 0]), frames[..., 2], np.nan)  # the driver's: its turn, its
-    return landmarks, meshes  # occlusions (which of two overlapping triangles shows)
+    # occlusions (which of two overlapping triangles shows)
+    return landmarks, lids_as_driver(meshes, frames, driver_reference_mesh, source_mesh)

@@ -50,6 +50,7 @@ import numpy as np
 from landmarks import tps
 from landmarks.errors import ModelFilesError
 from landmarks.expression_gain import EXPRESSION_GAIN, amplify_mouth, mouth_gain
+from landmarks.eyelids import LID_CLOSED, close_lids, lid_gaps
 from landmarks.mesh68 import mesh_to_68
 
 TRIANGLES_FILE = Path(__file__).resolve().parent / "assets" / "mesh_triangles.json"
@@ -513,7 +514,7 @@ def warp_mesh(image: np.ndarray, source_mesh: np.ndarray, target_mesh: np.ndarra
 
 def warp_references_mesh(shots: np.ndarray, shot_meshes: np.ndarray, shot_landmarks: np.ndarray,
                          target_mesh: np.ndarray, target_landmarks: np.ndarray, count: int, *,
-                         grid_step: int = 4, expression_gain: float = EXPRESSION_GAIN
+                         grid_step: int = 4, expression_gain: float = EXPRESSION_GAIN, lid_closed: float = LID_CLOSED
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``landmarks.tps.warp_references`` over the face mesh: the ``count`` nearest shots (by the 68 points, the same
     choice), each warped piecewise-affine over the mesh inside the face and by the 68-point TPS outside
@@ -521,7 +522,9 @@ def warp_references_mesh(shots: np.ndarray, shot_meshes: np.ndarray, shot_landma
     on the target alone is made once: the TPS system (``tps.tps_maps``) and the face's raster and feathering
     (``target_layout``). A shot without a
     mesh (NaN) is warped by the TPS alone. Where the target opens its mouth wider than a shot, that shot's mouth is
-    carried up to ``expression_gain`` times as far (``landmarks.expression_gain``; 1 = exactly onto the target).
+    carried up to ``expression_gain`` times as far (``landmarks.expression_gain``; 1 = exactly onto the target);
+    where it closes its eyes further than the shots, its upper lids are lowered so that the warps show its
+    aperture (``landmarks.eyelids``, for the median lid gaps of the shots warped; ``lid_closed`` = 0: as measured).
 
     shots: (K, S, S, 3) uint8; shot_meshes: (K, 468, 3); shot_landmarks: (K, 68, 2); target_mesh: (468, 3);
     target_landmarks: (68, 2), all in the shots' pixels. -> (warped (count, S, S, 3) uint8, masks (count, S, S)
@@ -537,14 +540,17 @@ def warp_references_mesh(shots: np.ndarray, shot_meshes: np.ndarray, shot_landma
     unique = [int(index) for index in dict.fromkeys(indices.tolist())]  # a repeated shot (K < count) is warped once
     fallbacks = tps.tps_maps([shot_landmarks[index] for index in unique], target_landmarks, height, width,
                              grid_step=grid_step)
-    layout = target_layout(target_mesh, height, width, grid_step=grid_step)
+    meshed = [shot_meshes[index] for index in unique if np.isfinite(shot_meshes[index]).all()]
+    lids_mesh = close_lids(target_mesh, np.median([lid_gaps(mesh) for mesh in meshed], axis=0), lid_closed
+                           ) if meshed else target_mesh
+    layout = target_layout(lids_mesh, height, width, grid_step=grid_step)
     warped_by_shot, mask_by_shot = {}, {}
     for index, fallback in zip(unique, fallbacks):
         warp = fallback
         if np.isfinite(shot_meshes[index]).all():
             source = amplify_mouth(shot_meshes[index], target_mesh,
                                    mouth_gain(shot_landmarks[index], target_landmarks, expression_gain))
-            warp = mesh_warp_map(source, target_mesh, height, width, fallback=fallback, layout=layout)
+            warp = mesh_warp_map(source, lids_mesh, height, width, fallback=fallback, layout=layout)
         warped_by_shot[index] = cv2.remap(shots[index], warp.map_x, warp.map_y, tps.INTERPOLATION,
                                           borderMode=cv2.BORDER_REPLICATE)
         mask_by_shot[index] = warp.valid(height, width)

@@ -159,8 +159,10 @@ def retarget_driving(driver: np.ndarray, driver_reference: np.ndarray, source: n
 
     A closed mouth is closed for everyone, so the opening transfers as it is; as a relative delta it would inherit
     whatever the source's anchor and the driver's reference frame showed (an open mouth in either left the output
-    never closing or never opening fully). Shapes as in ``retarget_relative``.
+    never closing or never opening fully). The eyes close as the driver's do, in proportion to the source's own
+    (``landmarks.eyelids.lids_as_driver``). Shapes as in ``retarget_relative``.
     """
+    from landmarks.eyelids import lids_as_driver
     from landmarks.expression import mouth_opening, set_mouth_opening
 
     moved = retarget_relative(driver, driver_reference, source)
@@ -169,4 +171,5 @@ def retarget_driving(driver: np.ndarray, driver_reference: np.ndarray, source: n
     output = np.atleast_3d(moved) if not single else moved[None]
     output = output.copy()
     output[valid] = set_mouth_opening(output[valid], mouth_opening(frames[valid]))
+    output[valid] = lids_as_driver(output[valid], frames[valid], driver_reference, source)
     return output[0] if single else output

@@ -160,3 +160,24 @@ def _far_from_mouth() -> np.ndarray:
     """(468,) bool: vertices whose spreading weights take nothing from the mouth and jaw (68 points 3-13, 48-67)."""
     weights = mesh_retarget.spreading_weights()
     return weights[:, list(range(3, 14)) + list(range(48, 68))].sum(1) == 0
+
+
+@pytest.mark.parametrize("mode", ["2d", "3d"])
+def test_retarget_face_shuts_the_sources_eyes_at_the_drivers_blink(mode):
+    """A driver's blink (lids down to the fold) shuts the source's eyes, whatever their size, in the mesh and in the
+    68 points; the reference frame leaves the source's own eyes."""
+    from landmarks import eyelids
+
+    reference = _head(90.0, (200.0, 220.0))
+    blink = eyelids.set_lid_gaps(reference, np.full(2, eyelids.LID_CLOSED))  # the upper lids down to the fold
+    source = eyelids.set_lid_gaps(_head(120.0, (250.0, 260.0)), eyelids.lid_gaps(reference) * 1.4)  # wide eyes
+    driver = np.stack([reference, blink])
+    landmarks = mesh_to_68(driver[..., :2]).astype(np.float64)
+    source_points = mesh_to_68(source[:, :2]).astype(np.float64)
+    targets, meshes = mesh_retarget.retarget_face(landmarks, landmarks[0], source_points, driver, reference, source,
+                                                  mode=mode)
+    np.testing.assert_allclose(eyelids.lid_gaps(meshes[0]), eyelids.lid_gaps(source), rtol=1e-6)
+    np.testing.assert_allclose(eyelids.lid_gaps(meshes[1]), eyelids.LID_CLOSED, rtol=1e-6)
+    open_gap = eyelids.lid_gaps(source_points) - eyelids.LID_CLOSED  # the 68 points' lids, measured on them
+    assert np.abs(eyelids.lid_gaps(targets[0]) - eyelids.lid_gaps(source_points)).max() < 0.05 * open_gap.min()
+    assert (eyelids.lid_gaps(targets[1]) - eyelids.LID_CLOSED < 0.25 * open_gap).all()

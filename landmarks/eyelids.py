@@ -1,0 +1,181 @@
+"""Eyes that close as the driver's do: retargeted in proportion, and warped to the aperture (issue 23: blinks).
+
+The face mesh's lid vertices never meet: on a closed eye they sit on the lid's fold, still about ``LID_CLOSED``
+inter-ocular distances apart (``lid_gaps``). Two things follow.
+
+**Warping** (``close_lids``, called by ``landmarks.mesh_warp.warp_references_mesh``). A warp that moves a shot's
+lids onto a closing target's scales the whole gap between them, the visible aperture included, by the ratio of the
+two gaps, so a fully closed target leaves the shot's eye half open. Warping one hold-out frame of each of the 4
+validation people onto the others' meshes, the detector read 0.29-0.50 of the target's change of eye opening
+where the eyes blink. So the target's upper lids are lowered first, so that the warp shows the target's
+*aperture* (gap minus the closed gap c, ``closed_gaps``) rather than its gap: the shot's aperture G_s - c is
+scaled onto G_t - c, which puts the target's upper lid at a gap of (G_t - c) G_s / (G_s - c). It only ever
+closes: where the target's eye is as open as the shot's or wider, nothing moves. The upper lid moves, as it does
+in a blink; the lower lid and everything else stay. The references share the target's face layout, so the lids
+are lowered once per target, for the median gap of the shots being warped.
+
+**Retargeting** (``lids_as_driver``, called by ``landmarks.retarget.retarget_driving`` on the 68 points and by
+``landmarks.mesh_retarget.retarget_face`` on the meshes). The rest of the face takes the driver's change since
+its reference frame, added; for the lids that shuts a narrow-eyed source's eye at the driver's squint and leaves
+a wide-eyed one half open at the driver's blink. So each eye's aperture is the
+source's own times the driver's over the driver reference's: a blink shuts any eye, and the source keeps its
+eye shape. The driver's reference is its first face: one that blinks widens the source's eyes, by at most
+``MAX_APERTURE`` (the additive deltas did so without a bound).
+
+The same geometry serves the mesh (``MESH_LIDS``, MediaPipe's eye contours) and the 68 points (``POINTS_68_LIDS``).
+
+``LID_CLOSED`` = 0.07 comes from the 56 training people (their 64 frames' meshes by the default detector): the
+smallest gap each person shows has a 1st percentile of 0.060 and a 5th of 0.076 over all frames, where the
+blinking people close their eyes. Narrow eyes close at a smaller gap: over the 34 people whose smallest gap is
+under 0.75 of their median, closed / open has a median of 0.63 (quartiles 0.56-0.69), so a face's closed gap is
+``closed_gaps`` = min(0.07, ``CLOSED_SHARE`` 0.6 x its open gap) (median error 0.010 against their smallest gaps;
+0.07 alone: 0.011, but a narrow-eyed shot open at 0.08 would have its lids slammed shut by a target at 0.075).
+Measured on the 4 validation people (``lsr eval --data VAL --k 8 32``, warp-guided default), cross-identity eye
+correlation:
+
+* the warp: 0.63 -> 0.67 at K = 8, 0.51 -> 0.58 at K = 32; face PSNR in self re-enactment -0.001 / -0.003 dB,
+  mouth unchanged. Also tried there: 0.09 (0.67, -0.008 dB); lowering each shot's own target (no shared
+  layout): the same; opening wider too, up to 1.5 times, where the target's eye is wider than the shot's: 0.69
+  but -0.008 dB;
+* the retargeting on top: 0.67 -> 0.72 at K = 8, 0.58 -> 0.63 at K = 32 (mouth correlation 0.83 -> 0.82 and
+  0.88 -> 0.88; self re-enactment is not retargeted).
+
+numpy only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+LID_CLOSED = 0.07
+"""The lid gap of a closed eye, in inter-ocular distances (``lid_gaps``), at most (``closed_gaps``)."""
+CLOSED_SHARE = 0.6
+"""A closed eye's gap is at most this share of the same eye's open gap (``closed_gaps``)."""
+MAX_APERTURE = 1.5  # a driver's eye opened wider than its reference's widens the source's at most this much
+MIN_APERTURE = 0.02  # a driver reference with its eyes (nearly) shut: its aperture counts as this
+
+
+@dataclasses.dataclass(frozen=True)
+class Lids:
+    """Where a face's lids are: per eye (outer corner, inner corner, upper lid corner to corner, lower lid corner to
+    corner), and which upper-lid points measure the gap (those near the corners have about none)."""
+
+    eyes: tuple[tuple[int, int, tuple[int, ...], tuple[int, ...]], ...]
+    middle: slice
+
+
+MESH_LIDS = Lids(((33, 133, (246, 161, 160, 159, 158, 157, 173), (7, 163, 144, 145, 153, 154, 155)),
+                  (263, 362, (466, 388, 387, 386, 385, 384, 398), (249, 390, 373, 374, 380, 381, 382))), slice(2, 5))
+"""The 468-point face mesh's lids (MediaPipe's eye contours)."""
+POINTS_68_LIDS = Lids(((36, 39, (37, 38), (41, 40)), (42, 45, (43, 44), (47, 46))), slice(0, 2))
+"""The 68 points' lids (iBUG, 0-based)."""
+
+
+def lids_of(face: np.ndarray) -> Lids:
+    """The lids of a (468, >=2) mesh or (68, 2) landmarks."""
+    count = np.shape(face)[0] if np.ndim(face) == 2 else -1
+    if count == 468:
+        return MESH_LIDS
+    if count == 68:
+        return POINTS_68_LIDS
+    raise ValueError(f"a face must be a (468, 2 or 3) mesh or (68, 2) landmarks, got {np.shape(face)}")
+
+
+def _eye_frame(points: np.ndarray, outer: int, inner: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(origin, along, across): the corners' midpoint and unit vectors along and across the corner line."""
+    origin = (points[outer] + points[inner]) / 2
+    line = points[inner] - points[outer]
+    along = line / np.linalg.norm(line)
+    return origin, along, np.array([-along[1], along[0]])
+
+
+def _lid_heights(points: np.ndarray, eye: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(across, upper heights, lower lid heights at the upper points): heights across the corner line, pixels."""
+    outer, inner, upper, lower = eye
+    origin, along, across = _eye_frame(points, outer, inner)
+    upper_points, lower_points = points[list(upper)] - origin, points[list(lower)] - origin
+    order = np.argsort(lower_points @ along)
+    lower_at = np.interp(upper_points @ along, (lower_points @ along)[order], (lower_points @ across)[order])
+    return across, upper_points @ across, lower_at
+
+
+def _inter_ocular(points: np.ndarray, lids: Lids) -> float:
+    (right_outer, right_inner, *_), (left_outer, left_inner, *_) = lids.eyes
+    right, left = points[right_outer] + points[right_inner], points[left_outer] + points[left_inner]
+    return float(np.linalg.norm(right - left) / 2)
+
+
+def lid_gaps(face: np.ndarray) -> np.ndarray:
+    """Each eye's lid gap: the mean distance of the upper lid's middle points from the lower lid, across the
+    corner line, over the inter-ocular distance (the corners' midpoints). (468, >=2) mesh or (68, 2) landmarks ->
+    (2,) float64 (NaN when the face is not finite)."""
+    lids = lids_of(face)
+    points = np.asarray(face, np.float64)[:, :2]
+    if not np.isfinite(points).all():
+        return np.full(2, np.nan)
+    scale = _inter_ocular(points, lids)
+    gaps = []
+    for eye in lids.eyes:
+        _, upper, lower_at = _lid_heights(points, eye)
+        gaps.append(np.abs(lower_at - upper)[lids.middle].mean() / scale)
+    return np.array(gaps)
+
+
+def set_lid_gaps(face: np.ndarray, gaps: np.ndarray) -> np.ndarray:
+    """The face with each upper lid moved across its eye's corner line so that ``lid_gaps`` reads ``gaps``: every
+    upper-lid point keeps its share of the gap, as a blink moves it; the lower lid and the rest stay.
+    (468, 2 or 3) mesh or (68, 2) landmarks, frame pixels; gaps (2,) -> the same shape, float64 (a copy; an eye
+    whose gap or goal is not finite or not positive stays)."""
+    lids = lids_of(face)
+    moved = np.array(face, np.float64)
+    points = moved[:, :2]  # a view: the lids move in place
+    for eye, gap, goal in zip(lids.eyes, lid_gaps(points), np.asarray(gaps, np.float64)):
+        if not (gap > 0 and goal >= 0 and np.isfinite(gap * goal)):
+            continue
+        across, upper, lower_at = _lid_heights(points, eye)
+        points[list(eye[2])] += ((lower_at - upper) * (1.0 - goal / gap))[:, None] * across[None, :]
+    return moved
+
+
+def closed_gaps(open_gaps: np.ndarray, closed: float = LID_CLOSED) -> np.ndarray:
+    """The lid gaps of a face's eyes closed, from their gaps open: ``closed``, or ``CLOSED_SHARE`` of the open gap
+    for narrow eyes (module docstring). (...) -> (...) float64."""
+    return np.minimum(closed, CLOSED_SHARE * np.asarray(open_gaps, np.float64))
+
+
+def close_lids(target_mesh: np.ndarray, shot_gaps: np.ndarray, closed: float = LID_CLOSED) -> np.ndarray:
+    """The target mesh with each upper lid lowered so that a warp of a shot with these lid gaps shows the target's
+    aperture (module docstring). target_mesh: (468, 2 or 3) frame pixels; shot_gaps: (2,) ``lid_gaps`` of the
+    shots -> (468, 2 or 3) float64 (a copy; the target's own vertices where nothing closes or ``closed`` is 0)."""
+    target_gaps, shot_gaps = lid_gaps(target_mesh), np.asarray(shot_gaps, np.float64)
+    shut = closed_gaps(shot_gaps, closed)
+    closing = (target_gaps < shot_gaps) & (shot_gaps > shut) & (target_gaps > 0) & (shut > 0)  # NaN: False
+    lowered = np.maximum(target_gaps - shut, 0.0) * shot_gaps / np.where(closing, shot_gaps - shut, 1.0)
+    return set_lid_gaps(target_mesh, np.where(closing, lowered, target_gaps))
+
+
+def lids_as_driver(faces: np.ndarray, drivers: np.ndarray, driver_reference: np.ndarray, source: np.ndarray,
+                   closed: float = LID_CLOSED) -> np.ndarray:
+    """Retargeted faces with their lids as closed as their drivers', in proportion: each eye's aperture (gap -
+    ``closed``) is the source's times the driver's over the driver reference's, at most ``MAX_APERTURE`` times
+    (the reference's aperture taken as at least ``MIN_APERTURE``). A blink closes any source's eye fully, and
+    the source's own eye shape stays; adding the driver's change of gap, as the rest of the face is retargeted,
+    half-closes a wide-eyed source's eye and shuts a narrow-eyed one at a squint.
+
+    faces: (T, 468, 2 or 3) meshes or (T, 68, 2) landmarks, retargeted; drivers: (T, N, >=2) the driver frames
+    they come from; driver_reference, source: (N, >=2), all of one kind -> (T, N, 2 or 3) float64 (frames with a
+    non-finite face stay as they are; all of them when the reference or the source is not finite)."""
+    output = np.array(faces, np.float64)
+    reference_gaps, source_gaps = lid_gaps(driver_reference), lid_gaps(source)
+    if not np.isfinite([*reference_gaps, *source_gaps]).all() or closed <= 0:
+        return output
+    driver_shut, source_shut = closed_gaps(reference_gaps, closed), closed_gaps(source_gaps, closed)
+    for index, driver in enumerate(np.asarray(drivers, np.float64)):
+        if not (np.isfinite(output[index]).all() and np.isfinite(driver).all()):
+            continue
+        share = (lid_gaps(driver) - driver_shut) / np.maximum(reference_gaps - driver_shut, MIN_APERTURE)
+        goal = source_shut + (source_gaps - source_shut) * np.clip(share, 0.0, MAX_APERTURE)
+        output[index] = set_lid_gaps(output[index], goal)
+    return output
