@@ -84,10 +84,12 @@ def lids_of(face: np.ndarray) -> Lids:
 
 
 def _eye_frame(points: np.ndarray, outer: int, inner: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(origin, along, across): the corners' midpoint and unit vectors along and across the corner line."""
+    """(origin, along, across): the corners' midpoint and unit vectors along and across the corner line (NaN when
+    the corners coincide: a turned head's far eye can collapse)."""
     origin = (points[outer] + points[inner]) / 2
     line = points[inner] - points[outer]
-    along = line / np.linalg.norm(line)
+    length = float(np.linalg.norm(line))
+    along = line / length if length > 1e-9 else np.full(2, np.nan)
     return origin, along, np.array([-along[1], along[0]])
 
 
@@ -96,6 +98,8 @@ def _lid_heights(points: np.ndarray, eye: tuple) -> tuple[np.ndarray, np.ndarray
     outer, inner, upper, lower = eye
     origin, along, across = _eye_frame(points, outer, inner)
     upper_points, lower_points = points[list(upper)] - origin, points[list(lower)] - origin
+    if not np.isfinite(along).all():
+        return across, np.full(len(upper), np.nan), np.full(len(upper), np.nan)
     order = np.argsort(lower_points @ along)
     lower_at = np.interp(upper_points @ along, (lower_points @ along)[order], (lower_points @ across)[order])
     return across, upper_points @ across, lower_at
@@ -116,6 +120,8 @@ def lid_gaps(face: np.ndarray) -> np.ndarray:
     if not np.isfinite(points).all():
         return np.full(2, np.nan)
     scale = _inter_ocular(points, lids)
+    if not scale > 0:
+        return np.full(2, np.nan)
     gaps = []
     for eye in lids.eyes:
         _, upper, lower_at = _lid_heights(points, eye)

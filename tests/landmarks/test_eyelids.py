@@ -195,3 +195,20 @@ def test_retarget_driving_shuts_the_sources_eyes_at_the_drivers_blink():
     source_aperture = eyelids.lid_gaps(source) - eyelids.LID_CLOSED
     for frame, share in zip(moved, (1.0, 0.5, 0.0)):
         np.testing.assert_allclose(eyelids.lid_gaps(frame), eyelids.LID_CLOSED + share * source_aperture, rtol=1e-6)
+
+
+def test_a_collapsed_eye_is_left_as_it_is():
+    """A turned head's far eye can collapse to a point: its gap is NaN, nothing moves, and no warning is raised."""
+    import warnings
+
+    mesh = _mesh()
+    outer, inner, upper, lower = eyelids.MESH_LIDS.eyes[1]
+    mesh[[outer, inner, *upper, *lower]] = mesh[outer]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        gaps = eyelids.lid_gaps(mesh)
+        assert np.isnan(gaps[1]) and gaps[0] > 0
+        np.testing.assert_array_equal(eyelids.set_lid_gaps(mesh, [0.05, 0.05])[list(upper)], mesh[list(upper)])
+        np.testing.assert_array_equal(eyelids.close_lids(mesh, [0.2, 0.2])[list(upper)], mesh[list(upper)])
+        lidded = eyelids.lids_as_driver(mesh[None], _blink(_mesh(), 0.5)[None], _mesh(), mesh)
+        assert np.isfinite(lidded).all()
