@@ -114,6 +114,18 @@ def _inter_ocular(points: np.ndarray, lids: Lids) -> float:
     return float(np.linalg.norm(right - left) / 2)
 
 
+def _measure(points: np.ndarray, lids: Lids) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """Per eye (across, upper minus lower lid heights at the upper points in pixels, gap in inter-ocular distances):
+    what ``lid_gaps`` reads and ``set_lid_gaps`` moves, made once. points: (N, 2) finite."""
+    scale = _inter_ocular(points, lids)
+    measured = []
+    for eye in lids.eyes:
+        across, upper, lower_at = _lid_heights(points, eye)
+        gap = float(np.abs(lower_at - upper)[lids.middle].mean() / scale) if scale > 0 else float("nan")
+        measured.append((across, lower_at - upper, gap))
+    return measured
+
+
 def lid_gaps(face: np.ndarray) -> np.ndarray:
     """Each eye's lid gap: the mean distance of the upper lid's middle points from the lower lid, across the
     corner line, over the inter-ocular distance (the corners' midpoints). (468, >=2) mesh or (68, 2) landmarks ->
@@ -122,14 +134,7 @@ def lid_gaps(face: np.ndarray) -> np.ndarray:
     points = np.asarray(face, np.float64)[:, :2]
     if not np.isfinite(points).all():
         return np.full(2, np.nan)
-    scale = _inter_ocular(points, lids)
-    if not scale > 0:
-        return np.full(2, np.nan)
-    gaps = []
-    for eye in lids.eyes:
-        _, upper, lower_at = _lid_heights(points, eye)
-        gaps.append(np.abs(lower_at - upper)[lids.middle].mean() / scale)
-    return np.array(gaps)
+    return np.array([gap for _, _, gap in _measure(points, lids)])
 
 
 def set_lid_gaps(face: np.ndarray, gaps: np.ndarray) -> np.ndarray:
@@ -140,11 +145,12 @@ def set_lid_gaps(face: np.ndarray, gaps: np.ndarray) -> np.ndarray:
     lids = lids_of(face)
     moved = np.array(face, np.float64)
     points = moved[:, :2]  # a view: the lids move in place
-    for eye, gap, goal in zip(lids.eyes, lid_gaps(points), np.asarray(gaps, np.float64)):
+    if not np.isfinite(points).all():
+        return moved
+    for eye, (across, opening, gap), goal in zip(lids.eyes, _measure(points, lids), np.asarray(gaps, np.float64)):
         if not (gap > 0 and goal >= 0 and np.isfinite(gap * goal)):
             continue
-        across, upper, lower_at = _lid_heights(points, eye)
-        points[list(eye[2])] += ((lower_at - upper) * (1.0 - goal / gap))[:, None] * across[None, :]
+        points[list(eye[2])] += (opening * (1.0 - goal / gap))[:, None] * across[None, :]
     return moved
 
 
