@@ -103,11 +103,14 @@ def test_reenact_retargets_in_3d_on_the_sources_own_mesh(reenactor, people, monk
         reenactor.reenact(people["driver"], retarget="4d")
 
 
-def test_the_mouth_comes_from_the_nearest_reference_unless_told_to_blend(reenactor, people):
+def test_the_mouth_comes_from_the_nearest_reference_unless_told_to_blend(reenactor, people, monkeypatch):
     """``mouth`` "nearest": where the target opens wider than its shots, the synthesis' mouth region is the first
     (nearest) warped shot's (``landmarks.nearest_mouth``), the rest the network's; "blend": the network's alone."""
     from landmarks.nearest_mouth import mouth_weight
 
+    import landmarks.nearest_mouth as nearest_mouth
+
+    monkeypatch.setattr(nearest_mouth, "MISMATCH", (1e6, 2e6))  # the random net draws no skin like a shot's
     subject = reenactor.encode_subject(people["source"], k=4)
     from landmarks.expression import mouth_opening, set_mouth_opening
     from landmarks.nearest_mouth import mouth_strength
