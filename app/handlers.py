@@ -262,7 +262,8 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
 
     Images without a face are skipped and named in the notes (an error only when none has a face).
     """
-    from lsr.core.sources import DEFAULT_K, SubjectShots, load_subject_shots, set_anchor, spread_shots
+    from lsr.core.sources import (DEFAULT_K, SubjectShots, load_subject_shots, of_the_person, set_anchor,
+                                  spread_shots)
     from landmarks.errors import InputFileError, NoFaceError
     from landmarks.imageio import IMAGE_SUFFIXES
     from landmarks.video import VIDEO_SUFFIXES, probe_video
@@ -291,7 +292,7 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
         shots = load_subject_shots(videos[0], size, k=None if k <= DEFAULT_K else int(k), detector=detector)
         if len(shots.frames) > k:
             shots = set_anchor(spread_shots(shots, int(k)))
-        return shots, [f"{len(shots.frames)} shot(s) sampled from {videos[0].name}"]
+        return shots, [f"{len(shots.frames)} shot(s) sampled from {videos[0].name}", *shots.notes]
     if len(paths) > MAX_K:
         raise InputFileError(f"{len(paths)} images uploaded; give at most {MAX_K} shots (K <= {MAX_K})")
     frames, points, names, notes = [], [], [], []
@@ -316,10 +317,14 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
         if len(unreadable) == len(paths):
             raise unreadable[0]
         raise NoFaceError(f"no face found in the {len(paths)} uploaded image(s); upload frontal, well-lit photos of one person")
+    person, note = of_the_person(frames, points, list(range(len(frames))))  # photos of another person left out
+    notes += [note] if note else []
+    frames, points, names = [frames[i] for i in person], [points[i] for i in person], [names[i] for i in person]
+    meshes = [meshes[i] for i in person]
     all_meshes = np.stack(meshes) if all(mesh is not None for mesh in meshes) else None
     shots = set_anchor(spread_shots(SubjectShots(np.stack(frames), np.stack(points), names, meshes=all_meshes), int(k)),
                        full_frames=full_frames)
-    notes.insert(0, f"using {len(shots.frames)} of {len(frames)} shot(s) with a face (K={k})")
+    notes.insert(0, f"using {len(shots.frames)} of {len(frames)} shot(s) with a face of the person (K={k})")
     return shots, notes
 
 

@@ -18,6 +18,7 @@ from landmarks.errors import ModelFilesError
 
 SHAPE_PREDICTOR_68 = "shape_predictor_68_face_landmarks.dat"
 CNN_FACE_DETECTOR = "mmod_human_face_detector.dat"
+FACE_RECOGNITION_RESNET = "dlib_face_recognition_resnet_model_v1.dat"
 
 _INSTALL_HINT = "install them with `pip install face_recognition_models`"
 
@@ -74,3 +75,9 @@ def cnn_face_detector() -> Any:
 def shape_predictor_68() -> Any:
     """dlib's iBUG-68 shape predictor (ensemble of regression trees)."""
     return _dlib().shape_predictor(str(model_path(SHAPE_PREDICTOR_68)))
+
+
+@functools.lru_cache(maxsize=None)
+def face_recognizer() -> Any:
+    """dlib's ResNet face recogniser (128-D descriptors; ``landmarks.identity``)."""
+    return _dlib().face_recognition_model_v1(str(model_path(FACE_RECOGNITION_RESNET)))

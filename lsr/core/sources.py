@@ -11,6 +11,8 @@ Sources (the subject, thesis §4.3.1: K shots averaged into the latents):
 Each usable shot is cropped like the training data (``landmarks.align.crop``). K shots are then taken
 evenly from the usable ones. ``k=None`` uses min(8, usable); an explicit K larger than the usable
 shots is an error (it never silently repeats shots).
+Shots of another person's face (a video that cuts to someone else, a stray photo) are left out
+and replaced by other frames of the person (``landmarks.identity``; a note says so).
 
 Drivers:
 * a video file, a folder of images, or one image (frames, tracked with ``LandmarkTracker``);
@@ -241,7 +243,11 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
             f"K={k} is larger than the usable source frames: only {len(frames)} of {len(tried)} tried frame(s) of "
             f"{where} have a face; lower --k to <= {len(frames)} or give more shots"
         )
-    chosen = _spread(len(frames), k or DEFAULT_K)
+    chosen, note = of_the_person(frames, points, _spread(len(frames), k or DEFAULT_K))
+    notes += [note] if note else []
+    if k is not None and k > len(chosen):
+        raise InputFileError(f"K={k} is larger than the source frames that show the person: only {len(chosen)} of "
+                             f"{where}'s frames with a face do ({note}); lower --k to <= {len(chosen)}")
     shots = SubjectShots(
         np.stack([frames[i] for i in chosen]), np.stack([points[i] for i in chosen]), [names[i] for i in chosen], notes,
         meshes=np.stack([meshes[i] for i in chosen]) if all(meshes[i] is not None for i in chosen) else None,
@@ -256,6 +262,39 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
         return set_anchor(dataclasses.replace(shots, video=Path(items[0])), anchor)
     full = {names[i]: (arrays.get(names[i]), frame_points[i]) for i in chosen}
     return set_anchor(shots, anchor, full_frames=full)
+
+
+def of_the_person(frames: list[np.ndarray], points: list[np.ndarray],
+                   chosen: list[int]) -> tuple[list[int], str | None]:
+    """The chosen shots without another person's face (``landmarks.identity.same_person``), each one left out
+    replaced by the next usable frame of the person -> (indices into ``frames``, sorted; a note or None).
+    Fewer than 3 shots have no majority to judge by and are kept."""
+    from landmarks import identity
+
+    if len(chosen) < 3:
+        return chosen, None
+    if not identity.available():
+        return chosen, "the shots were not checked for another person's face (dlib's face recogniser is not installed)"
+    found = identity.face_descriptors([frames[i] for i in chosen], [points[i] for i in chosen])  # NaN: turned
+    keep = identity.same_person(found)
+    if keep.all():
+        return chosen, None
+    kept = [i for i, ok in zip(chosen, keep) if ok]
+    judged_rows = found[keep & np.isfinite(found).all(axis=1)]
+    gaps = np.linalg.norm(judged_rows[:, None] - judged_rows[None], axis=-1)
+    centre = judged_rows[int(gaps.sum(axis=1).argmin())]  # the medoid the others are measured from
+    added = 0
+    for index in (i for i in range(len(frames)) if i not in chosen):
+        if len(kept) == len(chosen):
+            break
+        descriptor = identity.face_descriptors([frames[index]], [points[index]])[0]
+        if not np.isfinite(descriptor).all() or np.linalg.norm(descriptor - centre) <= identity.SAME_PERSON_RADIUS:
+            kept.append(index)
+            added += 1
+    note = (f"left out {len(chosen) - int(keep.sum())} of {len(chosen)} chosen source frame(s) showing another "
+            f"person's face (dlib's face descriptor farther than {identity.SAME_PERSON_RADIUS:g} from the person's)"
+            + (f"; {added} other frame(s) of the person used instead" if added else ""))
+    return sorted(kept), note
 
 
 def set_anchor(shots: SubjectShots, anchor: int | None = None, *,

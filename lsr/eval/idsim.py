@@ -9,53 +9,27 @@ values. Faces are aligned by dlib from a 68-point shape (``compute_face_descript
 
 from __future__ import annotations
 
-import functools
-from typing import Any
-
 import numpy as np
 
-from landmarks import models
+from landmarks import identity
 from landmarks.errors import ModelFilesError
 from lsr.errors import WeightsError
 from lsr.eval.metrics import check_landmarks
 
-FACE_RECOGNITION_RESNET = "dlib_face_recognition_resnet_model_v1.dat"
-EMBEDDING_SIZE = 128
+EMBEDDING_SIZE = identity.DESCRIPTOR_SIZE
 EMBEDDER_NAME = "dlib ResNet face recognition v1 (128-D), stands in for the thesis' VGGFace"
 
 
-@functools.lru_cache(maxsize=None)
-def face_recognition_model() -> Any:
-    """dlib's ResNet face recogniser, loaded once per process."""
-    import dlib
-
-    try:
-        path = models.model_path(FACE_RECOGNITION_RESNET)
-    except ModelFilesError as exc:
-        raise WeightsError(f"ID-SIM needs dlib's face recognition model: {exc}") from exc
-    return dlib.face_recognition_model_v1(str(path))
-
-
 def face_embedding(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
-    """Unit-norm 128-D embedding of the face described by ``landmarks``.
+    """Unit-norm 128-D embedding of the face described by ``landmarks`` (``landmarks.identity.face_descriptor``).
 
     image: (H, W, 3) uint8 RGB; landmarks: (68, 2) x, y pixels on that image (dlib aligns the
     face chip from them). Returns (128,) float64 with norm 1.
     """
-    import dlib
-
-    landmarks = check_landmarks(landmarks)
-    if landmarks.shape != (68, 2) or not np.all(np.isfinite(landmarks)):
-        raise ValueError(f"face_embedding needs (68, 2) finite landmarks, got {landmarks.shape}")
-    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
-        raise ValueError(f"face_embedding needs an (H, W, 3) uint8 image, got {image.shape} {image.dtype}")
-    x0, y0 = np.floor(landmarks.min(axis=0)).astype(int)
-    x1, y1 = np.ceil(landmarks.max(axis=0)).astype(int)
-    shape = dlib.full_object_detection(
-        dlib.rectangle(int(x0), int(y0), int(x1), int(y1)),
-        [dlib.point(int(round(x)), int(round(y))) for x, y in landmarks],
-    )
-    descriptor = np.array(face_recognition_model().compute_face_descriptor(np.ascontiguousarray(image), shape))
+    try:
+        descriptor = identity.face_descriptor(image, check_landmarks(landmarks))
+    except ModelFilesError as exc:
+        raise WeightsError(f"ID-SIM needs dlib's face recognition model: {exc}") from exc
     return descriptor / max(float(np.linalg.norm(descriptor)), 1e-12)
 
 

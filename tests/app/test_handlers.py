@@ -200,3 +200,23 @@ def test_sliders_edit_the_person_and_the_saved_pose_drives_lsr_reenact(tiny_app_
     kept = live.save_pose(state, files.folder("s", "pose"))
     files.new_run("s")
     assert kept.is_file()
+
+
+def test_photos_of_another_person_are_left_out_and_named(app_inputs, tmp_path, monkeypatch):
+    from landmarks import identity
+    from landmarks.detectors import make_detector
+    from landmarks.imageio import read_image, write_image
+
+    # descriptors that read a blue tint as another person (dlib's do not separate the synthetic people)
+    monkeypatch.setattr(identity, "available", lambda: True)
+    monkeypatch.setattr(identity, "face_descriptor",
+                        lambda image, points: np.full(identity.DESCRIPTOR_SIZE, image[..., 2].mean() / 100.0))
+    person = read_image(app_inputs["source"])
+    paths = []
+    for number, tint in enumerate((0, 0, 80, 0)):
+        paths.append(tmp_path / f"shot{number}.png")
+        write_image(paths[-1], np.clip(person.astype(np.int16) + (0, 0, tint), 0, 255).astype(np.uint8))
+    shots, notes = handlers.load_shots(paths, 4, 64, make_detector(), handlers.Limits())
+    assert shots.names == ["shot0.png", "shot1.png", "shot3.png"]
+    assert notes[0] == "using 3 of 3 shot(s) with a face of the person (K=4)"
+    assert any("left out 1 of 4 chosen source frame(s) showing another person's face" in note for note in notes)
