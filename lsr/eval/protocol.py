@@ -44,10 +44,12 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from lsr.errors import ConfigError, DatasetError
+from landmarks.errors import ModelFilesError
+from landmarks.identity import DESCRIPTOR_SIZE, face_descriptor, judged, same_person
+from lsr.errors import ConfigError, DatasetError, WeightsError
 from lsr.eval import cross, idsim
 from lsr.eval.baselines import check_method_inputs, nearest_shot_indices
-from lsr.eval.metrics import face_mask, mse, nmke, psnr_from_mse, sharpness, ssim
+from lsr.eval.metrics import check_landmarks, face_mask, mse, nmke, psnr_from_mse, sharpness, ssim
 
 BUCKETS = ("low", "medium", "high")
 
@@ -319,11 +321,30 @@ class FaceAnalysis:
             self._landmarks[key] = faces[0].landmarks.astype(np.float32) if faces else None
         return self._landmarks[key]
 
-    def embedding(self, image: np.ndarray, points: np.ndarray) -> np.ndarray:
+    def descriptor(self, image: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """dlib's raw 128-D descriptor (``landmarks.identity``), memoised."""
         key = self.key(image, np.asarray(points, np.float32).tobytes())
         if key not in self._embeddings:
-            self._embeddings[key] = idsim.face_embedding(image, points)
+            try:
+                self._embeddings[key] = face_descriptor(image, check_landmarks(points))
+            except ModelFilesError as exc:
+                raise WeightsError(f"ID-SIM needs dlib's face recognition model: {exc}") from exc
         return self._embeddings[key]
+
+    def embedding(self, image: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """The unit-norm embedding ID-SIM compares (``lsr.eval.idsim.face_embedding``'s)."""
+        descriptor = self.descriptor(image, points)
+        return descriptor / max(float(np.linalg.norm(descriptor)), 1e-12)
+
+    def same_person(self, images: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
+        """Which frames (N, S, S, 3) show the majority's person (``landmarks.identity.same_person``; faces turned
+        too far to judge count as the person's, NaN landmark rows as not) -> (N,) bool."""
+        found = np.isfinite(landmarks).all(axis=(1, 2))
+        descriptors = np.full((len(images), DESCRIPTOR_SIZE), np.nan)
+        for index in np.flatnonzero(found):
+            if judged(landmarks[index], images[index].shape):
+                descriptors[index] = self.descriptor(images[index], landmarks[index])
+        return same_person(descriptors) & found
 
 
 @dataclasses.dataclass
@@ -405,6 +426,13 @@ def run_protocol(
         analysis.seed(identity.holdout_frames, identity.holdout_landmarks)
         counts["inputs_without_face"][identity.name] = int(np.sum(~np.isfinite(identity.input_landmarks).all(axis=(1, 2))))
         counts["holdouts_without_face"][identity.name] = int(np.sum(~np.isfinite(identity.holdout_landmarks).all(axis=(1, 2))))
+    same_person_inputs = {identity.name: analysis.same_person(identity.input_frames, identity.input_landmarks)
+                          for identity in identities}
+    for identity in identities:
+        found = np.isfinite(identity.input_landmarks).all(axis=(1, 2))
+        others = int(np.sum(found & ~same_person_inputs[identity.name]))
+        if others:
+            counts.setdefault("inputs_of_another_person", {})[identity.name] = others
     variants: list[tuple[str, Method, bool]] = []
     for method in methods:
         variants.append((method.name, method, False))
@@ -413,7 +441,8 @@ def run_protocol(
     bar = tqdm(total=len(variants) * len(ks) * len(identities), desc="lsr eval", disable=not progress)
     for k in ks:
         for position, identity in enumerate(identities):
-            candidates = np.flatnonzero(np.isfinite(identity.input_landmarks).all(axis=(1, 2)))
+            # input frames with a face, of the person (another person's are left out, as lsr reenact does)
+            candidates = np.flatnonzero(same_person_inputs[identity.name])
             if k > len(candidates):  # fewer input frames with a face than K: use them all, and say so
                 counts.setdefault("k_capped", {})[f"K={k} {identity.name}"] = int(len(candidates))
             shot_indices = sample_shots(candidates, min(k, len(candidates)), seed, identity.name)  # input frames only

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from landmarks.identity import SAME_PERSON_RADIUS
 from lsr.errors import ConfigError
 from lsr.eval import cross, idsim, metrics
 from lsr.eval.protocol import BUCKETS, EvalIdentity, EvalRun
@@ -217,6 +218,10 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
     lines += ["", "## Notes", ""]
     lines.append(f"- hold-out frames without a ground-truth face (cannot be driven, skipped): {skipped or 'none'}")
     lines.append(f"- input frames without a face (never drawn as shots): {no_input or 'none'}")
+    others = summary["counts"].get("inputs_of_another_person", {})
+    lines.append(f"- input frames showing another person (dlib face descriptor farther than "
+                 f"{SAME_PERSON_RADIUS:g} from the person's; never drawn as shots, as lsr reenact leaves them out): "
+                 f"{others or 'none'}")
     for name, why in summary["counts"].get("skipped_methods", {}).items():
         lines.append(f"- {name}: skipped, {why}")
     without_meshes = summary["counts"].get("skipped_without_meshes", {})

@@ -108,6 +108,21 @@ def test_k_beyond_usable_inputs_is_capped_and_reported(rng, no_face_detector):
     assert len(spy.seen) == 4 and not any(np.array_equal(shot, identity.input_frames[0]) for shot in spy.seen)
 
 
+def test_inputs_of_another_person_are_never_drawn(rng, no_face_detector, monkeypatch):
+    identity = _identity(rng, "a", inputs=6, holdouts=2)
+    others = {identity.input_frames[i].tobytes() for i in (1, 4)}
+    # descriptors 1.0 apart for the two frames of "another person", identical for the rest
+    monkeypatch.setattr(protocol, "judged", lambda points, shape: True)
+    monkeypatch.setattr(protocol, "face_descriptor",
+                        lambda image, points: np.full(128, 0.1 if image.tobytes() in others else 0.0))
+    spy = _SpyMethod()
+    run = protocol.run_protocol([spy], [identity], [8], protocol.FaceAnalysis(no_face_detector()),
+                                cross_identity=False, finetune=False, progress=False)
+    assert run.counts["inputs_of_another_person"] == {"a": 2}
+    assert run.counts["k_capped"] == {"K=8 a": 4}
+    assert len(spy.seen) == 4 and not any(shot.tobytes() in others for shot in spy.seen)
+
+
 class _FixedFaceDetector:
     """Finds the same face on every image: the cross metrics get landmarks to measure (a real detector would not
     find faces on noise)."""
