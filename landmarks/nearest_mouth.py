@@ -17,14 +17,15 @@ sample); everything else stays the network's. Measured at K = 8 (BENCHMARKS.md, 
 on the FSTH sample (0.64 with the blend's mouth) and 0.86 on the validation people (0.69), face PSNR in self
 re-enactment 0.06 dB below the blend's on the FSTH sample.
 
-A nearest shot in another lighting would be pasted as a patch: the FSTH sample's shots of a person come from
-several videos, and on id00081 the nearest shot's mouth came out as bright orange lips on a dark face. So the
-shot's mouth is taken less where its skin around the mouth (the region's feathered edge) differs from the
-synthesis' (``mismatch``, from ``MISMATCH[0]`` = 15 grey levels) and not at all from ``MISMATCH[1]`` = 25 on; the
-network's own blend hedges between the shots' lighting. The largest difference on the 4 validation people, whose
-shots come from one clip each, is 13.7 (their outputs are unchanged); on the FSTH sample id00812's reach 12.6 and
-id00081's have a median of 30.6. Colour-matching the shot to the synthesis (a gain per channel from the edge)
-instead left the shot's doubled lip outline there.
+A nearest shot unlike the synthesis around the mouth would be pasted as a patch: on the FSTH sample, id00081's shots
+included frames of his interviewer (the video cuts away; ``landmarks.identity`` now leaves such shots out), and a
+nearest shot's mouth came out as bright orange lips on the other person's darker face. So the shot's mouth is taken
+less where its skin around the mouth (the region's feathered edge) differs from the synthesis' (``mismatch``, from
+``MISMATCH[0]`` = 15 grey levels) and not at all from ``MISMATCH[1]`` = 25 on (another person, or another lighting);
+the network's own blend hedges between the shots. The largest difference on the 4 validation people is 13.7 (their
+outputs are unchanged); on the FSTH sample id00812's reach 12.6 and id00081's, with the interviewer's frames among
+the shots, a median of 30.6. Colour-matching the shot to the synthesis (a gain per channel from the edge) instead
+left the shot's doubled lip outline there.
 
 numpy + OpenCV only: the torch and ONNX runtimes share it through ``lsr.core.engine``.
 """
@@ -47,7 +48,7 @@ MOUTH_FEATHER = 0.04
 """... and feathered by a Gaussian of this fraction of the eye distance."""
 MISMATCH = (15.0, 25.0)
 """Grey levels: a nearest shot whose skin around the mouth (``mismatch``) differs from the synthesis' by more than the
-first is taken less, by the second not at all (another lighting: its mouth would be a patch)."""
+first is taken less, by the second not at all (another person or lighting: its mouth would be a patch)."""
 
 
 def mouth_weight(landmarks: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, tuple[int, int, int, int]] | None:
