@@ -246,8 +246,8 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
     chosen, note = of_the_person(frames, points, _spread(len(frames), k or DEFAULT_K))
     notes += [note] if note else []
     if k is not None and k > len(chosen):
-        raise InputFileError(f"K={k} is larger than the source frames that show the person: only {len(chosen)} of "
-                             f"{where}'s frames with a face do ({note}); lower --k to <= {len(chosen)}")
+        raise InputFileError(f"K={k} is larger than the source frames that show the person, {len(chosen)}: {note}; "
+                             f"lower --k to <= {len(chosen)}")
     shots = SubjectShots(
         np.stack([frames[i] for i in chosen]), np.stack([points[i] for i in chosen]), [names[i] for i in chosen], notes,
         meshes=np.stack([meshes[i] for i in chosen]) if all(meshes[i] is not None for i in chosen) else None,

@@ -80,7 +80,7 @@ def test_loader_replaces_another_persons_shots(monkeypatch):
     assert shots.names == [f"array#{i}" for i in (0, 1, 2, 4, 5, 7, 9, 10)]
     assert any("left out 2 of 8 chosen source frame(s) showing another person's face" in n and "2 other frame(s)" in n
                for n in shots.notes)
-    with pytest.raises(InputFileError, match="K=10 is larger than the source frames that show the person: only 9"):
+    with pytest.raises(InputFileError, match="K=10 is larger than the source frames that show the person, 9: left out 2 of 10"):
         load_subject_shots(frames, 128, k=10)
 
 
