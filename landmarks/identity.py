@@ -81,6 +81,15 @@ def face_descriptors(images, landmarks) -> np.ndarray:
     return descriptors
 
 
+def medoid(descriptors: np.ndarray) -> int | None:
+    """Index of the finite descriptor with the smallest summed distance to the other finite ones (None: none)."""
+    known = np.flatnonzero(np.isfinite(descriptors).all(axis=1))
+    if not len(known):
+        return None
+    points = descriptors[known]
+    return int(known[np.linalg.norm(points[:, None] - points[None], axis=-1).sum(axis=1).argmin()])
+
+
 def same_person(descriptors: np.ndarray, radius: float = SAME_PERSON_RADIUS) -> np.ndarray:
     """Which faces are the majority's person: within ``radius`` of the medoid (the descriptor with the smallest
     summed distance to the others). descriptors: (N, D), NaN rows = unknown (kept) -> (N,) bool. Every face is
@@ -90,9 +99,7 @@ def same_person(descriptors: np.ndarray, radius: float = SAME_PERSON_RADIUS) -> 
     keep = np.ones(len(descriptors), bool)
     if len(known) < 3:
         return keep
-    points = descriptors[known]
-    distances = np.linalg.norm(points[:, None] - points[None], axis=-1)
-    near = distances[int(distances.sum(axis=1).argmin())] <= radius
+    near = np.linalg.norm(descriptors[known] - descriptors[medoid(descriptors)], axis=-1) <= radius
     if near.sum() * 2 > len(known):
         keep[known[~near]] = False
     return keep

@@ -280,9 +280,7 @@ def of_the_person(frames: list[np.ndarray], points: list[np.ndarray],
     if keep.all():
         return chosen, None
     kept = [i for i, ok in zip(chosen, keep) if ok]
-    judged_rows = found[keep & np.isfinite(found).all(axis=1)]
-    gaps = np.linalg.norm(judged_rows[:, None] - judged_rows[None], axis=-1)
-    centre = judged_rows[int(gaps.sum(axis=1).argmin())]  # the medoid the others are measured from
+    centre = found[identity.medoid(found)]  # what same_person measured from
     added = 0
     for index in (i for i in range(len(frames)) if i not in chosen):
         if len(kept) == len(chosen):

@@ -20,17 +20,26 @@ EMBEDDING_SIZE = identity.DESCRIPTOR_SIZE
 EMBEDDER_NAME = "dlib ResNet face recognition v1 (128-D), stands in for the thesis' VGGFace"
 
 
+def face_descriptor(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
+    """dlib's raw 128-D descriptor (``landmarks.identity.face_descriptor``); ``WeightsError`` without dlib's model."""
+    try:
+        return identity.face_descriptor(image, check_landmarks(landmarks))
+    except ModelFilesError as exc:
+        raise WeightsError(f"ID-SIM needs dlib's face recognition model: {exc}") from exc
+
+
+def unit(descriptor: np.ndarray) -> np.ndarray:
+    """The descriptor scaled to norm 1 (what ID-SIM compares)."""
+    return descriptor / max(float(np.linalg.norm(descriptor)), 1e-12)
+
+
 def face_embedding(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
-    """Unit-norm 128-D embedding of the face described by ``landmarks`` (``landmarks.identity.face_descriptor``).
+    """Unit-norm 128-D embedding of the face described by ``landmarks``.
 
     image: (H, W, 3) uint8 RGB; landmarks: (68, 2) x, y pixels on that image (dlib aligns the
     face chip from them). Returns (128,) float64 with norm 1.
     """
-    try:
-        descriptor = identity.face_descriptor(image, check_landmarks(landmarks))
-    except ModelFilesError as exc:
-        raise WeightsError(f"ID-SIM needs dlib's face recognition model: {exc}") from exc
-    return descriptor / max(float(np.linalg.norm(descriptor)), 1e-12)
+    return unit(face_descriptor(image, landmarks))
 
 
 def cosine_similarity(first: np.ndarray, second: np.ndarray) -> float:

@@ -44,12 +44,11 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from landmarks.errors import ModelFilesError
-from landmarks.identity import DESCRIPTOR_SIZE, face_descriptor, judged, same_person
-from lsr.errors import ConfigError, DatasetError, WeightsError
+from landmarks.identity import DESCRIPTOR_SIZE, judged, same_person
+from lsr.errors import ConfigError, DatasetError
 from lsr.eval import cross, idsim
 from lsr.eval.baselines import check_method_inputs, nearest_shot_indices
-from lsr.eval.metrics import check_landmarks, face_mask, mse, nmke, psnr_from_mse, sharpness, ssim
+from lsr.eval.metrics import face_mask, mse, nmke, psnr_from_mse, sharpness, ssim
 
 BUCKETS = ("low", "medium", "high")
 
@@ -325,16 +324,12 @@ class FaceAnalysis:
         """dlib's raw 128-D descriptor (``landmarks.identity``), memoised."""
         key = self.key(image, np.asarray(points, np.float32).tobytes())
         if key not in self._embeddings:
-            try:
-                self._embeddings[key] = face_descriptor(image, check_landmarks(points))
-            except ModelFilesError as exc:
-                raise WeightsError(f"ID-SIM needs dlib's face recognition model: {exc}") from exc
+            self._embeddings[key] = idsim.face_descriptor(image, points)
         return self._embeddings[key]
 
     def embedding(self, image: np.ndarray, points: np.ndarray) -> np.ndarray:
         """The unit-norm embedding ID-SIM compares (``lsr.eval.idsim.face_embedding``'s)."""
-        descriptor = self.descriptor(image, points)
-        return descriptor / max(float(np.linalg.norm(descriptor)), 1e-12)
+        return idsim.unit(self.descriptor(image, points))
 
     def same_person(self, images: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
         """Which frames (N, S, S, 3) show the majority's person (``landmarks.identity.same_person``; faces turned
@@ -428,9 +423,9 @@ def run_protocol(
         counts["holdouts_without_face"][identity.name] = int(np.sum(~np.isfinite(identity.holdout_landmarks).all(axis=(1, 2))))
     same_person_inputs = {identity.name: analysis.same_person(identity.input_frames, identity.input_landmarks)
                           for identity in identities}
-    for identity in identities:
-        found = np.isfinite(identity.input_landmarks).all(axis=(1, 2))
-        others = int(np.sum(found & ~same_person_inputs[identity.name]))
+    for identity in identities:  # same_person counts frames without a face as not the person's: not another's
+        found = int(np.isfinite(identity.input_landmarks).all(axis=(1, 2)).sum())
+        others = found - int(same_person_inputs[identity.name].sum())
         if others:
             counts.setdefault("inputs_of_another_person", {})[identity.name] = others
     variants: list[tuple[str, Method, bool]] = []
