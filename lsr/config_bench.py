@@ -337,6 +337,9 @@ class EvalConfig:
     cross_identity: bool = True
     """Also drive each identity with the next identity's landmarks, retargeted and composited into the source's
     anchor shot as `lsr reenact` does (expression, pose, identity and scene metrics; lsr.eval.cross)."""
+    cross_drivers: int = 1
+    """Drive each identity with the next N identities (i+1 ... i+N, at most all the others): N x the cross-identity
+    sequences, for a steadier mean on few people."""
     retarget: Literal["2d", "3d"] = "2d"
     """How the cross-identity driver moves the source (landmarks.mesh_retarget.retarget_face): 2d = the 68 points'
     relative motion, as `lsr reenact` drives; 3d = the head turned as a rotation of the source's own face mesh, the

@@ -20,8 +20,9 @@ Per frame (``evaluate_method`` -> one record each):
     ``landmarks.scene.head_region([anchor, target])``, the region a composite must leave as it was;
   * ``scene_flicker``: mean |frame_t - frame_t-1| (grey levels, RGB mean) over the pixels outside both frames'
     head regions (NaN for the first frame).
-Per sequence (method, K, identity; ``summarise_cross``): Pearson correlation of driver and output openings and
-the mouth gain (least-squares slope of output on driver opening, with intercept), over the frames with a face.
+Per sequence (method, K, identity, driver; ``summarise_cross``): Pearson correlation of driver and output openings and
+the mouth and eye gains (least-squares slope of output on driver opening, with intercept), over the frames with a
+face.
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ from lsr.eval import idsim, metrics
 MIN_FRAMES = 3  # fewer paired frames than this: no correlation or gain (NaN)
 
 CONVENTION = (
-    "identity i driven by identity i+1's hold-out landmarks as `lsr reenact` drives it: retargeted "
+    "identity i driven by identity i+1's hold-out landmarks (--cross-drivers N: by each of i+1 ... i+N) as "
+    "`lsr reenact` drives it: retargeted "
     "(landmarks.mesh_retarget.retarget_face, --retarget: 2d = retarget_driving's relative motion of the 68 "
     "points, 3d = the anchor's own mesh turned by the driver's head rotation, expression in the canonical head "
     "frame; either way the mouth as open as the driver's; the driver's first frame mapped onto the anchor shot = "
@@ -46,8 +48,8 @@ CONVENTION = (
     "frontal, closed mouth), every method's output composited into the anchor shot (composite_face); all metrics "
     "on the composited frame, its landmarks detected once. mouth / eye corr = Pearson correlation, per driven "
     "sequence, of the driver's real (not retargeted) mouth / eye opening (inner-lip / eyelid gap over the "
-    "inter-ocular distance) with the output's detected one; mouth gain = least-squares slope (with intercept) of "
-    f"output on driver mouth opening (1 = the driver's amplitude); frames without a face dropped, NaN under "
+    "inter-ocular distance) with the output's detected one; mouth / eye gain = least-squares slope (with intercept) "
+    f"of output on driver opening (1 = the driver's amplitude); frames without a face dropped, NaN under "
     f"{MIN_FRAMES} frames or zero variance; mean over sequences. yaw / pitch / roll err = |head pose of the "
     "detected landmarks - that of the target landmarks| (solvePnP of the rigid points: upper jaw, nose, eyes, on a "
     "canonical face, so a dropped jaw is not pitch), degrees. NMKE = detected "
@@ -273,7 +275,7 @@ def _finite_mean(values: Sequence[float]) -> float:
 
 def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str], ks: Sequence[int]) -> list[dict[str, Any]]:
     """One row per (method, K) with cross records (keys: method, k, frames, sequences, mouth_corr, mouth_gain,
-    eye_corr, yaw_error, pitch_error, roll_error, nmke, idsim_source, sharpness_face, scene_psnr,
+    eye_corr, eye_gain, yaw_error, pitch_error, roll_error, nmke, idsim_source, sharpness_face, scene_psnr,
     scene_psnr_infinite, scene_psnr_of_mean_mse, scene_flicker, no_face); see CONVENTION."""
     rows = []
     for name in methods:
@@ -283,21 +285,22 @@ def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str], k
                 continue
             sequences: dict[str, list[dict[str, Any]]] = {}
             for record in group:
-                sequences.setdefault(record["identity"], []).append(record)
-            mouth_corr, mouth_gain, eye_corr, flicker = [], [], [], []
+                sequences.setdefault((record["identity"], record["driver"]), []).append(record)
+            mouth_corr, mouth_gain, eye_corr, eye_gain, flicker = [], [], [], [], []
             for members in sequences.values():
                 column = {key: np.array([r[key] for r in members], np.float64)
                           for key in ("driver_mouth", "output_mouth", "driver_eye", "output_eye", "scene_flicker")}
                 mouth_corr.append(opening_correlation(column["driver_mouth"], column["output_mouth"]))
                 mouth_gain.append(opening_gain(column["driver_mouth"], column["output_mouth"]))
                 eye_corr.append(opening_correlation(column["driver_eye"], column["output_eye"]))
+                eye_gain.append(opening_gain(column["driver_eye"], column["output_eye"]))
                 flicker.append(_finite_mean(column["scene_flicker"].tolist()))
             scene = metrics.summarise_psnr(np.array([r["scene_psnr"] for r in group]),
                                            np.array([r["scene_mse"] for r in group if np.isfinite(r["scene_mse"])]))
             rows.append({
                 "method": name, "k": k, "frames": len(group), "sequences": len(sequences),
                 "mouth_corr": _finite_mean(mouth_corr), "mouth_gain": _finite_mean(mouth_gain),
-                "eye_corr": _finite_mean(eye_corr),
+                "eye_corr": _finite_mean(eye_corr), "eye_gain": _finite_mean(eye_gain),
                 **{key: _finite_mean([r[key] for r in group]) for key in ("yaw_error", "pitch_error", "roll_error", "nmke")},
                 "idsim_source": _finite_mean([r["idsim_source"] for r in group]),
                 "sharpness_face": metrics.median_sharpness(np.array([r["sharpness_face"] for r in group])),

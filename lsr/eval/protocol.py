@@ -396,6 +396,7 @@ def run_protocol(
     frame_metrics: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] | None = None,
     progress: bool = True,
     retarget: str = "2d",
+    cross_drivers: int = 1,
 ) -> EvalRun:
     """Evaluate ``methods`` on ``identities`` for each K (see the module docstring).
 
@@ -408,11 +409,14 @@ def run_protocol(
     stored per frame in the records under its key (e.g. LPIPS). A method with ``finetune`` is also evaluated fine-tuned,
     as "<name>+ft", when ``finetune`` is true. retarget: how the cross-identity driver is moved onto the anchor
     (``landmarks.mesh_retarget.retarget_face``'s mode; "3d" needs the identities' meshes, "2d" elsewhere).
+    cross_drivers: each identity is driven by the next this many identities (i+1, i+2, ...; at most all others).
     """
     from tqdm import tqdm
 
     if not methods or not identities or not ks:
         raise ConfigError("evaluation needs at least one method, one identity and one K")
+    if cross_drivers < 1:
+        raise ConfigError(f"cross_drivers must be >= 1, got {cross_drivers}")
     records: list[dict[str, Any]] = []
     cross_records: list[dict[str, Any]] = []
     counts: dict[str, Any] = {"holdouts_without_face": {}, "inputs_without_face": {}}
@@ -452,29 +456,24 @@ def run_protocol(
             target_embeddings = [analysis.embedding(t, p) for t, p in zip(targets, target_landmarks)]
             source_embedding = idsim.mean_embedding(np.stack([analysis.embedding(s, p) for s, p in zip(shots, shot_landmarks)]))
             face_masks = np.stack([face_mask(p, targets.shape[1:3]) for p in target_landmarks]) if len(targets) else None
-            driver = identities[(position + 1) % len(identities)] if cross_identity and len(identities) > 1 else None
+            shifts = range(1, min(cross_drivers, len(identities) - 1) + 1) if cross_identity else range(0)
+            drivers = [identities[(position + shift) % len(identities)] for shift in shifts]
             target_segmentations = _rows_or_none(identity.holdout_segmentations, driveable)
-            sequence = None
-            if driver is not None:
+            sequences = []  # (sequence, the driver's segmentations): retargeted onto the anchor shot once per driver
+            for driver in drivers:  # every method gets the same targets
                 driver_rows = np.flatnonzero(np.isfinite(driver.holdout_landmarks).all(axis=(1, 2)))[: len(driveable)]
-                driver_segmentations = _rows_or_none(driver.holdout_segmentations, driver_rows)
-                if len(driver_rows):  # retargeted onto the anchor shot once; every method gets the same targets
+                if len(driver_rows):
                     meshes = identity.has_meshes and driver.has_meshes
-                    sequence = cross.prepare_sequence(
+                    sequences.append((cross.prepare_sequence(
                         k, identity.name, driver.name, driver_rows, shots, shot_landmarks,
                         driver.holdout_frames[driver_rows], driver.holdout_landmarks[driver_rows], source_embedding,
                         shot_meshes=identity.input_meshes[shot_indices] if meshes else None,  # type: ignore[index]
                         driver_meshes=driver.holdout_meshes[driver_rows] if meshes else None,  # type: ignore[index]
-                        retarget=retarget)
+                        retarget=retarget), _rows_or_none(driver.holdout_segmentations, driver_rows)))
             mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
-            cross_meshes: dict[str, np.ndarray] | None = None
             if any(takes_meshes(method) for method in methods) and identity.has_meshes:
-                shot_meshes = identity.input_meshes[shot_indices]  # type: ignore[index]
-                mesh_inputs = {"shot_meshes": shot_meshes, "target_meshes": identity.holdout_meshes[driveable]}  # type: ignore[index]
-                if sequence is not None:  # NaN where the driver has no meshes: the mesh methods fall back per frame
-                    target_meshes = (np.full((len(sequence.targets), 468, 3), np.nan) if sequence.target_meshes is None
-                                     else sequence.target_meshes)
-                    cross_meshes = {"shot_meshes": shot_meshes, "target_meshes": target_meshes.astype(np.float32)}
+                mesh_inputs = {"shot_meshes": identity.input_meshes[shot_indices],  # type: ignore[index]
+                               "target_meshes": identity.holdout_meshes[driveable]}  # type: ignore[index]
             for name, method, use_finetune in variants:
                 check_method_inputs(shots, shot_landmarks, target_landmarks)
                 if getattr(method, "needs_meshes", False) and mesh_inputs is None:
@@ -509,12 +508,16 @@ def run_protocol(
                         "no_face": found is None, "pose_distance": float(pose_distances[row]),
                         **{key: float(values[row]) for key, values in extra.items()},
                     })
-                if sequence is not None:
+                for sequence, driver_segmentations in sequences:
                     before = _warp_counts(model)
-                    # the oracle sees the driving frames' segmentation, i.e. identity i+1's own (not retargeted) layout
+                    # the oracle sees the driving frames' segmentation, i.e. the driver's own (not retargeted) layout
                     extra_inputs = {"target_segmentations": driver_segmentations} if oracle else {}
-                    if takes_meshes(model):
-                        extra_inputs.update(cross_meshes or {})
+                    if takes_meshes(model) and mesh_inputs is not None:  # NaN where the driver has no meshes: the
+                        # mesh methods fall back per frame
+                        target_meshes = (np.full((len(sequence.targets), 468, 3), np.nan)
+                                         if sequence.target_meshes is None else sequence.target_meshes)
+                        extra_inputs.update(shot_meshes=mesh_inputs["shot_meshes"],
+                                            target_meshes=target_meshes.astype(np.float32))
                     crossed = model.reenact(shots, shot_landmarks, sequence.targets, **extra_inputs)
                     _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))
                     _check_outputs(crossed, len(sequence.targets), targets.shape[1:], name)
@@ -534,6 +537,7 @@ def run_protocol(
         for record, label in zip(at_k, labels):
             record["bucket"] = label
     settings = {"ks": [int(k) for k in ks], "seed": seed, "max_holdouts": max_holdouts, "cross_identity": cross_identity,
+                "cross_drivers": int(cross_drivers),
                 "identities": [i.name for i in identities], "methods": [v[0] for v in variants],
                 "bucket_thresholds": "fixed" if fixed_thresholds else "terciles per K"}
     return EvalRun(records, cross_records, thresholds, counts, settings)

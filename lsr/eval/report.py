@@ -142,7 +142,7 @@ def _fmt(value: Any, digits: int = 3) -> str:
     return str(value)
 
 
-CROSS_COLUMNS = ("method", "K", "frames", "mouth corr ↑", "mouth gain →1", "eye corr ↑", "yaw / pitch / roll err ° ↓",
+CROSS_COLUMNS = ("method", "K", "frames", "mouth corr ↑", "mouth gain →1", "eye corr ↑", "eye gain →1", "yaw / pitch / roll err ° ↓",
                  "NMKE ↓", "ID-SIM to source ↑", "sharpness (face) →1", "scene PSNR ↑", "scene flicker ↓", "no face")
 
 
@@ -201,7 +201,7 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
         for row in summary["cross"]:
             angles = " / ".join(_fmt(row[f"{angle}_error"], 1) for angle in ("yaw", "pitch", "roll"))
             lines.append(f"| {row['method']} | {row['k']} | {row['frames']} | {_fmt(row['mouth_corr'], 2)} | "
-                         f"{_fmt(row['mouth_gain'], 2)} | {_fmt(row['eye_corr'], 2)} | {angles} | {_fmt(row['nmke'])} | "
+                         f"{_fmt(row['mouth_gain'], 2)} | {_fmt(row['eye_corr'], 2)} | {_fmt(row['eye_gain'], 2)} | {angles} | {_fmt(row['nmke'])} | "
                          f"{_fmt(row['idsim_source'])} | {_fmt(row['sharpness_face'], 2)} | {_scene_psnr(row)} | "
                          f"{_fmt(row['scene_flicker'], 2)} | {row['no_face']} |")
     warp = summary["counts"].get("warp_methods", {})
@@ -335,7 +335,8 @@ class CrossFigure:
             self.rows[sequence.identity] = {"frames": picks, "anchor": sequence.anchor_shot, "by": sequence.driver,
                                             "driver": sequence.driver_frames[[i for _, i in picks]], "methods": {}}
         row = self.rows[sequence.identity]
-        row["methods"][name] = composited[[i for _, i in row["frames"]]]
+        if row["by"] == sequence.driver:  # --cross-drivers N: the figure shows each identity's first driver
+            row["methods"][name] = composited[[i for _, i in row["frames"]]]
 
     def picture(self) -> np.ndarray:
         """Rows: per identity, per chosen frame; columns: driver frame (labelled with why it was chosen) | source
@@ -468,7 +469,7 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     run = run_protocol(methods, identities, cfg.k, FaceAnalysis(detector), seed=cfg.seed, max_holdouts=cfg.max_holdouts,
                        fixed_thresholds=thresholds, cross_identity=cfg.cross_identity, on_outputs=on_outputs,
                        on_cross_outputs=cross_figure, frame_metrics=frame_metrics, progress=cfg.progress,
-                       retarget=cfg.retarget)
+                       retarget=cfg.retarget, cross_drivers=cfg.cross_drivers)
     if skipped:
         run.counts["skipped_methods"] = skipped
     fid_results = {}

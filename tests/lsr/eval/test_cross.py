@@ -117,7 +117,7 @@ def test_figure_frames_pick_mouth_o_blink_and_turn():
 
 
 def _record(identity: str, driver_mouth: float, output_mouth: float, scene_psnr: float, **extra) -> dict:
-    base = {"method": "m", "k": 1, "identity": identity, "no_face": False, "idsim_source": 0.9, "nmke": 0.1,
+    base = {"method": "m", "k": 1, "identity": identity, "driver": "d", "no_face": False, "idsim_source": 0.9, "nmke": 0.1,
             "yaw_error": 2.0, "pitch_error": 1.0, "roll_error": 0.5, "driver_mouth": driver_mouth,
             "output_mouth": output_mouth, "driver_eye": 0.3, "output_eye": 0.3, "sharpness_face": 1.0,
             "scene_mse": 0.0 if math.isinf(scene_psnr) else 255.0**2 / 10 ** (scene_psnr / 10),
@@ -132,7 +132,7 @@ def test_summary_averages_per_sequence_measures():
     (row,) = cross.summarise_cross(records, ["m"], [1])
     assert row["frames"] == 8 and row["sequences"] == 2 and row["no_face"] == 1
     assert row["mouth_corr"] == pytest.approx(1.0) and row["mouth_gain"] == pytest.approx(1.25)  # mean of 2 and 0.5
-    assert math.isnan(row["eye_corr"])  # constant eyes: no correlation to speak of
+    assert math.isnan(row["eye_corr"]) and math.isnan(row["eye_gain"])  # constant eyes: no correlation or gain to speak of
     assert row["scene_psnr"] == pytest.approx(40.0) and row["scene_psnr_infinite"] == 4
     assert row["scene_flicker"] == pytest.approx(1.0) and row["nmke"] == pytest.approx(0.1)
     assert row["yaw_error"] == 2.0 and row["sharpness_face"] == 1.0

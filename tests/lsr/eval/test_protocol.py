@@ -189,3 +189,21 @@ def test_cross_identity_is_retargeted_composited_and_measured(rng):
     # the composite leaves the scene as it was: bit-identical outside the head regions, no flicker there
     assert all(r["scene_psnr"] >= 30.0 for r in run.cross_records)
     assert all(r["scene_flicker"] == 0.0 for r in run.cross_records if r["frame"] > 0)
+
+
+def test_each_identity_can_be_driven_by_several_others(rng):
+    """--cross-drivers N: identity i is driven by i+1 ... i+N (at most all the others), one sequence per pair."""
+    from lsr.eval.cross import summarise_cross
+
+    identities = [_posed_identity(rng, name) for name in "abc"]
+    analysis = protocol.FaceAnalysis(_FixedFaceDetector(identities[0].holdout_landmarks[2]))
+    method = _TargetSpy("spy")
+    run = protocol.run_protocol([method], identities, [5], analysis, finetune=False, progress=False, cross_drivers=5)
+    pairs = {(r["identity"], r["driver"]) for r in run.cross_records}
+    assert pairs == {(a, b) for a in "abc" for b in "abc" if a != b}
+    assert run.settings["cross_drivers"] == 5
+    assert summarise_cross(run.cross_records, ["spy"], [5])[0]["sequences"] == 6
+    one = protocol.run_protocol([method], identities, [5], analysis, finetune=False, progress=False)
+    assert {(r["identity"], r["driver"]) for r in one.cross_records} == {("a", "b"), ("b", "c"), ("c", "a")}
+    with pytest.raises(ConfigError, match="cross_drivers"):
+        protocol.run_protocol([method], identities, [5], analysis, progress=False, cross_drivers=0)

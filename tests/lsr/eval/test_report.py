@@ -33,7 +33,7 @@ def test_report_on_synthetic_identities(tmp_path, no_face_detector):
     assert "| tps | 1 | 8 |" in written and "| tps_mean3 | 1 | 8 |" in written
     header = next(line for line in written.splitlines() if line.startswith("| method | K | frames | PSNR"))
     assert "| PSNR face ↑ | SSIM ↑ | SSIM face ↑ | sharpness →1 | ID-SIM" in header
-    cross_header = ("| method | K | frames | mouth corr ↑ | mouth gain →1 | eye corr ↑ | yaw / pitch / roll err ° ↓ | "
+    cross_header = ("| method | K | frames | mouth corr ↑ | mouth gain →1 | eye corr ↑ | eye gain →1 | yaw / pitch / roll err ° ↓ | "
                     "NMKE ↓ | ID-SIM to source ↑ | sharpness (face) →1 | scene PSNR ↑ | scene flicker ↓ | no face |")
     assert cross_header in written.splitlines()
     # the fake detector finds (almost) no face: no expression to correlate; the scene is measured all the same
