@@ -142,7 +142,7 @@ class TestLidsAsDriver:
         lidded, driver, reference, source = self._drive(0.5, source_fraction)
         closed = 0.05
         share = (eyelids.lid_gaps(driver[0]) - closed) / (eyelids.lid_gaps(reference) - closed)
-        expected = closed + (eyelids.lid_gaps(source) - closed) * share
+        expected = closed + (eyelids.lid_gaps(source) - closed) * eyelids.lid_share(share)
         np.testing.assert_allclose(eyelids.lid_gaps(lidded[0]), expected, rtol=1e-9)
 
     def test_a_driver_blink_shuts_any_source_and_a_wide_eye_is_capped(self):
@@ -162,6 +162,24 @@ class TestLidsAsDriver:
         nowhere = np.full((468, 3), np.nan)
         np.testing.assert_array_equal(eyelids.lids_as_driver(frames, np.concatenate([driver, driver]), nowhere,
                                                              source), frames)
+
+
+def test_small_lid_motions_move_further_and_blinks_stay_blinks():
+    """lid_share: a small change of the driver's aperture moves the source's about SMALL_LID_GAIN times as far, a
+    blink still shuts the eye, a large change is the driver's own, the map keeps the order of the driver's shares
+    and its pull on the driver's reference is bounded (0.3 of the aperture at the defaults)."""
+    gain, span = eyelids.SMALL_LID_GAIN, eyelids.SMALL_LID_SPAN
+    for change in (-0.01, 0.01):
+        assert eyelids.lid_share(1 + change) - 1 == pytest.approx(gain * change, rel=0.01)
+    assert eyelids.lid_share(1.0) == 1.0 and eyelids.lid_share(0.0) == 0.0
+    assert eyelids.lid_share(1 - 2.5 * span) == pytest.approx(1 - 2.5 * span, abs=0.005)  # a large closing: the driver's
+    assert eyelids.lid_share(5.0) == eyelids.MAX_APERTURE
+    shares = np.linspace(0.0, 2.0, 2001)
+    mapped = eyelids.lid_share(shares)
+    assert (np.diff(mapped) >= 0).all() and np.diff(mapped).max() > 0
+    bound = (gain - 1) * span / np.sqrt(2) * np.exp(-0.5)
+    assert np.abs(mapped - np.clip(shares, 0, eyelids.MAX_APERTURE)).max() <= bound + 1e-9
+    np.testing.assert_allclose(eyelids.lid_share(shares, gain=1.0), np.clip(shares, 0, eyelids.MAX_APERTURE), atol=1e-12)
 
 
 def test_the_68_points_have_lids_too():
@@ -194,7 +212,8 @@ def test_retarget_driving_shuts_the_sources_eyes_at_the_drivers_blink():
     moved = retarget_driving(driver, reference, source)
     source_aperture = eyelids.lid_gaps(source) - eyelids.LID_CLOSED
     for frame, share in zip(moved, (1.0, 0.5, 0.0)):
-        np.testing.assert_allclose(eyelids.lid_gaps(frame), eyelids.LID_CLOSED + share * source_aperture, rtol=1e-6)
+        np.testing.assert_allclose(eyelids.lid_gaps(frame), eyelids.LID_CLOSED + eyelids.lid_share(share) * source_aperture,
+                                   rtol=1e-6)
 
 
 def test_a_collapsed_eye_is_left_as_it_is():
