@@ -283,7 +283,7 @@ def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str], k
             group = [r for r in records if r["method"] == name and r["k"] == k]
             if not group:
                 continue
-            sequences: dict[str, list[dict[str, Any]]] = {}
+            sequences: dict[tuple[str, str], list[dict[str, Any]]] = {}
             for record in group:
                 sequences.setdefault((record["identity"], record["driver"]), []).append(record)
             mouth_corr, mouth_gain, eye_corr, eye_gain, flicker = [], [], [], [], []
