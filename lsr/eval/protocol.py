@@ -471,9 +471,14 @@ def run_protocol(
                         driver_meshes=driver.holdout_meshes[driver_rows] if meshes else None,  # type: ignore[index]
                         retarget=retarget), _rows_or_none(driver.holdout_segmentations, driver_rows)))
             mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
+            cross_meshes: list[dict[str, np.ndarray]] = [{} for _ in sequences]  # per driver, made once
             if any(takes_meshes(method) for method in methods) and identity.has_meshes:
                 mesh_inputs = {"shot_meshes": identity.input_meshes[shot_indices],  # type: ignore[index]
                                "target_meshes": identity.holdout_meshes[driveable]}  # type: ignore[index]
+                for meshes_of, (sequence, _) in zip(cross_meshes, sequences):  # NaN where the driver has no meshes:
+                    target_meshes = (np.full((len(sequence.targets), 468, 3), np.nan)  # the mesh methods fall back
+                                     if sequence.target_meshes is None else sequence.target_meshes)  # per frame
+                    meshes_of.update(shot_meshes=mesh_inputs["shot_meshes"], target_meshes=target_meshes.astype(np.float32))
             for name, method, use_finetune in variants:
                 check_method_inputs(shots, shot_landmarks, target_landmarks)
                 if getattr(method, "needs_meshes", False) and mesh_inputs is None:
@@ -508,16 +513,12 @@ def run_protocol(
                         "no_face": found is None, "pose_distance": float(pose_distances[row]),
                         **{key: float(values[row]) for key, values in extra.items()},
                     })
-                for sequence, driver_segmentations in sequences:
+                for (sequence, driver_segmentations), meshes_of in zip(sequences, cross_meshes):
                     before = _warp_counts(model)
                     # the oracle sees the driving frames' segmentation, i.e. the driver's own (not retargeted) layout
                     extra_inputs = {"target_segmentations": driver_segmentations} if oracle else {}
-                    if takes_meshes(model) and mesh_inputs is not None:  # NaN where the driver has no meshes: the
-                        # mesh methods fall back per frame
-                        target_meshes = (np.full((len(sequence.targets), 468, 3), np.nan)
-                                         if sequence.target_meshes is None else sequence.target_meshes)
-                        extra_inputs.update(shot_meshes=mesh_inputs["shot_meshes"],
-                                            target_meshes=target_meshes.astype(np.float32))
+                    if takes_meshes(model):
+                        extra_inputs.update(meshes_of)
                     crossed = model.reenact(shots, shot_landmarks, sequence.targets, **extra_inputs)
                     _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))
                     _check_outputs(crossed, len(sequence.targets), targets.shape[1:], name)
