@@ -25,6 +25,8 @@ meshes (otherwise it is skipped and the skip counted). The runner also evaluates
     whose ground truth has no face cannot be driven and are skipped (counted); outputs with no
     detected face are counted (``no_face``), their NMKE is missing and their ID-SIM embedding
     is aligned with the ground-truth landmarks instead (the output is meant to be in that pose);
+  * mouth / eye correlation: the output's detected openings against the ground truth's, per identity, the
+    cross-identity measure where the answer is known (``lsr.eval.report.summarise``);
   * pose-variance buckets (thesis §4.5.1): the raw-landmark NMKE between the nearest source shot
     and the target (= the single shot at K = 1), split into low / medium / high;
   * cross-identity re-enactment (§4.4.3): identity i driven by identity i+1's hold-out landmarks as
@@ -44,6 +46,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from landmarks.expression import eye_opening, mouth_opening
 from landmarks.identity import DESCRIPTOR_SIZE, judged, same_person
 from lsr.errors import ConfigError, DatasetError
 from lsr.eval import cross, idsim
@@ -346,7 +349,8 @@ class FaceAnalysis:
 class EvalRun:
     """Everything a report needs. records: one dict per (method, K, identity, hold-out frame) with
     keys method, k, identity, frame, mse, psnr, ssim, psnr_face, ssim_face, sharpness, idsim, nmke, no_face,
-    pose_distance, bucket. cross_records: one per cross-identity frame, keys of ``lsr.eval.cross.evaluate_method``
+    pose_distance, bucket, truth_mouth / truth_eye (the ground truth's landmarks' openings) and output_mouth /
+    output_eye (the output's detected ones, NaN: no face). cross_records: one per cross-identity frame, keys of ``lsr.eval.cross.evaluate_method``
     (method, k, identity, driver, frame, anchor, no_face, idsim_source, nmke, yaw/pitch/roll_error, driver_mouth,
     driver_eye, output_mouth, output_eye, sharpness_face, scene_mse, scene_psnr, scene_flicker)."""
 
@@ -500,6 +504,7 @@ def run_protocol(
                 face_similarities = ssim(outputs, targets, mask=face_masks) if len(targets) else np.zeros(0)
                 sharpnesses = sharpness(outputs, targets)  # (T,) Laplacian-variance ratio, NaN for a flat ground truth
                 extra = {key: metric(outputs, targets) for key, metric in (frame_metrics or {}).items()}
+                truth_mouth, truth_eye = mouth_opening(target_landmarks), eye_opening(target_landmarks)  # (T,) each
                 for row, output in enumerate(outputs):
                     found = analysis.landmarks(output)
                     align = found if found is not None else target_landmarks[row]
@@ -511,6 +516,9 @@ def run_protocol(
                         "idsim": idsim.cosine_similarity(analysis.embedding(output, align), target_embeddings[row]),
                         "nmke": float(nmke(found, target_landmarks[row])) if found is not None else float("nan"),
                         "no_face": found is None, "pose_distance": float(pose_distances[row]),
+                        "truth_mouth": float(truth_mouth[row]), "truth_eye": float(truth_eye[row]),
+                        "output_mouth": float(mouth_opening(found)) if found is not None else float("nan"),
+                        "output_eye": float(eye_opening(found)) if found is not None else float("nan"),
                         **{key: float(values[row]) for key, values in extra.items()},
                     })
                 for (sequence, driver_segmentations), meshes_of in zip(sequences, cross_meshes):

@@ -207,3 +207,49 @@ def test_each_identity_can_be_driven_by_several_others(rng):
     assert {(r["identity"], r["driver"]) for r in one.cross_records} == {("a", "b"), ("b", "c"), ("c", "a")}
     with pytest.raises(ConfigError, match="cross_drivers"):
         protocol.run_protocol([method], identities, [5], analysis, progress=False, cross_drivers=0)
+
+
+class _ReadsTargetDetector:
+    """Reads back the hold-out landmarks whose row a test method wrote into the image's grey level."""
+
+    kind, max_side, upsample, min_score = "fake", 64, 0, 0.0
+
+    def __init__(self, holdout_landmarks: np.ndarray) -> None:
+        self.table = holdout_landmarks.astype(np.float32)
+
+    def detect(self, image):
+        from landmarks.detect import Face
+
+        row = int(image[0, 0, 0]) - 10
+        return [Face(np.array([0, 0, 1, 1], np.float32), self.table[row], 1.0)] if 0 <= row < len(self.table) else []
+
+
+class _DrawsRows:
+    """Writes target row t (or the rows in reverse) into its frames: the detector reads back that row's face."""
+
+    def __init__(self, name: str, reverse: bool = False):
+        self.name, self.reverse = name, reverse
+
+    def reenact(self, shots, shot_landmarks, target_landmarks):
+        count = len(target_landmarks)
+        rows = range(count - 1, -1, -1) if self.reverse else range(count)
+        return np.stack([np.full_like(shots[0], 10 + row) for row in rows])
+
+
+def test_self_reenactment_correlates_the_outputs_expression_with_the_truth(rng):
+    """Self re-enactment's mouth / eye corr: 1 for outputs that show the hold-outs' own faces, -1 in reverse order."""
+    from lsr.eval import report
+
+    identity = _posed_identity(rng, "a", count=6)
+    holdouts = identity.holdout_landmarks.astype(np.float64)
+    for t in range(len(holdouts)):  # the upper lids rise over the hold-outs, unevenly
+        holdouts[t, [37, 38, 43, 44], 1] -= 0.6 * t + 0.3 * (t % 2)
+    identity.holdout_landmarks = holdouts.astype(np.float32)
+    analysis = protocol.FaceAnalysis(_ReadsTargetDetector(identity.holdout_landmarks))
+    run = protocol.run_protocol([_DrawsRows("follows"), _DrawsRows("reversed", reverse=True)], [identity], [5],
+                                analysis, cross_identity=False, finetune=False, progress=False)
+    rows = {row["method"]: row for row in report.summarise(run)["rows"]}
+    assert rows["follows"]["mouth_corr"] == pytest.approx(1.0) and rows["follows"]["eye_corr"] == pytest.approx(1.0)
+    assert rows["reversed"]["mouth_corr"] < -0.9 and rows["reversed"]["eye_corr"] < 0
+    text = report.markdown(report.summarise(run), "| machine | |")
+    assert "| NMKE ↓ | mouth corr ↑ | eye corr ↑ | no face |" in text and "| 1.00 | 1.00 | 0 |" in text
