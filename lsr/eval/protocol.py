@@ -350,9 +350,10 @@ class EvalRun:
     """Everything a report needs. records: one dict per (method, K, identity, hold-out frame) with
     keys method, k, identity, frame, mse, psnr, ssim, psnr_face, ssim_face, sharpness, idsim, nmke, no_face,
     pose_distance, bucket, truth_mouth / truth_eye (the ground truth's landmarks' openings) and output_mouth /
-    output_eye (the output's detected ones, NaN: no face). cross_records: one per cross-identity frame, keys of ``lsr.eval.cross.evaluate_method``
-    (method, k, identity, driver, frame, anchor, no_face, idsim_source, nmke, yaw/pitch/roll_error, driver_mouth,
-    driver_eye, output_mouth, output_eye, sharpness_face, scene_mse, scene_psnr, scene_flicker)."""
+    output_eye (the output's detected ones, NaN: no face). cross_records: one per cross-identity frame, keys of
+    ``lsr.eval.cross.evaluate_method`` (method, k, identity, driver, frame, anchor, no_face, idsim_source, nmke,
+    yaw/pitch/roll_error, driver_mouth, driver_eye, output_mouth, output_eye, sharpness_face, scene_mse, scene_psnr,
+    scene_flicker)."""
 
     records: list[dict[str, Any]]
     cross_records: list[dict[str, Any]]
