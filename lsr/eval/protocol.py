@@ -480,10 +480,10 @@ def run_protocol(
             if any(takes_meshes(method) for method in methods) and identity.has_meshes:
                 mesh_inputs = {"shot_meshes": identity.input_meshes[shot_indices],  # type: ignore[index]
                                "target_meshes": identity.holdout_meshes[driveable]}  # type: ignore[index]
-                for meshes_of, (sequence, _) in zip(cross_meshes, sequences):  # NaN where the driver has no meshes:
-                    target_meshes = (np.full((len(sequence.targets), 468, 3), np.nan)  # the mesh methods fall back
-                                     if sequence.target_meshes is None else sequence.target_meshes)  # per frame
-                    meshes_of.update(shot_meshes=mesh_inputs["shot_meshes"], target_meshes=target_meshes.astype(np.float32))
+                # NaN where the driver has no meshes: the mesh methods fall back per frame
+                cross_meshes = [{"shot_meshes": mesh_inputs["shot_meshes"], "target_meshes": (
+                    np.full((len(sequence.targets), 468, 3), np.nan, np.float32) if sequence.target_meshes is None
+                    else sequence.target_meshes.astype(np.float32))} for sequence, _ in sequences]
             for name, method, use_finetune in variants:
                 check_method_inputs(shots, shot_landmarks, target_landmarks)
                 if getattr(method, "needs_meshes", False) and mesh_inputs is None:

@@ -163,8 +163,9 @@ def _fmt(value: Any, digits: int = 3) -> str:
     return str(value)
 
 
-CROSS_COLUMNS = ("method", "K", "frames", "mouth corr ↑", "mouth gain →1", "eye corr ↑", "eye gain →1", "yaw / pitch / roll err ° ↓",
-                 "NMKE ↓", "ID-SIM to source ↑", "sharpness (face) →1", "scene PSNR ↑", "scene flicker ↓", "no face")
+CROSS_COLUMNS = ("method", "K", "frames", "mouth corr ↑", "mouth gain →1", "eye corr ↑", "eye gain →1",
+                 "yaw / pitch / roll err ° ↓", "NMKE ↓", "ID-SIM to source ↑", "sharpness (face) →1", "scene PSNR ↑",
+                 "scene flicker ↓", "no face")
 
 
 def _scene_psnr(row: dict[str, Any]) -> str:
@@ -223,7 +224,8 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
         for row in summary["cross"]:
             angles = " / ".join(_fmt(row[f"{angle}_error"], 1) for angle in ("yaw", "pitch", "roll"))
             lines.append(f"| {row['method']} | {row['k']} | {row['frames']} | {_fmt(row['mouth_corr'], 2)} | "
-                         f"{_fmt(row['mouth_gain'], 2)} | {_fmt(row['eye_corr'], 2)} | {_fmt(row['eye_gain'], 2)} | {angles} | {_fmt(row['nmke'])} | "
+                         f"{_fmt(row['mouth_gain'], 2)} | {_fmt(row['eye_corr'], 2)} | {_fmt(row['eye_gain'], 2)} | "
+                         f"{angles} | {_fmt(row['nmke'])} | "
                          f"{_fmt(row['idsim_source'])} | {_fmt(row['sharpness_face'], 2)} | {_scene_psnr(row)} | "
                          f"{_fmt(row['scene_flicker'], 2)} | {row['no_face']} |")
     warp = summary["counts"].get("warp_methods", {})
