@@ -49,9 +49,10 @@ LICENSE_MEMBER = f"{PACKAGE}-{VERSION}.dist-info/LICENSE"
 MODELS = (
     ("mediapipe/modules/face_detection/face_detection_short_range.tflite", mesh.DETECTOR_FILE),
     ("mediapipe/modules/face_landmark/face_landmark.tflite", mesh.MESH_FILE),
+    ("mediapipe/modules/iris_landmark/iris_landmark.tflite", mesh.IRIS_FILE),
 )
 FRAMES_PER_VIDEO = 10
-POINT_TOLERANCE = 0.05  # crop pixels (of 192): far below what any tracker downstream can see
+POINT_TOLERANCE = 0.05  # crop pixels (of 192 for the mesh, 64 for the eyes): far below what anything downstream sees
 SCORE_TOLERANCE = 1e-3  # sigmoid scores: detection and face presence
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CLIPS = ("../shared/data/clips/tpsmm_driving.mp4",)
@@ -60,9 +61,10 @@ DEFAULT_REAL_COUNT = 2
 RANDOM_SIDE = 256
 
 NOTICE = f"""\
-face_detection_short_range.onnx and face_landmark.onnx in this folder are converted from the TensorFlow Lite
-models mediapipe/modules/face_detection/face_detection_short_range.tflite and
-mediapipe/modules/face_landmark/face_landmark.tflite of MediaPipe {VERSION}
+face_detection_short_range.onnx, face_landmark.onnx and iris_landmark.onnx in this folder are converted from the
+TensorFlow Lite models mediapipe/modules/face_detection/face_detection_short_range.tflite,
+mediapipe/modules/face_landmark/face_landmark.tflite and mediapipe/modules/iris_landmark/iris_landmark.tflite of
+MediaPipe {VERSION}
 (Copyright Google LLC; Apache License, Version 2.0: see LICENSE in this folder).
 
 Changes made: the file format was converted from TensorFlow Lite to ONNX (landmarks/tflite_onnx.py), and the
@@ -193,6 +195,21 @@ def compare_frame(image: np.ndarray, nets: dict[str, tuple[Any, Any]]) -> dict[s
     flags = [out[name] for out in (reference, converted) for name in out if out[name].size == 1]
     if len(points) != 2 or len(flags) != 2:
         raise ParityError("the mesh net should give 468 x 3 points and one presence logit")
+    # The eyes' squares come from the reference's mesh (in frame pixels), as refine_eye_contours makes them.
+    inverse = cv2.invertAffineTransform(region.to_crop(mesh.MESH_SIZE))
+    frame_mesh = points[0].astype(np.float64) * [1.0, 1.0, 0.0]
+    frame_mesh[:, :2] = frame_mesh[:, :2] @ inverse[:, :2].T + inverse[:, 2]
+    tflite_iris, onnx_iris = nets[mesh.IRIS_FILE]
+    iris_diff: dict[str, float] = {}
+    iris_px = 0.0
+    for corners, _, mirrored in mesh.EYE_CONTOURS:
+        eye_in = mesh.eye_input(image, mesh.eye_region(frame_mesh, corners), mirrored)
+        reference, converted = tflite_iris.run(eye_in), _run_onnx(onnx_iris, eye_in)
+        iris_diff = _merge_max([iris_diff, _max_abs(reference, converted)])
+        eyes = [out[name].reshape(-1, 3) for out in (reference, converted) for name in out if out[name].size == 71 * 3]
+        if len(eyes) != 2:
+            raise ParityError("the iris net should give 71 x 3 eye points")
+        iris_px = max(iris_px, float(np.linalg.norm(eyes[0][:, :2].astype(np.float64) - eyes[1][:, :2], axis=1).max()))
     return {
         "detected": detected,
         "detector_max_abs": detector_diff,
@@ -200,6 +217,8 @@ def compare_frame(image: np.ndarray, nets: dict[str, tuple[Any, Any]]) -> dict[s
         "mesh_max_abs": mesh_diff,
         "mesh_point_px": float(np.linalg.norm(points[0][:, :2].astype(np.float64) - points[1][:, :2], axis=1).max()),
         "presence_score": float(np.abs(mesh.sigmoid(flags[0]) - mesh.sigmoid(flags[1])).max()),
+        "iris_max_abs": iris_diff,
+        "iris_point_px": iris_px,
     }
 
 
@@ -257,21 +276,21 @@ def check_conversion(tflite_models: dict[str, bytes], onnx_models: dict[str, byt
         rows.append(_summarise("random", [0], [compare_frame(image, nets)]))
         inputs = (f"no video given or found: one seeded random image (numpy default_rng(0), {RANDOM_SIDE}x{RANDOM_SIDE} uint8); "
                   "no face in it, so the mesh saw a centred square crop")
-    keys = ("detection_score", "mesh_point_px", "presence_score")
+    keys = ("detection_score", "mesh_point_px", "presence_score", "iris_point_px")
     worst = {key: max(row[key] for row in rows) for key in keys}
-    worst["detector_max_abs"] = _merge_max(row["detector_max_abs"] for row in rows)
-    worst["mesh_max_abs"] = _merge_max(row["mesh_max_abs"] for row in rows)
+    for key in ("detector_max_abs", "mesh_max_abs", "iris_max_abs"):
+        worst[key] = _merge_max(row[key] for row in rows)
     record = {
         "inputs": inputs,
         "tflite_runtime": "ai-edge-litert Interpreter, default (XNNPACK) kernels, 1 thread",
         "onnx_runtime": "onnxruntime CPUExecutionProvider, 1 thread",
-        "tolerances": {"mesh_point_px": POINT_TOLERANCE, "score": SCORE_TOLERANCE},
+        "tolerances": {"mesh_point_px": POINT_TOLERANCE, "iris_point_px": POINT_TOLERANCE, "score": SCORE_TOLERANCE},
         "max": worst,
         "per_input": rows,
     }
     # `not <=` so that a NaN fails too
-    failed = [f"mesh points differ by {worst['mesh_point_px']:.4g} crop px (> {POINT_TOLERANCE})"
-              ] if not worst["mesh_point_px"] <= POINT_TOLERANCE else []
+    failed = [f"{key.split('_')[0]} points differ by {worst[key]:.4g} crop px (> {POINT_TOLERANCE})"
+              for key in ("mesh_point_px", "iris_point_px") if not worst[key] <= POINT_TOLERANCE]
     failed += [f"{key.replace('_', ' ')}s differ by {worst[key]:.4g} (> {SCORE_TOLERANCE})"
                for key in ("detection_score", "presence_score") if not worst[key] <= SCORE_TOLERANCE]
     if failed:
@@ -299,6 +318,8 @@ def _summarise(source: str, indices: list[int], results: list[dict[str, Any]]) -
         "mesh_max_abs": _merge_max(result["mesh_max_abs"] for result in results),
         "mesh_point_px": max(result["mesh_point_px"] for result in results),
         "presence_score": max(result["presence_score"] for result in results),
+        "iris_max_abs": _merge_max(result["iris_max_abs"] for result in results),
+        "iris_point_px": max(result["iris_point_px"] for result in results),
     }
 
 
@@ -388,7 +409,8 @@ def convert_wheel(wheel: Path | None, out: Path, videos: Sequence[Path],
 
 
 def summary_table(record: dict[str, Any]) -> str:
-    header = ("input", "frames", "faces", "det |d|max", "det score d", "mesh |d|max", "point d px", "presence d")
+    header = ("input", "frames", "faces", "det |d|max", "det score d", "mesh |d|max", "point d px", "presence d",
+              "eye point d px")
     lines = []
     check = record["check"]
     for row in [*check["per_input"], {"source": "all", "frames": sum((r["frames"] for r in check["per_input"]), []),
@@ -397,7 +419,7 @@ def summary_table(record: dict[str, Any]) -> str:
         lines.append((row["source"], str(len(row["frames"])), str(row["faces_detected"]),
                       f"{max(row['detector_max_abs'].values()):.2e}", f"{row['detection_score']:.2e}",
                       f"{max(row['mesh_max_abs'].values()):.2e}", f"{row['mesh_point_px']:.2e}",
-                      f"{row['presence_score']:.2e}"))
+                      f"{row['presence_score']:.2e}", f"{row['iris_point_px']:.2e}"))
     widths = [max(len(cells[i]) for cells in [header, *lines]) for i in range(len(header))]
     text = [" | ".join(cell.ljust(width) for cell, width in zip(cells, widths)) for cells in [header, *lines]]
     text.insert(1, "-+-".join("-" * width for width in widths))

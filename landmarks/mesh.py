@@ -10,6 +10,14 @@ MediaPipe's own graphs (face_detection_short_range_cpu, face_landmark_front_cpu)
 2. **Region of interest**: a square 1.5x the box's longer side, rotated so the eye line is level.
 3. **Mesh**: the region is sampled into 192x192 in [0, 1]; the net returns 468 (x, y, z) points in those
    pixels and a face-presence logit. Points go back to the frame through the region's affine transform.
+3b. **Eyes** (``refine_eye_contours``; MediaPipe's iris_landmark_left_and_right_cpu graph, as its face mesh does
+   with refined landmarks): a square 2.3x the eye-corner distance around each eye, levelled, is sampled into 64x64
+   in [0, 1] (the image-right eye mirrored: the net knows image-left eyes); the iris net's first 16 of its 71 eye
+   points replace the mesh's 16 eye-contour vertices of that eye (x, y; z stays). The mesh net alone barely moves
+   its lids: on the hold-out frames of the 7 shared evaluation clips its lid gap varies about 0.6 times as much
+   as the iris net's (standard deviation 0.011 against 0.018 eye distances, mean over the people), agrees with it
+   at 0.26-0.90 per person, and repeats itself less on the same frame moved by half a pixel and zoomed 2%
+   (correlation 0.54-0.97 per person, the iris net's 0.89-1.00).
 4. **Tracking** (``landmarks.mesh_track``): the next frame's region comes from this frame's mesh (eye corners
    33 and 263 level the square), so detection runs only when presence drops.
 
@@ -34,10 +42,20 @@ from landmarks.errors import ModelFilesError
 ASSETS = Path(__file__).resolve().parent / "assets" / "mediapipe"
 DETECTOR_FILE = "face_detection_short_range.onnx"
 MESH_FILE = "face_landmark.onnx"
+IRIS_FILE = "iris_landmark.onnx"
 MESH_POINTS = 468
 DETECTOR_SIZE = 128
 MESH_SIZE = 192
 ROI_SCALE = 1.5  # MediaPipe's RectTransformationCalculator scale for both the detection and the mesh region
+IRIS_SIZE = 64
+EYE_ROI_SCALE = 2.3  # MediaPipe's iris_landmark_landmarks_to_roi: the eye's square, 2.3x its corner distance
+EYE_CONTOURS = (
+    ((33, 133), (33, 7, 163, 144, 145, 153, 154, 155, 133, 246, 161, 160, 159, 158, 157, 173), False),
+    ((362, 263), (263, 249, 390, 373, 374, 380, 381, 382, 362, 466, 388, 387, 386, 385, 384, 398), True),
+)
+"""Per eye: the corners whose line the eye's square is levelled on (image left to right), the mesh vertices the iris
+net's first 16 points replace (corner, lower lid, corner, upper lid: MediaPipe's update_face_landmarks order), and
+whether the crop is mirrored (the image-right eye)."""
 EYE_CORNERS = (33, 263)  # mesh vertices of the image-left eye's outer corner and the image-right eye's outer corner
 
 
@@ -273,6 +291,56 @@ class MeshResult:
     mesh: np.ndarray
     presence: float
     region: Region
+
+
+def eye_region(mesh: np.ndarray, corners: tuple[int, int]) -> Region:
+    """The iris net's square around one eye: centred between its corners, levelled on them, ``EYE_ROI_SCALE``
+    times their distance wide."""
+    start, end = np.asarray(mesh[corners[0], :2], np.float64), np.asarray(mesh[corners[1], :2], np.float64)
+    rotation = -np.arctan2(-(end[1] - start[1]), end[0] - start[0])
+    centre = (start + end) / 2.0
+    side = float(np.linalg.norm(end - start)) * EYE_ROI_SCALE
+    return Region((float(centre[0]), float(centre[1])), side, float(rotation))
+
+
+def eye_crop(region: Region) -> np.ndarray:
+    """(2, 3) affine matrix from frame pixels into the iris net's 64x64 crop, pixel centres on integers (OpenCV's):
+    the region's centre lands at 31.5, between the middle pixels, so that mirroring the crop mirrors the eye about
+    its centre, as MediaPipe's continuous coordinates do."""
+    matrix = region.to_crop(IRIS_SIZE)
+    matrix[:, 2] -= 0.5
+    return matrix
+
+
+def eye_input(image: np.ndarray, region: Region, mirrored: bool) -> np.ndarray:
+    """The iris net's (1, 64, 64, 3) float32 input in [0, 1] for one eye's square (edge pixels repeated)."""
+    crop = cv2.warpAffine(image, eye_crop(region), (IRIS_SIZE, IRIS_SIZE), flags=cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE)
+    if mirrored:
+        crop = crop[:, ::-1]
+    return np.ascontiguousarray(crop.astype(np.float32) / 255.0)[None]
+
+
+def refine_eye_contours(image: np.ndarray, mesh: np.ndarray) -> np.ndarray:
+    """``mesh`` with both eyes' 16 contour vertices (x, y) from the iris net (module docstring, step 3b).
+    image: (H, W, 3) uint8 RGB; mesh: (468, 3) frame pixels -> (468, 3) float32 (a copy; unchanged when the mesh
+    is not finite or an eye's corners coincide)."""
+    refined = np.array(mesh, np.float32)
+    if not np.isfinite(refined).all():
+        return refined
+    net = session(IRIS_FILE)
+    for corners, contour, mirrored in EYE_CONTOURS:
+        region = eye_region(refined, corners)
+        if region.side < 1.0:
+            continue
+        outputs = net.run(None, {net.get_inputs()[0].name: eye_input(image, region, mirrored)})
+        points = next(out for out in outputs if out.size == 71 * 3).reshape(71, 3)[: len(contour), :2].astype(np.float64)
+        if mirrored:
+            points[:, 0] = IRIS_SIZE - points[:, 0]
+        points -= 0.5  # the net's pixels span [0, 64] (MediaPipe's normalised points); OpenCV's centres are integers
+        inverse = cv2.invertAffineTransform(eye_crop(region))
+        refined[list(contour), :2] = points @ inverse[:, :2].T + inverse[:, 2]
+    return refined
 
 
 def predict_mesh(image: np.ndarray, region: Region) -> MeshResult:
