@@ -343,8 +343,9 @@ def refine_eye_contours(image: np.ndarray, mesh: np.ndarray) -> np.ndarray:
     return refined
 
 
-def predict_mesh(image: np.ndarray, region: Region) -> MeshResult:
-    """Run the face-mesh net inside ``region`` of ``image`` ((H, W, 3) uint8 RGB)."""
+def predict_mesh(image: np.ndarray, region: Region, eyes: bool = True) -> MeshResult:
+    """Run the face-mesh net inside ``region`` of ``image`` ((H, W, 3) uint8 RGB); eyes: then refine both eyes'
+    contours with the iris net (``refine_eye_contours``)."""
     matrix = region.to_crop(MESH_SIZE)
     crop = cv2.warpAffine(image, matrix, (MESH_SIZE, MESH_SIZE), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     tensor = (crop.astype(np.float32) / 255.0)[None]  # (1, 192, 192, 3) in [0, 1]
@@ -356,6 +357,8 @@ def predict_mesh(image: np.ndarray, region: Region) -> MeshResult:
     z = points[:, 2] * (region.side / MESH_SIZE)
     mesh = np.concatenate([xy, z[:, None]], axis=1).astype(np.float32)
     presence = float(sigmoid(flag.reshape(-1)[0]))
+    if eyes:
+        mesh = refine_eye_contours(image, mesh)
     return MeshResult(mesh=mesh, presence=presence, region=region)
 
 

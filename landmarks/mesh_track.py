@@ -42,7 +42,8 @@ def box_area(box: np.ndarray) -> float:
 
 
 class MeshDetector(FaceDetector):
-    """BlazeFace (short range, tiled for small faces) + the 468-point mesh, 68 points mapped from it.
+    """BlazeFace (short range, tiled for small faces) + the 468-point mesh, its eye contours refined by the iris net
+    (``landmarks.mesh.refine_eye_contours``), 68 points mapped from it.
 
     min_score: detection probability threshold (MediaPipe's 0.5); min_presence: the mesh net's face
     probability below which a detection is dropped (a detector false positive).
@@ -56,7 +57,7 @@ class MeshDetector(FaceDetector):
 
     @property
     def settings(self) -> str:
-        return f"mesh/{self.min_score}/{self.min_presence}"
+        return f"mesh/{self.min_score}/{self.min_presence}/iris-eyes"
 
     def min_face_size(self, shape: tuple[int, ...]) -> int:
         # The short-range net finds faces down to about 1/8 of its 128-px view; tiles halve the view.

@@ -81,7 +81,7 @@ class TestShippedFiles:
     def test_sources_match_the_onnx_files(self):
         record = mesh.sources()
         assert record["source"]["sha256"] == cm.WHEEL_SHA256 and record["source"]["version"] == cm.VERSION
-        assert sorted(entry["onnx"] for entry in record["models"]) == sorted((mesh.DETECTOR_FILE, mesh.MESH_FILE))
+        assert sorted(entry["onnx"] for entry in record["models"]) == sorted((mesh.DETECTOR_FILE, mesh.MESH_FILE, mesh.IRIS_FILE))
         for entry in record["models"]:
             path = mesh.ASSETS / entry["onnx"]
             assert cm.sha256_file(path) == entry["onnx_sha256"], f"{path.name} is not the file SOURCES.json records"
@@ -91,7 +91,7 @@ class TestShippedFiles:
     def test_graphs_use_only_fast_onnxruntime_ops(self):
         """PReLU is lowered to relu(x) - slope * relu(-x): onnxruntime's PRelu kernel took 60 % of the mesh net."""
         onnx = pytest.importorskip("onnx")
-        for name in (mesh.DETECTOR_FILE, mesh.MESH_FILE):
+        for name in (mesh.DETECTOR_FILE, mesh.MESH_FILE, mesh.IRIS_FILE):
             ops = {node.op_type for node in onnx.load(str(mesh.ASSETS / name)).graph.node}
             assert "PRelu" not in ops and ops <= {"Conv", "Relu", "Neg", "Mul", "Sub", "Add", "MaxPool", "Pad",
                                                   "Transpose", "Identity", "Reshape", "Concat", "Sigmoid"}, ops
@@ -107,7 +107,7 @@ class TestShippedFiles:
     def test_check_passed_within_tolerance_and_no_machine_paths(self):
         record = mesh.sources()
         worst = record["check"]["max"]
-        assert worst["mesh_point_px"] <= cm.POINT_TOLERANCE
+        assert worst["mesh_point_px"] <= cm.POINT_TOLERANCE and worst["iris_point_px"] <= cm.POINT_TOLERANCE
         assert worst["detection_score"] <= cm.SCORE_TOLERANCE and worst["presence_score"] <= cm.SCORE_TOLERANCE
         assert not [s for s in _strings(record) if s.startswith("/") or "/work/" in s or "/tmp/" in s]
 
@@ -146,11 +146,12 @@ class TestWithoutWheel:
 
 class TestRebuildFromWheel:
     def test_rebuild_is_byte_identical_to_the_shipped_files(self, rebuilt):
-        for name in (mesh.DETECTOR_FILE, mesh.MESH_FILE, "LICENSE", "NOTICE"):
+        for name in (mesh.DETECTOR_FILE, mesh.MESH_FILE, mesh.IRIS_FILE, "LICENSE", "NOTICE"):
             assert cm.sha256_file(rebuilt / name) == cm.sha256_file(mesh.ASSETS / name), name
         record = json.loads((rebuilt / "SOURCES.json").read_text())
         assert record["models"] == mesh.sources()["models"]
         assert record["check"]["max"]["mesh_point_px"] <= cm.POINT_TOLERANCE
+        assert record["check"]["max"]["iris_point_px"] <= cm.POINT_TOLERANCE
 
     def test_failed_check_writes_nothing(self, wheel, convert_tools, tmp_path, monkeypatch):
         monkeypatch.setattr(cm, "POINT_TOLERANCE", 0.0)  # any real difference now fails
