@@ -1,7 +1,7 @@
 """Eyes that close as the driver's do: retargeted in proportion, and warped to the aperture (issue 23: blinks).
 
-The face mesh's lid vertices never meet: on a closed eye they sit on the lid's fold, still about ``LID_CLOSED``
-inter-ocular distances apart (``lid_gaps``). Two things follow.
+The lids never quite meet: on a closed eye they sit on the lid's fold, still about ``LID_CLOSED`` inter-ocular
+distances apart (``lid_gaps``). Two things follow.
 
 **Warping** (``close_lids``, called by ``landmarks.mesh_warp.warp_references_mesh``). A warp that moves a shot's
 lids onto a closing target's scales the whole gap between them, the visible aperture included, by the ratio of the
@@ -39,16 +39,19 @@ The run without the gain: the same command under ``python -c "import sys, landma
 1.0; from lsr.cli import main; sys.argv[0] = 'lsr'; main()" eval ...``.
 
 The same geometry serves the mesh (``MESH_LIDS``, MediaPipe's eye contours) and the 68 points (``POINTS_68_LIDS``).
-The constants are the default mesh detector's (its 68 points are mapped from the mesh); dlib's 68 points (``--detector
-hog``) shut at a smaller gap (about 0.06 at the frames where the mesh reads shut, over 23 training people who
-blink), so a dlib driver's eye reads as shut when about three quarters closed.
+The constants are the default mesh detector's (its 68 points are mapped from the mesh, eye contours refined);
+dlib's 68 points (``--detector hog``) shut at a wider gap (about 0.06 where the mesh net alone read shut, over 23
+training people who blink), so a dlib driver's blink leaves the source's eyes part open: for an open gap of 0.12,
+(0.06 - 0.036) / (0.12 - 0.036), about 0.3 of their aperture.
 
-``LID_CLOSED`` = 0.07 comes from the 56 training people (their 64 frames' meshes by the default detector): the
-smallest gap each person shows has a 1st percentile of 0.060 and a 5th of 0.076 over all frames, where the
-blinking people close their eyes. Narrow eyes close at a smaller gap: over the 34 people whose smallest gap is
-under 0.75 of their median, closed / open has a median of 0.63 (quartiles 0.56-0.69), so a face's closed gap is
-``closed_gaps`` = min(0.07, ``CLOSED_SHARE`` 0.6 x its open gap) (median error 0.010 against their smallest gaps;
-0.07 alone: 0.011, but a narrow-eyed shot open at 0.08 would have its lids slammed shut by a target at 0.075).
+``LID_CLOSED`` = 0.04 and ``CLOSED_SHARE`` = 0.3 come from the 56 training people, their lids as the default
+detector reads them, eye contours refined by the iris net (``landmarks.mesh``, step 3b; ``python -m
+landmarks.eyelids_survey ../shared/data/real_talking_heads``, 64 frames per clip): the 45 people who blink (their
+smallest gap under 0.75 of their median) close to a smallest gap of 0.038 (median over them; 1st percentile of all
+frames 0.027), and narrow eyes close at a smaller gap: closed / open has a median of 0.32 (quartiles 0.22-0.51). So a
+face's closed gap is ``closed_gaps`` = min(0.04, ``CLOSED_SHARE`` 0.3 x its open gap). The mesh net's own lids never
+meet: read without the iris net, the same frames give 0.075 and 0.61 (38 people blink; 1st percentile 0.061), which
+were the constants' values (0.07, 0.6) before the refinement; the measurements below were made with them.
 Measured on the 4 validation people (``lsr eval --data VAL --k 8 32``, warp-guided default), cross-identity eye
 correlation:
 
@@ -68,9 +71,9 @@ import dataclasses
 
 import numpy as np
 
-LID_CLOSED = 0.07
+LID_CLOSED = 0.04
 """The lid gap of a closed eye, in inter-ocular distances (``lid_gaps``), at most (``closed_gaps``)."""
-CLOSED_SHARE = 0.6
+CLOSED_SHARE = 0.3
 """A closed eye's gap is at most this share of the same eye's open gap (``closed_gaps``)."""
 MAX_APERTURE = 1.5  # a driver's eye opened wider than its reference's widens the source's at most this much
 MIN_APERTURE = 0.02  # a driver reference with its eyes (nearly) shut: its aperture counts as this

@@ -60,7 +60,7 @@ class TestCloseLids:
         becomes the target's, G_t - c."""
         shot, target = _mesh(), _blink(_mesh(), fraction)
         shot_gaps, target_gaps = eyelids.lid_gaps(shot), eyelids.lid_gaps(target)
-        closed = 0.05
+        closed = 0.8 * eyelids.CLOSED_SHARE * float(shot_gaps.min())  # below CLOSED_SHARE of either eye: the fold
         lowered = eyelids.close_lids(target, shot_gaps, closed=closed)
         expected = (target_gaps - closed) * shot_gaps / (shot_gaps - closed)
         np.testing.assert_allclose(eyelids.lid_gaps(lowered), expected, rtol=1e-6)
@@ -71,7 +71,7 @@ class TestCloseLids:
 
     def test_a_target_closed_to_the_fold_shuts_the_eye_on_a_turned_head(self):
         shot, target = _mesh(roll=30.0), _mesh(roll=-10.0)
-        closed = float(eyelids.lid_gaps(shot).min()) * 0.5  # below CLOSED_SHARE of either eye: the fold itself
+        closed = float(eyelids.lid_gaps(shot).min()) * 0.8 * eyelids.CLOSED_SHARE  # below CLOSED_SHARE: the fold
         for eye, gap in enumerate(eyelids.lid_gaps(target)):  # each eye down to a gap of ``closed``
             target = _blink(target, 1 - closed / gap, eyes=(eye,))
         np.testing.assert_allclose(eyelids.lid_gaps(target), closed, rtol=1e-6)
@@ -124,6 +124,9 @@ def test_set_lid_gaps_moves_the_upper_lids_only():
 
 
 class TestLidsAsDriver:
+    # the fold, below CLOSED_SHARE of every eye here (the narrowest: the source blinked 0.3 of the way)
+    CLOSED = 0.8 * eyelids.CLOSED_SHARE * 0.7 * float(eyelids.lid_gaps(_mesh()).min())
+
     def _drive(self, driver_fraction: float, source_fraction: float = 0.0):
         """A driver whose reference has open eyes blinks ``driver_fraction`` of the way; the source's retargeted
         mesh (here: the source itself, shifted) gets its lids from it."""
@@ -131,7 +134,7 @@ class TestLidsAsDriver:
         driver = _blink(reference, driver_fraction)[None]
         source = _blink(_mesh(scale=0.7, roll=10.0), source_fraction)
         retargeted = source[None] + np.array([3.0, -2.0, 0.0])
-        return eyelids.lids_as_driver(retargeted, driver, reference, source, closed=0.05), driver, reference, source
+        return eyelids.lids_as_driver(retargeted, driver, reference, source, closed=self.CLOSED), driver, reference, source
 
     def test_the_reference_frame_gives_the_source_its_own_eyes(self):
         lidded, _, _, source = self._drive(0.0, source_fraction=-0.4)  # a wide-eyed source
@@ -140,18 +143,18 @@ class TestLidsAsDriver:
     @pytest.mark.parametrize("source_fraction", [-0.4, 0.3])
     def test_the_aperture_follows_the_driver_in_proportion(self, source_fraction):
         lidded, driver, reference, source = self._drive(0.5, source_fraction)
-        closed = 0.05
+        closed = self.CLOSED
         share = (eyelids.lid_gaps(driver[0]) - closed) / (eyelids.lid_gaps(reference) - closed)
         expected = closed + (eyelids.lid_gaps(source) - closed) * eyelids.lid_share(share)
         np.testing.assert_allclose(eyelids.lid_gaps(lidded[0]), expected, rtol=1e-9)
 
     def test_a_driver_blink_shuts_any_source_and_a_wide_eye_is_capped(self):
-        driver_closed = 1 - 0.05 / eyelids.lid_gaps(_mesh(scale=0.5))  # the driver's lids down to the fold
+        driver_closed = 1 - self.CLOSED / eyelids.lid_gaps(_mesh(scale=0.5))  # the driver's lids down to the fold
         for source_fraction in (-0.4, 0.3):
             lidded, *_ = self._drive(float(driver_closed.mean()), source_fraction)
-            np.testing.assert_allclose(eyelids.lid_gaps(lidded[0]), 0.05, rtol=0.02)
+            np.testing.assert_allclose(eyelids.lid_gaps(lidded[0]), self.CLOSED, rtol=0.02)
         lidded, _, _, source = self._drive(-2.0)  # a driver opening its eyes three times as wide
-        expected = 0.05 + (eyelids.lid_gaps(source) - 0.05) * eyelids.MAX_APERTURE
+        expected = self.CLOSED + (eyelids.lid_gaps(source) - self.CLOSED) * eyelids.MAX_APERTURE
         np.testing.assert_allclose(eyelids.lid_gaps(lidded[0]), expected, rtol=1e-9)
 
     def test_missing_meshes_pass_through(self):
@@ -192,9 +195,9 @@ def test_the_68_points_have_lids_too():
     np.testing.assert_allclose(eyelids.lid_gaps(moved), 0.5 * gaps, rtol=1e-9)
     assert set(np.flatnonzero(np.abs(moved - points).max(axis=1) > 0)) == {37, 38, 43, 44}
     reference, source = points, eyelids.set_lid_gaps(points * 1.3, 1.4 * gaps)
-    shut = eyelids.set_lid_gaps(reference, np.full(2, eyelids.LID_CLOSED))[None]
+    shut = eyelids.set_lid_gaps(reference, eyelids.closed_gaps(eyelids.lid_gaps(reference)))[None]
     np.testing.assert_allclose(eyelids.lid_gaps(eyelids.lids_as_driver(source[None], shut, reference, source)[0]),
-                               eyelids.LID_CLOSED, rtol=1e-9)
+                               eyelids.closed_gaps(eyelids.lid_gaps(source)), rtol=1e-9)
     with pytest.raises(ValueError, match="468"):
         eyelids.lid_gaps(points[:60])
 
@@ -206,13 +209,13 @@ def test_retarget_driving_shuts_the_sources_eyes_at_the_drivers_blink():
     reference = mesh_to_68(_mesh()[:, :2]).astype(np.float64)
     source = eyelids.set_lid_gaps(mesh_to_68(_mesh(scale=0.8, roll=10.0)[:, :2]).astype(np.float64),
                                   1.5 * eyelids.lid_gaps(reference))  # a wide-eyed source
-    half = eyelids.LID_CLOSED + 0.5 * (eyelids.lid_gaps(reference) - eyelids.LID_CLOSED)
-    driver = np.stack([reference, eyelids.set_lid_gaps(reference, half),
-                       eyelids.set_lid_gaps(reference, np.full(2, eyelids.LID_CLOSED))])
+    driver_shut, source_shut = (eyelids.closed_gaps(eyelids.lid_gaps(face)) for face in (reference, source))
+    half = driver_shut + 0.5 * (eyelids.lid_gaps(reference) - driver_shut)
+    driver = np.stack([reference, eyelids.set_lid_gaps(reference, half), eyelids.set_lid_gaps(reference, driver_shut)])
     moved = retarget_driving(driver, reference, source)
-    source_aperture = eyelids.lid_gaps(source) - eyelids.LID_CLOSED
+    source_aperture = eyelids.lid_gaps(source) - source_shut
     for frame, share in zip(moved, (1.0, 0.5, 0.0)):
-        np.testing.assert_allclose(eyelids.lid_gaps(frame), eyelids.LID_CLOSED + eyelids.lid_share(share) * source_aperture,
+        np.testing.assert_allclose(eyelids.lid_gaps(frame), source_shut + eyelids.lid_share(share) * source_aperture,
                                    rtol=1e-6)
 
 

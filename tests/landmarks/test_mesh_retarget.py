@@ -169,7 +169,7 @@ def test_retarget_face_shuts_the_sources_eyes_at_the_drivers_blink(mode):
     from landmarks import eyelids
 
     reference = _head(90.0, (200.0, 220.0))
-    blink = eyelids.set_lid_gaps(reference, np.full(2, eyelids.LID_CLOSED))  # the upper lids down to the fold
+    blink = eyelids.set_lid_gaps(reference, eyelids.closed_gaps(eyelids.lid_gaps(reference)))  # lids down to the fold
     source = eyelids.set_lid_gaps(_head(120.0, (250.0, 260.0)), eyelids.lid_gaps(reference) * 1.4)  # wide eyes
     driver = np.stack([reference, blink])
     landmarks = mesh_to_68(driver[..., :2]).astype(np.float64)
@@ -177,7 +177,8 @@ def test_retarget_face_shuts_the_sources_eyes_at_the_drivers_blink(mode):
     targets, meshes = mesh_retarget.retarget_face(landmarks, landmarks[0], source_points, driver, reference, source,
                                                   mode=mode)
     np.testing.assert_allclose(eyelids.lid_gaps(meshes[0]), eyelids.lid_gaps(source), rtol=1e-6)
-    np.testing.assert_allclose(eyelids.lid_gaps(meshes[1]), eyelids.LID_CLOSED, rtol=1e-6)
-    open_gap = eyelids.lid_gaps(source_points) - eyelids.LID_CLOSED  # the 68 points' lids, measured on them
+    np.testing.assert_allclose(eyelids.lid_gaps(meshes[1]), eyelids.closed_gaps(eyelids.lid_gaps(source)), rtol=1e-6)
+    shut = eyelids.closed_gaps(eyelids.lid_gaps(source_points))  # the 68 points' lids, measured on them
+    open_gap = eyelids.lid_gaps(source_points) - shut
     assert np.abs(eyelids.lid_gaps(targets[0]) - eyelids.lid_gaps(source_points)).max() < 0.05 * open_gap.min()
-    assert (eyelids.lid_gaps(targets[1]) - eyelids.LID_CLOSED < 0.25 * open_gap).all()
+    assert (eyelids.lid_gaps(targets[1]) - shut < 0.25 * open_gap).all()
