@@ -45,8 +45,8 @@ training people who blink), so a dlib driver's blink leaves the source's eyes pa
 (0.06 - 0.036) / (0.12 - 0.036), about 0.3 of their aperture.
 
 ``LID_CLOSED`` = 0.04 and ``CLOSED_SHARE`` = 0.3 come from the 56 training people, their lids as the default
-detector reads them, eye contours refined by the iris net (``landmarks.mesh``, step 3b; ``python -m
-landmarks.eyelids_survey ../shared/data/real_talking_heads``, 64 frames per clip): the 45 people who blink (their
+detector reads them, eye contours refined by the iris net (``landmarks.mesh``, step 3b; ``lsr face-models lids
+../shared/data/real_talking_heads``, 64 frames per clip): the 45 people who blink (their
 smallest gap under 0.75 of their median) close to a smallest gap of 0.038 (median over them; 1st percentile of all
 frames 0.027), and narrow eyes close at a smaller gap: closed / open has a median of 0.32 (quartiles 0.22-0.51). So a
 face's closed gap is ``closed_gaps`` = min(0.04, ``CLOSED_SHARE`` 0.3 x its open gap). The mesh net's own lids never

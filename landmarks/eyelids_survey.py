@@ -1,7 +1,7 @@
 """Where the training people's lids sit when their eyes close: the survey behind ``landmarks.eyelids.LID_CLOSED``
 and ``CLOSED_SHARE``, for the mesh net's own eye contours and for the refined ones (``landmarks.mesh``, step 3b).
 
-    python -m landmarks.eyelids_survey ../shared/data/real_talking_heads [--frames-per-clip 64]
+    lsr face-models lids ../shared/data/real_talking_heads [--frames-per-clip 64]
 
 Per training person (the validation people left out, as ``lsr face-models fit`` does), on frames spread evenly
 through each clip: the mean lid gap of both eyes (``landmarks.eyelids.lid_gaps``) of the largest face, once from the
@@ -12,9 +12,9 @@ their closed / open ratio (smallest over median).
 
 from __future__ import annotations
 
-import argparse
 import collections
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -60,15 +60,13 @@ def summary(gaps: dict[str, dict[str, list[float]]], kind: str) -> str:
             f"closed / open median {np.median(ratio):.2f} (quartiles {np.percentile(ratio, 25):.2f}-{np.percentile(ratio, 75):.2f})")
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("data", type=Path, help="the real_talking_heads folder")
-    parser.add_argument("--frames-per-clip", type=int, default=64)
-    args = parser.parse_args(argv)
-    gaps = survey(args.data, args.frames_per_clip)
+def run_survey(cfg: Any) -> dict[str, dict[str, list[float]]]:
+    """Entry point of ``lsr face-models lids`` (``lsr.config.FaceModelsLidsConfig``): survey, print both summaries."""
+    from landmarks.errors import InputFileError
+
+    if not any(Path(cfg.data).glob("real*/**/*.mp4")):
+        raise InputFileError(f"no real*/**/*.mp4 clips under {cfg.data}; give the real_talking_heads folder")
+    gaps = survey(Path(cfg.data), cfg.frames_per_clip)
     for kind in ("mesh", "refined"):
         print(summary(gaps, kind))
-
-
-if __name__ == "__main__":
-    main()
+    return gaps

@@ -123,6 +123,7 @@ GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
     "face-models": {
         "convert": (config.FaceModelsConvertConfig, "landmarks.convert_mediapipe:run_convert"),
         "fit": (config.FaceModelsFitConfig, "landmarks.mesh68:run_fit"),
+        "lids": (config.FaceModelsLidsConfig, "landmarks.eyelids_survey:run_survey"),
     },
 }
 

@@ -454,3 +454,18 @@ class FaceModelsFitConfig:
         if self.frames_per_clip < 1:
             raise ConfigError(f"--frames-per-clip must be >= 1, got {self.frames_per_clip}")
 
+
+@dataclasses.dataclass
+class FaceModelsLidsConfig:
+    """Survey where the training people's lids sit when their eyes close (landmarks.eyelids_survey): the numbers
+    behind landmarks.eyelids.LID_CLOSED and CLOSED_SHARE, for the mesh net's own eye contours and the refined ones."""
+
+    data: tyro.conf.Positional[Path]
+    """The real_talking_heads folder (training people; the validation people are left out)."""
+    frames_per_clip: int = 64
+    """Frames spread through each clip."""
+
+    def validate(self) -> None:
+        if self.frames_per_clip < 1:
+            raise ConfigError(f"--frames-per-clip must be >= 1, got {self.frames_per_clip}")
+
