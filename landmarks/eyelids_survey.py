@@ -34,7 +34,8 @@ def survey(data: Path, frames_per_clip: int = 64) -> dict[str, dict[str, list[fl
 
     detector = MeshDetector()
     gaps: dict[str, dict[str, list[float]]] = collections.defaultdict(lambda: {"mesh": [], "refined": []})
-    videos = sorted(path for path in data.glob("real*/**/*.mp4") if path.relative_to(data).parts[0] not in VALIDATION_PEOPLE)
+    videos = sorted(path for path in data.glob("real*/**/*.mp4")
+                    if path.relative_to(data).parts[0] not in VALIDATION_PEOPLE)
     for video in tqdm(videos, desc="lid gaps", unit="clip"):
         person = video.relative_to(data).parts[0]
         count = probe_video(video).frames
@@ -56,8 +57,9 @@ def summary(gaps: dict[str, dict[str, list[float]]], kind: str) -> str:
     blink = smallest < BLINKING * median
     ratio = smallest[blink] / median[blink]
     return (f"{kind:8s} {len(people)} people: all frames 1st / 5th percentile {np.percentile(every, 1):.3f} / "
-            f"{np.percentile(every, 5):.3f}; {int(blink.sum())} blink: smallest gap median {np.median(smallest[blink]):.3f}, "
-            f"closed / open median {np.median(ratio):.2f} (quartiles {np.percentile(ratio, 25):.2f}-{np.percentile(ratio, 75):.2f})")
+            f"{np.percentile(every, 5):.3f}; {int(blink.sum())} blink: smallest gap median "
+            f"{np.median(smallest[blink]):.3f}, closed / open median {np.median(ratio):.2f} "
+            f"(quartiles {np.percentile(ratio, 25):.2f}-{np.percentile(ratio, 75):.2f})")
 
 
 def run_survey(cfg: Any) -> dict[str, dict[str, list[float]]]:

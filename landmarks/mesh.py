@@ -334,7 +334,8 @@ def refine_eye_contours(image: np.ndarray, mesh: np.ndarray) -> np.ndarray:
         if region.side < 1.0:
             continue
         outputs = net.run(None, {net.get_inputs()[0].name: eye_input(image, region, mirrored)})
-        points = next(out for out in outputs if out.size == 71 * 3).reshape(71, 3)[: len(contour), :2].astype(np.float64)
+        eye_points = next(out for out in outputs if out.size == 71 * 3).reshape(71, 3)
+        points = eye_points[: len(contour), :2].astype(np.float64)
         if mirrored:
             points[:, 0] = IRIS_SIZE - points[:, 0]
         points -= 0.5  # the net's pixels span [0, 64] (MediaPipe's normalised points); OpenCV's centres are integers

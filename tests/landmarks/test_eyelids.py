@@ -134,7 +134,8 @@ class TestLidsAsDriver:
         driver = _blink(reference, driver_fraction)[None]
         source = _blink(_mesh(scale=0.7, roll=10.0), source_fraction)
         retargeted = source[None] + np.array([3.0, -2.0, 0.0])
-        return eyelids.lids_as_driver(retargeted, driver, reference, source, closed=self.CLOSED), driver, reference, source
+        lidded = eyelids.lids_as_driver(retargeted, driver, reference, source, closed=self.CLOSED)
+        return lidded, driver, reference, source
 
     def test_the_reference_frame_gives_the_source_its_own_eyes(self):
         lidded, _, _, source = self._drive(0.0, source_fraction=-0.4)  # a wide-eyed source

@@ -237,7 +237,7 @@ def test_the_iris_net_moves_only_the_eye_contours_and_keeps_them_in_order(astron
     assert np.abs(refined - raw).max() < 0.1 * distance  # a refinement, not a different face
     for _, contour, _ in face_mesh.EYE_CONTOURS:
         lower, upper = refined[list(contour[1:8]), 1], refined[list(contour[9:]), 1]
-        assert (upper < lower.max()).all() and upper.mean() < lower.mean() - 0.05 * distance  # open eyes: upper lid above
+        assert (upper < lower.max()).all() and upper.mean() < lower.mean() - 0.05 * distance  # open: upper lid above
     assert np.isnan(face_mesh.refine_eye_contours(astronaut, np.full((468, 3), np.nan))).all()
 
 
