@@ -196,14 +196,12 @@ def compare_frame(image: np.ndarray, nets: dict[str, tuple[Any, Any]]) -> dict[s
     if len(points) != 2 or len(flags) != 2:
         raise ParityError("the mesh net should give 468 x 3 points and one presence logit")
     # The eyes' squares come from the reference's mesh (in frame pixels), as refine_eye_contours makes them.
-    inverse = cv2.invertAffineTransform(region.to_crop(mesh.MESH_SIZE))
-    frame_mesh = points[0].astype(np.float64) * [1.0, 1.0, 0.0]
-    frame_mesh[:, :2] = frame_mesh[:, :2] @ inverse[:, :2].T + inverse[:, 2]
+    frame_points = mesh.to_frame(points[0][:, :2].astype(np.float64), region.to_crop(mesh.MESH_SIZE))
     tflite_iris, onnx_iris = nets[mesh.IRIS_FILE]
     iris_diff: dict[str, float] = {}
     iris_px = 0.0
     for corners, _, mirrored in mesh.EYE_CONTOURS:
-        eye_in = mesh.eye_input(image, mesh.eye_region(frame_mesh, corners), mirrored)
+        eye_in = mesh.eye_input(image, mesh.eye_region(frame_points, corners), mirrored)
         reference, converted = tflite_iris.run(eye_in), _run_onnx(onnx_iris, eye_in)
         iris_diff = _merge_max([iris_diff, _max_abs(reference, converted)])
         eyes = [out[name].reshape(-1, 3) for out in (reference, converted) for name in out if out[name].size == 71 * 3]

@@ -24,9 +24,11 @@ BLINKING = 0.75  # a person whose smallest gap is under this share of their medi
 
 
 def survey(data: Path, frames_per_clip: int = 64) -> dict[str, dict[str, list[float]]]:
-    """{person: {"mesh": gaps, "refined": gaps}} over the training clips under ``data`` (real*/**/*.mp4)."""
+    """{person: {"mesh": gaps, "refined": gaps}} over the training clips under ``data`` (real*/**/*.mp4);
+    InputFileError when there are none."""
     from tqdm import tqdm
 
+    from landmarks.errors import InputFileError
     from landmarks import mesh as face_mesh
     from landmarks.mesh68 import VALIDATION_PEOPLE
     from landmarks.mesh_track import MeshDetector
@@ -36,15 +38,18 @@ def survey(data: Path, frames_per_clip: int = 64) -> dict[str, dict[str, list[fl
     gaps: dict[str, dict[str, list[float]]] = collections.defaultdict(lambda: {"mesh": [], "refined": []})
     videos = sorted(path for path in data.glob("real*/**/*.mp4")
                     if path.relative_to(data).parts[0] not in VALIDATION_PEOPLE)
+    if not videos:
+        raise InputFileError(f"no real*/**/*.mp4 clips under {data}; give the real_talking_heads folder")
     for video in tqdm(videos, desc="lid gaps", unit="clip"):
         person = video.relative_to(data).parts[0]
         count = probe_video(video).frames
         picks = set(np.linspace(0, max(count - 1, 0), min(frames_per_clip, count)).round().astype(int).tolist())
         for index, frame in enumerate(iter_frames(video)):
             if index in picks and (found := detector.meshes(frame)):
-                raw = face_mesh.predict_mesh(frame, found[0][1].region, eyes=False).mesh
+                result = found[0][1]  # its mesh: the region's, eyes refined; the mesh net's own on the same region
+                raw = face_mesh.predict_mesh(frame, result.region, eyes=False).mesh
                 gaps[person]["mesh"].append(float(lid_gaps(raw).mean()))
-                gaps[person]["refined"].append(float(lid_gaps(face_mesh.refine_eye_contours(frame, raw)).mean()))
+                gaps[person]["refined"].append(float(lid_gaps(result.mesh).mean()))
             if index >= max(picks):
                 break
     return dict(gaps)
@@ -64,10 +69,6 @@ def summary(gaps: dict[str, dict[str, list[float]]], kind: str) -> str:
 
 def run_survey(cfg: Any) -> dict[str, dict[str, list[float]]]:
     """Entry point of ``lsr face-models lids`` (``lsr.config.FaceModelsLidsConfig``): survey, print both summaries."""
-    from landmarks.errors import InputFileError
-
-    if not any(Path(cfg.data).glob("real*/**/*.mp4")):
-        raise InputFileError(f"no real*/**/*.mp4 clips under {cfg.data}; give the real_talking_heads folder")
     gaps = survey(Path(cfg.data), cfg.frames_per_clip)
     for kind in ("mesh", "refined"):
         print(summary(gaps, kind))

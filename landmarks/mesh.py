@@ -293,6 +293,12 @@ class MeshResult:
     region: Region
 
 
+def to_frame(points: np.ndarray, crop: np.ndarray) -> np.ndarray:
+    """(N, 2) points in a crop's pixels -> frame pixels, through the inverse of the (2, 3) frame-to-crop matrix."""
+    inverse = cv2.invertAffineTransform(crop)
+    return points @ inverse[:, :2].T + inverse[:, 2]
+
+
 def eye_region(mesh: np.ndarray, corners: tuple[int, int]) -> Region:
     """The iris net's square around one eye: centred between its corners, levelled on them, ``EYE_ROI_SCALE``
     times their distance wide."""
@@ -339,8 +345,7 @@ def refine_eye_contours(image: np.ndarray, mesh: np.ndarray) -> np.ndarray:
         if mirrored:
             points[:, 0] = IRIS_SIZE - points[:, 0]
         points -= 0.5  # the net's pixels span [0, 64] (MediaPipe's normalised points); OpenCV's centres are integers
-        inverse = cv2.invertAffineTransform(eye_crop(region))
-        refined[list(contour), :2] = points @ inverse[:, :2].T + inverse[:, 2]
+        refined[list(contour), :2] = to_frame(points, eye_crop(region))
     return refined
 
 
@@ -353,8 +358,7 @@ def predict_mesh(image: np.ndarray, region: Region, eyes: bool = True) -> MeshRe
     net = session(MESH_FILE)
     raw, flag = net.run(None, {net.get_inputs()[0].name: tensor})
     points = raw.reshape(MESH_POINTS, 3).astype(np.float64)
-    inverse = cv2.invertAffineTransform(matrix)
-    xy = points[:, :2] @ inverse[:, :2].T + inverse[:, 2]
+    xy = to_frame(points[:, :2], matrix)
     z = points[:, 2] * (region.side / MESH_SIZE)
     mesh = np.concatenate([xy, z[:, None]], axis=1).astype(np.float32)
     presence = float(sigmoid(flag.reshape(-1)[0]))
