@@ -18,11 +18,12 @@ Meshes: (468, 3) float x, y frame pixels, z depth in the same units (smaller = n
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
 
-from landmarks.eyelids import lids_as_driver
+from landmarks.eyelids import LidReference, lid_gaps, lids_as_driver
 from landmarks.mesh68 import mesh_to_68
 from landmarks.mesh_warp import MESH_POINTS, check_mesh, frontal_canonical
 
@@ -154,9 +155,47 @@ def retarget_mesh_3d(driver_meshes: np.ndarray, driver_reference: np.ndarray, so
 RETARGET_MODES = ("2d", "3d")
 
 
+@dataclasses.dataclass
+class DriverReference:
+    """A stream's driver reference, as ``lsr reenact`` and the live tab keep it: its first face (68 points in crop
+    pixels, and its mesh or None), which relative motion is measured from, and the reference lid gaps of both
+    kinds of face (``landmarks.eyelids.LidReference``: the median of the driver's so far and of those seen ahead,
+    so a first face that blinks does not make every later eye look wide open). ``lids`` on each driver face as
+    detected, then ``start`` on the first one found; ``reset`` for a new driver."""
+
+    landmarks: np.ndarray | None = None
+    mesh: np.ndarray | None = None
+    lid_reference: LidReference = dataclasses.field(default_factory=LidReference)
+    mesh_lid_reference: LidReference = dataclasses.field(default_factory=LidReference)
+
+    def start(self, landmarks: np.ndarray, mesh: np.ndarray | None = None) -> None:
+        """The reference face, unless there is one already."""
+        if self.landmarks is None:
+            self.landmarks, self.mesh = landmarks, mesh
+
+    def reset(self) -> None:
+        """No reference face, no lid history: the next face starts both anew."""
+        self.landmarks = self.mesh = None
+        self.lid_reference.reset()
+        self.mesh_lid_reference.reset()
+
+    def look_ahead(self, landmarks: list, meshes: list) -> None:
+        """The driver's next faces (None: none found), seen before the first is driven
+        (``landmarks.eyelids.LidReference.look_ahead``)."""
+        self.lid_reference.look_ahead(landmarks)
+        self.mesh_lid_reference.look_ahead(meshes)
+
+    def lids(self, landmarks: np.ndarray, mesh: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """One driver face in, as detected (68 points, mesh or None): the reference lid gaps of its 68 points and
+        of its mesh, (2,) each (NaN: none yet)."""
+        nowhere = np.full((468, 3), np.nan)
+        return self.lid_reference(landmarks), self.mesh_lid_reference(nowhere if mesh is None else mesh)
+
+
 def retarget_face(driver_landmarks: np.ndarray, driver_reference_landmarks: np.ndarray, source_landmarks: np.ndarray,
                   driver_meshes: np.ndarray | None = None, driver_reference_mesh: np.ndarray | None = None,
-                  source_mesh: np.ndarray | None = None, mode: str = "2d") -> tuple[np.ndarray, np.ndarray | None]:
+                  source_mesh: np.ndarray | None = None, mode: str = "2d", reference_gaps: np.ndarray | None = None,
+                  mesh_reference_gaps: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """What a source is driven with, its 68 points and (where there are meshes) its mesh, as ``lsr reenact`` and
     ``lsr eval`` drive it.
 
@@ -165,7 +204,10 @@ def retarget_face(driver_landmarks: np.ndarray, driver_reference_landmarks: np.n
     as "2d". mode "2d": ``landmarks.retarget.retarget_driving`` of the 68 points, and ``retarget_mesh`` of the
     meshes (with the driver frame's depth, which orders overlapping triangles as its head is turned). Either way
     the lids close as the driver's do, in proportion to the source's own eyes (``landmarks.eyelids.lids_as_driver``,
-    which ``retarget_driving`` applies to the 68 points).
+    which ``retarget_driving`` applies to the 68 points), measured against the driver reference's lid gaps:
+    ``reference_gaps`` of its 68 points and ``mesh_reference_gaps`` of its mesh, (2,) or (T, 2) each
+    (``landmarks.eyelids.LidReference``: the median of the driver's so far, robust to a blink), None for those of
+    the reference frame.
 
     driver_landmarks: (T, 68, 2) (NaN frames stay NaN); driver_reference_landmarks, source_landmarks: (68, 2) finite;
     driver_meshes: (T, 468, 3) or None; driver_reference_mesh, source_mesh: (468, 3) or None (NaN = none)
@@ -175,20 +217,21 @@ def retarget_face(driver_landmarks: np.ndarray, driver_reference_landmarks: np.n
 
     if mode not in RETARGET_MODES:
         raise ValueError(f"mode must be one of {RETARGET_MODES}, got {mode!r}")
-    landmarks = retarget_driving(driver_landmarks, driver_reference_landmarks, source_landmarks)
+    landmarks = retarget_driving(driver_landmarks, driver_reference_landmarks, source_landmarks, reference_gaps)
     if driver_meshes is None or driver_reference_mesh is None or source_mesh is None:
         return landmarks, None
     frames = np.asarray(driver_meshes, np.float64)
     meshes = np.full(frames.shape, np.nan)
     if not (np.isfinite(driver_reference_mesh).all() and np.isfinite(source_mesh).all()):
         return landmarks, meshes
+    lids = lid_gaps(driver_reference_mesh) if mesh_reference_gaps is None else mesh_reference_gaps
     if mode == "3d":
-        meshes = lids_as_driver(retarget_mesh_3d(frames, driver_reference_mesh, source_mesh), frames,
-                                driver_reference_mesh, source_mesh)
+        meshes = lids_as_driver(retarget_mesh_3d(frames, driver_reference_mesh, source_mesh), frames, lids,
+                                source_mesh)
         found = np.isfinite(meshes).all(axis=(1, 2))
         landmarks[found] = mesh_to_68(meshes[found])
         return landmarks, meshes
     meshes[..., :2] = retarget_mesh(frames, driver_reference_mesh, source_mesh)
     meshes[..., 2] = np.where(np.isfinite(meshes[..., 0]), frames[..., 2], np.nan)  # the driver's: its turn, its
     # occlusions (which of two overlapping triangles shows)
-    return landmarks, lids_as_driver(meshes, frames, driver_reference_mesh, source_mesh)
+    return landmarks, lids_as_driver(meshes, frames, lids, source_mesh)

@@ -153,16 +153,19 @@ def retarget_absolute(
     return output[0] if single else output
 
 
-def retarget_driving(driver: np.ndarray, driver_reference: np.ndarray, source: np.ndarray) -> np.ndarray:
+def retarget_driving(driver: np.ndarray, driver_reference: np.ndarray, source: np.ndarray,
+                     reference_gaps: np.ndarray | None = None) -> np.ndarray:
     """What ``lsr reenact`` and ``lsr eval`` drive another person with: ``retarget_relative``, then the mouth as
     open as the driver's (``landmarks.expression.mouth_opening``, which is normalised by the eye distance).
 
     A closed mouth is closed for everyone, so the opening transfers as it is; as a relative delta it would inherit
     whatever the source's anchor and the driver's reference frame showed (an open mouth in either left the output
     never closing or never opening fully). The eyes close as the driver's do, in proportion to the source's own
-    (``landmarks.eyelids.lids_as_driver``). Shapes as in ``retarget_relative``.
+    (``landmarks.eyelids.lids_as_driver``), measured against ``reference_gaps``: (2,) or (T, 2), the driver's
+    reference lid gaps (``landmarks.eyelids.LidReference``, robust to a blink), None for those of
+    ``driver_reference``. Shapes as in ``retarget_relative``.
     """
-    from landmarks.eyelids import lids_as_driver
+    from landmarks.eyelids import lid_gaps, lids_as_driver
     from landmarks.expression import mouth_opening, set_mouth_opening
 
     moved = retarget_relative(driver, driver_reference, source)
@@ -171,5 +174,6 @@ def retarget_driving(driver: np.ndarray, driver_reference: np.ndarray, source: n
     output = np.atleast_3d(moved) if not single else moved[None]
     output = output.copy()
     output[valid] = set_mouth_opening(output[valid], mouth_opening(frames[valid]))
-    output[valid] = lids_as_driver(output[valid], frames[valid], driver_reference, source)
+    gaps = np.broadcast_to(lid_gaps(driver_reference) if reference_gaps is None else reference_gaps, (len(frames), 2))
+    output[valid] = lids_as_driver(output[valid], frames[valid], gaps[valid], source)
     return output[0] if single else output

@@ -38,14 +38,15 @@ from lsr.core.sources import (
     SourceInput,
     SubjectShots,
     describe_driver,
-    iter_driver_frames,
     load_subject_shots,
     read_landmark_array,
     resize_shots,
     scale_points,
+    track_driver,
 )
 from landmarks.errors import InputFileError, NoFaceError
-from landmarks.mesh_retarget import RETARGET_MODES
+from landmarks.eyelids import LOOK_AHEAD
+from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
 from lsr.core.overlap import finish_behind, prefetch
 
 Mode = Literal["auto", "relative", "absolute"]
@@ -404,22 +405,23 @@ class ReenactorBase:
         mesh[:, :2] += spreading_weights() @ (np.asarray(points, np.float64) - raw_points)
         return transform_mesh(mesh, matrix)
 
-    def _drive(self, crop_landmarks: np.ndarray, crop_mesh: np.ndarray | None, reference: np.ndarray,
-               mesh_reference: np.ndarray | None, relative: bool, retarget: str = "2d"
+    def _drive(self, crop_landmarks: np.ndarray, crop_mesh: np.ndarray | None, reference: DriverReference,
+               lids: tuple[np.ndarray, np.ndarray], relative: bool, retarget: str = "2d"
                ) -> tuple[np.ndarray, np.ndarray | None]:
         """What the source is driven with: (68 points, mesh for the references or None). Relative motion: the
-        driver's since its first face (reference / mesh_reference: the 68 points and mesh of that frame) on the
-        source's face (``landmarks.mesh_retarget.retarget_face`` in mode ``retarget``; FOMM / LivePortrait style,
-        the mouth exactly as open as the driver's); absolute: the driver's own."""
+        driver's since its first face (``reference``; ``lids``: its reference lid gaps, ``DriverReference.lids``)
+        on the source's face (``landmarks.mesh_retarget.retarget_face`` in mode ``retarget``; FOMM / LivePortrait
+        style, the mouth exactly as open as the driver's); absolute: the driver's own."""
         from landmarks.mesh_retarget import retarget_face
 
         if not relative:
             return crop_landmarks, crop_mesh if self._uses_mesh_references() else None
         subject = self._require_subject()
-        meshes = crop_mesh is not None and mesh_reference is not None and subject.reference_mesh is not None
-        landmarks, moved = retarget_face(crop_landmarks[None], reference, subject.reference_landmarks,
-                                         crop_mesh[None] if meshes else None, mesh_reference if meshes else None,
-                                         subject.reference_mesh if meshes else None, retarget)
+        gaps, mesh_gaps = lids
+        meshes = crop_mesh is not None and reference.mesh is not None and subject.reference_mesh is not None
+        landmarks, moved = retarget_face(crop_landmarks[None], reference.landmarks, subject.reference_landmarks,
+                                         crop_mesh[None] if meshes else None, reference.mesh if meshes else None,
+                                         subject.reference_mesh if meshes else None, retarget, gaps, mesh_gaps)
         mesh = moved[0] if moved is not None and np.isfinite(moved[0]).all() else None
         return landmarks[0], mesh if self._uses_mesh_references() else None
 
@@ -471,16 +473,18 @@ class ReenactorBase:
 
         array, space, size = read_landmark_array(driver, landmark_space=landmark_space, landmark_size=landmark_size)
         one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
-        reference = None
+        reference = DriverReference()
+        reference.look_ahead(list(array[:LOOK_AHEAD]), [None] * min(len(array), LOOK_AHEAD))
         for index, points in enumerate(array):
             started = time.perf_counter()
+            lids = reference.lids(points) if relative else None
             points = one_euro(points) if one_euro is not None else points
             if space == "frame":
                 crop_landmarks = transform_landmarks(points, crop_transform(points, self.crop_size))
             else:
                 crop_landmarks = points.astype(np.float64) * (self.crop_size / float(size or self.resolution))
-            reference = crop_landmarks if reference is None else reference
-            target, _ = self._drive(crop_landmarks, None, reference, None, relative)
+            reference.start(crop_landmarks)
+            target, _ = self._drive(crop_landmarks, None, reference, lids, relative)
             stats.add("landmarks", time.perf_counter() - started)
             stats.frames += 1
             yield (self._into_scene(scenes, index, None, target, stats) if scenes is not None
@@ -497,15 +501,10 @@ class ReenactorBase:
         size = self.crop_size
         tracker = make_tracker(self.detector)
         one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
-        reference = mesh_reference = None
-        def tracked():  # decoding and tracking on a thread, a few frames ahead of the synthesis
-            for frame in iter_driver_frames(info):
-                started = time.perf_counter()
-                points = tracker.update(frame)
-                mesh = getattr(tracker, "mesh", None)  # the mesh tracker's (468, 3); dlib's gives none
-                yield frame, points, mesh, time.perf_counter() - started
-
-        frames = prefetch(tracked())
+        reference = DriverReference()
+        ahead, tracked = track_driver(info, tracker, LOOK_AHEAD if relative else 0)  # the lids at rest, first
+        reference.look_ahead([points for points, _, _ in ahead], [mesh for _, mesh, _ in ahead])
+        frames = prefetch(tracked)  # decoding and tracking on a thread, a few frames ahead of the synthesis
         index = 0
         for frame, points, mesh, tracking_seconds in frames:
             started = time.perf_counter() - tracking_seconds
@@ -517,9 +516,9 @@ class ReenactorBase:
                 matrix = crop_transform(points, size)
                 crop_landmarks = transform_landmarks(points, matrix)
                 crop_mesh = self._crop_mesh(mesh, raw_points, points, matrix, retarget if relative else "2d")
-                if reference is None:  # the driver's first face: its motion from here is what moves the source's
-                    reference, mesh_reference = crop_landmarks, crop_mesh
-                crop_landmarks, crop_mesh = self._drive(crop_landmarks, crop_mesh, reference, mesh_reference, relative,
+                lids = reference.lids(raw_points, mesh) if relative else None  # as detected, as lsr eval reads them
+                reference.start(crop_landmarks, crop_mesh)  # the driver's first face: its motion moves the source's
+                crop_landmarks, crop_mesh = self._drive(crop_landmarks, crop_mesh, reference, lids, relative,
                                                         retarget)
             elif one_euro is not None:
                 one_euro.reset()  # never smooth across a gap

@@ -22,6 +22,7 @@ import time
 
 import numpy as np
 
+from landmarks.mesh_retarget import DriverReference
 from lsr.core.engine import ReenactorBase, Subject
 from lsr.core.provenance import draw_watermark
 
@@ -68,14 +69,14 @@ class LiveSession:
         self.tracker = make_tracker(detector if detector is not None else reenactor.detector)
         self.one_euro = OneEuroFilter(25.0, driving_cutoffs()) if smooth else None
         self.scene = next(SourceScene(subject.shots, reenactor.crop_size)) if paste_back else None
-        self.reference: np.ndarray | None = None
+        self.reference = DriverReference()
         self.last: LiveFrame | None = None
         self._last_time: float | None = None
         self.frames = self.faces = 0
 
     def recentre(self) -> None:
         """The next face becomes the driver's neutral face (relative motion is measured from it)."""
-        self.reference = None
+        self.reference.reset()
 
     def _mark(self, image: np.ndarray) -> np.ndarray:
         return draw_watermark(image) if self.watermark else image
@@ -112,15 +113,16 @@ class LiveSession:
         if points is None or not np.isfinite(points).all():
             self._last_time = None
             return self.still(NO_FACE_NOTE, started)
+        gaps, _ = self.reference.lids(points)  # as detected; a camera has nothing ahead
         if self.one_euro is not None:
             if self._last_time is not None and now > self._last_time:
                 self.one_euro.fps = float(np.clip(1.0 / (now - self._last_time), MIN_FPS, MAX_FPS))
             points = self.one_euro(points)
         self._last_time = now
         crop_landmarks = transform_landmarks(points, crop_transform(points, self.reenactor.crop_size))
-        if self.reference is None:
-            self.reference = crop_landmarks
-        return self._inputs(retarget_driving(crop_landmarks, self.reference, self.subject.reference_landmarks), started)
+        self.reference.start(crop_landmarks)
+        return self._inputs(retarget_driving(crop_landmarks, self.reference.landmarks,
+                                             self.subject.reference_landmarks, gaps), started)
 
     def _inputs(self, target: np.ndarray, started: float) -> Prepared:
         landmark_image, inputs = self.reenactor.network_inputs(target, subject=self.subject)

@@ -26,9 +26,12 @@ Drivers:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import itertools
 import json
 import os
+import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Literal
@@ -404,6 +407,30 @@ def iter_driver_frames(info: DriverInfo) -> Iterator[np.ndarray]:
             )
         expected = frame.shape
         yield frame
+
+
+def track_driver(info: DriverInfo, tracker, look_ahead: int = 0) -> tuple[list, Iterator]:
+    """A video or image-folder driver's frames with their faces: (the first ``look_ahead`` frames' faces, tracked
+    now, before any is driven; an iterator over every frame that tracks the rest as it goes). A face: (points
+    (68, 2) or None, mesh (468, 3) or None: the mesh tracker's, seconds it took); the iterator gives (frame,
+    *face). The driver is decoded twice where it looks ahead; ``tracker`` tracks each frame once, in order."""
+
+    def track(frame: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None, float]:
+        started = time.perf_counter()
+        points = tracker.update(frame)
+        mesh = getattr(tracker, "mesh", None)  # the mesh tracker's; dlib's gives none
+        return points, None if mesh is None else np.array(mesh), time.perf_counter() - started
+
+    ahead = []
+    if look_ahead > 0:
+        with contextlib.closing(iter_driver_frames(info)) as first:
+            ahead = [track(frame) for frame in itertools.islice(first, look_ahead)]
+
+    def tracked() -> Iterator:
+        for number, frame in enumerate(iter_driver_frames(info)):
+            yield frame, *(ahead[number] if number < len(ahead) else track(frame))
+
+    return ahead, tracked()
 
 
 def scale_points(points: np.ndarray, scale: float) -> np.ndarray:

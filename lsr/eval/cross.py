@@ -192,11 +192,12 @@ def prepare_sequence(k: int, identity: str, driver: str, driver_rows: np.ndarray
                      shot_landmarks: np.ndarray, driver_frames: np.ndarray, driver_landmarks: np.ndarray,
                      source_embedding: np.ndarray, *, shot_meshes: np.ndarray | None = None,
                      driver_meshes: np.ndarray | None = None, retarget: str = "2d") -> CrossSequence:
-    """Pick the anchor, retarget the driver onto it (its first frame as the reference, as ``lsr reenact`` does:
-    ``landmarks.mesh_retarget.retarget_face`` in mode ``retarget``) and precompute what every method's frames are
+    """Pick the anchor, retarget the driver onto it (its first frame as the reference, its lids' reference the
+    running median, as ``lsr reenact`` does: ``landmarks.mesh_retarget.retarget_face`` in mode ``retarget``) and precompute what every method's frames are
     measured against. shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2) finite; driver_landmarks: (T, 68, 2)
     finite, T >= 1; shot_meshes (K, 468, 3) and driver_meshes (T, 468, 3): face meshes (NaN rows: none), or None.
     target_meshes: the retargeted meshes (T, 468, 3) (NaN rows: none) when both are given."""
+    from landmarks.eyelids import running_reference_gaps
     from landmarks.expression import pick_anchor
     from landmarks.mesh_retarget import retarget_face
     from landmarks.pose import estimate_head_pose
@@ -212,7 +213,8 @@ def prepare_sequence(k: int, identity: str, driver: str, driver_rows: np.ndarray
     with_meshes = shot_meshes is not None and driver_meshes is not None
     targets, target_meshes = retarget_face(  # (T, 68, 2), (T, 468, 3) or None
         driver_landmarks, driver_landmarks[0], anchor_landmarks, driver_meshes if with_meshes else None,
-        driver_meshes[0] if with_meshes else None, shot_meshes[anchor] if with_meshes else None, retarget)
+        driver_meshes[0] if with_meshes else None, shot_meshes[anchor] if with_meshes else None, retarget,
+        running_reference_gaps(driver_landmarks), running_reference_gaps(driver_meshes) if with_meshes else None)
     poses = np.stack([estimate_head_pose(t, size, RIGID_INDEX) for t in targets]).astype(np.float64)  # (T, 3)
     outside = np.stack([~head_region([anchor_landmarks, t], size) for t in targets])  # (T, S, S)
     return CrossSequence(int(k), identity, driver, np.asarray(driver_rows), anchor, shots[anchor], anchor_landmarks,

@@ -134,7 +134,8 @@ class TestLidsAsDriver:
         driver = _blink(reference, driver_fraction)[None]
         source = _blink(_mesh(scale=0.7, roll=10.0), source_fraction)
         retargeted = source[None] + np.array([3.0, -2.0, 0.0])
-        lidded = eyelids.lids_as_driver(retargeted, driver, reference, source, closed=self.CLOSED)
+        lidded = eyelids.lids_as_driver(retargeted, driver, eyelids.lid_gaps(reference), source,
+                                        closed=self.CLOSED)
         return lidded, driver, reference, source
 
     def test_the_reference_frame_gives_the_source_its_own_eyes(self):
@@ -161,11 +162,51 @@ class TestLidsAsDriver:
     def test_missing_meshes_pass_through(self):
         lidded, driver, reference, source = self._drive(0.5)
         frames = np.stack([lidded[0], np.full((468, 3), np.nan)])
-        out = eyelids.lids_as_driver(frames, np.concatenate([driver, driver]), reference, source)
+        out = eyelids.lids_as_driver(frames, np.concatenate([driver, driver]), eyelids.lid_gaps(reference), source)
         assert np.isnan(out[1]).all()
-        nowhere = np.full((468, 3), np.nan)
+        nowhere = np.full(2, np.nan)  # no reference lids
         np.testing.assert_array_equal(eyelids.lids_as_driver(frames, np.concatenate([driver, driver]), nowhere,
                                                              source), frames)
+
+
+def test_a_driver_whose_first_face_blinks_does_not_widen_every_later_eye():
+    """LidReference: the driver's reference lids are the median of its faces so far and of those seen ahead, so a
+    blink in the first face (which relative motion is measured from) counts for one frame of many: the source keeps
+    its own eyes at the driver's open ones and shuts them at the driver's blinks. A fixed blinking reference widened
+    them to the cap."""
+    reference = _mesh(scale=0.5)
+    closed = TestLidsAsDriver.CLOSED
+    shut = 1 - closed / eyelids.lid_gaps(reference)  # the lids down to the fold
+    fractions = [0.8, 0.0, 0.0, float(shut.mean()), 0.0, 0.0, 0.0]  # blinks at the first face and the fourth
+    driver = np.stack([_blink(reference, fraction) for fraction in fractions])
+    source = _mesh(scale=0.7, roll=10.0)
+    open_gaps = eyelids.lid_gaps(reference)[None]
+    ahead = eyelids.running_reference_gaps(driver)  # a file: its first LOOK_AHEAD faces seen before driving
+    np.testing.assert_allclose(ahead, open_gaps.repeat(len(driver), 0), rtol=1e-9)
+    lidded = eyelids.lids_as_driver(driver, driver, ahead, source, closed=closed)  # (retargeted: here the driver)
+    gaps = np.array([eyelids.lid_gaps(face) for face in lidded])
+    np.testing.assert_allclose(gaps[[1, 2, 4, 5, 6]], eyelids.lid_gaps(source)[None].repeat(5, 0), rtol=1e-9)
+    assert (gaps[0] < 0.5 * eyelids.lid_gaps(source)).all()
+    np.testing.assert_allclose(gaps[3], closed, rtol=0.02)
+    fixed = eyelids.lids_as_driver(driver, driver, eyelids.lid_gaps(driver[0]), source, closed=closed)
+    widest = closed + (eyelids.lid_gaps(source) - closed) * eyelids.MAX_APERTURE
+    np.testing.assert_allclose(eyelids.lid_gaps(fixed[2]), widest, rtol=1e-9)
+    # a camera sees nothing ahead: the first face is all it has, then the median catches up
+    running = eyelids.running_reference_gaps(driver, look_ahead=0)
+    np.testing.assert_allclose(running[0], eyelids.lid_gaps(driver[0]))
+    np.testing.assert_allclose(running[[2, 4, 5, 6]], open_gaps.repeat(4, 0), rtol=1e-9)
+    # a stream keeps the last REFERENCE_FRAMES faces, skips faces it could not read, counts the faces seen ahead
+    # once, and starts anew on reset
+    stream = eyelids.LidReference(frames=2)
+    assert np.isnan(stream(np.full((468, 3), np.nan))).all()
+    for face in driver[:3]:
+        latest = stream(face)
+    np.testing.assert_allclose(latest, open_gaps[0])
+    stream.reset()
+    stream.look_ahead([driver[3], None])
+    np.testing.assert_allclose(stream(driver[3]), eyelids.lid_gaps(driver[3]))  # not counted twice
+    np.testing.assert_allclose(stream(driver[4]), eyelids.lid_gaps(driver[3]))  # the None seen ahead
+    np.testing.assert_allclose(stream(driver[5]), (eyelids.lid_gaps(driver[3]) + open_gaps[0]) / 2)
 
 
 def test_small_lid_motions_move_further_and_blinks_stay_blinks():
@@ -197,8 +238,8 @@ def test_the_68_points_have_lids_too():
     assert set(np.flatnonzero(np.abs(moved - points).max(axis=1) > 0)) == {37, 38, 43, 44}
     reference, source = points, eyelids.set_lid_gaps(points * 1.3, 1.4 * gaps)
     shut = eyelids.set_lid_gaps(reference, eyelids.closed_gaps(eyelids.lid_gaps(reference)))[None]
-    np.testing.assert_allclose(eyelids.lid_gaps(eyelids.lids_as_driver(source[None], shut, reference, source)[0]),
-                               eyelids.closed_gaps(eyelids.lid_gaps(source)), rtol=1e-9)
+    lidded = eyelids.lids_as_driver(source[None], shut, eyelids.lid_gaps(reference), source)[0]
+    np.testing.assert_allclose(eyelids.lid_gaps(lidded), eyelids.closed_gaps(eyelids.lid_gaps(source)), rtol=1e-9)
     with pytest.raises(ValueError, match="468"):
         eyelids.lid_gaps(points[:60])
 
@@ -233,5 +274,5 @@ def test_a_collapsed_eye_is_left_as_it_is():
         assert np.isnan(gaps[1]) and gaps[0] > 0
         np.testing.assert_array_equal(eyelids.set_lid_gaps(mesh, [0.05, 0.05])[list(upper)], mesh[list(upper)])
         np.testing.assert_array_equal(eyelids.close_lids(mesh, [0.2, 0.2])[list(upper)], mesh[list(upper)])
-        lidded = eyelids.lids_as_driver(mesh[None], _blink(_mesh(), 0.5)[None], _mesh(), mesh)
+        lidded = eyelids.lids_as_driver(mesh[None], _blink(_mesh(), 0.5)[None], eyelids.lid_gaps(_mesh()), mesh)
         assert np.isfinite(lidded).all()

@@ -182,3 +182,34 @@ def test_retarget_face_shuts_the_sources_eyes_at_the_drivers_blink(mode):
     open_gap = eyelids.lid_gaps(source_points) - shut
     assert np.abs(eyelids.lid_gaps(targets[0]) - eyelids.lid_gaps(source_points)).max() < 0.05 * open_gap.min()
     assert (eyelids.lid_gaps(targets[1]) - shut < 0.25 * open_gap).all()
+
+
+@pytest.mark.parametrize("mode", ["2d", "3d"])
+def test_a_stream_is_driven_as_the_whole_driver_at_once(mode):
+    """What ``lsr reenact`` does frame by frame (``DriverReference``: the first face, the lids' reference from the
+    faces seen ahead and so far) is what ``lsr eval`` does to the whole driver at once (``running_reference_gaps``),
+    so the evaluation measures the re-enactment users get; a driver whose first face blinks included."""
+    from landmarks import eyelids
+
+    reference = _head(90.0, (200.0, 220.0))
+    closed = eyelids.closed_gaps(eyelids.lid_gaps(reference))
+    driver = np.stack([eyelids.set_lid_gaps(_head(90.0 + step, (200.0 + 2 * step, 220.0)), gaps)
+                       for step, gaps in enumerate([closed, *[eyelids.lid_gaps(reference)] * 3, 0.5 * closed])])
+    landmarks = mesh_to_68(driver[..., :2]).astype(np.float64)
+    source = _head(120.0, (250.0, 260.0))
+    source_points = mesh_to_68(source[:, :2]).astype(np.float64)
+    batch = mesh_retarget.retarget_face(landmarks, landmarks[0], source_points, driver, driver[0], source, mode,
+                                        eyelids.running_reference_gaps(landmarks),
+                                        eyelids.running_reference_gaps(driver))
+    stream = mesh_retarget.DriverReference()
+    stream.look_ahead(list(landmarks), list(driver))
+    for index, (points, mesh) in enumerate(zip(landmarks, driver)):
+        gaps, mesh_gaps = stream.lids(points, mesh)
+        stream.start(points, mesh)
+        one = mesh_retarget.retarget_face(points[None], stream.landmarks, source_points, mesh[None], stream.mesh,
+                                          source, mode, gaps, mesh_gaps)
+        np.testing.assert_allclose(one[0][0], batch[0][index], atol=1e-9)
+        np.testing.assert_allclose(one[1][0], batch[1][index], atol=1e-9)
+    # the driver's open eyes (frames 1-3) give the source its own, though the first face blinked
+    for index in (1, 2, 3):
+        np.testing.assert_allclose(eyelids.lid_gaps(batch[1][index]), eyelids.lid_gaps(source), rtol=1e-6)

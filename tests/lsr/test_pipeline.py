@@ -110,13 +110,20 @@ def test_crop_landmark_driver_absolute_reproduces_target(reenactor):
 
 def test_relative_mode_first_frame_is_source_shape(reenactor):
     """Relative motion: the driver's first frame maps onto the source's own (anchor) landmarks, the mouth opened as
-    wide as the driver's (retarget_driving)."""
+    wide as the driver's and the lids as far as the driver's from its reference lids, the median of the faces it
+    sees ahead (retarget_driving)."""
+    from landmarks.eyelids import lid_gaps, running_reference_gaps, set_lid_gaps
     from landmarks.expression import mouth_opening, set_mouth_opening
     from landmarks.raster import draw_landmarks
+    from landmarks.retarget import retarget_driving
 
     driver = reenactor.subject.shots.landmarks[::-1] * 1.1 + 3  # another face shape and place
+    assert reenactor.crop_size == 64  # the driver's crop pixels are the shots'
     first = next(iter(reenactor(driver, landmark_space="crop", mode="relative", smooth=False)))
-    expected = draw_landmarks(set_mouth_opening(reenactor.subject.reference_landmarks, mouth_opening(driver[0])), 64)
+    source = reenactor.subject.reference_landmarks
+    lids = lid_gaps(retarget_driving(driver, driver[0], source, running_reference_gaps(driver))[0])
+    assert np.abs(lids - lid_gaps(source)).max() > 0.003  # the driver's first face is not at rest
+    expected = draw_landmarks(set_lid_gaps(set_mouth_opening(source, mouth_opening(driver[0])), lids), 64)
     assert np.abs(first.landmark_image.astype(int) - expected).max() <= 2
 
 

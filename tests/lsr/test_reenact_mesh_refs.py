@@ -103,6 +103,34 @@ def test_reenact_retargets_in_3d_on_the_sources_own_mesh(reenactor, people, monk
         reenactor.reenact(people["driver"], retarget="4d")
 
 
+def test_reenact_reads_a_driver_files_lids_ahead(reenactor, people, monkeypatch):
+    """A driver file's first LOOK_AHEAD faces (here all 6) set its reference lids before the first is driven
+    (``DriverReference.look_ahead``, 68 points and meshes as detected), so each frame's reference lids are what
+    ``lsr eval`` computes for the whole driver at once (``running_reference_gaps``)."""
+    from landmarks.eyelids import running_reference_gaps
+    from landmarks.mesh_retarget import DriverReference
+
+    ahead, driven = [], []
+    look_ahead, lids = DriverReference.look_ahead, DriverReference.lids
+
+    def spy_ahead(self, landmarks, meshes):
+        ahead.append((len(landmarks), sum(mesh is not None for mesh in meshes), len(driven)))
+        return look_ahead(self, landmarks, meshes)
+
+    def spy_lids(self, landmarks, mesh=None):
+        driven.append((landmarks, mesh, *lids(self, landmarks, mesh)))
+        return driven[-1][2:]
+
+    monkeypatch.setattr(DriverReference, "look_ahead", spy_ahead)
+    monkeypatch.setattr(DriverReference, "lids", spy_lids)
+    reenactor.encode_subject(people["source"], k=4)
+    assert len(list(reenactor.reenact(people["driver"]))) == 6
+    assert ahead == [(6, 6, 0)] and len(driven) == 6  # all six seen before the first was driven
+    landmarks, meshes, gaps, mesh_gaps = (np.stack(column) for column in zip(*driven))
+    np.testing.assert_allclose(gaps, running_reference_gaps(landmarks))
+    np.testing.assert_allclose(mesh_gaps, running_reference_gaps(meshes))
+
+
 def test_the_mouth_comes_from_the_nearest_reference_unless_told_to_blend(reenactor, people, monkeypatch):
     """``mouth`` "nearest": where the target opens wider than its shots, the synthesis' mouth region is the first
     (nearest) warped shot's (``landmarks.nearest_mouth``), the rest the network's; "blend": the network's alone."""

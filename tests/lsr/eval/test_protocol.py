@@ -164,6 +164,7 @@ def _posed_identity(rng: np.random.Generator, name: str, size: int = 96, count: 
 
 
 def test_cross_identity_is_retargeted_composited_and_measured(rng):
+    from landmarks.eyelids import running_reference_gaps
     from landmarks.expression import mouth_opening, pick_anchor
     from landmarks.retarget import retarget_driving
 
@@ -176,7 +177,8 @@ def test_cross_identity_is_retargeted_composited_and_measured(rng):
     # identity "a" (all 5 shots at K = 5) is driven by "b": retargeted onto a's anchor, b's first frame the reference
     anchor = pick_anchor(identities[0].input_landmarks.astype(np.float64), (96, 96))
     driver = identities[1].holdout_landmarks.astype(np.float64)
-    expected = retarget_driving(driver, driver[0], identities[0].input_landmarks[anchor].astype(np.float64))
+    expected = retarget_driving(driver, driver[0], identities[0].input_landmarks[anchor].astype(np.float64),
+                                running_reference_gaps(driver))  # the lids' reference: the median so far
     assert np.allclose(first.targets[1], expected) and np.allclose(second.targets[1], expected)  # [0]: self
     crossed = [r for r in run.cross_records if r["identity"] == "a" and r["method"] == "first"]
     assert [r["frame"] for r in crossed] == list(range(5)) and {r["driver"] for r in crossed} == {"b"}
