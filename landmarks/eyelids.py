@@ -31,8 +31,8 @@ is driven (``lsr reenact`` tracks them first), and every face driven since joins
 ``REFERENCE_FRAMES``); a live camera has only the faces so far. ``lsr eval`` computes the same for each whole
 driver (``running_reference_gaps``), so it measures what ``lsr reenact`` does. On the 12 validation sequences
 (32 frames each, so the median of the whole driver; ``lsr eval --data VAL --k 8 --methods tps --weights
-lsr/weights/default --cross-drivers 3``), cross-identity eye correlation 0.60 -> 0.67 and eye gain 0.50 -> 0.69
-(the tps baseline, driven by the same targets: 0.72 -> 0.85), mouth unchanged. Looking ahead 25 faces gave 0.64
+lsr/weights/default --cross-drivers 3``), cross-identity eye correlation 0.60 -> 0.67 and eye gain (the mean of
+per-sequence slopes) 0.50 -> 0.69 (the tps baseline, driven by the same targets: 0.72 -> 0.85), mouth unchanged. Looking ahead 25 faces gave 0.64
 (tps 0.81); none, as a camera does, 0.60 (0.79): a median of a few faces moves while the driver is read.
 
 **Small lid motions** (``lid_share``). A warped lid reads at about half its motion: over the 12 cross-identity
@@ -258,7 +258,7 @@ def lids_as_driver(faces: np.ndarray, drivers: np.ndarray, reference_gaps: np.nd
 
 class LidReference:
     """The driver's reference lid gaps, robust to a blink: the median ``lid_gaps`` of the driver's faces so far
-    (the last ``frames``; module docstring, "Retargeting"), the faces seen ahead (``look_ahead``) included. One per
+    (the last ``frames``; module docstring, "The driver's reference lids"), the faces seen ahead (``look_ahead``) included. One per
     driver and kind of face (mesh or 68 points). Call it on each driver face, in order (NaN faces are skipped)
     -> (2,) float64, NaN before the first finite face."""
 
@@ -298,4 +298,4 @@ def running_reference_gaps(drivers: np.ndarray, look_ahead: int = LOOK_AHEAD,
     drivers = np.asarray(drivers, np.float64)
     reference = LidReference(frames)
     reference.look_ahead(drivers[:look_ahead])
-    return np.stack([reference(driver) for driver in drivers]).reshape(-1, 2)
+    return np.array([reference(driver) for driver in drivers], np.float64).reshape(-1, 2)

@@ -22,7 +22,7 @@ Per frame (``evaluate_method`` -> one record each):
     head regions (NaN for the first frame).
 Per sequence (method, K, identity, driver; ``summarise_cross``): Pearson correlation of driver and output openings and
 the mouth and eye gains (least-squares slope of output on driver opening, with intercept), over the frames with a
-face.
+face; per (method, K), the mean correlation and the gains pooled over the sequences (``pooled_gain``).
 """
 
 from __future__ import annotations
@@ -43,14 +43,18 @@ CONVENTION = (
     "`lsr reenact` drives it: retargeted "
     "(landmarks.mesh_retarget.retarget_face, --retarget: 2d = retarget_driving's relative motion of the 68 "
     "points, 3d = the anchor's own mesh turned by the driver's head rotation, expression in the canonical head "
-    "frame; either way the mouth as open as the driver's; the driver's first frame mapped onto the anchor shot = "
+    "frame; either way the mouth as open as the driver's and the eyes as far closed, against the median of the "
+    "driver's lid gaps (landmarks.eyelids.LidReference, as lsr reenact reads a driver's first 50 faces ahead); "
+    "the driver's first frame mapped onto the anchor shot = "
     "pick_anchor of the K shots: most "
     "frontal, closed mouth), every method's output composited into the anchor shot (composite_face); all metrics "
     "on the composited frame, its landmarks detected once. mouth / eye corr = Pearson correlation, per driven "
     "sequence, of the driver's real (not retargeted) mouth / eye opening (inner-lip / eyelid gap over the "
-    "inter-ocular distance) with the output's detected one; mouth / eye gain = least-squares slope (with intercept) "
-    f"of output on driver opening (1 = the driver's amplitude); frames without a face dropped, NaN under "
-    f"{MIN_FRAMES} frames or zero variance; mean over sequences. yaw / pitch / roll err = |head pose of the "
+    "inter-ocular distance) with the output's detected one, mean over sequences; mouth / eye gain = least-squares "
+    "slope of output on driver opening (1 = the driver's amplitude), one intercept per sequence, pooled over the "
+    "sequences (sum of covariances over sum of driver variances: a driver whose opening barely moves adds little; "
+    "the mean of per-sequence slopes is in eval_report.json as mouth_gain_per_sequence / eye_gain_per_sequence); "
+    f"frames without a face dropped, a sequence left out under {MIN_FRAMES} frames or with zero variance. yaw / pitch / roll err = |head pose of the "
     "detected landmarks - that of the target landmarks| (solvePnP of the rigid points: upper jaw, nose, eyes, on a "
     "canonical face, so a dropped jaw is not pitch), degrees. NMKE = detected "
     "vs target landmarks over the target's eye distance. ID-SIM to source = to the mean embedding of i's K shots. "
@@ -97,6 +101,23 @@ def opening_gain(driver: np.ndarray, output: np.ndarray) -> float:
     driver, output = pair
     centred = driver - driver.mean()
     return float(centred @ (output - output.mean()) / (centred @ centred))
+
+
+def pooled_gain(sequences: Sequence[tuple[np.ndarray, np.ndarray]]) -> float:
+    """The least-squares slope of output on driver opening over several sequences, each with its own intercept:
+    sum of the sequences' covariances over the sum of their driver variances. A sequence weighs as much as its
+    driver's opening moves, so a driver that barely opens its mouth, whose own slope is mostly the detector's
+    noise, adds little (the mean of per-sequence slopes let such drivers set the number). sequences: (driver,
+    output) pairs of (T,) openings (NaN = no face, dropped; a pair with fewer than MIN_FRAMES frames or no
+    driver variance is left out) -> float; NaN when none is left."""
+    covariance = variance = 0.0
+    for driver, output in sequences:
+        pair = _paired(driver, output)
+        if pair is not None:
+            centred = pair[0] - pair[0].mean()
+            covariance += float(centred @ (pair[1] - pair[1].mean()))
+            variance += float(centred @ centred)
+    return covariance / variance if variance > 0 else math.nan
 
 
 def pose_errors(output_pose: np.ndarray, target_pose: np.ndarray) -> np.ndarray:
@@ -277,7 +298,8 @@ def _finite_mean(values: Sequence[float]) -> float:
 
 def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str], ks: Sequence[int]) -> list[dict[str, Any]]:
     """One row per (method, K) with cross records (keys: method, k, frames, sequences, mouth_corr, mouth_gain,
-    eye_corr, eye_gain, yaw_error, pitch_error, roll_error, nmke, idsim_source, sharpness_face, scene_psnr,
+    eye_corr, eye_gain (``pooled_gain``), mouth_gain_per_sequence, eye_gain_per_sequence (the mean of
+    ``opening_gain`` over the sequences), yaw_error, pitch_error, roll_error, nmke, idsim_source, sharpness_face, scene_psnr,
     scene_psnr_infinite, scene_psnr_of_mean_mse, scene_flicker, no_face); see CONVENTION."""
     rows = []
     for name in methods:
@@ -289,20 +311,24 @@ def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str], k
             for record in group:
                 sequences.setdefault((record["identity"], record["driver"]), []).append(record)
             mouth_corr, mouth_gain, eye_corr, eye_gain, flicker = [], [], [], [], []
+            mouths, eyes = [], []
             for members in sequences.values():
                 column = {key: np.array([r[key] for r in members], np.float64)
                           for key in ("driver_mouth", "output_mouth", "driver_eye", "output_eye", "scene_flicker")}
-                mouth_corr.append(opening_correlation(column["driver_mouth"], column["output_mouth"]))
-                mouth_gain.append(opening_gain(column["driver_mouth"], column["output_mouth"]))
-                eye_corr.append(opening_correlation(column["driver_eye"], column["output_eye"]))
-                eye_gain.append(opening_gain(column["driver_eye"], column["output_eye"]))
+                mouths.append((column["driver_mouth"], column["output_mouth"]))
+                eyes.append((column["driver_eye"], column["output_eye"]))
+                mouth_corr.append(opening_correlation(*mouths[-1]))
+                mouth_gain.append(opening_gain(*mouths[-1]))
+                eye_corr.append(opening_correlation(*eyes[-1]))
+                eye_gain.append(opening_gain(*eyes[-1]))
                 flicker.append(_finite_mean(column["scene_flicker"].tolist()))
             scene = metrics.summarise_psnr(np.array([r["scene_psnr"] for r in group]),
                                            np.array([r["scene_mse"] for r in group if np.isfinite(r["scene_mse"])]))
             rows.append({
                 "method": name, "k": k, "frames": len(group), "sequences": len(sequences),
-                "mouth_corr": _finite_mean(mouth_corr), "mouth_gain": _finite_mean(mouth_gain),
-                "eye_corr": _finite_mean(eye_corr), "eye_gain": _finite_mean(eye_gain),
+                "mouth_corr": _finite_mean(mouth_corr), "mouth_gain": pooled_gain(mouths),
+                "eye_corr": _finite_mean(eye_corr), "eye_gain": pooled_gain(eyes),
+                "mouth_gain_per_sequence": _finite_mean(mouth_gain), "eye_gain_per_sequence": _finite_mean(eye_gain),
                 **{key: _finite_mean([r[key] for r in group]) for key in ("yaw_error", "pitch_error", "roll_error", "nmke")},
                 "idsim_source": _finite_mean([r["idsim_source"] for r in group]),
                 "sharpness_face": metrics.median_sharpness(np.array([r["sharpness_face"] for r in group])),

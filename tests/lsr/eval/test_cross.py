@@ -125,13 +125,31 @@ def _record(identity: str, driver_mouth: float, output_mouth: float, scene_psnr:
     return {**base, **extra}
 
 
+def test_pooled_gain_weighs_each_sequence_by_its_drivers_motion():
+    """A driver that barely moves gives a slope that is mostly noise; pooled, it adds little."""
+    rng = np.random.default_rng(0)
+    wide = np.linspace(0.0, 0.4, 20)
+    quiet = 0.1 + 0.002 * rng.standard_normal(20)
+    noisy = 0.1 + 0.01 * rng.standard_normal(20)  # the output's reading, unrelated to so small a motion
+    slopes = [cross.opening_gain(wide, wide), cross.opening_gain(quiet, noisy)]
+    pooled = cross.pooled_gain([(wide, wide), (quiet, noisy)])
+    assert abs(pooled - 1.0) < 0.05 < abs(np.mean(slopes) - 1.0)
+    spread = [float(np.sum((part - part.mean()) ** 2)) for part in (wide, wide[:10])]  # each driver's variance
+    assert cross.pooled_gain([(wide, 0.5 * wide + 0.1), (wide[:10], wide[:10])]) == pytest.approx(
+        (0.5 * spread[0] + spread[1]) / sum(spread))  # the slopes 0.5 and 1, weighed by their drivers' motion
+    assert math.isnan(cross.pooled_gain([(np.full(5, 0.1), wide[:5]), (wide[:2], wide[:2])]))  # none usable
+    assert cross.pooled_gain([(wide, 2 * wide), (wide[:2], wide[:2])]) == pytest.approx(2.0)  # 2 frames: left out
+
+
 def test_summary_averages_per_sequence_measures():
     records = [_record("a", d, 2 * d, math.inf) for d in (0.0, 0.1, 0.2, 0.3)]
     records += [_record("b", d, 0.5 * d + 0.1, 40.0, scene_flicker=2.0) for d in (0.0, 0.2, 0.1, 0.4)]
     records[-1].update(no_face=True, output_mouth=math.nan, nmke=math.nan)
     (row,) = cross.summarise_cross(records, ["m"], [1])
     assert row["frames"] == 8 and row["sequences"] == 2 and row["no_face"] == 1
-    assert row["mouth_corr"] == pytest.approx(1.0) and row["mouth_gain"] == pytest.approx(1.25)  # mean of 2 and 0.5
+    assert row["mouth_corr"] == pytest.approx(1.0) and row["mouth_gain_per_sequence"] == pytest.approx(1.25)  # 2, 0.5
+    # pooled: a's covariance 0.1 over variance 0.05, b's (its face-less frame dropped) 0.01 over 0.02
+    assert row["mouth_gain"] == pytest.approx(0.11 / 0.07)
     assert math.isnan(row["eye_corr"]) and math.isnan(row["eye_gain"])  # constant eyes: no correlation or gain to speak of
     assert row["scene_psnr"] == pytest.approx(40.0) and row["scene_psnr_infinite"] == 4
     assert row["scene_flicker"] == pytest.approx(1.0) and row["nmke"] == pytest.approx(0.1)
