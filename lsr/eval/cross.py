@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from landmarks.eyelids import LOOK_AHEAD
 from lsr.eval import idsim, metrics
 
 MIN_FRAMES = 3  # fewer paired frames than this: no correlation or gain (NaN)
@@ -44,7 +45,8 @@ CONVENTION = (
     "(landmarks.mesh_retarget.retarget_face, --retarget: 2d = retarget_driving's relative motion of the 68 "
     "points, 3d = the anchor's own mesh turned by the driver's head rotation, expression in the canonical head "
     "frame; either way the mouth as open as the driver's and the eyes as far closed, against the median of the "
-    "driver's lid gaps (landmarks.eyelids.LidReference, as lsr reenact reads a driver's first 50 faces ahead); "
+    f"driver's lid gaps (landmarks.eyelids.LidReference, as lsr reenact reads a driver's first {LOOK_AHEAD} faces "
+    "ahead); "
     "the driver's first frame mapped onto the anchor shot = "
     "pick_anchor of the K shots: most "
     "frontal, closed mouth), every method's output composited into the anchor shot (composite_face); all metrics "
