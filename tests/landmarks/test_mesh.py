@@ -241,6 +241,31 @@ def test_the_iris_net_moves_only_the_eye_contours_and_keeps_them_in_order(astron
     assert np.isnan(face_mesh.refine_eye_contours(astronaut, np.full((468, 3), np.nan))).all()
 
 
+def _refine_into(queue, image: np.ndarray, mesh: np.ndarray) -> None:
+    queue.put(face_mesh.refine_eye_contours(image, mesh))
+
+
+def test_the_second_eye_runs_on_its_own_thread_and_a_forked_child_still_refines(astronaut, mesh_detector):
+    """The two eyes run at once (the second on ``landmarks.mesh``'s iris thread): the same points every time, and a
+    child forked after the thread started (``lsr prepare``'s workers) starts its own instead of waiting forever."""
+    import multiprocessing
+
+    _, result = mesh_detector.meshes(astronaut)[0]
+    mesh = face_mesh.predict_mesh(astronaut, result.region, eyes=False).mesh
+    refined = face_mesh.refine_eye_contours(astronaut, mesh)
+    np.testing.assert_array_equal(face_mesh.refine_eye_contours(astronaut, mesh), refined)
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    child = context.Process(target=_refine_into, args=(queue, astronaut, mesh))
+    child.start()
+    child.join(60)
+    waiting = child.is_alive()
+    if waiting:
+        child.kill()
+    assert not waiting, "the forked child waited for its parent's iris thread"
+    np.testing.assert_array_equal(queue.get(timeout=10), refined)
+
+
 def test_the_iris_net_treats_a_mirrored_face_as_the_mirror_image(astronaut, mesh_detector):
     """The image-right eye goes through the net mirrored: its square, its mirroring and the way back must make a
     mirrored frame's eyes the mirror of the frame's, to a hundredth of a pixel."""
