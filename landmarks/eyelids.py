@@ -258,9 +258,9 @@ def lids_as_driver(faces: np.ndarray, drivers: np.ndarray, reference_gaps: np.nd
 
 class LidReference:
     """The driver's reference lid gaps, robust to a blink: the median ``lid_gaps`` of the driver's faces so far
-    (the last ``frames``; module docstring, "The driver's reference lids"), the faces seen ahead (``look_ahead``) included. One per
-    driver and kind of face (mesh or 68 points). Call it on each driver face, in order (NaN faces are skipped)
-    -> (2,) float64, NaN before the first finite face."""
+    (the last ``frames``; module docstring, "The driver's reference lids"), the faces seen ahead (``look_ahead``)
+    included. One per driver and kind of face (mesh or 68 points). Call it on each driver face, in order (NaN
+    faces are skipped, but counted against those seen ahead) -> (2,) float64, NaN before the first finite face."""
 
     def __init__(self, frames: int = REFERENCE_FRAMES) -> None:
         self._gaps: collections.deque[np.ndarray] = collections.deque(maxlen=int(frames))

@@ -474,7 +474,8 @@ class ReenactorBase:
         array, space, size = read_landmark_array(driver, landmark_space=landmark_space, landmark_size=landmark_size)
         one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
         reference = DriverReference()
-        reference.look_ahead(list(array[:LOOK_AHEAD]), [None] * min(len(array), LOOK_AHEAD))
+        if relative:  # the whole array is at hand: its first faces set the lids at rest, as a file driver's do
+            reference.look_ahead(list(array[:LOOK_AHEAD]), [None] * min(len(array), LOOK_AHEAD))
         for index, points in enumerate(array):
             started = time.perf_counter()
             lids = reference.lids(points) if relative else None

@@ -56,7 +56,8 @@ CONVENTION = (
     "slope of output on driver opening (1 = the driver's amplitude), one intercept per sequence, pooled over the "
     "sequences (sum of covariances over sum of driver variances: a driver whose opening barely moves adds little; "
     "the mean of per-sequence slopes is in eval_report.json as mouth_gain_per_sequence / eye_gain_per_sequence); "
-    f"frames without a face dropped, a sequence left out under {MIN_FRAMES} frames or with zero variance. yaw / pitch / roll err = |head pose of the "
+    f"frames without a face dropped, a sequence left out under {MIN_FRAMES} frames or with zero variance. "
+    "yaw / pitch / roll err = |head pose of the "
     "detected landmarks - that of the target landmarks| (solvePnP of the rigid points: upper jaw, nose, eyes, on a "
     "canonical face, so a dropped jaw is not pitch), degrees. NMKE = detected "
     "vs target landmarks over the target's eye distance. ID-SIM to source = to the mean embedding of i's K shots. "
@@ -96,13 +97,8 @@ def opening_correlation(driver: np.ndarray, output: np.ndarray) -> float:
 
 def opening_gain(driver: np.ndarray, output: np.ndarray) -> float:
     """Least-squares slope (with intercept) of output on driver opening. (T,), (T,) -> float; 1 = the driver's
-    amplitude, < 1 damped, 0 frozen. NaN as for ``opening_correlation``."""
-    pair = _paired(driver, output)
-    if pair is None:
-        return math.nan
-    driver, output = pair
-    centred = driver - driver.mean()
-    return float(centred @ (output - output.mean()) / (centred @ centred))
+    amplitude, < 1 damped, 0 frozen. NaN as for ``opening_correlation``. ``pooled_gain`` of one sequence."""
+    return pooled_gain([(driver, output)])
 
 
 def pooled_gain(sequences: Sequence[tuple[np.ndarray, np.ndarray]]) -> float:
@@ -216,7 +212,8 @@ def prepare_sequence(k: int, identity: str, driver: str, driver_rows: np.ndarray
                      source_embedding: np.ndarray, *, shot_meshes: np.ndarray | None = None,
                      driver_meshes: np.ndarray | None = None, retarget: str = "2d") -> CrossSequence:
     """Pick the anchor, retarget the driver onto it (its first frame as the reference, its lids' reference the
-    running median, as ``lsr reenact`` does: ``landmarks.mesh_retarget.retarget_face`` in mode ``retarget``) and precompute what every method's frames are
+    running median, as ``lsr reenact`` does: ``landmarks.mesh_retarget.retarget_face`` in mode ``retarget``) and
+    precompute what every method's frames are
     measured against. shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2) finite; driver_landmarks: (T, 68, 2)
     finite, T >= 1; shot_meshes (K, 468, 3) and driver_meshes (T, 468, 3): face meshes (NaN rows: none), or None.
     target_meshes: the retargeted meshes (T, 468, 3) (NaN rows: none) when both are given."""
@@ -301,7 +298,8 @@ def _finite_mean(values: Sequence[float]) -> float:
 def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str], ks: Sequence[int]) -> list[dict[str, Any]]:
     """One row per (method, K) with cross records (keys: method, k, frames, sequences, mouth_corr, mouth_gain,
     eye_corr, eye_gain (``pooled_gain``), mouth_gain_per_sequence, eye_gain_per_sequence (the mean of
-    ``opening_gain`` over the sequences), yaw_error, pitch_error, roll_error, nmke, idsim_source, sharpness_face, scene_psnr,
+    ``opening_gain`` over the sequences), yaw_error, pitch_error, roll_error, nmke, idsim_source, sharpness_face,
+    scene_psnr,
     scene_psnr_infinite, scene_psnr_of_mean_mse, scene_flicker, no_face); see CONVENTION."""
     rows = []
     for name in methods:
