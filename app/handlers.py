@@ -263,7 +263,7 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
     Images without a face are skipped and named in the notes (an error only when none has a face).
     """
     from lsr.core.sources import (DEFAULT_K, SubjectShots, load_subject_shots, of_the_person, set_anchor,
-                                  spread_shots)
+                                  cover_shots)
     from landmarks.errors import InputFileError, NoFaceError
     from landmarks.imageio import IMAGE_SUFFIXES
     from landmarks.video import VIDEO_SUFFIXES, probe_video
@@ -291,7 +291,7 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
         # for explicitly (the engine then says how many frames had a face if there are too few).
         shots = load_subject_shots(videos[0], size, k=None if k <= DEFAULT_K else int(k), detector=detector)
         if len(shots.frames) > k:
-            shots = set_anchor(spread_shots(shots, int(k)))
+            shots = set_anchor(cover_shots(shots, int(k)))
         return shots, [f"{len(shots.frames)} shot(s) sampled from {videos[0].name}", *shots.notes]
     if len(paths) > MAX_K:
         raise InputFileError(f"{len(paths)} images uploaded; give at most {MAX_K} shots (K <= {MAX_K})")
@@ -322,7 +322,7 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
     frames, points, names = [frames[i] for i in person], [points[i] for i in person], [names[i] for i in person]
     meshes = [meshes[i] for i in person]
     all_meshes = np.stack(meshes) if all(mesh is not None for mesh in meshes) else None
-    shots = set_anchor(spread_shots(SubjectShots(np.stack(frames), np.stack(points), names, meshes=all_meshes), int(k)),
+    shots = set_anchor(cover_shots(SubjectShots(np.stack(frames), np.stack(points), names, meshes=all_meshes), int(k)),
                        full_frames=full_frames)
     notes.insert(0, f"using {len(shots.frames)} of {len(frames)} shot(s) with a face of the person (K={k})")
     return shots, notes
@@ -451,6 +451,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
         )
         stats = written.stats
         notes += written.warnings
+        notes += [written.coverage] if written.coverage else []
         tick = time.perf_counter()
         # no face anywhere in the driver: show the averaging at the first shot's pose
         target_landmarks = written.first_landmarks if written.first_landmarks is not None else shots.landmarks[0]

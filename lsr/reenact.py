@@ -35,7 +35,7 @@ import numpy as np
 
 from lsr.core.engine import STAGES, ReenactorBase, ReenactStats, square_resize
 from lsr.core.provenance import draw_watermark, provenance_metadata
-from lsr.core.sources import LANDMARK_SUFFIXES, describe_driver
+from lsr.core.sources import LANDMARK_SUFFIXES, coverage_note, describe_driver
 from landmarks.errors import InputFileError, LandmarksError, OutputPathError
 from landmarks.imageio import IMAGE_SUFFIXES, check_output_path as check_writable
 from lsr import __version__
@@ -240,6 +240,8 @@ class WrittenVideo:
     warnings: list[str]
     first_landmarks: np.ndarray | None
     """(68, 2) crop pixels of the first frame with a face (None: no face in any frame)."""
+    coverage: str | None = None
+    """One line on how much of the driver lies beyond the shots (``lsr.core.sources.coverage_note``; None: no face)."""
 
 
 def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtime: str, mode: str = "auto",
@@ -265,7 +267,7 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
     frames = reenactor.reenact(driving, mode=mode, smooth=smooth, paste_back=paste_back, scene=scene, retarget=retarget,
                                with_layout=with_layout,
                                landmark_space=landmark_space, landmark_size=landmark_size, progress=progress)
-    first_landmarks = None
+    first_landmarks, driven = None, []
     kind, size = reenactor.backend.layout_kind, reenactor.crop_size
     pca = LayoutPCA()  # fitted on the first frame, kept for the whole video
     encoded = [0.0]
@@ -289,8 +291,9 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
         stack.callback(frames.close)  # stopped early (an error, Ctrl-C): the stages' threads stop before the writers
         with Drain(encode) as drain:  # closed (every frame written) before the writers
             for frame in frames:
-                if first_landmarks is None and frame.landmarks is not None:
-                    first_landmarks = frame.landmarks
+                if frame.landmarks is not None:
+                    first_landmarks = frame.landmarks if first_landmarks is None else first_landmarks
+                    driven.append(frame.landmarks)
                 drain.put(frame)
         encode_seconds = encoded[0]
         stats = reenactor.last_stats
@@ -302,7 +305,8 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
     if info.kind == "video" and stats.frames < info.frames:
         warnings.append(f"warning: {Path(driving).name}: decoded {stats.frames} of its {info.frames} declared frames "
                         "(truncated file?); the output has the decoded ones")
-    return WrittenVideo(stats, warnings, first_landmarks)
+    coverage = coverage_note(reenactor.subject.shots, np.stack(driven), size) if driven else None
+    return WrittenVideo(stats, warnings, first_landmarks, coverage)
 
 
 def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | None = None) -> ReenactStats:
@@ -315,6 +319,8 @@ def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | Non
     )
     for warning in written.warnings:
         print(f"lsr reenact: {warning}")
+    if written.coverage:
+        print(f"lsr reenact: {job.driving}: {written.coverage}")
     if written.stats.no_face:
         print(f"lsr reenact: {job.driving}: {written.stats.no_face} of {written.stats.frames} frame(s) had no face "
               "and were passed through")

@@ -8,8 +8,9 @@ Sources (the subject, thesis §4.3.1: K shots averaged into the latents):
 * one video: up to 4K candidate frames spread evenly over it are decoded in one streaming pass and
   the frames with a face are kept;
 * already-loaded (H, W, 3) uint8 RGB arrays.
-Each usable shot is cropped like the training data (``landmarks.align.crop``). K shots are then taken
-evenly from the usable ones. ``k=None`` uses min(8, usable); an explicit K larger than the usable
+Each usable shot is cropped like the training data (``landmarks.align.crop``). K shots are then chosen to
+cover the person's range (``choose_shots``: the most neutral face first, then the widest mouth, the most closed
+eyes, the furthest turns and glances, ``landmarks.coverage``), not evenly in time. ``k=None`` uses min(8, usable); an explicit K larger than the usable
 shots is an error (it never silently repeats shots).
 Shots of another person's face (a video that cuts to someone else, a stray photo) are left out
 and replaced by other frames of the person (``landmarks.identity``; a note says so).
@@ -99,11 +100,39 @@ def _spread(count: int, wanted: int) -> list[int]:
     return np.unique(np.round(np.linspace(0, count - 1, wanted)).astype(int)).tolist()
 
 
-def spread_shots(shots: SubjectShots, k: int) -> SubjectShots:
-    """At most ``k`` of the shots, evenly spread over them (the policy ``load_subject_shots`` samples with)."""
+def choose_shots(frames: Sequence[np.ndarray], points: Sequence[np.ndarray], k: int) -> list[int]:
+    """K of the usable shots, chosen to cover the person's range of mouth opening, eye closure, head pose and gaze
+    (``landmarks.coverage.choose_covering``, starting from the anchor, ``landmarks.expression.pick_anchor``).
+    frames: N x (S, S, 3) uint8 crops; points: N x (68, 2) their landmarks -> sorted indices (all when N <= k)."""
+    from landmarks.appearance import gaze
+    from landmarks.coverage import choose_covering, face_features
+    from landmarks.expression import pick_anchor
+
+    if len(frames) <= k:
+        return list(range(len(frames)))
+    landmarks = np.stack([np.asarray(p, np.float64) for p in points])
+    size = frames[0].shape[:2]
+    gazes = np.array([gaze(frame, p)[0] for frame, p in zip(frames, landmarks)])
+    return choose_covering(face_features(landmarks, size, gazes), k, pick_anchor(landmarks, size))
+
+
+def coverage_note(shots: SubjectShots, targets: np.ndarray, target_size: int) -> str:
+    """One line on how much of a driven sequence lies beyond the shots, and which shots would help
+    (``landmarks.coverage.describe``). targets: (T, 68, 2) the driven landmarks in crop pixels of side
+    ``target_size`` (NaN rows: no face)."""
+    from landmarks.coverage import describe, face_features
+
+    targets = np.asarray(targets, np.float64).reshape(-1, NUM_LANDMARKS, 2)
+    found = targets[np.isfinite(targets).all(axis=(1, 2))]
+    shot_size = shots.frames.shape[1:3]
+    return describe(face_features(shots.landmarks, shot_size), face_features(found, (target_size, target_size)))
+
+
+def cover_shots(shots: SubjectShots, k: int) -> SubjectShots:
+    """At most ``k`` of the shots, chosen as ``load_subject_shots`` chooses them (``choose_shots``)."""
     if len(shots.frames) <= k:
         return shots
-    chosen = _spread(len(shots.frames), k)
+    chosen = choose_shots(list(shots.frames), list(shots.landmarks), k)
     names = [shots.names[i] for i in chosen] if len(shots.names) == len(shots.frames) else shots.names
     lost = shots.anchor not in chosen  # its frame went with its shot: anchor 0, composited into its crop
     return dataclasses.replace(shots, frames=shots.frames[chosen], landmarks=shots.landmarks[chosen], names=names,
@@ -246,7 +275,7 @@ def load_subject_shots(source: SourceInput, size: int, *, k: int | None = None, 
             f"K={k} is larger than the usable source frames: only {len(frames)} of {len(tried)} tried frame(s) of "
             f"{where} have a face; lower --k to <= {len(frames)} or give more shots"
         )
-    chosen, note = of_the_person(frames, points, _spread(len(frames), k or DEFAULT_K))
+    chosen, note = of_the_person(frames, points, choose_shots(frames, points, k or DEFAULT_K))
     notes += [note] if note else []
     if k is not None and k > len(chosen):
         raise InputFileError(f"K={k} is larger than the source frames that show the person, {len(chosen)}: {note}; "

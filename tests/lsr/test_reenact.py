@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import importlib.util
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -69,6 +70,8 @@ def test_single_job_keeps_frames_fps_audio_and_marks_provenance(weights, inputs,
     assert sbs_frames == 5 and "synthetic" in sbs_metadata["comment"]
     summary = capsys.readouterr().out
     assert "| 1 | 0 | 0 | 5 | 1 |" in summary  # 1 job, 5 frames, 1 without a face
+    # one line on what the driver asks beyond the one shot (landmarks.coverage)
+    assert re.search(r"lsr reenact: .*drive\.mp4: (the driver .* would help|the shots cover the driver)", summary)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.mp4", "sbs.mp4"]  # no temp files left
 
 
