@@ -322,6 +322,12 @@ class EvalConfig:
     """Use only the first N identities (0 = all)."""
     seed: int = 0
     """Seed of the K-shot sampling."""
+    shot_choice: Literal["random", "cover"] = "random"
+    """How the K shots are drawn from an identity's inputs: random (the protocol's, seeded) or cover (as lsr reenact
+    chooses them from many: spanning the person's mouth, eyes, pose and gaze, lsr.core.sources.choose_shots)."""
+    judge: bool = True
+    """Also judge the moving parts with dlib's 68 points, a detector that did not drive them (lsr.eval.parts):
+    mouth and eye correlation and gain, gaze, iris contrast and the mouth's inside, cross-identity."""
     detector: Literal["mesh", "hog", "cnn"] = "mesh"
     """Face detector for ground-truth and output landmarks: mesh (MediaPipe, what reenact uses by default) or dlib's."""
     reference_warps: tuple[Literal["mesh", "tps"], ...] = ("mesh",)

@@ -152,11 +152,14 @@ def face_sharpness(frame: np.ndarray, frame_landmarks: np.ndarray, scene: np.nda
     return output / reference if reference > 0 else math.nan
 
 
-def figure_frames(driver_landmarks: np.ndarray, image_size: tuple[int, int]) -> list[tuple[str, int]]:
+def figure_frames(driver_landmarks: np.ndarray, image_size: tuple[int, int],
+                  gazes: np.ndarray | None = None) -> list[tuple[str, int]]:
     """The driver frames the cross-identity figure shows: its widest mouth opening ("mouth"), its roundest open
     mouth ("O": inner-lip gap over inner-lip width, among the frames opened more than the median), its smallest
-    eye opening ("blink") and its largest |yaw| relative to its first frame ("turn"). driver_landmarks: (T, 68, 2)
-    finite -> up to 4 (label, index), one per distinct frame (labels of a frame chosen twice are joined by '+')."""
+    eye opening ("blink"), its iris furthest from its median position ("glance", when ``gazes`` are given: (T,)
+    horizontal iris offsets, NaN unknown) and its largest |yaw| relative to its first frame ("turn").
+    driver_landmarks: (T, 68, 2) finite -> up to 5 (label, index), one per distinct frame (labels of a frame
+    chosen twice are joined by '+')."""
     from landmarks.expression import eye_opening, mouth_opening
     from landmarks.pose import estimate_head_pose
 
@@ -170,8 +173,11 @@ def figure_frames(driver_landmarks: np.ndarray, image_size: tuple[int, int]) -> 
     openings = mouth_opening(points)
     width = np.linalg.norm(points[:, 64] - points[:, 60], axis=-1) / np.maximum(metrics.eye_distance(points), 1e-9)
     roundness = np.where(openings >= np.median(openings), openings / np.maximum(width, 1e-9), -np.inf)
-    picks = {"mouth": np.nanargmax(openings), "O": int(np.argmax(roundness)), "blink": np.nanargmin(eye_opening(points)),
-             "turn": np.nanargmax(turn) if np.isfinite(turn).any() else 0}
+    picks = {"mouth": np.nanargmax(openings), "O": int(np.argmax(roundness)), "blink": np.nanargmin(eye_opening(points))}
+    if gazes is not None and np.isfinite(gazes).sum() >= 2:
+        aside = np.abs(np.asarray(gazes, np.float64) - np.nanmedian(gazes))
+        picks["glance"] = int(np.nanargmax(aside))
+    picks["turn"] = np.nanargmax(turn) if np.isfinite(turn).any() else 0
     chosen: dict[int, list[str]] = {}
     for label, index in picks.items():
         chosen.setdefault(int(index), []).append(label)

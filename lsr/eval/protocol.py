@@ -49,7 +49,7 @@ import numpy as np
 from landmarks.expression import eye_opening, mouth_opening
 from landmarks.identity import DESCRIPTOR_SIZE, judged, same_person
 from lsr.errors import ConfigError, DatasetError
-from lsr.eval import cross, idsim
+from lsr.eval import cross, idsim, parts
 from lsr.eval.baselines import check_method_inputs, nearest_shot_indices
 from lsr.eval.metrics import face_mask, mse, nmke, psnr_from_mse, sharpness, ssim
 
@@ -402,6 +402,8 @@ def run_protocol(
     progress: bool = True,
     retarget: str = "2d",
     cross_drivers: int = 1,
+    shot_choice: str = "random",
+    judge: bool = True,
 ) -> EvalRun:
     """Evaluate ``methods`` on ``identities`` for each K (see the module docstring).
 
@@ -415,6 +417,9 @@ def run_protocol(
     as "<name>+ft", when ``finetune`` is true. retarget: how the cross-identity driver is moved onto the anchor
     (``landmarks.mesh_retarget.retarget_face``'s mode; "3d" needs the identities' meshes, "2d" elsewhere).
     cross_drivers: each identity is driven by the next this many identities (i+1, i+2, ...; at most all others).
+    shot_choice: "random" (the protocol's: ``sample_shots``) or "cover" (as ``lsr reenact`` chooses them from many:
+    ``lsr.core.sources.choose_shots``, spanning the person's mouth, eyes, pose and gaze). judge: also read the
+    moving parts with dlib's 68 points, a detector that did not drive them (``lsr.eval.parts``; needs dlib).
     """
     from tqdm import tqdm
 
@@ -422,6 +427,9 @@ def run_protocol(
         raise ConfigError("evaluation needs at least one method, one identity and one K")
     if cross_drivers < 1:
         raise ConfigError(f"cross_drivers must be >= 1, got {cross_drivers}")
+    if shot_choice not in ("random", "cover"):
+        raise ConfigError(f"shot_choice must be 'random' or 'cover', got {shot_choice!r}")
+    judged_by = parts.Judge() if judge else None
     records: list[dict[str, Any]] = []
     cross_records: list[dict[str, Any]] = []
     counts: dict[str, Any] = {"holdouts_without_face": {}, "inputs_without_face": {}}
@@ -449,7 +457,14 @@ def run_protocol(
             candidates = np.flatnonzero(same_person_inputs[identity.name])
             if k > len(candidates):  # fewer input frames with a face than K: use them all, and say so
                 counts.setdefault("k_capped", {})[f"K={k} {identity.name}"] = int(len(candidates))
-            shot_indices = sample_shots(candidates, min(k, len(candidates)), seed, identity.name)  # input frames only
+            if shot_choice == "cover":  # input frames only, as lsr reenact would choose them
+                from lsr.core.sources import choose_shots
+
+                shot_indices = candidates[choose_shots([identity.input_frames[i] for i in candidates],
+                                                       [identity.input_landmarks[i] for i in candidates],
+                                                       min(k, len(candidates)))]
+            else:
+                shot_indices = sample_shots(candidates, min(k, len(candidates)), seed, identity.name)
             shots = [identity.input_frames[i] for i in shot_indices]
             shot_landmarks = identity.input_landmarks[shot_indices].astype(np.float64)
             driveable = np.flatnonzero(np.isfinite(identity.holdout_landmarks).all(axis=(1, 2)))
@@ -461,6 +476,7 @@ def run_protocol(
             target_embeddings = [analysis.embedding(t, p) for t, p in zip(targets, target_landmarks)]
             source_embedding = idsim.mean_embedding(np.stack([analysis.embedding(s, p) for s, p in zip(shots, shot_landmarks)]))
             face_masks = np.stack([face_mask(p, targets.shape[1:3]) for p in target_landmarks]) if len(targets) else None
+            beyond = parts.beyond_flags(shots, shot_landmarks, targets, target_landmarks)  # (T,) dicts
             shifts = range(1, min(cross_drivers, len(identities) - 1) + 1) if cross_identity else range(0)
             drivers = [identities[(position + shift) % len(identities)] for shift in shifts]
             target_segmentations = _rows_or_none(identity.holdout_segmentations, driveable)
@@ -475,6 +491,9 @@ def run_protocol(
                         shot_meshes=identity.input_meshes[shot_indices] if meshes else None,  # type: ignore[index]
                         driver_meshes=driver.holdout_meshes[driver_rows] if meshes else None,  # type: ignore[index]
                         retarget=retarget), _rows_or_none(driver.holdout_segmentations, driver_rows)))
+            judges = [None if judged_by is None else parts.CrossJudge(
+                judged_by, sequence.driver_frames, sequence.driver_landmarks, shots, shot_landmarks)
+                for sequence, _ in sequences]  # the driver and shots read once, for every method
             mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
             cross_meshes: list[dict[str, np.ndarray]] = [{} for _ in sequences]  # per driver, made once
             if any(takes_meshes(method) for method in methods) and identity.has_meshes:
@@ -506,6 +525,7 @@ def run_protocol(
                 sharpnesses = sharpness(outputs, targets)  # (T,) Laplacian-variance ratio, NaN for a flat ground truth
                 extra = {key: metric(outputs, targets) for key, metric in (frame_metrics or {}).items()}
                 truth_mouth, truth_eye = mouth_opening(target_landmarks), eye_opening(target_landmarks)  # (T,) each
+                part_scores = parts.self_part_scores(outputs, targets, target_landmarks)
                 for row, output in enumerate(outputs):
                     found = analysis.landmarks(output)
                     align = found if found is not None else target_landmarks[row]
@@ -521,8 +541,9 @@ def run_protocol(
                         "output_mouth": float(mouth_opening(found)) if found is not None else float("nan"),
                         "output_eye": float(eye_opening(found)) if found is not None else float("nan"),
                         **{key: float(values[row]) for key, values in extra.items()},
+                        **part_scores[row], **beyond[row],
                     })
-                for (sequence, driver_segmentations), meshes_of in zip(sequences, cross_meshes):
+                for (sequence, driver_segmentations), meshes_of, sequence_judge in zip(sequences, cross_meshes, judges):
                     before = _warp_counts(model)
                     # the oracle sees the driving frames' segmentation, i.e. the driver's own (not retargeted) layout
                     extra_inputs = {"target_segmentations": driver_segmentations} if oracle else {}
@@ -532,7 +553,11 @@ def run_protocol(
                     _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))
                     _check_outputs(crossed, len(sequence.targets), targets.shape[1:], name)
                     composited = cross.composite(sequence, crossed)
-                    cross_records.extend(cross.evaluate_method(sequence, name, composited, analysis))
+                    measured = cross.evaluate_method(sequence, name, composited, analysis)
+                    if sequence_judge is not None:
+                        readings = sequence_judge.records(composited, [analysis.landmarks(f) for f in composited])
+                        measured = [{**record, **extra} for record, extra in zip(measured, readings)]
+                    cross_records.extend(measured)
                     if on_cross_outputs is not None:
                         on_cross_outputs(name, sequence, composited)
                 if on_outputs is not None:
@@ -547,7 +572,9 @@ def run_protocol(
         for record, label in zip(at_k, labels):
             record["bucket"] = label
     settings = {"ks": [int(k) for k in ks], "seed": seed, "max_holdouts": max_holdouts, "cross_identity": cross_identity,
-                "cross_drivers": int(cross_drivers),
+                "cross_drivers": int(cross_drivers), "shot_choice": shot_choice,
                 "identities": [i.name for i in identities], "methods": [v[0] for v in variants],
                 "bucket_thresholds": "fixed" if fixed_thresholds else "terciles per K"}
+    if judged_by is not None:
+        counts["judge_boxed"] = judged_by.boxed
     return EvalRun(records, cross_records, thresholds, counts, settings)

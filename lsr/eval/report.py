@@ -21,7 +21,7 @@ import numpy as np
 
 from landmarks.identity import SAME_PERSON_RADIUS
 from lsr.errors import ConfigError
-from lsr.eval import cross, idsim, metrics
+from lsr.eval import cross, idsim, metrics, parts
 from lsr.eval.protocol import BUCKETS, EvalIdentity, EvalRun
 from lsr.machine import shown_path
 
@@ -118,6 +118,8 @@ def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backb
         "rows": rows,
         "buckets": bucket_rows,
         "cross": cross.summarise_cross(run.cross_records, run.settings["methods"], run.settings["ks"]),
+        "parts_self": parts.summarise_self(run.records, run.settings["methods"], run.settings["ks"]),
+        "parts_cross": parts.summarise_cross(run.cross_records, run.settings["methods"], run.settings["ks"]),
         "thresholds": {str(k): list(v) for k, v in run.thresholds.items()},
         "counts": run.counts,
         "settings": run.settings,
@@ -147,6 +149,7 @@ def summarise(run: EvalRun, fid: dict[tuple[str, int], Any] | None = None, backb
             "buckets": "pose distance = raw-landmark NMKE between the nearest source shot and the target (the single "
                        "shot at K = 1), split at the thresholds given above the bucket table",
             "cross": cross.CONVENTION,
+            "parts": parts.CONVENTION,
         },
     }
 
@@ -228,6 +231,7 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
                          f"{angles} | {_fmt(row['nmke'])} | "
                          f"{_fmt(row['idsim_source'])} | {_fmt(row['sharpness_face'], 2)} | {_scene_psnr(row)} | "
                          f"{_fmt(row['scene_flicker'], 2)} | {row['no_face']} |")
+    lines += parts.markdown(summary.get("parts_self", []), summary.get("parts_cross", []), _fmt)
     warp = summary["counts"].get("warp_methods", {})
     if warp:
         lines += ["", "## TPS warp methods used (warps: one per frame for tps and mesh, up to 3 for tps_mean3 and "
@@ -251,6 +255,12 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
     without_meshes = summary["counts"].get("skipped_without_meshes", {})
     for name, runs in without_meshes.items():
         lines.append(f"- {name}: skipped where the data has no face meshes ({len(runs)} of the (K, identity) runs)")
+    if "judge_boxed" in summary["counts"]:
+        lines.append(f"- images where dlib's detector found no face and the judge's shape predictor used the primary "
+                     f"detector's box: {summary['counts']['judge_boxed']}")
+    if settings.get("shot_choice") == "cover":
+        lines.append("- shots: chosen to cover each person's mouth, eyes, pose and gaze (lsr.core.sources.choose_shots, "
+                     "as lsr reenact chooses them), not drawn at random")
     capped = summary["counts"].get("k_capped")
     if capped:
         lines.append(f"- K larger than the input frames with a face (all of them used instead): {capped}")
@@ -337,13 +347,13 @@ def title_strip(labels: Sequence[str], side: int) -> np.ndarray:
 
 
 CROSS_FIGURE_SKIPS = ("nearest_shot",)  # a copy of a shot: no re-enactment to look at
-CROSS_FIGURE_SIDE = 176  # panel side: 5 people x 4 moments stay a picture, not a poster
+CROSS_FIGURE_SIDE = 176  # panel side: 5 people x 5 moments stay a picture, not a poster
 
 
 class CrossFigure:
     """``on_cross_outputs`` callback that keeps, at K = ``k``, what the cross-identity figure shows (``picture``):
-    per driven identity up to 4 driver frames (``lsr.eval.cross.figure_frames``: widest mouth, blink, head turn,
-    middle frame), the source's anchor shot and each method's composited frame at those times."""
+    per driven identity up to 5 driver frames (``lsr.eval.cross.figure_frames``: widest mouth, "O", blink, glance
+    aside, head turn), the source's anchor shot and each method's composited frame at those times."""
 
     def __init__(self, k: int) -> None:
         self.k = k
@@ -355,7 +365,8 @@ class CrossFigure:
         if sequence.k != self.k:
             return
         if sequence.identity not in self.rows:
-            picks = cross.figure_frames(sequence.driver_landmarks, sequence.driver_frames.shape[1:3])
+            picks = cross.figure_frames(sequence.driver_landmarks, sequence.driver_frames.shape[1:3],
+                                        parts.frame_gazes(sequence.driver_frames, sequence.driver_landmarks))
             self.rows[sequence.identity] = {"frames": picks, "anchor": sequence.anchor_shot, "by": sequence.driver,
                                             "driver": sequence.driver_frames[[i for _, i in picks]], "methods": {}}
         row = self.rows[sequence.identity]
@@ -493,7 +504,8 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     run = run_protocol(methods, identities, cfg.k, FaceAnalysis(detector), seed=cfg.seed, max_holdouts=cfg.max_holdouts,
                        fixed_thresholds=thresholds, cross_identity=cfg.cross_identity, on_outputs=on_outputs,
                        on_cross_outputs=cross_figure, frame_metrics=frame_metrics, progress=cfg.progress,
-                       retarget=cfg.retarget, cross_drivers=cfg.cross_drivers)
+                       retarget=cfg.retarget, cross_drivers=cfg.cross_drivers, shot_choice=cfg.shot_choice,
+                       judge=cfg.judge)
     if skipped:
         run.counts["skipped_methods"] = skipped
     fid_results = {}
@@ -520,7 +532,7 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
             path = cross_figure_path(cfg.figure)
             write_image(path, cross_figure.picture())
             print(f"cross-identity figure (K={cfg.figure_k}: driver | source anchor | composited outputs; widest mouth, "
-                  f"blink, head turn, middle frame per identity) written to {path}")
+                  f"'O', blink, glance aside and head turn per identity) written to {path}")
     text = markdown(summary, machine_markdown())
     markdown_path, json_path = write_report(Path(cfg.out), summary, text)
     print(text)

@@ -255,3 +255,36 @@ def test_self_reenactment_correlates_the_outputs_expression_with_the_truth(rng):
     assert rows["reversed"]["mouth_corr"] < -0.9 and rows["reversed"]["eye_corr"] < 0
     text = report.markdown(report.summarise(run), "| machine | |")
     assert "| NMKE ↓ | mouth corr ↑ | eye corr ↑ | no face |" in text and "| 1.00 | 1.00 | 0 |" in text
+
+
+def test_moving_parts_are_scored_and_judged_beside_the_other_metrics(rng):
+    identities = [_posed_identity(rng, "a"), _posed_identity(rng, "b")]
+    analysis = protocol.FaceAnalysis(_FixedFaceDetector(identities[0].holdout_landmarks[2]))
+    run = protocol.run_protocol([_TargetSpy("first")], identities, [3], analysis, finetune=False, progress=False)
+    part_keys = {f"{score}_{region}" for score in ("psnr", "ssim", "sharpness") for region in ("mouth", "eyes")}
+    beyond_keys = {f"beyond_{name}" for name in ("mouth", "eyes", "yaw", "gaze", "any")}
+    assert all(part_keys | beyond_keys <= set(r) for r in run.records)
+    # the hold-outs turn up to 12 degrees and open the mouth: some lie beyond 3 shots, flagged from the truth
+    assert any(r["beyond_any"] for r in run.records)
+    judge_keys = {"judge_driver_mouth", "judge_output_mouth", "judge_driver_eye", "judge_output_eye",
+                  "judge_driver_gaze", "judge_output_gaze", "iris_contrast", "output_cavity", "driver_cavity",
+                  "judge_no_face"}
+    assert all(judge_keys <= set(r) for r in run.cross_records)
+    assert "judge_boxed" in run.counts
+    unjudged = protocol.run_protocol([_TargetSpy("first")], identities, [3], analysis, finetune=False,
+                                     progress=False, judge=False)
+    assert not any("judge_no_face" in r for r in unjudged.cross_records) and "judge_boxed" not in unjudged.counts
+
+
+def test_covering_shots_are_the_ones_lsr_reenact_would_choose(rng):
+    from lsr.core.sources import choose_shots
+
+    identity = _posed_identity(rng, "a")
+    spy = _SpyMethod()
+    protocol.run_protocol([spy], [identity], [3], protocol.FaceAnalysis(_FixedFaceDetector(identity.input_landmarks[1])),
+                          finetune=False, cross_identity=False, progress=False, shot_choice="cover", judge=False)
+    expected = choose_shots(list(identity.input_frames), list(identity.input_landmarks), 3)
+    assert [shot.tobytes() for shot in spy.seen[:3]] == [identity.input_frames[i].tobytes() for i in expected]
+    with pytest.raises(ConfigError, match="shot_choice"):
+        protocol.run_protocol([spy], [identity], [3], protocol.FaceAnalysis(_FixedFaceDetector(identity.input_landmarks[1])),
+                              progress=False, shot_choice="evenly")

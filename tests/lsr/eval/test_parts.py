@@ -1,0 +1,103 @@
+"""lsr.eval.parts: the moving parts' regions and scores, beyond-the-shots flags, the independent judge and the
+summaries of ``lsr eval``."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from lsr.eval import parts
+
+
+def test_part_masks_cover_the_mouth_and_both_eyes_and_nothing_between(drawn_face):
+    image, points = drawn_face(mouth=0.2)
+    masks = parts.part_masks(points, image.shape[:2])
+    mouth_centre = np.round(points[60:68].mean(0)).astype(int)
+    for first in (36, 42):
+        centre = np.round(points[first:first + 6].mean(0)).astype(int)
+        assert masks["eyes"][centre[1], centre[0]] and not masks["mouth"][centre[1], centre[0]]
+    assert masks["mouth"][mouth_centre[1], mouth_centre[0]] and not masks["eyes"][mouth_centre[1], mouth_centre[0]]
+    nose = np.round(points[30]).astype(int)
+    assert not masks["eyes"][nose[1], nose[0]] and not masks["mouth"][nose[1], nose[0]]
+    empty = parts.part_masks(np.full((68, 2), np.nan), image.shape[:2])
+    assert not empty["mouth"].any() and not empty["eyes"].any()
+    with pytest.raises(ValueError, match="68, 2"):
+        parts.part_masks(np.zeros((2, 68, 2)), image.shape[:2])
+
+
+def test_region_scores_see_a_blurred_mouth_and_leave_the_eyes_alone(drawn_face):
+    image, points = drawn_face(mouth=0.25)
+    image = np.ascontiguousarray(image + np.random.default_rng(0).integers(0, 12, image.shape, dtype=np.uint8))
+    masks = parts.part_masks(points, image.shape[:2])
+    blurred = image.copy()
+    blurred[masks["mouth"]] = cv2.GaussianBlur(image, (9, 9), 3)[masks["mouth"]]
+    (same,), (soft,) = (parts.self_part_scores(o[None], image[None], points[None]) for o in (image, blurred))
+    assert math.isinf(same["psnr_mouth"]) and same["ssim_mouth"] == pytest.approx(1.0, abs=1e-5)
+    assert same["sharpness_mouth"] == pytest.approx(1.0) and same["sharpness_eyes"] == pytest.approx(1.0)
+    assert np.isfinite(soft["psnr_mouth"]) and soft["ssim_mouth"] < 0.95 and soft["sharpness_mouth"] < 0.5
+    assert math.isinf(soft["psnr_eyes"]) and soft["sharpness_eyes"] == pytest.approx(1.0)
+    assert parts.self_part_scores(image[:0], image[:0], points[None][:0]) == []
+
+
+def test_beyond_flags_mark_the_hold_outs_no_shot_covers(drawn_face):
+    shots = [drawn_face(mouth=m) for m in (0.0, 0.1)]
+    targets = [drawn_face(mouth=0.05), drawn_face(mouth=0.35), drawn_face((0.2,), mouth=0.05)]
+    flags = parts.beyond_flags([s[0] for s in shots], np.stack([s[1] for s in shots]),
+                               np.stack([t[0] for t in targets]), np.stack([t[1] for t in targets]))
+    assert [f["beyond_mouth"] for f in flags] == [False, True, False]
+    assert [f["beyond_gaze"] for f in flags] == [False, False, True]
+    assert [f["beyond_any"] for f in flags] == [False, True, True]
+    assert not any(f["beyond_eyes"] or f["beyond_yaw"] for f in flags)
+
+
+def test_the_judge_reads_a_real_face_and_boxes_where_its_detector_finds_none():
+    import skimage.data
+
+    astronaut = skimage.data.astronaut()
+    judge = parts.Judge()
+    found = judge.landmarks(astronaut)
+    assert found.shape == (68, 2) and judge.boxed == 0
+    blank = np.full_like(astronaut, 128)
+    assert judge.landmarks(blank) is None and judge.boxed == 0
+    assert judge.landmarks(blank.copy(), fallback=found) is None  # the same content: memoised, not asked again
+    hidden = astronaut.copy()
+    hidden[40:200, 100:330] = 128  # the upper face covered: dlib's detector misses it, the fallback's box is used
+    assert not judge.detector.detect(hidden)
+    assert judge.landmarks(hidden, fallback=found).shape == (68, 2) and judge.boxed == 1
+
+
+def _cross_record(identity: str, frame: int, driver: float, output: float, cavity: float = math.nan) -> dict:
+    return {"method": "m", "k": 8, "identity": identity, "driver": "d", "frame": frame, "judge_no_face": False,
+            "judge_driver_mouth": driver, "judge_output_mouth": output, "judge_driver_eye": 0.1 + driver,
+            "judge_output_eye": 0.1 + 0.5 * driver, "judge_driver_gaze": driver, "judge_output_gaze": -driver,
+            "iris_contrast": 0.5 + frame / 10, "output_cavity": cavity, "driver_cavity": 0.3 if cavity == cavity else math.nan,
+            "output_teeth": 0.0 if cavity == cavity else math.nan, "driver_teeth": 0.2 if cavity == cavity else math.nan}
+
+
+def test_summarise_cross_judges_correlation_gain_gaze_contrast_and_the_inside():
+    records = [_cross_record("a", t, 0.02 * t, 0.01 * t + 0.05, cavity=0.7 if t >= 3 else math.nan) for t in range(6)]
+    (row,) = parts.summarise_cross(records, ["m"], [8])
+    assert row["judge_mouth_corr"] == pytest.approx(1.0) and row["judge_mouth_gain"] == pytest.approx(0.5)
+    assert row["judge_eye_gain"] == pytest.approx(0.5) and row["gaze_corr"] == pytest.approx(-1.0)
+    assert row["iris_contrast"] == pytest.approx(0.75) and row["open_frames"] == 3
+    assert (row["output_cavity"], row["driver_cavity"], row["output_teeth"], row["driver_teeth"]) == \
+        pytest.approx((0.7, 0.3, 0.0, 0.2))
+    assert parts.summarise_cross(records, ["other"], [8]) == []
+
+
+def test_summarise_self_splits_all_hold_outs_from_those_beyond():
+    base = {"method": "m", "k": 8, "psnr_eyes": 30.0, "ssim_eyes": 0.9, "sharpness_eyes": 1.0,
+            "beyond_eyes": False, "beyond_yaw": False, "beyond_gaze": False}
+    records = [{**base, "psnr_mouth": 30.0, "ssim_mouth": 0.9, "sharpness_mouth": 1.0, "beyond_mouth": False,
+                "beyond_any": False}] * 3
+    records += [{**base, "psnr_mouth": 20.0, "ssim_mouth": 0.5, "sharpness_mouth": 0.5, "beyond_mouth": True,
+                 "beyond_any": True}]
+    (row,) = parts.summarise_self(records, ["m"], [8])
+    assert (row["frames"], row["beyond_frames"], row["counts"]["mouth"]) == (4, 1, 1)
+    assert row["all"]["psnr_mouth"] == pytest.approx(27.5) and row["mouth_beyond"]["psnr_mouth"] == 20.0
+    assert row["eyes_beyond"] == {}
+    text = "\n".join(parts.markdown([row], [], lambda v, digits=3: "–" if v is None else f"{v:.{digits}f}"))
+    assert "| m | 8 | beyond: 1 (mouth 1, eyes 0, pose 0, gaze 0) | 20.00 | 0.500 | 0.50 | – | – | – |" in text
