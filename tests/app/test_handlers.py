@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -162,6 +164,8 @@ def test_the_app_and_lsr_reenact_write_the_same_video(tiny_app_weights, app_inpu
                  "--watermark", "--out", str(cli_out), "--no-progress"]) == 0
     app_frames, cli_frames = list(iter_frames(result.video)), list(iter_frames(cli_out))
     assert len(app_frames) == len(cli_frames) == 5
+    # the app says what the driver asks beyond the shots, as lsr reenact does (landmarks.coverage)
+    assert re.search(r"- (the driver .* would help|the shots cover the driver)", result.summary)
     for app_frame, cli_frame in zip(app_frames, cli_frames):
         np.testing.assert_array_equal(app_frame, cli_frame)
     with av.open(str(result.video)) as app_video, av.open(str(cli_out)) as cli_video:
