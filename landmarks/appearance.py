@@ -33,7 +33,8 @@ PATCH_WIDTH = 48  # eye patch: the corners land at x = 8 and x = 40 on row 12 of
 PATCH_HEIGHT = 24
 PATCH_CORNERS = ((8.0, 12.0), (40.0, 12.0))
 DARK_QUANTILE, BRIGHT_QUANTILE = 0.10, 0.90  # iris_contrast's dark and bright levels
-IRIS_WEIGHT_QUANTILES = (0.05, 0.55)  # iris_offset: pixels darker than the 5th percentile weigh 1, lighter than the 55th 0
+# iris_offset: pixels darker than the eye's 5th percentile weigh 1, lighter than its 55th 0
+IRIS_WEIGHT_QUANTILES = (0.05, 0.55)
 OPEN_MOUTH = 0.08  # inner-lip gap / inter-ocular distance above which a mouth has an interior to look at
 TEETH_GREY = 0.85  # teeth: at least this share of the face's median grey ...
 TEETH_SATURATION = 0.30  # ... and less saturated than this (HSV saturation in [0, 1]): lips and tongues are red

@@ -183,7 +183,8 @@ def describe(shot_features: np.ndarray, target_features: np.ndarray, who: str = 
     if flags.eyes.any():
         eyes = shots[:, 1][np.isfinite(shots[:, 1])]
         closed = eyes.size and eyes.min() < CLOSED_EYES * np.median(eyes)
-        parts.append(f"closes the eyes further in {_share(flags.eyes)}" + ("" if closed else " (no shot shows closed eyes)"))
+        parts.append(f"closes the eyes further in {_share(flags.eyes)}"
+                     + ("" if closed else " (no shot shows closed eyes)"))
         wanted.append("the eyes closed")
     for label, side in (("left", flags.yaw_left), ("right", flags.yaw_right)):
         if side.any():

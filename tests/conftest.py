@@ -49,7 +49,8 @@ def _drawn_face(iris_at=(0.0,), mouth: float = 0.0, eyes: float = 1.0, inside=(3
     points = set_mouth_opening(project_canonical(0.0, 0.0, 0.0, DRAWN_SIZE).astype(np.float64), mouth)
     for upper, lower in ((37, 41), (38, 40), (43, 47), (44, 46)):
         middle = (points[upper] + points[lower]) / 2
-        points[upper], points[lower] = middle + (points[upper] - middle) * eyes, middle + (points[lower] - middle) * eyes
+        points[upper] = middle + (points[upper] - middle) * eyes
+        points[lower] = middle + (points[lower] - middle) * eyes
     image = np.full((*DRAWN_SIZE, 3), SKIN, np.uint8)
     for first in (36, 42):
         eye = points[first:first + 6]

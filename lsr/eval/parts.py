@@ -226,7 +226,8 @@ def _region_scores(group: Sequence[dict[str, Any]]) -> dict[str, float]:
     return scores
 
 
-def summarise_self(records: Sequence[dict[str, Any]], methods: Sequence[str], ks: Sequence[int]) -> list[dict[str, Any]]:
+def summarise_self(records: Sequence[dict[str, Any]], methods: Sequence[str],
+                   ks: Sequence[int]) -> list[dict[str, Any]]:
     """Per (method, K): the region scores over all hold-outs and over those beyond the shots (any feature); the
     mouth region also over the hold-outs whose mouth lies beyond, the eye region over those whose eyes or gaze do.
     -> rows {method, k, frames, beyond_frames, all: {...}, beyond: {...}, mouth_beyond: {...}, eyes_beyond: {...},
@@ -248,7 +249,8 @@ def summarise_self(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
     return rows
 
 
-def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str], ks: Sequence[int]) -> list[dict[str, Any]]:
+def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str],
+                    ks: Sequence[int]) -> list[dict[str, Any]]:
     """Per (method, K) over the cross records with the judge's fields: judge_mouth_corr / judge_eye_corr (mean
     per-sequence correlation), judge_mouth_gain / judge_eye_gain (pooled), gaze_corr (mean per-sequence correlation
     of output and driver gaze), iris_contrast (median), output_cavity / driver_cavity and output_teeth /
@@ -312,8 +314,8 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
     lines: list[str] = []
     if self_rows:
         lines += ["", "## Moving parts, self re-enactment: all hold-outs and those beyond the shots", "",
-                  "| method | K | frames | mouth PSNR ↑ | mouth SSIM ↑ | mouth sharpness →1 | eyes PSNR ↑ | eyes SSIM ↑ | "
-                  "eyes sharpness →1 |", "|---|---|---|---|---|---|---|---|---|"]
+                  "| method | K | frames | mouth PSNR ↑ | mouth SSIM ↑ | mouth sharpness →1 | eyes PSNR ↑ | "
+                  "eyes SSIM ↑ | eyes sharpness →1 |", "|---|---|---|---|---|---|---|---|---|"]
         for row in self_rows:
             counts = row["counts"]
             for label, mouth, eyes, frames in (
@@ -321,18 +323,21 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
                     ("beyond", row["mouth_beyond"], row["eyes_beyond"],
                      f"{row['beyond_frames']} (mouth {counts['mouth']}, eyes {counts['eyes']}, pose {counts['yaw']}, "
                      f"gaze {counts['gaze']})")):
-                cells = [fmt(mouth.get("psnr_mouth"), 2), fmt(mouth.get("ssim_mouth")), fmt(mouth.get("sharpness_mouth"), 2),
-                         fmt(eyes.get("psnr_eyes"), 2), fmt(eyes.get("ssim_eyes")), fmt(eyes.get("sharpness_eyes"), 2)]
+                cells = [fmt(mouth.get("psnr_mouth"), 2), fmt(mouth.get("ssim_mouth")),
+                         fmt(mouth.get("sharpness_mouth"), 2), fmt(eyes.get("psnr_eyes"), 2),
+                         fmt(eyes.get("ssim_eyes")), fmt(eyes.get("sharpness_eyes"), 2)]
                 lines.append(f"| {row['method']} | {row['k']} | {label}: {frames} | " + " | ".join(cells) + " |")
     if cross_rows:
         lines += ["", "## Moving parts, cross-identity: judged by dlib's 68 points (not the driving detector)", "",
-                  "| method | K | frames | mouth corr ↑ | mouth gain →1 | eye corr ↑ | eye gain →1 | gaze corr ↑ | "
-                  "iris contrast →1 | cavity out (driver) | teeth out (driver) | open frames | judge no face |",
+                  "| method | K | frames | mouth corr ↑ | mouth gain →1 | eye corr ↑ | eye gain →1 | "
+                  "gaze corr ↑ | iris contrast →1 | cavity out (driver) | teeth out (driver) | open frames | "
+                  "judge no face |",
                   "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for row in cross_rows:
             lines.append(
                 f"| {row['method']} | {row['k']} | {row['frames']} | {fmt(row['judge_mouth_corr'], 2)} | "
-                f"{fmt(row['judge_mouth_gain'], 2)} | {fmt(row['judge_eye_corr'], 2)} | {fmt(row['judge_eye_gain'], 2)} | "
+                f"{fmt(row['judge_mouth_gain'], 2)} | {fmt(row['judge_eye_corr'], 2)} | "
+                f"{fmt(row['judge_eye_gain'], 2)} | "
                 f"{fmt(row['gaze_corr'], 2)} | {fmt(row['iris_contrast'], 2)} | "
                 f"{fmt(row['output_cavity'], 2)} ({fmt(row['driver_cavity'], 2)}) | "
                 f"{fmt(row['output_teeth'], 2)} ({fmt(row['driver_teeth'], 2)}) | {row['open_frames']} | "

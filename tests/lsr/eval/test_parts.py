@@ -70,11 +70,13 @@ def test_the_judge_reads_a_real_face_and_boxes_where_its_detector_finds_none():
 
 
 def _cross_record(identity: str, frame: int, driver: float, output: float, cavity: float = math.nan) -> dict:
+    opened = not math.isnan(cavity)
     return {"method": "m", "k": 8, "identity": identity, "driver": "d", "frame": frame, "judge_no_face": False,
             "judge_driver_mouth": driver, "judge_output_mouth": output, "judge_driver_eye": 0.1 + driver,
             "judge_output_eye": 0.1 + 0.5 * driver, "judge_driver_gaze": driver, "judge_output_gaze": -driver,
-            "iris_contrast": 0.5 + frame / 10, "output_cavity": cavity, "driver_cavity": 0.3 if cavity == cavity else math.nan,
-            "output_teeth": 0.0 if cavity == cavity else math.nan, "driver_teeth": 0.2 if cavity == cavity else math.nan}
+            "iris_contrast": 0.5 + frame / 10, "output_cavity": cavity,
+            "driver_cavity": 0.3 if opened else math.nan, "output_teeth": 0.0 if opened else math.nan,
+            "driver_teeth": 0.2 if opened else math.nan}
 
 
 def test_summarise_cross_judges_correlation_gain_gaze_contrast_and_the_inside():
