@@ -324,7 +324,7 @@ class EvalConfig:
     """Seed of the K-shot sampling."""
     shot_choice: Literal["random", "cover"] = "random"
     """How the K shots are drawn from an identity's inputs: random (the protocol's, seeded) or cover (as lsr reenact
-    chooses them from many: spanning the person's mouth, eyes, pose and gaze, lsr.core.sources.choose_shots)."""
+    chooses them from many: spread over them with the person's extreme moments swapped in, lsr.core.sources.choose_shots)."""
     judge: bool = True
     """Also judge the moving parts with dlib's 68 points, a detector that did not drive them (lsr.eval.parts):
     mouth and eye correlation and gain, gaze, iris contrast and the mouth's inside, cross-identity."""

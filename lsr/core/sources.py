@@ -9,9 +9,10 @@ Sources (the subject, thesis §4.3.1: K shots averaged into the latents):
   the frames with a face are kept;
 * already-loaded (H, W, 3) uint8 RGB arrays.
 Each usable shot is cropped like the training data (``landmarks.align.crop``). K shots are then chosen to
-cover the person's range (``choose_shots``: the most neutral face first, then the widest mouth, the most closed
-eyes, the furthest turns and glances, ``landmarks.coverage``), not evenly in time. ``k=None`` uses min(8, usable); an explicit K larger than the usable
-shots is an error (it never silently repeats shots).
+cover the person (``choose_shots``, ``landmarks.coverage``): spread over them, the most neutral face among them,
+and the person's extreme moments (the widest mouth, the most closed eyes, the furthest turns and glances) swapped
+in where no chosen shot shows them. ``k=None`` uses min(8, usable); an explicit K larger than the usable shots is an
+error (it never silently repeats shots).
 Shots of another person's face (a video that cuts to someone else, a stray photo) are left out
 and replaced by other frames of the person (``landmarks.identity``; a note says so).
 
@@ -102,7 +103,7 @@ def _spread(count: int, wanted: int) -> list[int]:
 
 def choose_shots(frames: Sequence[np.ndarray], points: Sequence[np.ndarray], k: int) -> list[int]:
     """K of the usable shots, chosen to cover the person's range of mouth opening, eye closure, head pose and gaze
-    (``landmarks.coverage.choose_covering``, starting from the anchor, ``landmarks.expression.pick_anchor``).
+    (``landmarks.coverage.choose_covering``, the anchor among them: ``landmarks.expression.pick_anchor``).
     frames: N x (S, S, 3) uint8 crops; points: N x (68, 2) their landmarks -> sorted indices (all when N <= k)."""
     from landmarks.appearance import gaze
     from landmarks.coverage import choose_covering, face_features

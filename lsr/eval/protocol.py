@@ -418,7 +418,7 @@ def run_protocol(
     (``landmarks.mesh_retarget.retarget_face``'s mode; "3d" needs the identities' meshes, "2d" elsewhere).
     cross_drivers: each identity is driven by the next this many identities (i+1, i+2, ...; at most all others).
     shot_choice: "random" (the protocol's: ``sample_shots``) or "cover" (as ``lsr reenact`` chooses them from many:
-    ``lsr.core.sources.choose_shots``, spanning the person's mouth, eyes, pose and gaze). judge: also read the
+    ``lsr.core.sources.choose_shots``: spread, with the person's extreme moments swapped in). judge: also read the
     moving parts with dlib's 68 points, a detector that did not drive them (``lsr.eval.parts``; needs dlib).
     """
     from tqdm import tqdm
