@@ -322,8 +322,9 @@ class EvalConfig:
     """Use only the first N identities (0 = all)."""
     seed: int = 0
     """Seed of the K-shot sampling."""
-    shot_choice: Literal["random", "cover"] = "random"
-    """How the K shots are drawn from an identity's inputs: random (the protocol's, seeded) or cover (as lsr reenact
+    shot_choice: Literal["random", "spread", "cover"] = "random"
+    """How the K shots are drawn from an identity's inputs: random (the protocol's, seeded), spread (evenly over the
+    inputs in time) or cover (as lsr reenact
     chooses them from many: spread over them with the person's extreme moments swapped in, lsr.core.sources.choose_shots)."""
     judge: bool = True
     """Also judge the moving parts with dlib's 68 points, a detector that did not drive them (lsr.eval.parts):

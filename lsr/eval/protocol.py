@@ -54,6 +54,7 @@ from lsr.eval.baselines import check_method_inputs, nearest_shot_indices
 from lsr.eval.metrics import face_mask, mse, nmke, psnr_from_mse, sharpness, ssim
 
 BUCKETS = ("low", "medium", "high")
+SHOT_CHOICES = ("random", "spread", "cover")  # run_protocol's shot_choice
 
 
 @runtime_checkable
@@ -417,7 +418,8 @@ def run_protocol(
     as "<name>+ft", when ``finetune`` is true. retarget: how the cross-identity driver is moved onto the anchor
     (``landmarks.mesh_retarget.retarget_face``'s mode; "3d" needs the identities' meshes, "2d" elsewhere).
     cross_drivers: each identity is driven by the next this many identities (i+1, i+2, ...; at most all others).
-    shot_choice: "random" (the protocol's: ``sample_shots``) or "cover" (as ``lsr reenact`` chooses them from many:
+    shot_choice: "random" (the protocol's: ``sample_shots``), "spread" (evenly over the inputs in time) or "cover" (as
+    ``lsr reenact`` chooses them from many:
     ``lsr.core.sources.choose_shots``: spread, with the person's extreme moments swapped in). judge: also read the
     moving parts with dlib's 68 points, a detector that did not drive them (``lsr.eval.parts``; needs dlib).
     """
@@ -427,8 +429,8 @@ def run_protocol(
         raise ConfigError("evaluation needs at least one method, one identity and one K")
     if cross_drivers < 1:
         raise ConfigError(f"cross_drivers must be >= 1, got {cross_drivers}")
-    if shot_choice not in ("random", "cover"):
-        raise ConfigError(f"shot_choice must be 'random' or 'cover', got {shot_choice!r}")
+    if shot_choice not in SHOT_CHOICES:
+        raise ConfigError(f"shot_choice must be one of {', '.join(SHOT_CHOICES)}, got {shot_choice!r}")
     judged_by = parts.Judge() if judge else None
     records: list[dict[str, Any]] = []
     cross_records: list[dict[str, Any]] = []
@@ -463,6 +465,9 @@ def run_protocol(
                 shot_indices = candidates[choose_shots([identity.input_frames[i] for i in candidates],
                                                        [identity.input_landmarks[i] for i in candidates],
                                                        min(k, len(candidates)))]
+            elif shot_choice == "spread":  # evenly over the inputs in time
+                shot_indices = candidates[np.unique(np.round(np.linspace(0, len(candidates) - 1, min(k, len(candidates))))
+                                                    .astype(int))]
             else:
                 shot_indices = sample_shots(candidates, min(k, len(candidates)), seed, identity.name)
             shots = [identity.input_frames[i] for i in shot_indices]

@@ -261,6 +261,8 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
     if settings.get("shot_choice") == "cover":
         lines.append("- shots: chosen to cover each person's mouth, eyes, pose and gaze (lsr.core.sources.choose_shots, "
                      "as lsr reenact chooses them), not drawn at random")
+    elif settings.get("shot_choice") == "spread":
+        lines.append("- shots: spread evenly over each person's input frames in time, not drawn at random")
     capped = summary["counts"].get("k_capped")
     if capped:
         lines.append(f"- K larger than the input frames with a face (all of them used instead): {capped}")

@@ -285,6 +285,10 @@ def test_covering_shots_are_the_ones_lsr_reenact_would_choose(rng):
                           finetune=False, cross_identity=False, progress=False, shot_choice="cover", judge=False)
     expected = choose_shots(list(identity.input_frames), list(identity.input_landmarks), 3)
     assert [shot.tobytes() for shot in spy.seen[:3]] == [identity.input_frames[i].tobytes() for i in expected]
+    spread = _SpyMethod()
+    protocol.run_protocol([spread], [identity], [3], protocol.FaceAnalysis(_FixedFaceDetector(identity.input_landmarks[1])),
+                          finetune=False, cross_identity=False, progress=False, shot_choice="spread", judge=False)
+    assert [shot.tobytes() for shot in spread.seen[:3]] == [identity.input_frames[i].tobytes() for i in (0, 2, 4)]
     with pytest.raises(ConfigError, match="shot_choice"):
         protocol.run_protocol([spy], [identity], [3], protocol.FaceAnalysis(_FixedFaceDetector(identity.input_landmarks[1])),
                               progress=False, shot_choice="evenly")
