@@ -406,6 +406,9 @@ class RunResult:
     """One PNG per frame: driver | landmarks | layout | output (``panel_path``)."""
     timing: str
     summary: str
+    coverage: np.ndarray | None = None
+    """(H, W, 3) uint8: what the shots cover of the driven frames (``landmarks.coverage.coverage_picture``); None
+    when no frame had a face."""
 
 
 def panel_path(panels_dir: str | os.PathLike, index: int) -> Path:
@@ -416,6 +419,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
                     motion: str = "relative", smooth: bool = True, paste_back: bool = False, finetune_steps: int = 0,
                     runtime: str = "torch", watermark: bool = True) -> RunResult:
     """Shots -> subject latents (K-shot average) -> one output frame per driver frame, written as the app shows them."""
+    from landmarks.coverage import coverage_picture
     from landmarks.errors import InputFileError
     from landmarks.imageio import write_image
     from lsr.reenact import stage_table, write_reenactment
@@ -471,6 +475,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     notes.append(f"{stats.frames} frame(s) at {info.fps:g} fps"
                  + (f", {stats.no_face} without a face (passed through)" if stats.no_face else "")
                  + (", audio kept" if audio else ""))
+    coverage = None if written.coverage_features is None else coverage_picture(*written.coverage_features)
     return RunResult(output, stats.frames, shot_gallery(shots), averaging, panels_dir, stage_table(stats),
-                     "\n".join(f"- {note}" for note in notes))
+                     "\n".join(f"- {note}" for note in notes), coverage)
 

@@ -154,7 +154,7 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
         scrubber = gr.Slider(minimum=0, maximum=max(1, result.frames - 1), value=0, step=1, interactive=True,
                              label=f"frame (0-{result.frames - 1})")
         return (str(result.video), result.summary, result.shots, result.averaging, first, scrubber,
-                str(result.panels_dir), result.timing)
+                str(result.panels_dir), result.timing, result.coverage)
 
     def show_frame(index, panels_dir):
         if not panels_dir:
@@ -210,7 +210,8 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                                            label="Photos of one person (1-32), or one short video")
                     example_person = gr.Button("Use the example person (synthetic)", size="sm")
                     k = gr.Slider(1, cfg.max_k, value=min(4, cfg.max_k), step=1, label="K: shots to average",
-                                  info="A video source is sampled to K frames; extra photos are thinned evenly.")
+                                  info="K shots are chosen to cover the person: spread over a video or the photos, "
+                                       "with the widest mouth, closed eyes and furthest turns swapped in.")
                     shots = gr.Gallery(label="Shots used, with detected landmarks", columns=2, height=300,
                                        object_fit="contain", elem_id="shots")
                     source_notes = gr.Markdown()
@@ -242,6 +243,8 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                     video = gr.Video(label="Re-enacted video (H.264, with the driver's audio)", elem_id="result-video",
                                      interactive=False, autoplay=False)
                     summary = gr.Markdown(elem_id="run-summary")
+                    coverage = gr.Image(label="What the shots cover of the driver (blue: shots; red: frames beyond "
+                                        "every shot)", interactive=False, elem_id="coverage", format="png")
             gr.Markdown("### The latent layout, frame by frame\n" + LAYOUT_HELP)
             panel = gr.Image(label="driving frame | landmarks | latent layout | output", show_label=False,
                              interactive=False, elem_id="layout-panel", format="png")  # titles are in the picture
@@ -287,7 +290,7 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
         run_button.click(
             run,
             inputs=[source_files, k, driving, motion, smooth, paste_back, finetune_steps, runtime, watermark],
-            outputs=[video, summary, shots, averaging, panel, scrubber, panels_state, timing],
+            outputs=[video, summary, shots, averaging, panel, scrubber, panels_state, timing, coverage],
             concurrency_id=MODEL_EVENTS,
             api_name="reenact",
             show_progress_on=[video],  # one progress bar / error badge, on the result, not on every panel

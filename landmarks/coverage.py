@@ -202,3 +202,54 @@ def describe(shot_features: np.ndarray, target_features: np.ndarray, who: str = 
     joined = parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
     helps = wanted[0] if len(wanted) == 1 else ", ".join(wanted[:-1]) + " and " + wanted[-1]
     return f"{who} {joined} ({_share(flags.any)} of frames in all): shots with {helps} would help"
+
+
+LABELS = {"mouth": "mouth opening", "eyes": "eye opening", "yaw": "head yaw (deg)", "pitch": "head pitch (deg)",
+          "gaze": "gaze (eye widths)"}
+PICTURE_WIDTH, ROW_HEIGHT, LABEL_WIDTH, SHARE_WIDTH = 720, 40, 150, 110
+COLOURS = {"covered": (210, 210, 210), "shot": (30, 90, 220), "inside": (90, 90, 90), "beyond": (220, 40, 40)}
+
+
+def coverage_picture(shot_features: np.ndarray, target_features: np.ndarray) -> np.ndarray:
+    """What the shots cover, as a picture: a row per feature (``LABELS``), the shots' range (grown by ``MARGINS``)
+    as a grey band with a blue mark per shot, each target frame a tick, dark inside the band and red beyond it,
+    and the share beyond at the right. (K, 5), (T, 5) from ``face_features`` -> (H, ``PICTURE_WIDTH``, 3) uint8
+    RGB. A feature no shot has (NaN) is left out; one no target has says so."""
+    import cv2
+
+    shots = np.asarray(shot_features, np.float64)
+    targets = np.asarray(target_features, np.float64).reshape(-1, len(FEATURES))
+    flags = beyond_shots(shots, targets)
+    beyond = {"mouth": flags.mouth, "eyes": flags.eyes, "yaw": flags.yaw, "pitch": flags.pitch, "gaze": flags.gaze}
+    rows = [name for column, name in enumerate(FEATURES) if np.isfinite(shots[:, column]).any()]
+    image = np.full((ROW_HEIGHT * (len(rows) + 1), PICTURE_WIDTH, 3), 255, np.uint8)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    cv2.putText(image, "shots (blue), the driven frames (dark: a shot is near, red: beyond every shot)",
+                (8, 24), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    left, right = LABEL_WIDTH, PICTURE_WIDTH - SHARE_WIDTH
+    for row, name in enumerate(rows, start=1):
+        column = FEATURES.index(name)
+        shot_values = shots[:, column][np.isfinite(shots[:, column])]
+        target_values = targets[:, column]
+        known = np.isfinite(target_values)
+        values = np.concatenate([shot_values, target_values[known]])
+        low, high = values.min() - MARGINS[name], values.max() + MARGINS[name]
+        low, high = min(low, shot_values.min() - STEPS[name] / 2), max(high, shot_values.max() + STEPS[name] / 2)
+
+        def x(value: float) -> int:
+            return int(round(left + (value - low) / (high - low) * (right - left)))
+
+        middle = ROW_HEIGHT * row + ROW_HEIGHT // 2
+        cv2.putText(image, LABELS[name], (8, middle + 5), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+        band = (x(shot_values.min() - MARGINS[name]), x(shot_values.max() + MARGINS[name]))
+        cv2.rectangle(image, (band[0], middle - 12), (band[1], middle + 12), COLOURS["covered"], -1)
+        cv2.line(image, (left, middle), (right, middle), (170, 170, 170), 1)
+        for value, outside in zip(target_values[known], beyond[name][known]):
+            colour = COLOURS["beyond"] if outside else COLOURS["inside"]
+            cv2.line(image, (x(value), middle - 6), (x(value), middle + 6), colour, 1)
+        for value in shot_values:
+            cv2.line(image, (x(value), middle - 14), (x(value), middle + 14), COLOURS["shot"], 2)
+        share = f"{100.0 * beyond[name][known].mean():.0f}% beyond" if known.any() else "not measured"
+        colour = COLOURS["beyond"] if known.any() and beyond[name][known].any() else (0, 0, 0)
+        cv2.putText(image, share, (right + 10, middle + 5), font, 0.45, colour, 1, cv2.LINE_AA)
+    return image

@@ -35,7 +35,8 @@ import numpy as np
 
 from lsr.core.engine import STAGES, ReenactorBase, ReenactStats, square_resize
 from lsr.core.provenance import draw_watermark, provenance_metadata
-from lsr.core.sources import LANDMARK_SUFFIXES, coverage_note, describe_driver
+from lsr.core.sources import LANDMARK_SUFFIXES, coverage_features, describe_driver
+from landmarks.coverage import describe
 from landmarks.errors import InputFileError, LandmarksError, OutputPathError
 from landmarks.imageio import IMAGE_SUFFIXES, check_output_path as check_writable
 from lsr import __version__
@@ -241,7 +242,10 @@ class WrittenVideo:
     first_landmarks: np.ndarray | None
     """(68, 2) crop pixels of the first frame with a face (None: no face in any frame)."""
     coverage: str | None = None
-    """One line on how much of the driver lies beyond the shots (``lsr.core.sources.coverage_note``; None: no face)."""
+    """One line on how much of the driver lies beyond the shots (``landmarks.coverage.describe``; None: no face)."""
+    coverage_features: tuple[np.ndarray, np.ndarray] | None = None
+    """What the shots and the driven frames show (``lsr.core.sources.coverage_features``), for a picture of it
+    (``landmarks.coverage.coverage_picture``); None: no face."""
 
 
 def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtime: str, mode: str = "auto",
@@ -305,8 +309,8 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
     if info.kind == "video" and stats.frames < info.frames:
         warnings.append(f"warning: {Path(driving).name}: decoded {stats.frames} of its {info.frames} declared frames "
                         "(truncated file?); the output has the decoded ones")
-    coverage = coverage_note(reenactor.subject.shots, np.stack(driven), size) if driven else None
-    return WrittenVideo(stats, warnings, first_landmarks, coverage)
+    features = coverage_features(reenactor.subject.shots, np.stack(driven), size) if driven else None
+    return WrittenVideo(stats, warnings, first_landmarks, None if features is None else describe(*features), features)
 
 
 def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | None = None) -> ReenactStats:

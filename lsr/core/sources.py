@@ -117,16 +117,26 @@ def choose_shots(frames: Sequence[np.ndarray], points: Sequence[np.ndarray], k: 
     return choose_covering(face_features(landmarks, size, gazes), k, pick_anchor(landmarks, size))
 
 
-def coverage_note(shots: SubjectShots, targets: np.ndarray, target_size: int) -> str:
-    """One line on how much of a driven sequence lies beyond the shots, and which shots would help
-    (``landmarks.coverage.describe``). targets: (T, 68, 2) the driven landmarks in crop pixels of side
-    ``target_size`` (NaN rows: no face)."""
-    from landmarks.coverage import describe, face_features
+def coverage_features(shots: SubjectShots, targets: np.ndarray, target_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """What the shots and a driven sequence show (``landmarks.coverage.face_features``): targets: (T, 68, 2) the
+    driven landmarks in crop pixels of side ``target_size`` (NaN rows: no face, left out) -> ((K, 5) of the shots,
+    with their gaze; (T', 5) of the targets, whose gaze is unknown)."""
+    from landmarks.appearance import gaze
+    from landmarks.coverage import face_features
 
     targets = np.asarray(targets, np.float64).reshape(-1, NUM_LANDMARKS, 2)
     found = targets[np.isfinite(targets).all(axis=(1, 2))]
-    shot_size = shots.frames.shape[1:3]
-    return describe(face_features(shots.landmarks, shot_size), face_features(found, (target_size, target_size)))
+    gazes = np.array([gaze(frame, points)[0] for frame, points in zip(shots.frames, shots.landmarks)])
+    return (face_features(shots.landmarks, shots.frames.shape[1:3], gazes),
+            face_features(found, (target_size, target_size)))
+
+
+def coverage_note(shots: SubjectShots, targets: np.ndarray, target_size: int) -> str:
+    """One line on how much of a driven sequence lies beyond the shots, and which shots would help
+    (``landmarks.coverage.describe`` of ``coverage_features``)."""
+    from landmarks.coverage import describe
+
+    return describe(*coverage_features(shots, targets, target_size))
 
 
 def cover_shots(shots: SubjectShots, k: int) -> SubjectShots:

@@ -88,6 +88,7 @@ def test_upload_run_video_plays_and_layout_shows(page, app_inputs, tmp_path):
     assert duration > 0
     page.wait_for_function(PANEL_SHOWN)
     page.locator("#averaging img").first.wait_for()
+    page.locator("#coverage img").first.wait_for()  # what the shots cover of the driver, as a picture
     assert "frame(s)" in page.locator("#run-summary").inner_text()
     assert keep_screenshot(page, tmp_path, "app_reenacted.png").stat().st_size > 0
 

@@ -37,8 +37,8 @@ def test_reenact_returns_playable_video_with_every_frame(app_server, app_server_
     from landmarks.video import probe_video
 
     driver_frames = probe_video(app_inputs["driving"]).frames
-    # gr.State outputs are not part of the API: video, summary, shots, averaging, panel, scrubber, timing.
-    video, summary, shots, averaging, panel, _scrubber, timing = call_reenact(
+    # gr.State outputs are not part of the API: video, summary, shots, averaging, panel, scrubber, timing, coverage.
+    video, summary, shots, averaging, panel, _scrubber, timing, coverage = call_reenact(
         app_server, app_inputs["source"], app_inputs["driving"]
     )
     path = video["video"] if isinstance(video, dict) else video
@@ -53,6 +53,7 @@ def test_reenact_returns_playable_video_with_every_frame(app_server, app_server_
     assert f"{driver_frames} frame(s)" in summary and "audio kept" in summary
     assert len(shots) == 1 and len(averaging) == 2  # one shot alone + the K-shot average
     assert panel is not None and "synthesis" in timing
+    assert coverage is not None  # the picture of what the shots cover (landmarks.coverage.coverage_picture)
 
 
 def test_paste_back_puts_the_result_into_the_source_scene(app_server, app_inputs, tmp_path):

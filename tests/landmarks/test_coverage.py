@@ -116,3 +116,19 @@ def test_the_line_says_how_much_lies_beyond_and_which_shots_would_help():
     assert covered.startswith("the shots cover the driver")
     with_closed = face_features(np.stack([face(), face(eyes=0.3)]), SIZE)
     assert "no shot shows closed eyes" not in describe(with_closed, face_features(face(eyes=0.05)[None], SIZE))
+
+
+def test_the_picture_marks_the_frames_beyond_in_red_and_says_their_share():
+    from landmarks.coverage import COLOURS, FEATURES, ROW_HEIGHT, coverage_picture
+
+    shots = face_features(np.stack([face(), face(mouth=0.1)]), SIZE, np.array([0.0, 0.02]))
+    covered = coverage_picture(shots, face_features(np.stack([face(mouth=0.05)] * 4), SIZE))
+    assert covered.dtype == np.uint8 and covered.shape == (ROW_HEIGHT * (len(FEATURES) + 1), 720, 3)
+    red = np.all(covered == COLOURS["beyond"], axis=-1)
+    assert not red.any()
+    wide = coverage_picture(shots, face_features(np.stack([face(mouth=0.05)] * 3 + [face(mouth=0.4)]), SIZE))
+    mouth_row = wide[ROW_HEIGHT:2 * ROW_HEIGHT]
+    assert np.all(mouth_row == COLOURS["beyond"], axis=-1).any()  # the wide mouth's tick (and its share) in red
+    assert not np.all(wide[2 * ROW_HEIGHT:] == COLOURS["beyond"], axis=-1).any()  # nothing else is beyond
+    no_gaze = face_features(np.stack([face(), face(mouth=0.1)]), SIZE)  # shots without a gaze: no gaze row
+    assert coverage_picture(no_gaze, no_gaze).shape[0] == ROW_HEIGHT * len(FEATURES)
