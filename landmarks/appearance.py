@@ -54,9 +54,9 @@ def _grey(image: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY).astype(np.float64)
 
 
-def _eye_patch(grey: np.ndarray, points: np.ndarray, first: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def _eye_patch(grey: np.ndarray, points: np.ndarray, first: int) -> tuple[np.ndarray, np.ndarray] | None:
     """One eye mapped into a PATCH_WIDTH x PATCH_HEIGHT patch with its corners at PATCH_CORNERS -> (grey patch,
-    polygon mask, the 2x3 patch-from-image matrix), or None for a closed or degenerate eye."""
+    polygon mask), or None for a closed or degenerate eye."""
     eye = points[first:first + 6]
     left, right = eye[0], eye[3]
     width = float(np.linalg.norm(right - left))
@@ -74,7 +74,7 @@ def _eye_patch(grey: np.ndarray, points: np.ndarray, first: int) -> tuple[np.nda
     cv2.fillPoly(mask, [np.round(polygon * 4).astype(np.int32)], 1, shift=2)
     if mask.sum() < 12:
         return None
-    return patch, mask.astype(bool), matrix
+    return patch, mask.astype(bool)
 
 
 def iris_offset(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
@@ -93,7 +93,7 @@ def iris_offset(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
         found = _eye_patch(grey, points, first)
         if found is None:
             continue
-        patch, mask, _ = found
+        patch, mask = found
         values = patch[mask]
         dark, light = np.quantile(values, IRIS_WEIGHT_QUANTILES)
         if light - dark < 1.0:  # a flat eye: nothing to locate
@@ -106,6 +106,13 @@ def iris_offset(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
         found_centre = np.array([(weights * xs).sum(), (weights * ys).sum()]) / total
         offsets[row] = (found_centre - centre) / scale
     return offsets
+
+
+def gazes(images, landmarks: np.ndarray) -> np.ndarray:
+    """The horizontal ``gaze`` of each image: N x (H, W, 3) uint8, (N, 68, 2) -> (N,) float64 (NaN: eyes closed
+    or no face)."""
+    return np.array([gaze(image, points)[0] for image, points in zip(images, np.asarray(landmarks, np.float64))],
+                    np.float64)
 
 
 def gaze(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
@@ -128,7 +135,7 @@ def iris_contrast(image: np.ndarray, landmarks: np.ndarray) -> float:
         found = _eye_patch(grey, points, first)
         if found is None:
             continue
-        patch, mask, _ = found
+        patch, mask = found
         dark, bright = np.quantile(patch[mask], (DARK_QUANTILE, BRIGHT_QUANTILE))
         if bright > 0:
             values.append((bright - dark) / bright)

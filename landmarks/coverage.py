@@ -58,6 +58,11 @@ def face_features(landmarks: np.ndarray, image_size: tuple[int, int], gazes: np.
     return features
 
 
+def spread(count: int, wanted: int) -> list[int]:
+    """``wanted`` indices spread evenly over range(count) (all of them when count <= wanted), sorted."""
+    return np.unique(np.round(np.linspace(0, count - 1, wanted)).astype(int)).tolist()
+
+
 def _scaled(features: np.ndarray) -> np.ndarray:
     """Features in units of ``STEPS``, unknown values at 0 (they add no distance)."""
     steps = np.array([STEPS[name] for name in FEATURES])
@@ -89,7 +94,7 @@ def choose_covering(features: np.ndarray, k: int, first: int, extremes: int | No
         raise ValueError(f"k must be in 1..{count}, got {k}")
     if not 0 <= first < count:
         raise ValueError(f"first must index one of the {count} candidates, got {first}")
-    chosen = np.unique(np.round(np.linspace(0, count - 1, k)).astype(int)).tolist()
+    chosen = spread(count, k)
     if first not in chosen:  # the anchor replaces the spread's pick nearest to it in time
         chosen[int(np.argmin(np.abs(np.array(chosen) - first)))] = int(first)
     limit = (max(1, k // 2) if k >= 2 else 0) if extremes is None else extremes

@@ -241,11 +241,14 @@ class WrittenVideo:
     warnings: list[str]
     first_landmarks: np.ndarray | None
     """(68, 2) crop pixels of the first frame with a face (None: no face in any frame)."""
-    coverage: str | None = None
-    """One line on how much of the driver lies beyond the shots (``landmarks.coverage.describe``; None: no face)."""
     coverage_features: tuple[np.ndarray, np.ndarray] | None = None
     """What the shots and the driven frames show (``lsr.core.sources.coverage_features``), for a picture of it
     (``landmarks.coverage.coverage_picture``); None: no face."""
+
+    @property
+    def coverage(self) -> str | None:
+        """One line on how much of the driver lies beyond the shots (``landmarks.coverage.describe``; None: no face)."""
+        return None if self.coverage_features is None else describe(*self.coverage_features)
 
 
 def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtime: str, mode: str = "auto",
@@ -310,7 +313,7 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
         warnings.append(f"warning: {Path(driving).name}: decoded {stats.frames} of its {info.frames} declared frames "
                         "(truncated file?); the output has the decoded ones")
     features = coverage_features(reenactor.subject.shots, np.stack(driven), size) if driven else None
-    return WrittenVideo(stats, warnings, first_landmarks, None if features is None else describe(*features), features)
+    return WrittenVideo(stats, warnings, first_landmarks, features)
 
 
 def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | None = None) -> ReenactStats:

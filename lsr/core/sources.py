@@ -41,6 +41,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from landmarks.coverage import spread
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.imageio import IMAGE_SUFFIXES, read_image
 from landmarks.parts import NUM_LANDMARKS
@@ -94,18 +95,11 @@ class DriverInfo:
     has_audio: bool = False
 
 
-def _spread(count: int, wanted: int) -> list[int]:
-    """``wanted`` indices spread evenly over range(count) (all of them when count <= wanted)."""
-    if count <= wanted:
-        return list(range(count))
-    return np.unique(np.round(np.linspace(0, count - 1, wanted)).astype(int)).tolist()
-
-
 def choose_shots(frames: Sequence[np.ndarray], points: Sequence[np.ndarray], k: int) -> list[int]:
     """K of the usable shots, chosen to cover the person's range of mouth opening, eye closure, head pose and gaze
     (``landmarks.coverage.choose_covering``, the anchor among them: ``landmarks.expression.pick_anchor``).
     frames: N x (S, S, 3) uint8 crops; points: N x (68, 2) their landmarks -> sorted indices (all when N <= k)."""
-    from landmarks.appearance import gaze
+    from landmarks.appearance import gazes
     from landmarks.coverage import choose_covering, face_features
     from landmarks.expression import pick_anchor
 
@@ -113,30 +107,20 @@ def choose_shots(frames: Sequence[np.ndarray], points: Sequence[np.ndarray], k: 
         return list(range(len(frames)))
     landmarks = np.stack([np.asarray(p, np.float64) for p in points])
     size = frames[0].shape[:2]
-    gazes = np.array([gaze(frame, p)[0] for frame, p in zip(frames, landmarks)])
-    return choose_covering(face_features(landmarks, size, gazes), k, pick_anchor(landmarks, size))
+    return choose_covering(face_features(landmarks, size, gazes(frames, landmarks)), k, pick_anchor(landmarks, size))
 
 
 def coverage_features(shots: SubjectShots, targets: np.ndarray, target_size: int) -> tuple[np.ndarray, np.ndarray]:
     """What the shots and a driven sequence show (``landmarks.coverage.face_features``): targets: (T, 68, 2) the
     driven landmarks in crop pixels of side ``target_size`` (NaN rows: no face, left out) -> ((K, 5) of the shots,
     with their gaze; (T', 5) of the targets, whose gaze is unknown)."""
-    from landmarks.appearance import gaze
+    from landmarks.appearance import gazes
     from landmarks.coverage import face_features
 
     targets = np.asarray(targets, np.float64).reshape(-1, NUM_LANDMARKS, 2)
     found = targets[np.isfinite(targets).all(axis=(1, 2))]
-    gazes = np.array([gaze(frame, points)[0] for frame, points in zip(shots.frames, shots.landmarks)])
-    return (face_features(shots.landmarks, shots.frames.shape[1:3], gazes),
+    return (face_features(shots.landmarks, shots.frames.shape[1:3], gazes(shots.frames, shots.landmarks)),
             face_features(found, (target_size, target_size)))
-
-
-def coverage_note(shots: SubjectShots, targets: np.ndarray, target_size: int) -> str:
-    """One line on how much of a driven sequence lies beyond the shots, and which shots would help
-    (``landmarks.coverage.describe`` of ``coverage_features``)."""
-    from landmarks.coverage import describe
-
-    return describe(*coverage_features(shots, targets, target_size))
 
 
 def cover_shots(shots: SubjectShots, k: int) -> SubjectShots:
@@ -204,7 +188,7 @@ def _source_candidates(source: SourceInput, k: int | None) -> Iterator[tuple[str
             from landmarks.video import iter_frames, probe_video
 
             total = probe_video(path).frames
-            wanted = set(_spread(total, CANDIDATES_PER_SHOT * (k or DEFAULT_K)))
+            wanted = set(spread(total, CANDIDATES_PER_SHOT * (k or DEFAULT_K)))
             for index, frame in enumerate(iter_frames(path)):
                 if index in wanted:
                     yield f"{path}#{index}", frame

@@ -39,8 +39,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from landmarks.appearance import OPEN_MOUTH, gaze, iris_contrast, mouth_interior
+from landmarks.appearance import OPEN_MOUTH, gaze, gazes, iris_contrast, mouth_interior
 from lsr.eval import metrics
+from lsr.eval.cross import _finite_mean
 
 MOUTH_DILATION = 0.15  # mouth region: outer-lip hull dilated by this x the inter-ocular distance
 EYE_DILATION = 0.12  # eye regions: each eye's hull dilated by this x the inter-ocular distance
@@ -92,13 +93,6 @@ def self_part_scores(outputs: np.ndarray, targets: np.ndarray, target_landmarks:
     return scores
 
 
-def frame_gazes(frames: Sequence[np.ndarray], landmarks: np.ndarray) -> np.ndarray:
-    """Horizontal gaze of each frame (``landmarks.appearance.gaze``'s x). (N, S, S, 3), (N, 68, 2) -> (N,), NaN:
-    eyes closed or no face."""
-    return np.array([gaze(frame, points)[0] if np.isfinite(points).all() else math.nan
-                     for frame, points in zip(frames, np.asarray(landmarks, np.float64))], np.float64)
-
-
 def beyond_flags(shots: Sequence[np.ndarray], shot_landmarks: np.ndarray, targets: np.ndarray,
                  target_landmarks: np.ndarray) -> list[dict[str, bool]]:
     """Which targets lie beyond the shots (``landmarks.coverage.beyond_shots``, module docstring). shots: K x (S, S,
@@ -107,8 +101,8 @@ def beyond_flags(shots: Sequence[np.ndarray], shot_landmarks: np.ndarray, target
     from landmarks.coverage import beyond_shots, face_features
 
     size = targets.shape[1:3] if len(targets) else shots[0].shape[:2]
-    shot_features = face_features(shot_landmarks, size, frame_gazes(shots, shot_landmarks))
-    target_features = face_features(target_landmarks, size, frame_gazes(targets, target_landmarks))
+    shot_features = face_features(shot_landmarks, size, gazes(shots, shot_landmarks))
+    target_features = face_features(target_landmarks, size, gazes(targets, target_landmarks))
     flags = beyond_shots(shot_features, target_features)
     columns = {"mouth": flags.mouth, "eyes": flags.eyes, "yaw": flags.yaw | flags.pitch, "gaze": flags.gaze,
                "any": flags.any}
@@ -210,11 +204,6 @@ def _interior_at(frame: np.ndarray, points: np.ndarray) -> tuple[float, float]:
 
 
 # ---- summaries ------------------------------------------------------------------------------------------------
-
-
-def _finite_mean(values: Sequence[float]) -> float:
-    finite = [v for v in values if v is not None and math.isfinite(v)]
-    return float(np.mean(finite)) if finite else math.nan
 
 
 def _region_scores(group: Sequence[dict[str, Any]]) -> dict[str, float]:

@@ -46,6 +46,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from landmarks.coverage import spread
 from landmarks.expression import eye_opening, mouth_opening
 from landmarks.identity import DESCRIPTOR_SIZE, judged, same_person
 from lsr.errors import ConfigError, DatasetError
@@ -466,8 +467,7 @@ def run_protocol(
                                                        [identity.input_landmarks[i] for i in candidates],
                                                        min(k, len(candidates)))]
             elif shot_choice == "spread":  # evenly over the inputs in time
-                shot_indices = candidates[np.unique(np.round(np.linspace(0, len(candidates) - 1, min(k, len(candidates))))
-                                                    .astype(int))]
+                shot_indices = candidates[spread(len(candidates), min(k, len(candidates)))]
             else:
                 shot_indices = sample_shots(candidates, min(k, len(candidates)), seed, identity.name)
             shots = [identity.input_frames[i] for i in shot_indices]

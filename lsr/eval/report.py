@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from landmarks.appearance import gazes
 from landmarks.identity import SAME_PERSON_RADIUS
 from lsr.errors import ConfigError
 from lsr.eval import cross, idsim, metrics, parts
@@ -368,7 +369,7 @@ class CrossFigure:
             return
         if sequence.identity not in self.rows:
             picks = cross.figure_frames(sequence.driver_landmarks, sequence.driver_frames.shape[1:3],
-                                        parts.frame_gazes(sequence.driver_frames, sequence.driver_landmarks))
+                                        gazes(sequence.driver_frames, sequence.driver_landmarks))
             self.rows[sequence.identity] = {"frames": picks, "anchor": sequence.anchor_shot, "by": sequence.driver,
                                             "driver": sequence.driver_frames[[i for _, i in picks]], "methods": {}}
         row = self.rows[sequence.identity]

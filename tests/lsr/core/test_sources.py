@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from landmarks.coverage import face_features
-from lsr.core.sources import SubjectShots, choose_shots, cover_shots, coverage_note, scale_points
+from landmarks.coverage import describe, face_features
+from lsr.core.sources import SubjectShots, choose_shots, cover_shots, coverage_features, scale_points
 
 
 
@@ -36,12 +36,12 @@ def test_cover_shots_keeps_the_chosen_frames_with_their_landmarks_and_anchor(dra
     assert cover_shots(shots, 10) is shots
 
 
-def test_coverage_note_compares_targets_at_any_crop_size(drawn_face):
+def test_coverage_line_compares_targets_at_any_crop_size(drawn_face):
     frames, points = candidates(drawn_face)
     shots = SubjectShots(np.stack(frames[:2]), np.stack(points[:2]))  # closed mouths only
     wide = drawn_face(mouth=0.4)[1]
     targets = np.stack([points[0], points[1], wide, np.full((68, 2), np.nan)])  # a frame without a face is left out
-    line = coverage_note(shots, scale_points(targets, 0.5), 256)  # the targets at half the shots' 512 px
+    line = describe(*coverage_features(shots, scale_points(targets, 0.5), 256))  # the targets at half the shots' 512 px
     assert line.startswith("the driver opens the mouth wider than any shot in 33% of frames")
     size = frames[0].shape[:2]
     halved = face_features(scale_points(targets[:3], 0.5), (256, 256))
