@@ -93,6 +93,10 @@ def model_summary(weights: Path | None, random_init: bool) -> str:
         if config.get("reference_detail"):
             line += " (the fine detail most of the warped shots agree on, not a blur of them)"
         line += "; where the driver opens the mouth wider than the shots do, it comes from the nearest warped shot"
+        from models_def.part_generator import MOUTH_FOLDER
+
+        if (Path(weights) / MOUTH_FOLDER).is_dir():
+            line += ", and a small mouth generator redraws the mouth from the driver's lips (lips, dark inside, teeth)"
         line += ("; the result goes into the source's own scene (its background, body and hair), only the face is "
                  "synthesised; fine-tuning on the shots (Options) is off by default: it measured no gain")
     if name == "the shipped default model":

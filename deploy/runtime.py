@@ -25,6 +25,7 @@ from landmarks.errors import InputFileError
 SUBJECT_ENCODER_FILE = "subject_encoder.onnx"
 FRAME_GENERATOR_FILE = "frame_generator.onnx"
 FRAME_GENERATOR_INT8_FILE = "frame_generator.int8.onnx"
+MOUTH_GENERATOR_FILE = "mouth_generator.onnx"
 
 
 class BundleError(InputFileError):
@@ -69,6 +70,16 @@ class OnnxBackend:
         except (KeyError, ValueError) as exc:
             raise BundleError(f"{folder / frame_name} lacks LSR metadata ({exc}); re-run `lsr export`") from exc
         self.frame_outputs = [output.name for output in self.frame_session.get_outputs()]
+        mouth = folder / MOUTH_GENERATOR_FILE
+        self.mouth_session = _session(mouth, providers, threads) if mouth.is_file() else None
+        self.mouth_generator_size = 0 if self.mouth_session is None else int(self.mouth_session.get_inputs()[0].shape[-1])
+
+    def draw_mouth(self, window: np.ndarray, masks: np.ndarray) -> np.ndarray:
+        """The mouth generator (``lsr.core.engine.SynthesisBackend``): (1, 3, P, P) + (1, 2, P, P) -> (1, 3, P, P)."""
+        if self.mouth_session is None:
+            raise BundleError(f"{self.folder} has no {MOUTH_GENERATOR_FILE}")
+        feed = {"window": np.ascontiguousarray(window, np.float32), "masks": np.ascontiguousarray(masks, np.float32)}
+        return self.mouth_session.run(["drawn"], feed)[0]
 
     def encode_subject(self, shots: np.ndarray, shot_landmark_images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(1, K, 3, S, S) each, in [-1, 1] -> (layout_latent, style_latent), (1, D) float32 each."""

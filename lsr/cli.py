@@ -120,6 +120,10 @@ GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
         "synth": (config.BenchSynthConfig, _run_bench_synth),
         "oracle-seg": (config.BenchOracleSegConfig, "lsr.data.oracle_seg:run_bench_oracle_seg"),
     },
+    "parts": {
+        "pairs": (config.PartPairsConfig, "lsr.train.parts:run_pairs"),
+        "train": (config.PartTrainConfig, "lsr.train.parts:run_train"),
+    },
     "face-models": {
         "convert": (config.FaceModelsConvertConfig, "landmarks.convert_mediapipe:run_convert"),
         "fit": (config.FaceModelsFitConfig, "landmarks.mesh68:run_fit"),
@@ -145,6 +149,7 @@ def _raise_terminated(signum: int, frame: Any) -> None:
 
 GROUP_HELP = {
     "bench": "benchmarks; each prints a markdown table with machine info",
+    "parts": "train a mouth generator (the mouth drawn from the driven lips, not blended from shots)",
     "face-models": "rebuild the shipped face models (MediaPipe -> ONNX) and the 68-point mapping",
 }
 

@@ -37,6 +37,8 @@ from lsr.config_train import (  # noqa: F401 - re-exported: every sub-command co
     FinetuneConfig,
     LossConfig,
     OptimConfig,
+    PartPairsConfig,
+    PartTrainConfig,
     StagesConfig,
     TrainConfig,
 )
@@ -241,9 +243,11 @@ class ReenactConfig:
     """Relative motion: 2d = the driver's 68 points' motion on the source's face; 3d = the source's own face mesh
     turned by the driver's head rotation, the expression moved in the canonical head frame (needs --detector mesh
     and a video or image driver; elsewhere 2d). Compared by `lsr eval --retarget`."""
-    mouth: Literal["nearest", "blend"] = "nearest"
-    """A warp-guided model's mouth: nearest = from the nearest shot warped onto the target (it opens as wide as the
-    driver's); blend = the network's blend of all its shots (smoother, opens less). Compared by `lsr eval --mouths`."""
+    mouth: Literal["drawn", "nearest", "blend"] | None = None
+    """A warp-guided model's mouth: drawn = redrawn by the model's mouth generator from the driven lips (over
+    nearest); nearest = from the nearest shot warped onto the target where the driver opens it wider than the
+    shots; blend = the network's blend of all its shots (smoother, opens less). Default: drawn when the model has
+    a mouth generator, else nearest. Compared by `lsr eval --mouths`."""
     paste_back: bool = False
     """Composite the re-enacted face into full frames of --scene (background and body stay, hair follows the head);
     otherwise output the crop-sized synthesis."""

@@ -261,6 +261,9 @@ class BenchReenactConfig:
     runtimes: tuple[Literal["torch", "onnx"], ...] = ("torch", "onnx")
     detectors: tuple[Literal["mesh", "hog", "cnn"], ...] = ("mesh",)
     """Face detectors (the driver's tracking and the source's shots); one row per runtime and detector."""
+    mouths: tuple[Literal["drawn", "nearest", "blend"], ...] = ()
+    """A warp-guided model's mouth (as `lsr reenact --mouth`), one row each; e.g. drawn nearest times the mouth
+    generator against the per-frame path without it, in the same run. Empty: the model's default."""
     paste_back: bool = True
     k: int = 4
     device: Literal["auto", "cpu", "cuda"] = "auto"
@@ -334,9 +337,10 @@ class EvalConfig:
     reference_warps: tuple[Literal["mesh", "tps"], ...] = ("mesh",)
     """How warp-guided models' references are warped: mesh (over the face mesh, needs --detector mesh) or tps (the
     68-point TPS); more than one adds a row per extra choice ("+tps-refs"), in the same run."""
-    mouths: tuple[Literal["nearest", "blend"], ...] = ("nearest",)
-    """A warp-guided model's mouth: nearest (from the nearest warped shot, landmarks.nearest_mouth) or blend (the
-    network's blend of all its shots); more than one adds a row per extra choice ("+blend-mouth"), same run."""
+    mouths: tuple[Literal["drawn", "nearest", "blend"], ...] = ()
+    """A warp-guided model's mouth: drawn (redrawn by the model's mouth generator, lsr.core.parts), nearest (from the
+    nearest warped shot, landmarks.nearest_mouth) or blend (the network's blend of all its shots); empty: the model's
+    default (drawn when it has a mouth generator); more than one adds a row per extra choice ("+blend-mouth")."""
     detector_upsample: int = 1
     """dlib only: pyramid upsampling; 1 finds the faces of 224-px crops at 1/4 the cost of 2."""
     bucket_thresholds: tuple[float, ...] = ()
@@ -391,8 +395,6 @@ class EvalConfig:
             raise ConfigError("--methods needs at least one of nearest_shot, tps, tps_mean3, mesh, mesh_mean3 (or give --weights)")
         if not self.reference_warps:
             raise ConfigError("--reference-warps needs at least one of mesh, tps")
-        if not self.mouths:
-            raise ConfigError("--mouths needs at least one of nearest, blend")
         for folder in self.weights:
             check_weights(folder)
         if self.finetune_steps < 0 or not self.finetune_lr > 0:

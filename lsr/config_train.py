@@ -237,3 +237,62 @@ class FinetuneConfig:
                 raise ConfigError(f"shot input not found: {path}")
         if (self.k is not None and self.k < 1) or self.steps < 0 or not self.lr > 0 or self.batch_size < 1:
             raise ConfigError("--k >= 1, --steps >= 0, --lr > 0 and --batch-size >= 1 are required")
+
+
+@dataclasses.dataclass
+class PartPairsConfig:
+    """Make a mouth generator's training pairs: the frame model re-enacts held-out frames of each prepared clip onto
+    their own landmarks; each pair is the mouth's window of that synthesis and of the real frame (lsr.train.parts)."""
+
+    data: tyro.conf.Positional[Path]
+    """A prepared dataset with every frame of its clips (`lsr prepare CLIPS --frames-per-clip 0`)."""
+    out: Path = Path("runs/mouth_pairs")
+    """Folder of pairs: <split>/<identity>__<video>__<half>.npz. Finished ones are skipped (a run resumes)."""
+    weights: OptionalPath = None
+    """The frame model whose synthesis the mouth generator learns to redraw (default: the shipped model)."""
+    k: int = 8
+    """Shots per clip half."""
+    every: int = 2
+    """Every n-th frame of the other half is a target."""
+    closed_share: float = 0.5
+    """Share of clip halves whose shots come only from their least open mouths (targets beyond the shots)."""
+    seed: int = 0
+    shard: tuple[int, int] = (0, 1)
+    """(i, n): only every n-th clip from the i-th, to run n processes side by side."""
+
+    def validate(self) -> None:
+        check_weights(self.weights)
+        if self.k < 1 or self.every < 1:
+            raise ConfigError(f"--k and --every must be >= 1, got {self.k} and {self.every}")
+        if not 0.0 <= self.closed_share <= 1.0:
+            raise ConfigError(f"--closed-share must be in [0, 1], got {self.closed_share}")
+        if not 0 <= self.shard[0] < self.shard[1]:
+            raise ConfigError(f"--shard must be (i, n) with 0 <= i < n, got {self.shard}")
+
+
+@dataclasses.dataclass
+class PartTrainConfig:
+    """Train a mouth generator on `lsr parts pairs`' pairs (train split), scored on the test split's
+    (lsr.train.parts). The best step's weights go to OUT/best: copy them to a model folder's mouth/ to use them."""
+
+    pairs: tyro.conf.Positional[Path]
+    """`lsr parts pairs`' folder (train/ and test/)."""
+    out: Path = Path("runs/mouth")
+    """Run folder: checkpoint.pt (a run resumes from it), best/, log.jsonl."""
+    steps: int = 3000
+    batch_size: int = 32
+    lr: float = 1e-3
+    seed: int = 0
+    eval_every: int = 250
+    threads: int = 2
+    """Torch CPU threads."""
+    adversarial: float = 0.0
+    """Weight of a patch discriminator's loss (0 = L1 terms only): an open mouth drawn as one plausible mouth."""
+    init_from: OptionalPath = None
+    """Start the generator from this part generator folder (e.g. an earlier run's best/)."""
+
+    def validate(self) -> None:
+        if min(self.steps, self.batch_size, self.eval_every, self.threads) < 1:
+            raise ConfigError("--steps, --batch-size, --eval-every and --threads must be >= 1")
+        if self.lr <= 0:
+            raise ConfigError(f"--lr must be > 0, got {self.lr}")

@@ -32,8 +32,9 @@ from landmarks.imageio import atomic_output, make_readable
 from lsr import __version__
 from lsr.errors import ConfigError, WeightsError
 from lsr.export import SUBJECT_GRAPH_IO, FrameGeneratorGraph, export_onnx, frame_graph_io
-from lsr.pipeline import load_model
+from lsr.pipeline import load_mouth, load_model
 from models_def import PRESET_NAMES, LSRModel, ModelConfig, preset_config
+from models_def.part_generator import MOUTH_FOLDER, PartGenerator
 
 if TYPE_CHECKING:
     from lsr.config import ExportConfig
@@ -42,6 +43,7 @@ ONNX_OPSET = 17
 SUBJECT_ENCODER_FILE = "subject_encoder.onnx"
 FRAME_GENERATOR_FILE = "frame_generator.onnx"
 FRAME_GENERATOR_INT8_FILE = "frame_generator.int8.onnx"
+MOUTH_GENERATOR_FILE = "mouth_generator.onnx"
 LANDMARK_FORMAT = "ibug68-contour-rgb"  # landmarks.raster.draw_landmarks at the model resolution, [-1, 1]
 
 
@@ -94,8 +96,10 @@ def set_metadata(path: Path, metadata: dict[str, str]) -> None:
         onnx.save(model, str(temp))
 
 
-def export_graphs(model: LSRModel, out: str | os.PathLike, *, shots: int = 2) -> ExportResult:
-    """Export both graphs of ``model`` into ``out`` (fp32) with metadata. ``shots``: K of the example input."""
+def export_graphs(model: LSRModel, out: str | os.PathLike, *, shots: int = 2,
+                  mouth_generator: PartGenerator | None = None) -> ExportResult:
+    """Export both graphs of ``model`` into ``out`` (fp32) with metadata, and ``mouth_generator``'s
+    (``MOUTH_GENERATOR_FILE``) when given. ``shots``: K of the example input."""
     config = model.config
     if config.variant == "oracle_seg":
         raise WeightsError("'oracle_seg' models need a ground-truth segmentation per frame and cannot be deployed")
@@ -116,9 +120,18 @@ def export_graphs(model: LSRModel, out: str | os.PathLike, *, shots: int = 2) ->
         frame_inputs += (torch.rand(1, count, 3, crop, crop, generator=generator) * 2 - 1, torch.ones(1, count, 1, crop, crop))
     frame_path = export_onnx(graph, frame_inputs, out / FRAME_GENERATOR_FILE,
                              *frame_graph_io(model.frame_generator, with_layout), opset=ONNX_OPSET)
-    for path in (subject_path, frame_path):
+    files = [subject_path, frame_path]
+    if mouth_generator is not None:
+        part = mouth_generator.eval().float().cpu()
+        size = part.config.size
+        example = (torch.rand(1, 3, size, size, generator=generator) * 2 - 1,
+                   torch.rand(1, part.config.mask_channels, size, size, generator=generator))
+        files.append(export_onnx(part, example, out / MOUTH_GENERATOR_FILE, ["window", "masks"], ["drawn"],
+                                 {}, opset=ONNX_OPSET))
+        metadata = {**metadata, "mouth_generator": json.dumps(part.config.to_dict())}
+    for path in files:
         set_metadata(path, metadata)
-    return ExportResult(out, [subject_path, frame_path], metadata)
+    return ExportResult(out, files, metadata)
 
 
 def onnx_cache_root() -> Path:
@@ -138,8 +151,9 @@ def cached_bundle(weights: str | os.PathLike, cache_root: str | os.PathLike | No
 
     weights = Path(weights)
     digest = hashlib.sha256()
-    for name in ("config.json", "model.safetensors"):
-        digest.update((weights / name).read_bytes())
+    for name in ("config.json", "model.safetensors", f"{MOUTH_FOLDER}/config.json", f"{MOUTH_FOLDER}/model.safetensors"):
+        if (weights / name).is_file() or not name.startswith(MOUTH_FOLDER):
+            digest.update(name.encode() + (weights / name).read_bytes())
     graphs = Path(importlib.util.find_spec("models_def").origin).parent  # not imported: a cache hit needs no torch
     for source in sorted(graphs.glob("*.py")):  # the code the graphs are traced from
         digest.update(source.name.encode() + source.read_bytes())
@@ -151,7 +165,7 @@ def cached_bundle(weights: str | os.PathLike, cache_root: str | os.PathLike | No
     temp = Path(tempfile.mkdtemp(dir=root, prefix=f".{folder.name}.", suffix=".tmp"))
     try:
         print(f"exporting {weights} to ONNX once (cached in {folder})")
-        export_graphs(load_model(weights), temp)
+        export_graphs(load_model(weights), temp, mouth_generator=load_mouth(weights))
         make_readable(temp)  # mkdtemp makes 0700
         try:
             os.replace(temp, folder)
@@ -244,8 +258,9 @@ def run_export(cfg: ExportConfig) -> ExportResult:
     from lsr.weights import resolve_weights
 
     check_output_path(cfg.out, "--out", folder=True)  # before the model loads and traces
-    model = load_model(resolve_weights(cfg.weights))
-    result = export_graphs(model, cfg.out)
+    weights = resolve_weights(cfg.weights)
+    model = load_model(weights)
+    result = export_graphs(model, cfg.out, mouth_generator=load_mouth(weights))
     print(f"wrote {', '.join(p.name for p in result.files)} to {result.folder} "
           f"(opset {ONNX_OPSET}, preset {result.metadata['preset']}, {result.metadata['resolution']}^2)")
     if cfg.int8:

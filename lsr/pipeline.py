@@ -30,6 +30,7 @@ from lsr.core.sources import SubjectShots
 from lsr.errors import ConfigError, WeightsError
 from lsr.export import FrameGeneratorGraph
 from models_def import LSRModel
+from models_def.part_generator import PartGenerator, load_mouth_generator
 
 Precision = Literal["fp32", "bf16"]
 _DTYPES = {"fp32": torch.float32, "bf16": torch.bfloat16}
@@ -55,6 +56,15 @@ def load_model(weights: str | os.PathLike) -> LSRModel:
     return model.eval().requires_grad_(False)
 
 
+def load_mouth(weights: Path) -> PartGenerator | None:
+    """The weights folder's mouth generator (``models_def.part_generator.MOUTH_FOLDER``), or None; a broken one is a
+    ``WeightsError``."""
+    try:
+        return load_mouth_generator(weights)
+    except ValueError as exc:  # models_def.ModelConfigError names the problem with the folder
+        raise WeightsError(str(exc)) from exc
+
+
 _TRACING = threading.Lock()  # one trace at a time: warnings.catch_warnings changes process-wide state
 
 
@@ -68,7 +78,8 @@ class TorchBackend:
     cores; outputs within 3e-7). Batches, bf16, other devices and oracle segmentations run eagerly.
     """
 
-    def __init__(self, model: LSRModel, device: str | torch.device = "cpu", precision: Precision = "fp32") -> None:
+    def __init__(self, model: LSRModel, device: str | torch.device = "cpu", precision: Precision = "fp32",
+                 mouth_generator: PartGenerator | None = None) -> None:
         if precision not in _DTYPES:
             raise ConfigError(f"precision must be 'fp32' or 'bf16', got {precision!r}")
         self.model = model.eval().requires_grad_(False)
@@ -79,6 +90,16 @@ class TorchBackend:
         self.layout_kind: LayoutKind = model.config.layout_kind  # type: ignore[assignment]
         self.warp_references = model.config.warp_references if model.config.uses_references else 0
         self.crop_scale = model.config.crop_scale
+        self.mouth_generator = None if mouth_generator is None else mouth_generator.eval().requires_grad_(False)
+        self.mouth_generator_size = 0 if mouth_generator is None else mouth_generator.config.size
+
+    @torch.inference_mode()
+    def draw_mouth(self, window: np.ndarray, masks: np.ndarray) -> np.ndarray:
+        """The mouth generator (``lsr.core.engine.SynthesisBackend``): (1, 3, P, P) + (1, 2, P, P) -> (1, 3, P, P)."""
+        if self.mouth_generator is None:
+            raise ConfigError("this model has no mouth generator")
+        return self.mouth_generator(torch.from_numpy(np.ascontiguousarray(window, np.float32)),
+                                    torch.from_numpy(np.ascontiguousarray(masks, np.float32))).numpy()
 
     @property
     def model(self) -> LSRModel:
@@ -175,6 +196,8 @@ class Reenactor(ReenactorBase):
     weights: model folder (config.json + model.safetensors). device: "cpu", "cuda", ... precision: "fp32"
     (default) or "bf16". detector: "mesh" (the default) | "hog" | "cnn" (dlib), or a detector, for the source shots and the driver. crop_size: the
     crop and output side (``lsr.core.engine.default_crop_size``: 2x the model resolution for warp-guided models).
+    mouth_generator: a part generator that redraws the mouth (``lsr.core.parts``); default: the weights folder's
+    ``mouth/``, when it has one.
     """
 
     def __init__(
@@ -185,10 +208,12 @@ class Reenactor(ReenactorBase):
         precision: Precision = "fp32",
         detector: str | object = "mesh",
         crop_size: int | None = None,
+        mouth_generator: PartGenerator | None = None,
     ) -> None:
         model = weights if isinstance(weights, LSRModel) else load_model(weights)
         self.weights_path = None if isinstance(weights, LSRModel) else Path(weights)
-        super().__init__(TorchBackend(model, device, precision), detector=detector, crop_size=crop_size)
+        mouth = mouth_generator if mouth_generator is not None or self.weights_path is None else load_mouth(self.weights_path)
+        super().__init__(TorchBackend(model, device, precision, mouth), detector=detector, crop_size=crop_size)
 
     @property
     def model(self) -> LSRModel:

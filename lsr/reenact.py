@@ -189,7 +189,8 @@ def make_reenactor(cfg: ReenactConfig) -> ReenactorBase:
         from lsr.devices import resolve_device
 
         reenactor = Reenactor(weights, device=resolve_device(cfg.device), precision=cfg.precision, detector=cfg.detector)
-    reenactor.mouth = cfg.mouth
+    if cfg.mouth is not None:
+        reenactor.mouth = cfg.mouth
     return reenactor
 
 

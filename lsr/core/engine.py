@@ -54,6 +54,12 @@ Scene = Literal["source", "driver"]
 """What ``paste_back`` composites into: the source's own frames (its anchor shot or its video) or the driver's."""
 LayoutKind = Literal["none", "latent", "segmentation"]
 STAGES = ("decode", "landmarks", "subject_encoding", "warps", "synthesis", "paste_back")
+MOUTHS = ("drawn", "nearest", "blend")
+
+
+def draws_mouth(backend: object) -> bool:
+    """Whether ``backend`` has a mouth generator (``SynthesisBackend.draw_mouth``)."""
+    return getattr(backend, "mouth_generator_size", 0) > 0
 
 
 class SynthesisBackend(Protocol):
@@ -78,6 +84,10 @@ class SynthesisBackend(Protocol):
         reference_masks (1, N, 1, C, C), warp-guided models, C >= S] -> (image (1, 3, C, C) in [-1, 1] (C = S
         without references), layout (1, C_l, S, S) or None)."""
         ...
+
+    # A backend with a mouth generator (``models_def.part_generator``) also has
+    #   mouth_generator_size: int (its window side P; 0 or absent: none) and
+    #   draw_mouth(window (1, 3, P, P) in [-1, 1], masks (1, 2, P, P) in [0, 1]) -> (1, 3, P, P) in [-1, 1].
 
 
 @dataclasses.dataclass
@@ -188,10 +198,26 @@ class ReenactorBase:
         self.reference_warp: str = "mesh"
         """How a warp-guided model's references are warped when meshes are at hand: "mesh" (piecewise affine over
         the face mesh, TPS outside) or "tps" (the 68-point TPS everywhere)."""
-        self.mouth: str = "nearest"
-        """A warp-guided model's mouth: "nearest" (the nearest warped shot's: ``landmarks.nearest_mouth``) or "blend"."""
+        self._mouth: str = "drawn" if draws_mouth(backend) else "nearest"
         self.subject: Subject | None = None
         self.last_stats = ReenactStats()
+
+    @property
+    def mouth(self) -> str:
+        """A warp-guided model's mouth: "drawn" (the nearest warped shot's where the target opens it wider than the
+        shots, ``landmarks.nearest_mouth``, then redrawn by the model's mouth generator, ``lsr.core.parts``; the
+        default when the model has one), "nearest" (without the redrawing; the default otherwise) or "blend" (the
+        network's blend alone)."""
+        return self._mouth
+
+    @mouth.setter
+    def mouth(self, mouth: str) -> None:
+        if mouth not in MOUTHS:
+            raise ValueError(f"mouth must be one of {MOUTHS}, got {mouth!r}")
+        if mouth == "drawn" and not draws_mouth(self.backend):
+            raise InputFileError("--mouth drawn needs a model with a mouth generator (a weights folder with mouth/, or an "
+                              "ONNX bundle with mouth_generator.onnx); use --mouth nearest")
+        self._mouth = mouth
 
     @property
     def resolution(self) -> int:
@@ -283,19 +309,24 @@ class ReenactorBase:
                           crop_landmarks: np.ndarray | None = None, subject: Subject | None = None
                           ) -> tuple[np.ndarray, np.ndarray | None]:
         """``network_inputs``' dict -> (synthesis (C, C, 3) uint8, layout (C_l, S, S) float32 or None). ``crop_landmarks``
-        given, ``mouth`` "nearest": the mouth of ``subject``'s nearest warped shot as ``landmarks.nearest_mouth`` says."""
+        given, ``mouth`` "nearest" or "drawn": the mouth of ``subject``'s nearest warped shot as
+        ``landmarks.nearest_mouth`` says; "drawn": then redrawn by the mouth generator (``lsr.core.parts``)."""
         image, layout = self.backend.synthesize(
             inputs["landmark_image"], inputs["layout_latent"], inputs["style_latent"], with_layout,
             *((inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()),
         )
         image = from_network(image[0])
-        if crop_landmarks is not None and self.mouth == "nearest" and "references" in inputs:
+        if crop_landmarks is not None and self.mouth in ("nearest", "drawn") and "references" in inputs:
             from landmarks.nearest_mouth import keep_nearest_mouth, mouth_strength
 
             strength = mouth_strength(crop_landmarks, (subject or self._require_subject()).shots.landmarks, self.warp_references)
             if strength > 0:  # most frames: the shots show this mouth, so the reference is not even converted
                 image = keep_nearest_mouth(image, from_network(inputs["references"][0, 0]),
                                            inputs["reference_masks"][0, 0, 0], crop_landmarks, strength)
+        if crop_landmarks is not None and self.mouth == "drawn":
+            from lsr.core.parts import draw_mouth
+
+            image = draw_mouth(image, crop_landmarks, self.backend.draw_mouth)
         return image, None if layout is None else np.asarray(layout[0], np.float32)
 
     def network_inputs(self, crop_landmarks: np.ndarray, latents: tuple[np.ndarray, np.ndarray] | None = None,

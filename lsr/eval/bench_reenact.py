@@ -62,7 +62,7 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
     from lsr.export_bundle import export_graphs
     from lsr.core.overlap import network_threads
     from lsr.machine import machine_markdown, shown_path
-    from lsr.pipeline import Reenactor
+    from lsr.pipeline import Reenactor, load_mouth
     from lsr.weights import resolve_weights
     from lsr.devices import resolve_device
     from lsr.reenact import Job, run_job
@@ -80,47 +80,55 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
             weights = resolve_weights(cfg.weights)
             label = "the shipped default" if cfg.weights is None else f"`{shown_path(weights)}`"
         clip = trim_clip(video, temp / "driving.mp4", cfg.frames)
-        for runtime, detector in [(runtime, detector) for runtime in cfg.runtimes for detector in cfg.detectors]:
+        synthesis_ms: dict[tuple[str, str], dict[str, float]] = {}
+        mouths = cfg.mouths or (None,)
+        for runtime, detector, mouth in [(r, d, m) for r in cfg.runtimes for d in cfg.detectors for m in mouths]:
             threads = network_threads(cfg.threads)  # as lsr reenact chooses them
             if runtime == "onnx":
                 from deploy.runtime import OnnxReenactor
 
                 if not (temp / "onnx").is_dir():
-                    export_graphs(Reenactor(weights).model, temp / "onnx")
+                    export_graphs(Reenactor(weights).model, temp / "onnx", mouth_generator=load_mouth(weights))
                 reenactor = OnnxReenactor(temp / "onnx", threads=threads, detector=detector)
             else:
                 import torch
 
                 torch.set_num_threads(threads)
                 reenactor = Reenactor(weights, device=device, detector=detector)
+            if mouth is not None:
+                reenactor.mouth = mouth
             started = time.perf_counter()
             reenactor.encode_subject(clip, k=cfg.k)
             encode_subject_s = time.perf_counter() - started
             synth_ms = synthesis_only_ms(reenactor)
             started = time.perf_counter()
-            stats = run_job(reenactor, Job(clip, clip, temp / f"out_{runtime}_{detector}.mp4"),
+            synthesis_ms.setdefault((runtime, detector), {})[reenactor.mouth] = synth_ms
+            stats = run_job(reenactor, Job(clip, clip, temp / f"out_{runtime}_{detector}_{reenactor.mouth}.mp4"),
                             _job_options(cfg.paste_back, runtime))
             wall = time.perf_counter() - started
             per_frame = {stage: 1000 * stats.seconds.get(stage, 0.0) / max(1, stats.frames)
                          for stage in ("decode", "landmarks", "warps", "synthesis", "paste_back", "encode")}
             end_to_end = stats.frames / wall
             rows.append(
-                f"| {runtime} | {detector} | {stats.frames} | {stats.no_face} | {per_frame['decode']:.1f} | {per_frame['landmarks']:.1f} | "
+                f"| {runtime} | {detector} | {reenactor.mouth} | {stats.frames} | {stats.no_face} | {per_frame['decode']:.1f} | {per_frame['landmarks']:.1f} | "
                 f"{encode_subject_s:.2f} | {per_frame['warps']:.1f} | {per_frame['synthesis']:.1f} | {per_frame['paste_back']:.1f} | "
                 f"{per_frame['encode']:.1f} | {end_to_end:.2f} | {synth_ms:.1f} ({1000 / synth_ms:.2f} fps) | "
                 f"{end_to_end * synth_ms / 1000:.2f} |"
             )
-            if runtime == "torch" and detector == cfg.detectors[0]:
+            if runtime == "torch" and detector == cfg.detectors[0] and mouth == mouths[0]:
                 lm = reenactor.subject.shots.landmarks
                 notes.append(f"bf16 (torch, {device}): {reenactor.precision_error(list(lm), 'bf16')}")
     table = "\n".join([
         f"Model {label}, {cfg.frames} frames of {video.name}, paste-back {cfg.paste_back}, device {device}, "
         f"network threads {network_threads(cfg.threads)}",
         "",
-        "| runtime | detector | frames | no face | decode ms | landmarks ms | subject encoding s | warps ms | network ms "
+        "| runtime | detector | mouth | frames | no face | decode ms | landmarks ms | subject encoding s | warps ms | network ms "
         "| paste-back ms | encode ms | end-to-end fps | synthesis only ms | end-to-end / synthesis-only |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
+        *[f"Synthesis only, {runtime} / {detector}: the drawn mouth costs {times['drawn'] / times['nearest']:.2f}x "
+          f"the per-frame path without it ({times['drawn']:.1f} against {times['nearest']:.1f} ms, same run)."
+          for (runtime, detector), times in synthesis_ms.items() if {"drawn", "nearest"} <= set(times)],
         "",
         "Stages overlap (lsr.core.overlap), each ms its time on its own thread, sharing the cores: decoding and "
         "tracking on one thread, smoothing, retargeting and the warps of the nearest shots on a second (landmarks ms "

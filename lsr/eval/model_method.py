@@ -69,27 +69,29 @@ class LsrModelMethod:
 
     def __init__(self, weights: str | os.PathLike, *, device: str = "cpu", finetune_steps: int = 0,
                  finetune_lr: float = DEFAULT_FINETUNE_LR, name: str | None = None, reenactor=None,
-                 reference_warp: str = "mesh", mouth: str = "nearest") -> None:
+                 reference_warp: str = "mesh", mouth: str | None = None) -> None:
         """reenactor: a ready ``ReenactorBase`` (e.g. ``deploy.runtime.OnnxReenactor`` over the bundle at
         ``weights``); None = load the torch model from ``weights``. reference_warp: how a warp-guided model's
         references are warped ("mesh": over the face mesh, given the meshes; "tps": the 68-point TPS). mouth: a
-        warp-guided model's mouth ("nearest": the nearest warped shot's; "blend": the network's)."""
+        warp-guided model's mouth ("drawn": redrawn by its mouth generator; "nearest": the nearest warped shot's;
+        "blend": the network's; None: the model's default, ``lsr.core.engine.ReenactorBase.mouth``)."""
         self.weights = Path(weights)
         self.device = device
         self.finetune_steps = finetune_steps
         self.finetune_lr = finetune_lr
         self.name = name or f"lsr:{self.weights.name}"
         if reenactor is None:
-            from lsr.pipeline import Reenactor
+            from lsr.pipeline import Reenactor, load_mouth
 
-            reenactor = Reenactor(load_eval_model(self.weights), device=device)
+            reenactor = Reenactor(load_eval_model(self.weights), device=device, mouth_generator=load_mouth(self.weights))
             reenactor.weights_path = self.weights  # fine-tuning then starts from the saved discriminator
             self.variant: str = reenactor.model.config.variant
         else:
             self.variant = reenactor.backend.config.get("variant", "")
         self.reenactor = reenactor
         reenactor.reference_warp = reference_warp
-        reenactor.mouth = mouth
+        if mouth is not None:
+            reenactor.mouth = mouth
         self.needs_target_segmentation = self.variant == "oracle_seg"
         # the protocol then passes the shots' and targets' meshes where it has them (TPS references where not)
         self.uses_meshes = bool(reenactor.warp_references) and reference_warp == "mesh"

@@ -475,10 +475,10 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
 
         models = [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps,
                                  finetune_lr=cfg.finetune_lr, reference_warp=cfg.reference_warps[0],
-                                 mouth=cfg.mouths[0]) for folder in cfg.weights]
+                                 mouth=cfg.mouths[0] if cfg.mouths else None) for folder in cfg.weights]
         methods += label_by_variant(models, cfg.weights)
         # the same models with their references warped another way, or another mouth, in the same run
-        extras = [(warp, cfg.mouths[0], f"+{warp}-refs") for warp in cfg.reference_warps[1:]]
+        extras = [(warp, cfg.mouths[0] if cfg.mouths else None, f"+{warp}-refs") for warp in cfg.reference_warps[1:]]
         extras += [(cfg.reference_warps[0], mouth, f"+{mouth}-mouth") for mouth in cfg.mouths[1:]]
         for warp, mouth, suffix in extras:
             for model in models:

@@ -1,6 +1,7 @@
 """Copy a training run's weights into the package as the default model: ``lsr ship RUN/weights``.
 
-Copies config.json, model.safetensors and (when present) discriminator.safetensors into ``lsr/weights/default``
+Copies config.json, model.safetensors and (when present) discriminator.safetensors and the mouth generator
+(``mouth/``) into ``lsr/weights/default``
 through a temp folder renamed into place, checks that the copy loads, and prints sizes and SHA-256 sums for
 MODEL_CARD.md. Weights may be trained on synthetic heads and on the shared real training clips
 (``real_talking_heads``, whose provenance MODEL_CARD.md must list); never on the evaluation people
@@ -21,13 +22,14 @@ from lsr.weights import DEFAULT_WEIGHTS, MissingWeightsError, is_model_folder
 if TYPE_CHECKING:
     from lsr.config import ShipConfig
 
-FILES = ("config.json", "model.safetensors", "discriminator.safetensors")
+FILES = ("config.json", "model.safetensors", "discriminator.safetensors", "mouth/config.json", "mouth/model.safetensors")
 MAX_MB = 25.0
 
 
 def ship(run_weights: str | os.PathLike, target: str | os.PathLike = DEFAULT_WEIGHTS) -> list[tuple[str, int, str]]:
     """Copy ``run_weights`` to ``target`` atomically; returns (file, bytes, sha256) per shipped file."""
     from models_def import LSRModel
+    from models_def.part_generator import load_mouth_generator
 
     source, target = Path(run_weights), Path(target)
     if not is_model_folder(source):
@@ -40,8 +42,10 @@ def ship(run_weights: str | os.PathLike, target: str | os.PathLike = DEFAULT_WEI
     temp = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp"))
     try:
         for name in names:
+            (temp / name).parent.mkdir(exist_ok=True)
             shutil.copyfile(source / name, temp / name)
         LSRModel.from_pretrained(temp)  # refuse to ship what does not load
+        load_mouth_generator(temp)
         old = target.with_name(f".{target.name}.old")
         shutil.rmtree(old, ignore_errors=True)
         if target.exists():

@@ -108,3 +108,15 @@ def test_shipped_model_beats_nearest_shot_on_held_out_synthetic_people(tmp_path)
     first = len(random_psnr)  # the control runs on the first two people only (it costs as much as the model)
     assert random_psnr.mean() < model_psnr[:first].mean() - 1, (random_psnr.mean(), model_psnr[:first].mean())
     assert random_ssim.mean() < model_ssim[:first].mean(), (random_ssim.mean(), model_ssim[:first].mean())
+
+
+def test_ship_carries_the_mouth_generator(tmp_path):
+    from models_def import LSRModel
+    from models_def.part_generator import MOUTH_FOLDER, PartGenerator, PartGeneratorConfig, load_mouth_generator
+    from models_def.presets import preset_config
+
+    run = LSRModel(preset_config("tiny")).save_pretrained(tmp_path / "run")
+    PartGenerator(PartGeneratorConfig(size=40, widths=(8, 16, 16))).save_pretrained(run / MOUTH_FOLDER)
+    rows = ship(run, tmp_path / "pkg" / "default")
+    assert {"mouth/config.json", "mouth/model.safetensors"} <= {name for name, _, _ in rows}
+    assert load_mouth_generator(tmp_path / "pkg" / "default").config.size == 40

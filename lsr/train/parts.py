@@ -1,0 +1,371 @@
+"""Training a part generator (``models_def.part_generator``): the mouth drawn from the target's lips (issue 40).
+
+Two steps, both resumable, both under ``lsr parts``:
+
+1. ``build_pairs`` (``lsr parts pairs``): for every clip of a prepared dataset (all frames: ``lsr prepare
+   --frames-per-clip 0``), K shots from one half of the clip are encoded and the frame model (the shipped
+   default) re-enacts the other half onto its own landmarks and meshes (found anew by the mesh detector, as
+   ``lsr eval`` finds them). Each target gives one pair: the mouth's window of the synthesis (what the part
+   generator will see at run time) and of the real frame (what it should draw), and the target's landmarks in
+   the window. Half of the clips' shots are drawn only from their frames with the mouth least open, so that
+   many targets open the mouth wider than every shot: the moments the blend cannot draw. One ``.npz`` per
+   clip and half, written atomically; finished ones are skipped.
+2. ``train`` (``lsr parts train``): L1 and an L1 of image gradients (edges: teeth, the lip line) over the paste
+   weight of the window, three times over the open mouth; flips left-right; Adam. The validation split's pairs
+   (people the frame model did not train on) are scored every ``eval_every`` steps; the best is kept.
+   Checkpoints every ``save_every`` steps let a run resume where it stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from landmarks.part_window import (INNER_LIPS, MOUTH, extract, lip_masks, paste_weight, to_window,
+                                   window_eye_distance, window_transform)
+from landmarks.parts import MIRROR_INDEX
+
+OPEN_MOUTH_WEIGHT = 3.0
+"""The loss weighs the open mouth (inside the inner lips) this much more than the rest of the paste weight."""
+GRADIENT_WEIGHT = 1.0
+"""Weight of the L1 of horizontal and vertical image differences beside the plain L1."""
+COLOUR_JITTER = 0.08
+"""Training pairs' colours are jittered by up to this gain and offset (fractions) per channel."""
+
+
+@dataclasses.dataclass
+class PairsSummary:
+    written: int = 0
+    skipped: int = 0
+    pairs: int = 0
+    failed: list[str] = dataclasses.field(default_factory=list)
+
+
+def _choose_shots(openings: np.ndarray, pool: np.ndarray, k: int, closed: bool, rng: np.random.Generator) -> np.ndarray:
+    """K shot indices from ``pool`` (indices of valid frames); ``closed``: only from those with the mouth at most
+    at the pool's 40th percentile of opening (at least K of them)."""
+    if closed:
+        order = pool[np.argsort(openings[pool], kind="stable")]
+        pool = order[:max(k, int(math.ceil(0.4 * len(order))))]
+    return np.sort(rng.choice(pool, size=min(k, len(pool)), replace=False))
+
+
+def clip_pairs(reenactor, frames: np.ndarray, landmarks: np.ndarray, meshes: np.ndarray | None, shots: np.ndarray,
+               targets: np.ndarray) -> dict[str, np.ndarray]:
+    """The pairs of one clip half: the subject encoded from ``shots``, each target re-enacted onto its own
+    landmarks. frames (N, S, S, 3) uint8, landmarks (N, 68, 2), meshes (N, 468, 3) or None -> arrays
+    synthesis / truth (T, P, P, 3) uint8, window_landmarks (T, 68, 2) float32, target_index (T,) int32."""
+    from lsr.core.sources import SubjectShots
+
+    size = MOUTH.size
+    shot_meshes = None if meshes is None else meshes[shots]
+    reenactor.encode_subject(SubjectShots(frames[shots], landmarks[shots].astype(np.float32),
+                                          names=[f"frame {i}" for i in shots], meshes=shot_meshes))
+    synthesis, truth, window_points, kept = [], [], [], []
+    for index in targets:
+        transform = window_transform(landmarks[index])
+        if transform is None:
+            continue
+        mesh = None if meshes is None or not np.isfinite(meshes[index]).all() else meshes[index]
+        image, _, _ = reenactor.synthesize_crop(landmarks[index].astype(np.float32), crop_mesh=mesh)
+        synthesis.append(extract(image, transform, size))
+        truth.append(extract(frames[index], transform, size))
+        window_points.append(to_window(landmarks[index], transform).astype(np.float32))
+        kept.append(index)
+    empty = np.zeros((0, size, size, 3), np.uint8)
+    return {"synthesis": np.stack(synthesis) if synthesis else empty, "truth": np.stack(truth) if truth else empty,
+            "window_landmarks": np.stack(window_points) if window_points else np.zeros((0, 68, 2), np.float32),
+            "target_index": np.array(kept, np.int32), "shots": shots.astype(np.int32)}
+
+
+def build_pairs(data: Path, out: Path, weights: Path | None = None, k: int = 8, every: int = 2, seed: int = 0,
+                closed_share: float = 0.5, splits: tuple[str, ...] = ("train", "test"), limit: int = 0,
+                shard: tuple[int, int] = (0, 1)) -> PairsSummary:
+    """Step 1 (module docstring): ``out/<split>/<identity>__<video>__<half>.npz`` per clip half. ``shard`` (i, n):
+    only every n-th clip from the i-th (to run n processes side by side)."""
+    from tqdm import tqdm
+
+    from landmarks.detectors import make_detector
+    from landmarks.expression import mouth_opening
+    from landmarks.imageio import atomic_output
+    from lsr.data.format import ClipReader, list_clips
+    from lsr.eval.protocol import detect_faces
+    from lsr.pipeline import Reenactor
+    from lsr.weights import resolve_weights
+
+    reenactor = Reenactor(resolve_weights(weights))
+    detector = make_detector("mesh")
+    summary = PairsSummary()
+    clips = [(split, clip) for split in splits for clip in list_clips(data, split)]
+    if limit:
+        clips = clips[:limit]
+    numbered = list(enumerate(clips))[shard[0]::shard[1]]
+    for number, (split, clip_dir) in tqdm(numbered, desc="part pairs", unit="clip"):
+        reader = ClipReader(clip_dir)
+        names = [out / split / f"{reader.identity}__{reader.video}__{half}.npz" for half in (0, 1)]
+        if all(name.is_file() for name in names):
+            summary.skipped += 1
+            continue
+        frames = np.stack(list(reader.frames()))
+        prepared = reader.landmarks  # the tracker's, to choose shots and targets by
+        valid = np.flatnonzero(np.isfinite(prepared).all(axis=(1, 2)))
+        if len(valid) < 2 * k + 2:
+            summary.failed.append(f"{clip_dir}: {len(valid)} frames with a face")
+            continue
+        openings = mouth_opening(prepared)
+        halves = (valid[valid < len(frames) // 2], valid[valid >= len(frames) // 2])
+        rng = np.random.default_rng([seed, number])
+        plans = []
+        for half, name in enumerate(names):
+            pool, targets = halves[half], halves[1 - half]
+            if name.is_file() or len(pool) < k or not len(targets):
+                continue
+            plans.append((name, _choose_shots(openings, pool, k, bool(rng.random() < closed_share), rng), targets[::every]))
+        # the landmarks and meshes the pipeline would have: the mesh detector's, on the frames used only
+        needed = np.unique(np.concatenate([np.concatenate([shots, targets]) for _, shots, targets in plans] or [[]])).astype(int)
+        found, found_meshes = detect_faces(frames[needed], detector)
+        landmarks = np.full_like(prepared, np.nan)
+        landmarks[needed] = found
+        meshes = np.full((len(frames), *found_meshes.shape[1:]), np.nan, np.float32)
+        meshes[needed] = found_meshes
+        detected = np.isfinite(landmarks).all(axis=(1, 2))
+        for name, shots, targets in plans:
+            shots, targets = shots[detected[shots]], targets[detected[targets]]
+            if not len(shots) or not len(targets):
+                continue
+            pairs = clip_pairs(reenactor, frames, landmarks, meshes, shots, targets)
+            name.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_output(name) as temp, open(temp, "wb") as handle:
+                    np.savez(handle, **pairs, shot_openings=mouth_opening(landmarks[shots]).astype(np.float32),
+                         target_openings=mouth_opening(landmarks[pairs["target_index"]]).astype(np.float32))
+            summary.written += 1
+            summary.pairs += len(pairs["target_index"])
+    return summary
+
+
+# ---- training ------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class PairSet:
+    """Every pair of a folder: synthesis / truth (N, P, P, 3) uint8, window_landmarks (N, 68, 2) float32, and
+    whether the target opens its mouth wider than every shot (``beyond``, (N,) bool)."""
+
+    synthesis: np.ndarray
+    truth: np.ndarray
+    window_landmarks: np.ndarray
+    beyond: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.synthesis)
+
+
+def load_pairs(folder: Path) -> PairSet:
+    files = sorted(Path(folder).glob("*.npz"))
+    if not files:
+        raise FileNotFoundError(f"no part pairs in {folder}; make them with `lsr parts pairs`")
+    parts: dict[str, list[np.ndarray]] = {"synthesis": [], "truth": [], "window_landmarks": [], "beyond": []}
+    for file in files:
+        with np.load(file) as stored:
+            for key in ("synthesis", "truth", "window_landmarks"):
+                parts[key].append(stored[key])
+            parts["beyond"].append(stored["target_openings"] > stored["shot_openings"].max() + 0.02)
+    return PairSet(*(np.concatenate(parts[key]) for key in ("synthesis", "truth", "window_landmarks", "beyond")))
+
+
+def batch_tensors(pairs: PairSet, indices: np.ndarray, flip: np.ndarray | None = None,
+                  rng: np.random.Generator | None = None):
+    """Tensors for ``indices``: window (B, 3, P, P) in [-1, 1], masks (B, 2, P, P), truth (B, 3, P, P), loss
+    weight (B, 1, P, P); ``flip`` (B,) bool mirrors those pairs left-right (their landmarks relabelled); ``rng``
+    jitters each pair's colour (a gain and an offset per channel, ``COLOUR_JITTER``, the same on its synthesis
+    and its truth: people and lighting the training clips do not have)."""
+    import torch
+
+    size = pairs.synthesis.shape[1]
+    eyes = window_eye_distance(MOUTH)
+    synthesis, truth = pairs.synthesis[indices].copy(), pairs.truth[indices].copy()
+    points = pairs.window_landmarks[indices].copy()
+    if flip is not None and flip.any():
+        synthesis[flip], truth[flip] = synthesis[flip, :, ::-1], truth[flip, :, ::-1]
+        points[flip] = points[flip][:, list(MIRROR_INDEX)] * np.array([-1.0, 1.0], np.float32) + np.array(
+            [size - 1, 0], np.float32)
+    if rng is not None:
+        gain = 1.0 + rng.uniform(-COLOUR_JITTER, COLOUR_JITTER, (len(indices), 1, 1, 3))
+        offset = 255.0 * rng.uniform(-COLOUR_JITTER, COLOUR_JITTER, (len(indices), 1, 1, 3))
+        synthesis = np.clip(synthesis * gain + offset, 0, 255)
+        truth = np.clip(truth * gain + offset, 0, 255)
+    masks = np.stack([lip_masks(p, size) for p in points])
+    weight = np.stack([paste_weight(p, size, eyes) for p in points]) * (1.0 + (OPEN_MOUTH_WEIGHT - 1.0) * masks[:, 1])
+
+    def image(values: np.ndarray):
+        return torch.from_numpy(np.ascontiguousarray(values.transpose(0, 3, 1, 2), np.float32) / 127.5 - 1.0)
+
+    return image(synthesis), torch.from_numpy(masks), image(truth), torch.from_numpy(weight[:, None].astype(np.float32))
+
+
+def part_loss(drawn, truth, weight):
+    """Weighted L1 plus ``GRADIENT_WEIGHT`` x the weighted L1 of horizontal and vertical differences."""
+    norm = weight.sum().clamp_min(1e-6) * 3
+    loss = ((drawn - truth).abs() * weight).sum() / norm
+    for axis in (2, 3):
+        d_drawn, d_truth = drawn.diff(dim=axis), truth.diff(dim=axis)
+        w = weight.narrow(axis, 0, weight.shape[axis] - 1)
+        loss = loss + GRADIENT_WEIGHT * ((d_drawn - d_truth).abs() * w).sum() / norm
+    return loss
+
+
+def evaluate(model, pairs: PairSet, batch: int = 128) -> dict[str, float]:
+    """Weighted loss and the PSNR over the paste weight of the drawn window and of the synthesis, all pairs and
+    those beyond the shots."""
+    import torch
+
+    losses, drawn_se, input_se, weights = [], [], [], []
+    with torch.no_grad():
+        for start in range(0, len(pairs), batch):
+            idx = np.arange(start, min(start + batch, len(pairs)))
+            window, masks, truth, weight = batch_tensors(pairs, idx)
+            drawn = model(window, masks)
+            losses.append(float(part_loss(drawn, truth, weight)) * len(idx))
+            w = (weight > 0).float() * weight.clamp(max=1.0)
+            drawn_se.append((((drawn - truth) / 2) ** 2 * w).sum(dim=(1, 2, 3)).numpy())
+            input_se.append((((window - truth) / 2) ** 2 * w).sum(dim=(1, 2, 3)).numpy())
+            weights.append(w.sum(dim=(1, 2, 3)).numpy() * 3)
+    drawn_se, input_se, weights = map(np.concatenate, (drawn_se, input_se, weights))
+
+    def psnr(errors: np.ndarray, where: np.ndarray) -> float:
+        return float(np.mean(10 * np.log10(1.0 / np.maximum(errors[where] / weights[where], 1e-10)))) if where.any() else float("nan")
+
+    every = np.ones(len(pairs), bool)
+    return {"loss": sum(losses) / max(len(pairs), 1), "psnr": psnr(drawn_se, every), "psnr_input": psnr(input_se, every),
+            "psnr_beyond": psnr(drawn_se, pairs.beyond), "psnr_input_beyond": psnr(input_se, pairs.beyond),
+            "beyond": int(pairs.beyond.sum()), "pairs": len(pairs)}
+
+
+def preview(model, pairs: PairSet, count: int = 8) -> np.ndarray:
+    """A picture of the first ``count`` pairs beyond the shots (or any, when none is): rows synthesis | drawn |
+    real frame, one column per pair -> (3 P, count P, 3) uint8 RGB."""
+    import torch
+
+    chosen = np.flatnonzero(pairs.beyond)[:count]
+    if not len(chosen):
+        chosen = np.arange(min(count, len(pairs)))
+    window, masks, _, _ = batch_tensors(pairs, chosen)
+    with torch.no_grad():
+        drawn = model(window, masks)
+    drawn = np.clip(np.rint((drawn.numpy().transpose(0, 2, 3, 1) + 1) * 127.5), 0, 255).astype(np.uint8)
+    rows = [pairs.synthesis[chosen], drawn, pairs.truth[chosen]]
+    return np.concatenate([np.concatenate(list(row), axis=1) for row in rows], axis=0)
+
+
+def train(pairs_dir: Path, out: Path, steps: int = 3000, batch: int = 32, lr: float = 1e-3, seed: int = 0,
+          eval_every: int = 250, save_every: int = 250, threads: int = 2, adversarial: float = 0.0,
+          init_from: Path | None = None) -> dict:
+    """Step 2 (module docstring). ``out``: ``checkpoint.pt`` (resumable), ``best/`` (the lowest validation
+    loss, a ``PartGenerator.save_pretrained`` folder), ``steps/<step>/`` (each evaluated step's), ``log.jsonl`` and
+    ``preview.png`` (``preview`` of the
+    validation pairs at the last evaluation).
+
+    ``adversarial`` > 0 adds a patch discriminator (``models_def.part_generator.PartDiscriminator``, judging the
+    window with the target's lips) and its non-saturating loss at that weight, so that an open mouth is drawn as
+    one plausible mouth (a dark cavity, teeth or not) rather than the average of them that L1 alone settles on.
+    ``init_from``: a ``best/`` folder to start the generator from (a new run only)."""
+    import torch
+    from tqdm import tqdm
+
+    from landmarks.imageio import write_image
+    import torch.nn.functional as F
+
+    from models_def.part_generator import PartDiscriminator, PartGenerator, PartGeneratorConfig
+
+    torch.set_num_threads(threads)
+    torch.manual_seed(seed)
+    train_pairs, val_pairs = load_pairs(pairs_dir / "train"), load_pairs(pairs_dir / "test")
+    model = (PartGenerator.from_pretrained(init_from) if init_from is not None
+             else PartGenerator(PartGeneratorConfig(size=train_pairs.synthesis.shape[1])))
+    optimizer = torch.optim.Adam(model.parameters(), lr=lr, betas=(0.9, 0.99))
+    critic = PartDiscriminator(model.config) if adversarial > 0 else None
+    critic_optimizer = None if critic is None else torch.optim.Adam(critic.parameters(), lr=lr, betas=(0.5, 0.99))
+    out.mkdir(parents=True, exist_ok=True)
+    checkpoint = out / "checkpoint.pt"
+    step, best = 0, math.inf
+    if checkpoint.is_file():
+        state = torch.load(checkpoint, weights_only=True)
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        if critic is not None and "critic" in state:
+            critic.load_state_dict(state["critic"])
+            critic_optimizer.load_state_dict(state["critic_optimizer"])
+        step, best = int(state["step"]), float(state["best"])
+    rng = np.random.default_rng([seed, step])
+    log = (out / "log.jsonl").open("a")
+    bar = tqdm(total=steps, initial=step, desc="part generator", unit="step")
+    started = time.perf_counter()
+    while step < steps:
+        model.train()
+        idx = rng.integers(0, len(train_pairs), batch)
+        window, masks, truth, weight = batch_tensors(train_pairs, idx, rng.random(batch) < 0.5, rng)
+        decay = 0.5 * (1 + math.cos(math.pi * min(step / steps, 1.0)))  # cosine decay over the run
+        for group in optimizer.param_groups + ([] if critic is None else critic_optimizer.param_groups):
+            group["lr"] = lr * decay
+        drawn = model(window, masks)
+        loss = part_loss(drawn, truth, weight)
+        if critic is not None:
+            critic.requires_grad_(False)
+            loss = loss + adversarial * F.softplus(-critic(drawn, masks)).mean()
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        if critic is not None:  # the discriminator's step: real frames against the drawn ones
+            critic.requires_grad_(True)
+            critic_loss = (F.softplus(-critic(truth, masks)).mean() + F.softplus(critic(drawn.detach(), masks)).mean())
+            critic_optimizer.zero_grad(set_to_none=True)
+            critic_loss.backward()
+            critic_optimizer.step()
+        step += 1
+        bar.update(1)
+        bar.set_postfix(loss=f"{loss.item():.4f}")
+        if step % eval_every == 0 or step == steps:
+            model.eval()
+            scores = evaluate(model, val_pairs)
+            scores.update(step=step, train_loss=loss.item(), seconds=time.perf_counter() - started)
+            log.write(json.dumps(scores) + "\n")
+            log.flush()
+            bar.write(f"step {step}: val loss {scores['loss']:.4f}, mouth PSNR {scores['psnr']:.2f} dB "
+                      f"(synthesis {scores['psnr_input']:.2f}), beyond the shots {scores['psnr_beyond']:.2f} "
+                      f"({scores['psnr_input_beyond']:.2f}, {scores['beyond']} pairs)")
+            if scores["loss"] < best:
+                best = scores["loss"]
+                model.save_pretrained(out / "best")
+            write_image(out / "preview.png", preview(model, val_pairs))
+            model.save_pretrained(out / "steps" / f"{step:06d}")  # to choose by eye where L1 and looks disagree
+        if step % save_every == 0 or step == steps:
+            temp = checkpoint.with_suffix(".tmp")
+            state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step, "best": best}
+            if critic is not None:
+                state.update(critic=critic.state_dict(), critic_optimizer=critic_optimizer.state_dict())
+            torch.save(state, temp)
+            temp.replace(checkpoint)
+    bar.close()
+    log.close()
+    return {"step": step, "best_val_loss": best}
+
+
+def run_pairs(cfg) -> None:
+    """Entry point of ``lsr parts pairs`` (``lsr.config.PartPairsConfig``)."""
+    summary = build_pairs(cfg.data, cfg.out, weights=cfg.weights, k=cfg.k, every=cfg.every, seed=cfg.seed,
+                          closed_share=cfg.closed_share, shard=tuple(cfg.shard))
+    print(f"part pairs: {summary.written} clip halves written ({summary.pairs} pairs), {summary.skipped} clips "
+          f"already done, {len(summary.failed)} failed" + "".join(f"\n  {why}" for why in summary.failed))
+
+
+def run_train(cfg) -> None:
+    """Entry point of ``lsr parts train`` (``lsr.config.PartTrainConfig``)."""
+    result = train(cfg.pairs, cfg.out, steps=cfg.steps, batch=cfg.batch_size, lr=cfg.lr, seed=cfg.seed,
+                   eval_every=cfg.eval_every, save_every=cfg.eval_every, threads=cfg.threads,
+                   adversarial=cfg.adversarial, init_from=cfg.init_from)
+    print(f"trained to step {result['step']}; best validation loss {result['best_val_loss']:.4f}: {cfg.out / 'best'}")

@@ -1,0 +1,113 @@
+"""The mouth drawn by a part generator (lsr.core.parts, the engine's ``mouth = "drawn"``), torch and ONNX."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from landmarks.expression import set_mouth_opening
+from landmarks.pose import project_canonical
+from lsr.core.parts import draw_mouth, mouth_inputs
+from landmarks.errors import InputFileError
+
+SIDE = 256
+
+
+def _face(opening: float = 0.3) -> np.ndarray:
+    return set_mouth_opening(project_canonical(0, 0, 5, (SIDE, SIDE), scale=0.5).astype(np.float64), opening)
+
+
+def test_draw_mouth_pastes_what_the_generator_draws_around_the_lips_only(rng):
+    image = rng.integers(60, 200, (SIDE, SIDE, 3), dtype=np.uint8)
+    face = _face()
+    seen = {}
+
+    def black(window, masks):
+        seen["window"], seen["masks"] = window, masks
+        return -np.ones_like(window)
+
+    drawn = draw_mouth(image, face, black)
+    assert seen["window"].shape == (1, 3, 80, 80) and seen["masks"].shape == (1, 2, 80, 80)
+    assert -1.0 <= seen["window"].min() and seen["window"].max() <= 1.0
+    lip = np.round(face[57]).astype(int)
+    assert (drawn[lip[1], lip[0]] <= 3).all()  # the lower lip: wholly drawn (black)
+    for far in (face[36], face[45], face[8], face[0]):  # eyes, chin, jaw: untouched
+        x, y = np.round(far).astype(int)
+        assert (drawn[y, x] == image[y, x]).all()
+
+
+def test_draw_mouth_leaves_a_frame_without_landmarks_alone(rng):
+    image = rng.integers(0, 256, (SIDE, SIDE, 3), dtype=np.uint8)
+    face = _face()
+    face[10] = np.nan
+    assert mouth_inputs(image, face) is None
+    assert draw_mouth(image, face, lambda w, m: -np.ones_like(w)) is image
+
+
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    import torch
+
+    from models_def import LSRModel, preset_config
+    from models_def.part_generator import MOUTH_FOLDER, PartGenerator
+
+    torch.manual_seed(0)
+    with_mouth = LSRModel(preset_config("tiny", variant="warp_guided")).save_pretrained(tmp_path_factory.mktemp("w") / "w")
+    mouth = PartGenerator()
+    torch.nn.init.normal_(mouth.out.weight, std=0.05)  # not the identity: the drawn mouth differs from the blend
+    mouth.save_pretrained(with_mouth / MOUTH_FOLDER)
+    return with_mouth
+
+
+def _shots(seed: int = 3, side: int = SIDE):
+    from lsr.data.synth import render_video
+    from lsr.pipeline import subject_shots_from_training
+
+    video = render_video(seed, 4, side)
+    return subject_shots_from_training(video.frames, video.landmarks)
+
+
+def test_a_model_with_a_mouth_generator_draws_the_mouth_by_default_and_can_be_told_not_to(folders, tmp_path):
+    from lsr.pipeline import Reenactor
+    from models_def.part_generator import MOUTH_FOLDER
+
+    reenactor = Reenactor(folders, crop_size=SIDE)
+    assert reenactor.mouth == "drawn" and reenactor.backend.mouth_generator_size == 80
+    reenactor.encode_subject(_shots())
+    target = reenactor.subject.shots.landmarks[1]
+    drawn = reenactor.synthesize_crop(target)[0]
+    reenactor.mouth = "nearest"
+    nearest = reenactor.synthesize_crop(target)[0]
+    difference = np.abs(drawn.astype(int) - nearest.astype(int)).max(axis=-1)
+    assert difference.max() > 0
+    ys, xs = np.nonzero(difference)
+    assert np.hypot(xs - target[48:60, 0].mean(), ys - target[48:60, 1].mean()).max() < 0.8 * np.ptp(target[:, 0])
+    with pytest.raises(ValueError, match="mouth"):
+        reenactor.mouth = "teeth"
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    for name in ("config.json", "model.safetensors"):
+        (plain / name).write_bytes((folders / name).read_bytes())
+    without = Reenactor(plain, crop_size=SIDE)
+    assert without.mouth == "nearest" and not (plain / MOUTH_FOLDER).exists()
+    with pytest.raises(InputFileError, match="mouth generator"):
+        without.mouth = "drawn"
+
+
+def test_the_onnx_bundle_draws_the_same_mouth(folders, tmp_path):
+    pytest.importorskip("onnxruntime")
+    from deploy.runtime import MOUTH_GENERATOR_FILE, OnnxReenactor
+    from lsr.export_bundle import export_graphs
+    from lsr.pipeline import Reenactor, load_model, load_mouth
+
+    result = export_graphs(load_model(folders), tmp_path / "bundle", mouth_generator=load_mouth(folders))
+    assert (tmp_path / "bundle" / MOUTH_GENERATOR_FILE).is_file() and "mouth_generator" in result.metadata
+    torch_side, onnx_side = Reenactor(folders), OnnxReenactor(tmp_path / "bundle")
+    assert onnx_side.mouth == "drawn"
+    shots = _shots(side=onnx_side.crop_size)  # the bundle's crop side (its references' size)
+    for side in (torch_side, onnx_side):
+        side.crop_size = onnx_side.crop_size
+        side.encode_subject(shots)
+    target = shots.landmarks[2]
+    images = [side.synthesize_crop(target)[0].astype(int) for side in (torch_side, onnx_side)]
+    assert np.abs(images[0] - images[1]).max() <= 2
