@@ -363,3 +363,14 @@ class VideoWriter:
                 self._audio_source.close()
                 self._audio_source = None
             self._temp.unlink(missing_ok=True)
+
+
+def trim_clip(video: str | os.PathLike[str], out: str | os.PathLike[str], frames: int) -> Path:
+    """Write the first ``frames`` frames of ``video`` (with its audio) to ``out`` (H.264, atomically)."""
+    info = probe_video(video)
+    with VideoWriter(out, info.fps, audio_from=video if info.has_audio else None) as writer:
+        for index, frame in enumerate(iter_frames(video)):
+            if index >= frames:
+                break
+            writer.write(frame)
+    return Path(out)

@@ -33,7 +33,7 @@ def _run_landmarks(cfg: config.LandmarksConfig) -> None:
 def _run_demo(cfg: config.DemoConfig) -> None:
     from lsr.demo import run_demo
 
-    run_demo(cfg.out, weights=cfg.weights, frames=cfg.frames, k=cfg.k, finetune_steps=cfg.finetune_steps,
+    run_demo(cfg.out, weights=cfg.weights, frames=cfg.frames, k=cfg.k, finetune_steps=cfg.finetune_steps, synthetic=cfg.synthetic,
              threads=cfg.threads, progress=cfg.progress)
 
 

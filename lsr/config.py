@@ -83,20 +83,23 @@ class LandmarksConfig:
 
 @dataclasses.dataclass
 class DemoConfig:
-    """The README's main job: render a synthetic source and driver, re-enact with the default model (lsr.demo)."""
+    """The README's main job: re-enact the bundled real example (two GRID corpus speakers, CC BY 4.0) with the
+    default model, or two procedural people with --synthetic (lsr.demo)."""
 
     out: Path = Path("out")
     """Output folder: demo.mp4, demo_side_by_side.{mp4,png}, inputs/{source,driver}.mp4."""
     weights: OptionalPath = None
     """Model folder; default: $LSR_WEIGHTS, else the shipped default model."""
     frames: int = 100
-    """Frames of the driving clip (25 fps)."""
+    """Frames of the driving clip (25 fps; the real example's driver has 75)."""
     k: int = 8
     """Source shots to average (1..32)."""
     finetune_steps: int = DEFAULT_FINETUNE_STEPS
     """Subject fine-tuning steps on the K shots before re-enacting (thesis §4.3.5; 0 = the meta-learned model)."""
     threads: int = 0
     """CPU threads for the networks; 0 = the library default."""
+    synthetic: bool = False
+    """Two procedural people the model never saw (exact ground truth) instead of the bundled real example."""
     progress: bool = True
 
     def validate(self) -> None:

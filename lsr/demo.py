@@ -1,12 +1,13 @@
 """``lsr demo``: the README's main job on a fresh machine, with nothing to download.
 
-It renders two procedural people the default model never saw (``lsr.data.synth``; a source and a driver),
-writes them as H.264 videos, and runs ``lsr reenact`` with the shipped default model: the source person is
-re-enacted with the driver's head motion and expression (relative motion, K source shots averaged), composited
-into the source's own video (``--paste-back``: its background, body and hair stay; its frames play back and
-forth). The small
-default model is fine-tuned on the K shots first (``--finetune-steps``, thesis §4.3.5; 0 shows the
-meta-learned output).
+By default it re-enacts the bundled real example (``lsr/examples``: two GRID corpus speakers, CC BY 4.0, their
+attribution in ``lsr/examples/NOTICE.md``; both were among the default model's training people); with
+``synthetic=True`` (``lsr demo --synthetic``) it renders two procedural people the default model never saw
+(``lsr.data.synth``) instead, whose exact ground truth the tests use. Either pair is written as H.264 videos and
+``lsr reenact`` runs with the shipped default model: the source person is re-enacted with the driver's head
+motion and expression (relative motion, K source shots averaged), composited into the source's own video
+(``--paste-back``: its background, body and hair stay; its frames play back and forth). ``--finetune-steps``
+fine-tunes on the K shots first (thesis §4.3.5; the default, 0, shows the meta-learned output).
 
     out/inputs/source.mp4          person A (the K shots are sampled from it)
     out/inputs/driver.mp4          person B (the driving motion)
@@ -29,10 +30,34 @@ SOURCE_FRAMES = 48
 INPUT_SIZE = 256  # rendered larger than the model (128^2): the pipeline detects, crops and aligns like real video
 FPS = 25
 STILL_FRAMES = 4
+EXAMPLES = Path(__file__).resolve().parent / "examples"
+REAL_SOURCE, REAL_DRIVER = EXAMPLES / "grid_brbk7n.mp4", EXAMPLES / "grid_sbia1a.mp4"
+REAL_EXAMPLE = ("two GRID corpus speakers (Cooke, Barker, Cunningham and Shao, 2006; CC BY 4.0; "
+                "lsr/examples/NOTICE.md), both among the default model's training people")
+
+
+def write_real_inputs(folder: Path, frames: int) -> tuple[Path, Path]:
+    """Copy the bundled real example into ``folder`` (the driver cut to its first ``frames`` frames); returns the
+    source's and the driver's paths."""
+    import shutil
+
+    from landmarks.imageio import atomic_output
+    from landmarks.video import probe_video, trim_clip
+
+    folder.mkdir(parents=True, exist_ok=True)
+    source, driver = folder / "source.mp4", folder / "driver.mp4"
+    with atomic_output(source) as temp:
+        shutil.copyfile(REAL_SOURCE, temp)
+    if frames < probe_video(REAL_DRIVER).frames:
+        trim_clip(REAL_DRIVER, driver, frames)
+    else:
+        with atomic_output(driver) as temp:
+            shutil.copyfile(REAL_DRIVER, temp)
+    return source, driver
 
 
 def write_inputs(folder: Path, frames: int) -> tuple[Path, Path]:
-    """Render the source and driver clips into ``folder``; returns their paths."""
+    """Render the procedural source and driver clips into ``folder``; returns their paths."""
     from landmarks.video import VideoWriter
     from lsr.data.synth import render_video
 
@@ -59,8 +84,9 @@ def write_still(video: Path, out: Path, count: int = STILL_FRAMES) -> Path:
 
 
 def run_demo(out: Path, *, weights: Path | None = None, frames: int = 100, k: int = 8, finetune_steps: int | None = None,
-             threads: int = 0, progress: bool = True) -> dict[str, Path]:
-    """Render the inputs, re-enact, write the side-by-side still; returns the output paths."""
+             threads: int = 0, progress: bool = True, synthetic: bool = False) -> dict[str, Path]:
+    """Write the inputs (the bundled real example, or two procedural people when ``synthetic``), re-enact, write
+    the side-by-side still; returns the output paths."""
     from lsr.config import ReenactConfig
     from lsr.reenact import run_reenact
     from lsr.weights import resolve_weights
@@ -68,8 +94,13 @@ def run_demo(out: Path, *, weights: Path | None = None, frames: int = 100, k: in
     out = Path(out)
     weights = resolve_weights(weights)
     started = time.perf_counter()
-    source, driver = write_inputs(out / "inputs", frames)
-    print(f"demo: rendered a source person ({SOURCE_FRAMES} frames) and a driver ({frames} frames) into {out / 'inputs'}")
+    if synthetic:
+        source, driver = write_inputs(out / "inputs", frames)
+        print(f"demo: rendered a source person ({SOURCE_FRAMES} frames) and a driver ({frames} frames) into {out / 'inputs'}")
+    else:
+        source, driver = write_real_inputs(out / "inputs", frames)
+        print(f"demo: the real example: {REAL_EXAMPLE}; copied into {out / 'inputs'} ('lsr demo --synthetic': two "
+              "procedural people instead)")
     paths = {"video": out / "demo.mp4", "side_by_side": out / "demo_side_by_side.mp4"}
     cfg = ReenactConfig(weights=weights, source=source, driving=driver, out=paths["video"], k=k,
                         finetune_steps=finetune_steps, side_by_side=paths["side_by_side"], overwrite=True, paste_back=True,

@@ -19,20 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from lsr.config import BenchReenactConfig
+from landmarks.video import trim_clip
 from lsr.eval.bench_landmarks import default_video
-
-
-def trim_clip(video: Path, out: Path, frames: int) -> Path:
-    """Write the first ``frames`` frames of ``video`` (with its audio) to ``out``."""
-    from landmarks.video import VideoWriter, iter_frames, probe_video
-
-    info = probe_video(video)
-    with VideoWriter(out, info.fps, audio_from=video if info.has_audio else None) as writer:
-        for index, frame in enumerate(iter_frames(video)):
-            if index >= frames:
-                break
-            writer.write(frame)
-    return out
 
 
 def synthesis_only_ms(reenactor, repeats: int = 20) -> float:
