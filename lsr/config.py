@@ -246,7 +246,8 @@ class ReenactConfig:
     """Relative motion: 2d = the driver's 68 points' motion on the source's face; 3d = the source's own face mesh
     turned by the driver's head rotation, the expression moved in the canonical head frame (needs --detector mesh
     and a video or image driver; elsewhere 2d). Compared by `lsr eval --retarget`."""
-    mouth: Literal["drawn", "nearest", "blend"] | None = None
+    mouth: Annotated[Literal["drawn", "nearest", "blend"] | None,
+                     tyro.conf.arg(metavar="{drawn,nearest,blend}", help_behavior_hint="(optional)")] = None
     """A warp-guided model's mouth: drawn = redrawn by the model's mouth generator from the driven lips (over
     nearest); nearest = from the nearest shot warped onto the target where the driver opens it wider than the
     shots; blend = the network's blend of all its shots (smoother, opens less). Default: drawn when the model has
