@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.handlers import Limits, ModelStore, enlarge, load_shots, upload_paths
+from app.handlers import DISPLAY_SIDE, Limits, ModelStore, load_shots, upload_paths
 
 LIVE_FPS_SMOOTHING = 0.2  # weight of the newest frame interval in the fps shown
 LIVE_TRACE: list[tuple[int, float]] | None = None
@@ -32,24 +32,20 @@ EDIT_SLIDERS = (  # name, minimum, maximum, neutral, step, label (landmarks.edit
 
 
 class PersonView:
-    """A tab's person: its ``LiveSession`` (``key`` says which choice it was encoded for) and the layout colours."""
+    """A tab's person: its ``LiveSession`` (``key`` says which choice it was encoded for) and its layout's legend."""
 
     def __init__(self, session, key: tuple, kind: str) -> None:
         self.session, self.key, self.kind = session, key, kind
-        self.pca = None
+        self.legend = None
+        """The model's layout channel names (``lsr.layout_view.load_layout_legend``), set by whoever knows the folder."""
 
     def layout_picture(self, layout: np.ndarray | None):
         """The generator's layout as a picture (class colours, or PCA colours kept over the stream), or a skip."""
         if layout is None:
             return gr_skip()
-        if self.kind == "segmentation":
-            from lsr.reenact import layout_panel
+        from lsr.reenact import layout_panel
 
-            return enlarge(layout_panel(layout, self.kind, layout.shape[-1]))
-        from lsr.layout_view import LayoutPCA
-
-        self.pca = self.pca or LayoutPCA()
-        return enlarge(self.pca.rgb(layout))
+        return layout_panel(layout, self.kind, max(DISPLAY_SIDE, layout.shape[-1]), self.legend)
 
 
 def person_view(view: PersonView | None, store: ModelStore, limits: Limits, source_files, k: int, examples_dir: Path,
@@ -65,7 +61,11 @@ def person_view(view: PersonView | None, store: ModelStore, limits: Limits, sour
     shots, _ = load_shots(paths, int(k), reenactor.crop_size, store.detector, limits)
     subject = reenactor.encode_subject(shots, cache=False)
     session = LiveSession(reenactor, subject, with_layout=True, detector=store.detector, **session_options)
-    return kind(session, key, reenactor.backend.layout_kind)
+    view = kind(session, key, reenactor.backend.layout_kind)
+    from lsr.layout_view import load_layout_legend
+
+    view.legend = load_layout_legend(store.weights)
+    return view
 
 
 def live_person(source_files, k: int, examples_dir: Path) -> tuple[list[Path], tuple]:
@@ -123,7 +123,6 @@ class LiveStream(PersonView):
         self._worker.shutdown(wait=True, cancel_futures=True)
         self._pending = None
         self.session = None
-        self.pca = None
 
 
 def live_frame(store: ModelStore, limits: Limits, stream: LiveStream | None, frame: np.ndarray | None, source_files,

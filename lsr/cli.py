@@ -119,6 +119,7 @@ GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
         "ablation": (config.BenchAblationConfig, "lsr.eval.bench_ablation:run_bench_ablation"),
         "synth": (config.BenchSynthConfig, _run_bench_synth),
         "oracle-seg": (config.BenchOracleSegConfig, "lsr.data.oracle_seg:run_bench_oracle_seg"),
+        "layout-legend": (config.BenchLayoutLegendConfig, "lsr.eval.layout_legend:run_bench_layout_legend"),
     },
     "parts": {
         "pairs": (config.PartPairsConfig, "lsr.train.parts:run_pairs"),

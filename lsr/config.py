@@ -23,6 +23,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchSoakConfig,
     BenchFinetuneConfig,
     BenchHardConfig,
+    BenchLayoutLegendConfig,
     BenchAblationConfig,
     BenchOracleSegConfig,
     BenchSynthConfig,

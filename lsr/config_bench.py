@@ -599,3 +599,26 @@ class BenchOracleSegConfig:
     def validate(self) -> None:
         if self.root is not None and not Path(self.root).is_dir():
             raise ConfigError(f"{self.root} is not a folder")
+
+
+@dataclasses.dataclass
+class BenchLayoutLegendConfig:
+    """Name a model's latent-layout channels by the face parts they cover (lsr.eval.layout_legend): writes
+    WEIGHTS/layout_legend.json, which the side-by-side, the app and the live tab show as the layout's legend."""
+
+    data: tyro.conf.Positional[Path]
+    """A prepared dataset with segmentation maps (lsr prepare), e.g. data/real256."""
+    weights: OptionalPath = None
+    """Model folder (default: the shipped default model); its layout_legend.json is (re)written."""
+    split: str = "train"
+    clips: int = 14
+    """Clips surveyed, spread over the split."""
+    every: int = 3
+    """Every n-th frame of a clip after its 8 shots."""
+    out_md: OptionalPath = None
+    """Also write the table as the 'layout_legend' section of this markdown file."""
+
+    def validate(self) -> None:
+        check_weights(self.weights)
+        if self.clips < 1 or self.every < 1:
+            raise ConfigError(f"--clips and --every must be >= 1, got {self.clips} and {self.every}")

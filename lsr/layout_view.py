@@ -109,3 +109,67 @@ def segmentation_rgb(segmentation: Tensor, ignore_index: int = -1) -> Tensor:
     coloured = np.stack([colorize_segmentation(np.where(m == ignore_index, 0, m).astype(np.uint8)) for m in maps])
     coloured[maps == ignore_index] = 128
     return torch.from_numpy(coloured).permute(0, 3, 1, 2).float() / 127.5 - 1
+
+
+# A fixed colour per latent-layout channel (tab20's colours, then four more): a channel keeps its colour over a
+# video, between people and between runs, unlike PCA colours, which depend on the frame they were fitted on.
+LAYOUT_PALETTE = np.array(
+    [
+        [31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189], [140, 86, 75],
+        [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207], [174, 199, 232], [255, 187, 120],
+        [152, 223, 138], [255, 152, 150], [197, 176, 213], [196, 156, 148], [247, 182, 210], [199, 199, 199],
+        [219, 219, 141], [158, 218, 229], [90, 40, 20], [20, 60, 110], [240, 230, 80], [0, 0, 0],
+    ],
+    dtype=np.uint8,
+)  # (24, 3) RGB
+LEGEND_FILE = "layout_legend.json"
+"""A model folder's names for its layout channels (``lsr bench layout-legend``): {"channels": [name, ...], ...}."""
+
+
+def layout_parts_rgb(layout: np.ndarray) -> np.ndarray:
+    """A latent layout as parts: each pixel's strongest channel in ``LAYOUT_PALETTE``, at the layout's own
+    resolution (enlarge it with nearest-neighbour, not blurred). layout: (C, H, W) float -> (H, W, 3) uint8."""
+    layout = np.asarray(layout)
+    if layout.ndim != 3:
+        raise ValueError(f"layout must be (C, H, W); got {layout.shape}")
+    return LAYOUT_PALETTE[layout.argmax(axis=0) % len(LAYOUT_PALETTE)]
+
+
+def load_layout_legend(folder) -> list[str] | None:
+    """The channel names of model folder ``folder`` (``LEGEND_FILE``), or None when it has none or it is unreadable."""
+    import json
+    from pathlib import Path
+
+    if folder is None:
+        return None
+    try:
+        names = json.loads((Path(folder) / LEGEND_FILE).read_text())["channels"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return [str(name) for name in names] if isinstance(names, list) else None
+
+
+def draw_layout_legend(panel: np.ndarray, layout: np.ndarray, legend: list[str] | None, min_share: float = 0.02,
+                       rows: int = 6) -> np.ndarray:
+    """``panel`` (S, S, 3) uint8, a ``layout_parts_rgb`` picture enlarged, with a legend in its lower left corner:
+    a swatch and a name (``legend``'s, else "channel i") for up to ``rows`` channels covering at least ``min_share``
+    of this layout (C, H, W), largest first. Returns a new array."""
+    import cv2
+
+    strongest = np.asarray(layout).argmax(axis=0)
+    shares = np.bincount(strongest.ravel(), minlength=layout.shape[0]) / strongest.size
+    shown = [c for c in np.argsort(shares)[::-1] if shares[c] >= min_share][:rows]
+    result = panel.copy()
+    size = panel.shape[0]
+    scale = max(0.3, size / 560)
+    line = max(10, int(round(26 * scale)))
+    y = size - line * len(shown) - 4
+    for channel in shown:
+        name = legend[channel] if legend is not None and channel < len(legend) else f"channel {channel}"
+        colour = tuple(int(v) for v in LAYOUT_PALETTE[channel % len(LAYOUT_PALETTE)])
+        cv2.rectangle(result, (4, y), (4 + line - 3, y + line - 3), colour, -1)
+        cv2.rectangle(result, (4, y), (4 + line - 3, y + line - 3), (255, 255, 255), 1)
+        for ink, width in (((0, 0, 0), 3), ((255, 255, 255), 1)):  # outlined text: readable on any colour
+            cv2.putText(result, name, (4 + line, y + line - 5), cv2.FONT_HERSHEY_SIMPLEX, scale, ink, width, cv2.LINE_AA)
+        y += line
+    return result

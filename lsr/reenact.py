@@ -197,33 +197,34 @@ def make_reenactor(cfg: ReenactConfig) -> ReenactorBase:
 # ---- side-by-side -----------------------------------------------------------------------------------------
 
 
-def layout_panel(layout: np.ndarray | None, kind: str, size: int, pca=None) -> np.ndarray:
-    """(C_l, S, S) layout -> (S, S, 3) uint8: argmax class colours for segmentations, else PCA of the channels.
-
-    pca: a ``lsr.layout_view.LayoutPCA`` kept over a video (fitted on its first frame) so colours stay put;
-    None fits one on this frame alone.
-    """
+def layout_panel(layout: np.ndarray | None, kind: str, size: int, legend: list[str] | None = None) -> np.ndarray:
+    """(C_l, S, S) layout -> (size, size, 3) uint8, enlarged without blur: argmax class colours for segmentations;
+    a latent layout as parts (each pixel's strongest channel in a fixed colour, ``lsr.layout_view.layout_parts_rgb``)
+    with a legend of the channels it shows (``legend``: the model's channel names, ``load_layout_legend``)."""
     if layout is None:
         return np.zeros((size, size, 3), np.uint8)
-    import torch
+    from lsr.layout_view import draw_layout_legend, layout_parts_rgb
 
-    from lsr.layout_view import LayoutPCA, images_to_uint8, layout_argmax_rgb
+    if kind == "segmentation":
+        from lsr.data.classes import colorize_segmentation
 
-    tensor = torch.from_numpy(layout)[None]
-    rgb = layout_argmax_rgb(tensor) if kind == "segmentation" else (pca if pca is not None else LayoutPCA())(tensor)
-    return images_to_uint8(rgb)[0]
+        rgb = colorize_segmentation(layout.argmax(axis=0).astype(np.uint8))
+    else:
+        rgb = layout_parts_rgb(layout)
+    panel = cv2.resize(rgb, (size, size), interpolation=cv2.INTER_NEAREST)
+    return panel if kind == "segmentation" else draw_layout_legend(panel, layout, legend)
 
 
 SIDE_BY_SIDE_MIN_PANEL = 256
 
 
-def side_by_side_frame(frame, kind: str, size: int, pca=None) -> np.ndarray:
-    """driver | landmarks | latent layout | output, each an (S, S) panel (``pca``: see ``layout_panel``)."""
+def side_by_side_frame(frame, kind: str, size: int, legend: list[str] | None = None) -> np.ndarray:
+    """driver | landmarks | latent layout | output, each an (S, S) panel (``legend``: see ``layout_panel``)."""
     blank = np.zeros((size, size, 3), np.uint8)
     driver = blank if frame.driver_frame is None else square_resize(frame.driver_frame, size)
     landmarks = blank if frame.landmark_image is None else frame.landmark_image
     output = frame.image if frame.image.shape[:2] == (size, size) else square_resize(frame.image, size)
-    panels = [driver, landmarks, layout_panel(frame.layout, kind, landmarks.shape[0], pca), output]
+    panels = [driver, landmarks, layout_panel(frame.layout, kind, max(size, SIDE_BY_SIDE_MIN_PANEL), legend), output]
     # the network's panels (landmarks, layout) are at the model resolution, the crop may be larger (warp_guided)
     panels = [p if p.shape[0] == size else cv2.resize(p, (size, size), interpolation=cv2.INTER_NEAREST) for p in panels]
     if size < SIDE_BY_SIDE_MIN_PANEL:  # low-resolution models: enlarge so the panels stay legible
@@ -266,7 +267,7 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
     """
     from landmarks.video import VideoWriter
     from lsr.core.overlap import Drain
-    from lsr.layout_view import LayoutPCA
+    from lsr.layout_view import load_layout_legend
 
     info = describe_driver(driving, fps=fps)
     metadata = provenance_metadata(__version__, runtime)
@@ -277,7 +278,7 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
                                landmark_space=landmark_space, landmark_size=landmark_size, progress=progress)
     first_landmarks, driven = None, []
     kind, size = reenactor.backend.layout_kind, reenactor.crop_size
-    pca = LayoutPCA()  # fitted on the first frame, kept for the whole video
+    legend = load_layout_legend(getattr(reenactor, "weights_path", None))
     encoded = [0.0]
 
     def encode(frame) -> None:  # on the encoding thread, in frame order, behind the synthesis
@@ -285,7 +286,7 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
         writer.write(draw_watermark(frame.image) if watermark else frame.image)
         encoded[0] += time.perf_counter() - started
         if with_layout:
-            panel = side_by_side_frame(frame, kind, size, pca)
+            panel = side_by_side_frame(frame, kind, size, legend)
             if sbs_writer is not None:
                 sbs_writer.write(draw_watermark(panel) if watermark else panel)
             if panel_sink is not None:

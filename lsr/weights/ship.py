@@ -22,7 +22,8 @@ from lsr.weights import DEFAULT_WEIGHTS, MissingWeightsError, is_model_folder
 if TYPE_CHECKING:
     from lsr.config import ShipConfig
 
-FILES = ("config.json", "model.safetensors", "discriminator.safetensors", "mouth/config.json", "mouth/model.safetensors")
+FILES = ("config.json", "model.safetensors", "discriminator.safetensors", "layout_legend.json", "mouth/config.json",
+         "mouth/model.safetensors")
 MAX_MB = 25.0
 
 

@@ -559,5 +559,6 @@ def test_reenact_mouth_option_reaches_the_reenactor(weights, mouth):
     from lsr.config import ReenactConfig
     from lsr.reenact import make_reenactor
 
-    assert ReenactConfig().mouth == "nearest"
+    assert ReenactConfig().mouth is None  # the model's default: drawn with a mouth generator, else nearest
+    assert make_reenactor(ReenactConfig(weights=weights)).mouth == "nearest"
     assert make_reenactor(ReenactConfig(weights=weights, mouth=mouth)).mouth == mouth
