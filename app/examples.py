@@ -1,11 +1,13 @@
-"""Bundled synthetic examples for the app: a source person and a driving clip, generated on first use.
+"""The app's example person and driver, made on first use from the bundled real example (``lsr.examples``: two
+GRID corpus speakers, CC BY 4.0, attribution in ``lsr/examples/NOTICE.md``).
 
-Nothing is shipped as binary files: ``lsr.data.synth.render_video`` renders procedural talking heads
-(faces the detectors find), written once into a cache folder and reused. The folder appears complete or not at
-all (built in a temp folder beside it, then renamed), so an interrupted first run leaves nothing half-made.
+Person A's shots are frames spread over its clip; person B's clip is its first ``DRIVER_FRAMES`` frames with a
+sine tone added (so that "the output keeps the audio" can be seen and tested) and its landmarks found by the
+default detector. They are written once into a cache folder and reused. The folder appears complete or not at all
+(built in a temp folder beside it, then renamed), so an interrupted first run leaves nothing half-made.
 
     examples = ensure_examples()            # ~/.cache/lsr/app_examples by default
-    examples.source_images                  # 4 PNG shots of synthetic person A
+    examples.source_images                  # 4 PNG shots of real person A
     examples.driving_video                  # H.264 clip of person B with a sine-tone audio track
     examples.driving_landmarks              # the same clip's (N, 68, 2) landmarks (.npy, frame pixels)
 """
@@ -21,18 +23,16 @@ from pathlib import Path
 
 import numpy as np
 
-EXAMPLES_VERSION = 1  # bump when the recipe changes: a new folder name, old caches are left alone
-SOURCE_SEED, DRIVER_SEED = 11, 12
+EXAMPLES_VERSION = 2  # bump when the recipe changes: a new folder name, old caches are left alone
 SOURCE_SHOTS = 4
 DRIVER_FRAMES = 32
-EXAMPLE_SIZE = 256
 EXAMPLE_FPS = 25
 TONE_HZ = 440.0  # the driving clip carries audio so "the output keeps the audio" can be seen and tested
 
 # Names shown in the driving-example dropdown.
 DRIVER_EXAMPLE_NONE = "none (use my upload)"
-DRIVER_EXAMPLE_VIDEO = f"synthetic person B: video, {DRIVER_FRAMES} frames with audio"
-DRIVER_EXAMPLE_LANDMARKS = f"synthetic person B: landmarks only (.npy, {DRIVER_FRAMES} x 68 x 2)"
+DRIVER_EXAMPLE_VIDEO = f"real person B (GRID corpus, CC BY 4.0): video, {DRIVER_FRAMES} frames with audio"
+DRIVER_EXAMPLE_LANDMARKS = f"real person B: landmarks only (.npy, {DRIVER_FRAMES} x 68 x 2)"
 DRIVER_EXAMPLES = (DRIVER_EXAMPLE_NONE, DRIVER_EXAMPLE_VIDEO, DRIVER_EXAMPLE_LANDMARKS)
 
 
@@ -91,19 +91,27 @@ def write_clip_with_tone(path: Path, frames: np.ndarray, fps: int = EXAMPLE_FPS,
 
 
 def _generate(folder: Path) -> None:
+    from landmarks.detectors import make_detector
     from landmarks.imageio import write_image
-    from lsr.data.synth import render_video
+    from landmarks.video import iter_frames
+    from lsr.examples import REAL_DRIVER, REAL_SOURCE
 
     layout = _layout(folder)
-    # Person A: shots spread over one clip, so head pose and expression differ between the K shots.
-    source = render_video(SOURCE_SEED, 6 * SOURCE_SHOTS, EXAMPLE_SIZE)
-    for path, index in zip(layout.source_images, range(0, 6 * SOURCE_SHOTS, 6)):
-        write_image(path, source.frames[index])
-    driver = render_video(DRIVER_SEED, DRIVER_FRAMES, EXAMPLE_SIZE, fps=EXAMPLE_FPS)
-    write_clip_with_tone(layout.driving_video, driver.frames)
-    np.save(layout.driving_landmarks, driver.landmarks.astype(np.float32))
-    manifest = {"version": EXAMPLES_VERSION, "source_seed": SOURCE_SEED, "driver_seed": DRIVER_SEED,
-                "size": EXAMPLE_SIZE, "fps": EXAMPLE_FPS, "landmark_space": "frame"}
+    # Person A: shots spread over its clip, so head pose and expression differ between the K shots.
+    source = list(iter_frames(REAL_SOURCE))
+    for path, index in zip(layout.source_images, np.linspace(0, len(source) - 1, SOURCE_SHOTS).round().astype(int)):
+        write_image(path, source[index])
+    driver = np.stack([frame for _, frame in zip(range(DRIVER_FRAMES), iter_frames(REAL_DRIVER))])
+    write_clip_with_tone(layout.driving_video, driver)
+    detector = make_detector()
+    landmarks = np.full((len(driver), 68, 2), np.nan, np.float32)
+    for index, frame in enumerate(driver):
+        faces = detector.detect(frame)
+        if faces:
+            landmarks[index] = faces[0].landmarks
+    np.save(layout.driving_landmarks, landmarks)
+    manifest = {"version": EXAMPLES_VERSION, "source": REAL_SOURCE.name, "driver": REAL_DRIVER.name,
+                "fps": EXAMPLE_FPS, "landmark_space": "frame", "licence": "CC BY 4.0 (lsr/examples/NOTICE.md)"}
     (folder / "examples.json").write_text(json.dumps(manifest, indent=2))
 
 

@@ -40,7 +40,7 @@ class PersonView:
         """The model's layout channel names (``lsr.layout_view.load_layout_legend``), set by whoever knows the folder."""
 
     def layout_picture(self, layout: np.ndarray | None):
-        """The generator's layout as a picture (class colours, or PCA colours kept over the stream), or a skip."""
+        """The generator's layout as a picture (class colours, or its parts with a legend: ``lsr.reenact.layout_panel``), or a skip."""
         if layout is None:
             return gr_skip()
         from lsr.reenact import layout_panel

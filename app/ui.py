@@ -39,7 +39,9 @@ frame), next to the result of **averaging the K latents** (thesis eq. 4.3, Fig. 
 seen in only one shot (an occluding hand, glasses, a bad frame) fade out of the average."""
 
 LAYOUT_HELP = """Per frame: the driving frame, the landmark image the generator receives, its **latent spatial layout**
-(the layout channels projected to RGB by PCA; segmentation-stage models show class colours) and the output.
+(each pixel's strongest channel in a colour of its own, the same in every frame and for every person; the legend
+names the face parts each channel covers, `lsr bench layout-legend`; segmentation-stage models show class colours)
+and the output.
 Drag the slider to scrub through the frames."""
 
 
@@ -212,7 +214,7 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                     gr.Markdown("### 1. Source person (K shots)")
                     source_files = gr.File(file_count="multiple", file_types=["image", "video"], elem_id="source-files",
                                            label="Photos of one person (1-32), or one short video")
-                    example_person = gr.Button("Use the example person (synthetic)", size="sm")
+                    example_person = gr.Button("Use the example person (GRID corpus, CC BY 4.0)", size="sm")
                     k = gr.Slider(1, cfg.max_k, value=min(4, cfg.max_k), step=1, label="K: shots to average",
                                   info="K shots are chosen to cover the person: spread over a video or the photos, "
                                        "with the widest mouth, closed eyes and furthest turns swapped in.")

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lsr.examples import REAL_DRIVER, REAL_EXAMPLE, REAL_SOURCE
+
 # Identity seeds of the demo people. Training identities come from ``identity_seed_of(seed, index)`` hashes,
 # so these plain seeds are people the default model has not seen.
 SOURCE_SEED, DRIVER_SEED = 31, 32
@@ -30,10 +32,6 @@ SOURCE_FRAMES = 48
 INPUT_SIZE = 256  # rendered larger than the model (128^2): the pipeline detects, crops and aligns like real video
 FPS = 25
 STILL_FRAMES = 4
-EXAMPLES = Path(__file__).resolve().parent / "examples"
-REAL_SOURCE, REAL_DRIVER = EXAMPLES / "grid_brbk7n.mp4", EXAMPLES / "grid_sbia1a.mp4"
-REAL_EXAMPLE = ("two GRID corpus speakers (Cooke, Barker, Cunningham and Shao, 2006; CC BY 4.0; "
-                "lsr/examples/NOTICE.md), both among the default model's training people")
 
 
 def write_real_inputs(folder: Path, frames: int) -> tuple[Path, Path]:

@@ -90,7 +90,21 @@ def test_upload_run_video_plays_and_layout_shows(page, app_inputs, tmp_path):
     page.locator("#averaging img").first.wait_for()
     page.locator("#coverage img").first.wait_for()  # what the shots cover of the driver, as a picture
     assert "frame(s)" in page.locator("#run-summary").inner_text()
-    assert keep_screenshot(page, tmp_path, "app_reenacted.png").stat().st_size > 0
+    assert keep_screenshot(page, tmp_path, "app_uploaded.png").stat().st_size > 0
+
+
+def test_the_real_example_person_driven_by_the_bundled_example(page, tmp_path):
+    import re
+
+    page.get_by_role("button", name=re.compile("Use the example person")).click()
+    page.locator("#shots img").first.wait_for()
+    page.locator("#driver-example input").click()
+    page.get_by_role("option", name=re.compile("real person B .*: video")).click()
+    run_and_wait_for_video(page)
+    page.wait_for_function(PANEL_SHOWN)
+    page.locator("#coverage img").first.wait_for()
+    assert "frame(s)" in page.locator("#run-summary").inner_text()
+    assert keep_screenshot(page, tmp_path, "app_reenacted.png").stat().st_size > 0  # README's picture of the app
 
 
 def test_source_without_face_shows_message_and_app_stays_usable(page, app_inputs, tmp_path):

@@ -57,11 +57,11 @@ def test_demo_reenacts_the_bundled_real_example_by_default(tmp_path, capsys):
 
 
 def test_every_bundled_example_file_has_its_provenance_in_the_notice():
-    from lsr.demo import EXAMPLES, REAL_DRIVER, REAL_SOURCE
+    from lsr.examples import EXAMPLES, REAL_DRIVER, REAL_SOURCE
 
     notice = (EXAMPLES / "NOTICE.md").read_text()
     assert "CC BY 4.0" in notice and "Cooke" in notice
-    files = {path.name for path in EXAMPLES.iterdir() if path.name != "NOTICE.md"}
+    files = {path.name for path in EXAMPLES.iterdir() if path.suffix not in (".md", ".py") and path.is_file()}
     assert {REAL_SOURCE.name, REAL_DRIVER.name} <= files
     for name in files:
         assert f"`{name}`" in notice, f"{name} is bundled without its provenance in lsr/examples/NOTICE.md"

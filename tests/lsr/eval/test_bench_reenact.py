@@ -29,8 +29,33 @@ def test_warp_guided_model_is_timed_on_both_runtimes(tmp_path):
     assert [row.split("|")[2].strip() for row in rows] == ["mesh", "hog", "mesh", "hog"]
     for row in rows:
         cells = [cell.strip() for cell in row.strip("|").split("|")]
-        assert int(cells[2]) == 4 and float(cells[10]) > 0  # frames, end-to-end fps
+        assert cells[2] == "nearest"  # the model's default mouth: it has no mouth generator
+        assert int(cells[3]) == 4 and float(cells[11]) > 0  # frames, end-to-end fps
     assert "`" in table.splitlines()[0]  # the model named as given, not a random preset
+
+
+def test_the_drawn_mouth_is_timed_against_the_path_without_it(tmp_path):
+    import torch
+
+    from landmarks.video import VideoWriter
+    from lsr.config import BenchReenactConfig
+    from lsr.data.synth import render_video
+    from lsr.eval.bench_reenact import run_bench_reenact
+    from models_def import LSRModel, preset_config
+    from models_def.part_generator import MOUTH_FOLDER, PartGenerator
+
+    torch.manual_seed(0)
+    weights = LSRModel(preset_config("tiny", variant="warp_guided")).save_pretrained(tmp_path / "w")
+    PartGenerator().save_pretrained(weights / MOUTH_FOLDER)
+    clip = tmp_path / "clip.mp4"
+    with VideoWriter(clip, 25) as writer:
+        for frame in render_video(8, 6, 160).frames:
+            writer.write(frame)
+    table = run_bench_reenact(BenchReenactConfig(video=clip, weights=weights, frames=3, k=2, threads=1,
+                                                 mouths=("drawn", "nearest")))
+    rows = [line for line in table.splitlines() if line.startswith(("| torch |", "| onnx |")) and line.count("|") > 10]
+    assert [row.split("|")[3].strip() for row in rows] == ["drawn", "nearest", "drawn", "nearest"]
+    assert table.count("the drawn mouth costs") == 2  # one ratio per runtime, from the same run
 
 
 def test_no_flags_times_the_shipped_default():
