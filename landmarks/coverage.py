@@ -258,3 +258,88 @@ def coverage_picture(shot_features: np.ndarray, target_features: np.ndarray) -> 
         colour = COLOURS["beyond"] if known.any() and beyond[name][known].any() else (0, 0, 0)
         cv2.putText(image, share, (right + 10, middle + 5), font, 0.45, colour, 1, cv2.LINE_AA)
     return image
+
+
+MOMENTS = (
+    ("straight ahead", "look into the camera, mouth closed"),
+    ("mouth wide open", "open your mouth as wide as you can"),
+    ('"O"', 'round your lips into an "O"'),
+    ("eyes closed", "close your eyes"),
+    ("glance left", "look to your left without turning"),
+    ("glance right", "look to your right without turning"),
+    ("turn left", "turn your head to the left"),
+    ("turn right", "turn your head to the right"),
+    ("smile", "smile"),
+)
+"""The moments a recording asks for, each (name, what to do): the range the method borrows from its shots."""
+
+
+@dataclasses.dataclass
+class MomentKeeper:
+    """The best frame of each of ``MOMENTS`` seen so far in a recording (a webcam's frames, one at a time).
+
+    A frame's score for a moment (larger is better): straight ahead = frontal, eyes open, mouth closed; mouth wide
+    open = the mouth's opening; "O" = an open mouth that is narrow for its height; eyes closed = the eyes' closing;
+    glances = the iris's offset (``landmarks.appearance.gaze``) with a frontal head; turns = the head's yaw; smile =
+    the mouth's width with the lips closed. A moment keeps a frame only where it scores better than the first frames
+    did (``reference``: the median of the frames so far), by at least a step of the feature (``STEPS``), so a
+    recording of a still face keeps only "straight ahead" (always the best so far). Left and right are the
+    image's.
+    """
+
+    frames: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    landmarks: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    scores: dict[str, float] = dataclasses.field(default_factory=dict)
+    seen: list[np.ndarray] = dataclasses.field(default_factory=list)
+
+    def measures(self, frame: np.ndarray, points: np.ndarray) -> dict[str, float]:
+        """The frame's raw measures: mouth, eyes, yaw, pitch, gaze (``face_features``), width (mouth width over
+        eye distance) and roundness (mouth opening over its width)."""
+        from landmarks.appearance import gaze
+        from landmarks.smooth import inter_ocular_distance
+
+        gazes = np.array([gaze(frame, points)[0]])
+        mouth, eyes, yaw, pitch, glance = face_features(points[None], frame.shape[:2], gazes)[0]
+        eye_distance = float(inter_ocular_distance(points))
+        width = float(np.linalg.norm(points[54] - points[48])) / max(eye_distance, 1e-6)
+        return {"mouth": mouth, "eyes": eyes, "yaw": yaw, "pitch": pitch, "gaze": glance, "width": width,
+                "roundness": mouth / max(width, 1e-6)}
+
+    def add(self, frame: np.ndarray, points: np.ndarray) -> list[str]:
+        """Consider one frame (H, W, 3) uint8 with its face's landmarks (68, 2); returns the moments it now holds."""
+        points = np.asarray(points, np.float64)
+        if points.shape != (68, 2) or not np.isfinite(points).all():
+            return []
+        measure = self.measures(frame, points)
+        self.seen.append(np.array([measure[key] for key in ("mouth", "eyes", "yaw", "pitch", "gaze", "width")]))
+        reference = np.nanmedian(np.stack(self.seen[-150:]), axis=0)
+        mouth, eyes, yaw, pitch, glance, width = (measure[key] for key in ("mouth", "eyes", "yaw", "pitch", "gaze", "width"))
+        frontal = (abs(yaw) + abs(pitch - reference[3])) / STEPS["yaw"]  # a camera above or below tilts every frame
+        scores = {
+            "straight ahead": -frontal - mouth / STEPS["mouth"] - max(0.0, reference[1] - eyes) / STEPS["eyes"],
+            "mouth wide open": (mouth - reference[0]) / STEPS["mouth"],
+            '"O"': (mouth - reference[0]) / STEPS["mouth"] * min(1.0, measure["roundness"] / 0.6)
+            - max(0.0, width - reference[5]) / 0.1,
+            "eyes closed": (reference[1] - eyes) / STEPS["eyes"],
+            "glance left": (reference[4] - glance) / STEPS["gaze"] - frontal,
+            "glance right": (glance - reference[4]) / STEPS["gaze"] - frontal,
+            "turn left": (reference[2] - yaw) / STEPS["yaw"],
+            "turn right": (yaw - reference[2]) / STEPS["yaw"],
+            "smile": (width - reference[5]) / 0.1 - max(0.0, mouth - reference[0]) / STEPS["mouth"],
+        }
+        kept = []
+        for name, _ in MOMENTS:
+            score = scores[name]
+            enough = name == MOMENTS[0][0] or score >= 1.0  # straight ahead: the best so far, whatever it is
+            if np.isfinite(score) and enough and score > self.scores.get(name, -np.inf):
+                self.frames[name], self.landmarks[name], self.scores[name] = frame.copy(), points, float(score)
+                kept.append(name)
+        return kept
+
+    def shots(self) -> list[tuple[str, np.ndarray]]:
+        """The kept moments in ``MOMENTS`` order: (name, frame)."""
+        return [(name, self.frames[name]) for name, _ in MOMENTS if name in self.frames]
+
+    def missing(self) -> list[str]:
+        """The moments not caught yet, in ``MOMENTS`` order."""
+        return [name for name, _ in MOMENTS if name not in self.frames]

@@ -132,3 +132,30 @@ def test_the_picture_marks_the_frames_beyond_in_red_and_says_their_share():
     assert not np.all(wide[2 * ROW_HEIGHT:] == COLOURS["beyond"], axis=-1).any()  # nothing else is beyond
     no_gaze = face_features(np.stack([face(), face(mouth=0.1)]), SIZE)  # shots without a gaze: no gaze row
     assert coverage_picture(no_gaze, no_gaze).shape[0] == ROW_HEIGHT * len(FEATURES)
+
+
+def test_the_moment_keeper_keeps_the_best_frame_of_each_moment():
+    """On the bundled real source clip (a GRID speaker: she opens her mouth and blinks in these 3 s)."""
+    from landmarks.coverage import MOMENTS, MomentKeeper
+    from landmarks.detectors import make_detector
+    from landmarks.video import iter_frames
+    from lsr.examples import REAL_SOURCE
+
+    detector, keeper = make_detector(), MomentKeeper()
+    frames = list(iter_frames(REAL_SOURCE))
+    for frame in frames:
+        faces = detector.detect(frame)
+        if faces:
+            keeper.add(frame, faces[0].landmarks)
+    names = [name for name, _ in keeper.shots()]
+    straight = MOMENTS[0][0]
+    assert names[0] == straight and {"mouth wide open", "eyes closed"} <= set(names)
+    assert mouth_opening(keeper.landmarks["mouth wide open"]) > mouth_opening(keeper.landmarks[straight]) + 0.05
+    assert eye_opening(keeper.landmarks["eyes closed"]) < eye_opening(keeper.landmarks[straight])
+    assert set(keeper.missing()) == {name for name, _ in MOMENTS} - set(names)
+    still = MomentKeeper()  # a still face: straight ahead only
+    points = detector.detect(frames[0])[0].landmarks
+    for _ in range(5):
+        still.add(frames[0], points)
+    assert [name for name, _ in still.shots()] == [straight]
+    assert still.add(frames[0], np.full((68, 2), np.nan)) == []
