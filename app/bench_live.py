@@ -125,10 +125,12 @@ def camera_frames(video: Path | None, count: int, seed: int = 7) -> np.ndarray:
     return np.stack(out)
 
 
-def start_stream(page) -> None:
-    """Open the live tab and start its camera stream (Gradio's webcam: pick the camera, then record)."""
-    page.get_by_role("tab", name="Live: your webcam drives the person").click()
-    camera = page.locator("#live-camera")
+def start_stream(page, camera_id: str = "live-camera") -> None:
+    """Open the live tab and start its camera stream (Gradio's webcam: pick the camera, then record); another
+    ``camera_id`` starts that webcam instead, on whatever tab shows it."""
+    if camera_id == "live-camera":
+        page.get_by_role("tab", name="Live: your webcam drives the person").click()
+    camera = page.locator(f"#{camera_id}")
     camera.wait_for()
     for label in ("Click to Access Webcam", "Webcam"):  # the source button, where it shows
         button = camera.get_by_role("button", name=label)

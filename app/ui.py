@@ -19,7 +19,7 @@ from pathlib import Path
 import gradio as gr
 
 from app import examples as ex
-from app import handlers, live
+from app import handlers, live, record
 from lsr.config import DEFAULT_FINETUNE_STEPS
 from lsr.config import AppConfig
 
@@ -215,6 +215,15 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                     source_files = gr.File(file_count="multiple", file_types=["image", "video"], elem_id="source-files",
                                            label="Photos of one person (1-32), or one short video")
                     example_person = gr.Button("Use the example person (GRID corpus, CC BY 4.0)", size="sm")
+                    with gr.Accordion("...or record your own shots with the webcam", open=False, elem_id="record"):
+                        gr.Markdown(record.record_help())
+                        record_camera = gr.Image(sources=["webcam"], streaming=True, type="numpy",
+                                                 label="Your camera (recording)", elem_id="record-camera",
+                                                 webcam_options=gr.WebcamOptions(mirror=False, constraints=LIVE_CAMERA))
+                        recorded = gr.Gallery(label="The best frame of each moment", columns=3, height=240,
+                                              object_fit="contain", elem_id="recorded-shots")
+                        record_status = gr.Markdown(elem_id="record-status")
+                        use_recorded = gr.Button("Use these shots", size="sm", elem_id="use-recorded")
                     k = gr.Slider(1, cfg.max_k, value=min(4, cfg.max_k), step=1, label="K: shots to average",
                                   info="K shots are chosen to cover the person: spread over a video or the photos, "
                                        "with the widest mouth, closed eyes and furthest turns swapped in.")
@@ -290,6 +299,14 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
         source_files.change(**preview_inputs)
         k.release(**preview_inputs)
         example_person.click(use_example_person, outputs=source_files, concurrency_id="examples")
+        record_state = gr.State(None)
+        record_camera.stream(lambda frame, keeper: record.record_frame(store, keeper, frame),
+                             inputs=[record_camera, record_state], outputs=[record_state, recorded, record_status],
+                             stream_every=LIVE_STREAM_EVERY, time_limit=LIVE_TIME_LIMIT, concurrency_id="record",
+                             concurrency_limit=LIVE_STREAMS, show_progress="hidden")
+        use_recorded.click(lambda keeper: record.recorded_files(keeper, examples_dir), inputs=record_state,
+                           outputs=source_files, concurrency_id="examples")
+        record_camera.clear(lambda: (None, [], ""), outputs=[record_state, recorded, record_status], queue=False)
         driver_example.change(use_example_driver, inputs=driver_example, outputs=driving, concurrency_id="examples")
         # An own upload replaces the example: show that in the dropdown too.
         driving.upload(lambda: ex.DRIVER_EXAMPLE_NONE, outputs=driver_example, queue=False)

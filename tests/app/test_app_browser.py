@@ -100,6 +100,7 @@ def test_the_real_example_person_driven_by_the_bundled_example(page, tmp_path):
     page.locator("#shots img").first.wait_for()
     page.locator("#driver-example input").click()
     page.get_by_role("option", name=re.compile("real person B .*: video")).click()
+    page.locator("#driving-file td.filename").wait_for()  # the example driver is in place before running
     run_and_wait_for_video(page)
     page.wait_for_function(PANEL_SHOWN)
     page.locator("#coverage img").first.wait_for()
