@@ -274,6 +274,10 @@ MOMENTS = (
 """The moments a recording asks for, each (name, what to do): the range the method borrows from its shots."""
 
 
+REFERENCE_FRAMES = 150
+"""A recording's reference is the median of its last this many faces (6 s at 25 fps)."""
+
+
 @dataclasses.dataclass
 class MomentKeeper:
     """The best frame of each of ``MOMENTS`` seen so far in a recording (a webcam's frames, one at a time).
@@ -282,7 +286,7 @@ class MomentKeeper:
     open = the mouth's opening; "O" = an open mouth that is narrow for its height; eyes closed = the eyes' closing;
     glances = the iris's offset (``landmarks.appearance.gaze``) with a frontal head; turns = the head's yaw; smile =
     the mouth's width with the lips closed. A moment keeps a frame only where it scores better than the first frames
-    did (``reference``: the median of the frames so far), by at least a step of the feature (``STEPS``), so a
+    did (``reference``: the median of the last ``REFERENCE_FRAMES`` faces), by at least a step of the feature (``STEPS``), so a
     recording of a still face keeps only "straight ahead" (always the best so far). Left and right are the
     image's.
     """
@@ -311,8 +315,9 @@ class MomentKeeper:
         if points.shape != (68, 2) or not np.isfinite(points).all():
             return []
         measure = self.measures(frame, points)
-        self.seen.append(np.array([measure[key] for key in ("mouth", "eyes", "yaw", "pitch", "gaze", "width")]))
-        reference = np.nanmedian(np.stack(self.seen[-150:]), axis=0)
+        self.seen = [*self.seen[-(REFERENCE_FRAMES - 1):], np.array([measure[key] for key in
+                                                                     ("mouth", "eyes", "yaw", "pitch", "gaze", "width")])]
+        reference = np.nanmedian(np.stack(self.seen), axis=0)
         mouth, eyes, yaw, pitch, glance, width = (measure[key] for key in ("mouth", "eyes", "yaw", "pitch", "gaze", "width"))
         frontal = (abs(yaw) + abs(pitch - reference[3])) / STEPS["yaw"]  # a camera above or below tilts every frame
         scores = {

@@ -27,13 +27,13 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchAblationConfig,
     BenchOracleSegConfig,
     BenchSynthConfig,
-    EvalConfig,
     OptionalFloat,
     OptionalInt,
     OptionalPath,
     OptionalStr,
     check_weights,
 )
+from lsr.config_eval import EvalConfig  # noqa: F401 - re-exported
 from lsr.config_train import (  # noqa: F401 - re-exported: every sub-command config is lsr.config.*
     FinetuneConfig,
     LossConfig,

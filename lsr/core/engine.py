@@ -29,7 +29,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Literal, Protocol
 
-import cv2
 import numpy as np
 
 from lsr.core.sources import (
@@ -48,18 +47,14 @@ from landmarks.errors import InputFileError, NoFaceError
 from landmarks.eyelids import LOOK_AHEAD
 from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
 from lsr.core.overlap import finish_behind, prefetch
+from lsr.core.images import from_network, square_resize, to_network
+from lsr.core.parts import MOUTHS, draws_mouth, finish_mouth
 
 Mode = Literal["auto", "relative", "absolute"]
 Scene = Literal["source", "driver"]
 """What ``paste_back`` composites into: the source's own frames (its anchor shot or its video) or the driver's."""
 LayoutKind = Literal["none", "latent", "segmentation"]
 STAGES = ("decode", "landmarks", "subject_encoding", "warps", "synthesis", "paste_back")
-MOUTHS = ("drawn", "nearest", "blend")
-
-
-def draws_mouth(backend: object) -> bool:
-    """Whether ``backend`` has a mouth generator (``SynthesisBackend.draw_mouth``)."""
-    return getattr(backend, "mouth_generator_size", 0) > 0
 
 
 class SynthesisBackend(Protocol):
@@ -162,26 +157,6 @@ class _Prepared:
     frame: ReenactedFrame
     inputs: dict[str, np.ndarray]
     finish: Callable[[ReenactedFrame], ReenactedFrame] | None
-
-
-def to_network(images: np.ndarray) -> np.ndarray:
-    """(..., S, S, 3) uint8 -> (..., 3, S, S) float32 in [-1, 1] (black = -1, as in training)."""
-    return np.moveaxis(images, -1, -3).astype(np.float32) / np.float32(127.5) - np.float32(1.0)
-
-
-def from_network(image: np.ndarray) -> np.ndarray:
-    """(3, S, S) float in [-1, 1] -> (S, S, 3) uint8."""
-    return np.clip(np.rint((np.moveaxis(np.asarray(image, np.float32), 0, -1) + 1.0) * 127.5), 0, 255).astype(np.uint8)
-
-
-def square_resize(frame: np.ndarray, size: int) -> np.ndarray:
-    """Centre square of a frame resized to (size, size): the pass-through picture of crop-sized output."""
-    height, width = frame.shape[:2]
-    side = min(height, width)
-    top, left = (height - side) // 2, (width - side) // 2
-    square = frame[top : top + side, left : left + side]
-    interpolation = cv2.INTER_AREA if side > size else cv2.INTER_CUBIC
-    return cv2.resize(square, (size, size), interpolation=interpolation)
 
 
 class ReenactorBase:
@@ -316,17 +291,10 @@ class ReenactorBase:
             *((inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()),
         )
         image = from_network(image[0])
-        if crop_landmarks is not None and self.mouth in ("nearest", "drawn") and "references" in inputs:
-            from landmarks.nearest_mouth import keep_nearest_mouth, mouth_strength
-
-            strength = mouth_strength(crop_landmarks, (subject or self._require_subject()).shots.landmarks, self.warp_references)
-            if strength > 0:  # most frames: the shots show this mouth, so the reference is not even converted
-                image = keep_nearest_mouth(image, from_network(inputs["references"][0, 0]),
-                                           inputs["reference_masks"][0, 0, 0], crop_landmarks, strength)
-        if crop_landmarks is not None and self.mouth == "drawn":
-            from lsr.core.parts import draw_mouth
-
-            image = draw_mouth(image, crop_landmarks, self.backend.draw_mouth)
+        if crop_landmarks is not None and self.mouth != "blend":
+            shot_landmarks = (subject or self._require_subject()).shots.landmarks
+            image = finish_mouth(image, self.mouth, inputs, crop_landmarks, shot_landmarks, self.warp_references,
+                                 self.backend)
         return image, None if layout is None else np.asarray(layout[0], np.float32)
 
     def network_inputs(self, crop_landmarks: np.ndarray, latents: tuple[np.ndarray, np.ndarray] | None = None,

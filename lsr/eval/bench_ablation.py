@@ -241,7 +241,7 @@ def evaluation_splits(cfg: BenchAblationConfig, resolution: int) -> tuple[dict[s
 def evaluate(cfg: BenchAblationConfig, name: str, root: Path, weights: dict[str, Path], device: str) -> dict[str, dict[str, Any]]:
     """`lsr eval` of the variants at K = 1, no fine-tuning (report and a side-by-side picture in OUT/eval/NAME);
     variant -> metric (and "no_face", "frames") -> value."""
-    from lsr.config_bench import EvalConfig
+    from lsr.config_eval import EvalConfig
     from lsr.eval.report import run_eval
 
     folder = Path(cfg.out) / "eval" / name

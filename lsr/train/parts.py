@@ -29,6 +29,7 @@ import numpy as np
 from landmarks.part_window import (INNER_LIPS, MOUTH, extract, lip_masks, paste_weight, to_window,
                                    window_eye_distance, window_transform)
 from landmarks.parts import MIRROR_INDEX
+from lsr.core.images import to_network
 
 OPEN_MOUTH_WEIGHT = 3.0
 """The loss weighs the open mouth (inside the inner lips) this much more than the rest of the paste weight."""
@@ -205,8 +206,8 @@ def batch_tensors(pairs: PairSet, indices: np.ndarray, flip: np.ndarray | None =
     masks = np.stack([lip_masks(p, size) for p in points])
     weight = np.stack([paste_weight(p, size, eyes) for p in points]) * (1.0 + (OPEN_MOUTH_WEIGHT - 1.0) * masks[:, 1])
 
-    def image(values: np.ndarray):
-        return torch.from_numpy(np.ascontiguousarray(values.transpose(0, 3, 1, 2), np.float32) / 127.5 - 1.0)
+    def image(values: np.ndarray):  # (B, P, P, 3) grey levels -> (B, 3, P, P) in [-1, 1]
+        return torch.from_numpy(np.ascontiguousarray(to_network(values)))
 
     return image(synthesis), torch.from_numpy(masks), image(truth), torch.from_numpy(weight[:, None].astype(np.float32))
 

@@ -7,13 +7,12 @@ import pytest
 pytestmark = pytest.mark.slow
 
 
-def test_warp_guided_model_is_timed_on_both_runtimes(tmp_path):
+def _weights_and_clip(tmp_path):
+    """A tiny random warp-guided model and a 6-frame synthetic clip to time it on."""
     import torch
 
     from landmarks.video import VideoWriter
-    from lsr.config import BenchReenactConfig
     from lsr.data.synth import render_video
-    from lsr.eval.bench_reenact import run_bench_reenact
     from models_def import LSRModel, preset_config
 
     torch.manual_seed(0)
@@ -22,6 +21,14 @@ def test_warp_guided_model_is_timed_on_both_runtimes(tmp_path):
     with VideoWriter(clip, 25) as writer:
         for frame in render_video(8, 6, 160).frames:
             writer.write(frame)
+    return weights, clip
+
+
+def test_warp_guided_model_is_timed_on_both_runtimes(tmp_path):
+    from lsr.config import BenchReenactConfig
+    from lsr.eval.bench_reenact import run_bench_reenact
+
+    weights, clip = _weights_and_clip(tmp_path)
     table = run_bench_reenact(BenchReenactConfig(video=clip, weights=weights, frames=4, k=2, threads=1,
                                                  detectors=("mesh", "hog")))
     rows = [line for line in table.splitlines() if line.startswith(("| torch |", "| onnx |")) and line.count("|") > 10]
@@ -35,22 +42,12 @@ def test_warp_guided_model_is_timed_on_both_runtimes(tmp_path):
 
 
 def test_the_drawn_mouth_is_timed_against_the_path_without_it(tmp_path):
-    import torch
-
-    from landmarks.video import VideoWriter
     from lsr.config import BenchReenactConfig
-    from lsr.data.synth import render_video
     from lsr.eval.bench_reenact import run_bench_reenact
-    from models_def import LSRModel, preset_config
     from models_def.part_generator import MOUTH_FOLDER, PartGenerator
 
-    torch.manual_seed(0)
-    weights = LSRModel(preset_config("tiny", variant="warp_guided")).save_pretrained(tmp_path / "w")
+    weights, clip = _weights_and_clip(tmp_path)
     PartGenerator().save_pretrained(weights / MOUTH_FOLDER)
-    clip = tmp_path / "clip.mp4"
-    with VideoWriter(clip, 25) as writer:
-        for frame in render_video(8, 6, 160).frames:
-            writer.write(frame)
     table = run_bench_reenact(BenchReenactConfig(video=clip, weights=weights, frames=3, k=2, threads=1,
                                                  mouths=("drawn", "nearest")))
     rows = [line for line in table.splitlines() if line.startswith(("| torch |", "| onnx |")) and line.count("|") > 10]
