@@ -288,11 +288,31 @@ class PartTrainConfig:
     """Torch CPU threads."""
     adversarial: float = 0.0
     """Weight of a patch discriminator's loss (0 = L1 terms only): an open mouth drawn as one plausible mouth."""
+    feature_matching: float = 0.0
+    """With --adversarial: weight of an L1 between the discriminator's features of drawn and real windows."""
+    r1: float = 0.0
+    """With --adversarial: R1 gamma on the discriminator (real windows)."""
+    critic_lr: float = 0.25
+    """With --adversarial: the discriminator's learning rate as a fraction of --lr."""
+    critic_width: int = 32
+    """With --adversarial: the discriminator's first layer's channels."""
     init_from: OptionalPath = None
     """Start the generator from this part generator folder (e.g. an earlier run's best/)."""
+    widths: tuple[int, ...] = ()
+    """A new generator's channels per level (default: PartGeneratorConfig's)."""
+    hole: OptionalInt = None
+    """A new generator's blanking of the open mouth, in pixels grown (-1: none; default: PartGeneratorConfig's)."""
+    device: str = "cpu"
+    """Where to train: cpu, or cuda on a GPU."""
+    minutes: float = 0.0
+    """> 0: stop (and decay the learning rate) by this run's wall time too, whichever of it and --steps comes first."""
 
     def validate(self) -> None:
         if min(self.steps, self.batch_size, self.eval_every, self.threads) < 1:
             raise ConfigError("--steps, --batch-size, --eval-every and --threads must be >= 1")
         if self.lr <= 0:
             raise ConfigError(f"--lr must be > 0, got {self.lr}")
+        if self.device not in ("cpu", "cuda") and not self.device.startswith("cuda:"):
+            raise ConfigError(f"--device must be cpu or cuda[:N], got {self.device!r}")
+        if min(self.adversarial, self.feature_matching, self.r1, self.minutes) < 0 or self.critic_lr <= 0:
+            raise ConfigError("--adversarial, --feature-matching, --r1 and --minutes must be >= 0, --critic-lr > 0")

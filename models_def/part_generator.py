@@ -163,8 +163,12 @@ class PartDiscriminator(nn.Module):
         self.layers = nn.ModuleList(nn.Conv2d(a, b, 4, stride=2, padding=1) for a, b in zip(channels[:-1], channels[1:]))
         self.head = nn.Conv2d(channels[-1], 1, 3, padding=1)
 
-    def forward(self, window: torch.Tensor, masks: torch.Tensor) -> torch.Tensor:
+    def forward(self, window: torch.Tensor, masks: torch.Tensor, features: bool = False):
+        """Logits; with ``features``, (logits, [each layer's activations]) for a feature-matching loss."""
         x = torch.cat([window, masks], dim=1)
+        layers = []
         for layer in self.layers:
             x = F.leaky_relu(layer(x), 0.2)
-        return self.head(x)
+            layers.append(x)
+        logits = self.head(x)
+        return (logits, layers) if features else logits

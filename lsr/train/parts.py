@@ -26,10 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from landmarks.part_window import (INNER_LIPS, MOUTH, extract, lip_masks, paste_weight, to_window,
-                                   window_eye_distance, window_transform)
-from landmarks.parts import MIRROR_INDEX
-from lsr.core.images import to_network
+from landmarks.part_window import (MOUTH, extract, lip_masks, paste_weight, to_window, window_eye_distance,
+                                   window_transform)
 
 OPEN_MOUTH_WEIGHT = 3.0
 """The loss weighs the open mouth (inside the inner lips) this much more than the rest of the paste weight."""
@@ -157,19 +155,25 @@ def build_pairs(data: Path, out: Path, weights: Path | None = None, k: int = 8, 
 
 @dataclasses.dataclass
 class PairSet:
-    """Every pair of a folder: synthesis / truth (N, P, P, 3) uint8, window_landmarks (N, 68, 2) float32, and
-    whether the target opens its mouth wider than every shot (``beyond``, (N,) bool)."""
+    """Every pair of a folder, as torch tensors on one device (batches are drawn there): synthesis / truth
+    (N, P, P, 3) uint8, window_landmarks (N, 68, 2) float32, the lip masks (N, 2, P, P) and the loss weight
+    (N, 1, P, P) of each pair's landmarks, and whether the target opens its mouth wider than every shot
+    (``beyond``, (N,) bool)."""
 
-    synthesis: np.ndarray
-    truth: np.ndarray
-    window_landmarks: np.ndarray
-    beyond: np.ndarray
+    synthesis: "torch.Tensor"
+    truth: "torch.Tensor"
+    window_landmarks: "torch.Tensor"
+    masks: "torch.Tensor"
+    weight: "torch.Tensor"
+    beyond: "torch.Tensor"
 
     def __len__(self) -> int:
         return len(self.synthesis)
 
 
-def load_pairs(folder: Path) -> PairSet:
+def load_pairs(folder: Path, device: str = "cpu") -> PairSet:
+    import torch
+
     files = sorted(Path(folder).glob("*.npz"))
     if not files:
         raise FileNotFoundError(f"no part pairs in {folder}; make them with `lsr parts pairs`")
@@ -179,37 +183,45 @@ def load_pairs(folder: Path) -> PairSet:
             for key in ("synthesis", "truth", "window_landmarks"):
                 parts[key].append(stored[key])
             parts["beyond"].append(stored["target_openings"] > stored["shot_openings"].max() + 0.02)
-    return PairSet(*(np.concatenate(parts[key]) for key in ("synthesis", "truth", "window_landmarks", "beyond")))
+    arrays = {key: np.concatenate(values) for key, values in parts.items()}
+    size, eyes = arrays["synthesis"].shape[1], window_eye_distance(MOUTH)
+    masks = np.stack([lip_masks(p, size) for p in arrays["window_landmarks"]])
+    weight = np.stack([paste_weight(p, size, eyes) for p in arrays["window_landmarks"]])[:, None]
+    weight = weight * (1.0 + (OPEN_MOUTH_WEIGHT - 1.0) * masks[:, 1:])
+
+    def tensor(values: np.ndarray):
+        return torch.from_numpy(np.ascontiguousarray(values)).to(device)
+
+    return PairSet(tensor(arrays["synthesis"]), tensor(arrays["truth"]), tensor(arrays["window_landmarks"]),
+                   tensor(masks), tensor(weight.astype(np.float32)), tensor(arrays["beyond"]))
 
 
-def batch_tensors(pairs: PairSet, indices: np.ndarray, flip: np.ndarray | None = None,
-                  rng: np.random.Generator | None = None):
-    """Tensors for ``indices``: window (B, 3, P, P) in [-1, 1], masks (B, 2, P, P), truth (B, 3, P, P), loss
-    weight (B, 1, P, P); ``flip`` (B,) bool mirrors those pairs left-right (their landmarks relabelled); ``rng``
-    jitters each pair's colour (a gain and an offset per channel, ``COLOUR_JITTER``, the same on its synthesis
-    and its truth: people and lighting the training clips do not have)."""
+def batch_tensors(pairs: PairSet, indices, flip=None, generator=None):
+    """Tensors for ``indices`` on the pairs' device: window (B, 3, P, P) in [-1, 1], masks (B, 2, P, P), truth
+    (B, 3, P, P), loss weight (B, 1, P, P). ``flip`` (B,) bool mirrors those pairs left-right (pictures and
+    masks alike: a mouth's masks are symmetric under the mirror of its landmarks); ``generator`` (a
+    ``torch.Generator`` on that device) jitters each pair's colour (a gain and an offset per channel,
+    ``COLOUR_JITTER``, the same on its synthesis and its truth: people and lighting the clips do not have)."""
     import torch
 
-    size = pairs.synthesis.shape[1]
-    eyes = window_eye_distance(MOUTH)
-    synthesis, truth = pairs.synthesis[indices].copy(), pairs.truth[indices].copy()
-    points = pairs.window_landmarks[indices].copy()
-    if flip is not None and flip.any():
-        synthesis[flip], truth[flip] = synthesis[flip, :, ::-1], truth[flip, :, ::-1]
-        points[flip] = points[flip][:, list(MIRROR_INDEX)] * np.array([-1.0, 1.0], np.float32) + np.array(
-            [size - 1, 0], np.float32)
-    if rng is not None:
-        gain = 1.0 + rng.uniform(-COLOUR_JITTER, COLOUR_JITTER, (len(indices), 1, 1, 3))
-        offset = 255.0 * rng.uniform(-COLOUR_JITTER, COLOUR_JITTER, (len(indices), 1, 1, 3))
-        synthesis = np.clip(synthesis * gain + offset, 0, 255)
-        truth = np.clip(truth * gain + offset, 0, 255)
-    masks = np.stack([lip_masks(p, size) for p in points])
-    weight = np.stack([paste_weight(p, size, eyes) for p in points]) * (1.0 + (OPEN_MOUTH_WEIGHT - 1.0) * masks[:, 1])
-
-    def image(values: np.ndarray):  # (B, P, P, 3) grey levels -> (B, 3, P, P) in [-1, 1]
-        return torch.from_numpy(np.ascontiguousarray(to_network(values)))
-
-    return image(synthesis), torch.from_numpy(masks), image(truth), torch.from_numpy(weight[:, None].astype(np.float32))
+    device = pairs.synthesis.device
+    indices = torch.as_tensor(np.asarray(indices) if not torch.is_tensor(indices) else indices, device=device).long()
+    synthesis = pairs.synthesis[indices].permute(0, 3, 1, 2).float()
+    truth = pairs.truth[indices].permute(0, 3, 1, 2).float()
+    masks, weight = pairs.masks[indices], pairs.weight[indices]
+    if flip is not None:
+        flip = torch.as_tensor(np.asarray(flip) if not torch.is_tensor(flip) else flip, device=device).bool()
+        if bool(flip.any()):
+            mirror = flip[:, None, None, None]
+            synthesis, truth = torch.where(mirror, synthesis.flip(-1), synthesis), torch.where(mirror, truth.flip(-1), truth)
+            masks, weight = torch.where(mirror, masks.flip(-1), masks), torch.where(mirror, weight.flip(-1), weight)
+    if generator is not None:
+        shape = (len(indices), 3, 1, 1)
+        gain = 1.0 + COLOUR_JITTER * (2 * torch.rand(shape, generator=generator, device=device) - 1)
+        offset = 255.0 * COLOUR_JITTER * (2 * torch.rand(shape, generator=generator, device=device) - 1)
+        synthesis = (synthesis * gain + offset).clamp(0, 255)
+        truth = (truth * gain + offset).clamp(0, 255)
+    return synthesis / 127.5 - 1.0, masks, truth / 127.5 - 1.0, weight
 
 
 def part_loss(drawn, truth, weight):
@@ -223,12 +235,24 @@ def part_loss(drawn, truth, weight):
     return loss
 
 
+def _sharpness(images, weight):
+    """Per window: the weighted mean absolute Laplacian (B,) of grey images (B, 3, P, P) in [-1, 1]."""
+    import torch
+    import torch.nn.functional as F
+
+    grey = images.mean(dim=1, keepdim=True)
+    kernel = torch.tensor([[0.0, 1.0, 0.0], [1.0, -4.0, 1.0], [0.0, 1.0, 0.0]], device=images.device)[None, None]
+    response = F.conv2d(grey, kernel, padding=1).abs()
+    return (response * weight).sum(dim=(1, 2, 3)) / weight.sum(dim=(1, 2, 3)).clamp_min(1e-6)
+
+
 def evaluate(model, pairs: PairSet, batch: int = 128) -> dict[str, float]:
-    """Weighted loss and the PSNR over the paste weight of the drawn window and of the synthesis, all pairs and
-    those beyond the shots."""
+    """Weighted loss, the PSNR over the paste weight of the drawn window and of the synthesis (all pairs and
+    those beyond the shots), and the drawn windows' sharpness over the open mouth as a fraction of the real
+    frames' (a hedged, blurred mouth scores well below 1)."""
     import torch
 
-    losses, drawn_se, input_se, weights = [], [], [], []
+    losses, drawn_se, input_se, weights, sharp = [], [], [], [], []
     with torch.no_grad():
         for start in range(0, len(pairs), batch):
             idx = np.arange(start, min(start + batch, len(pairs)))
@@ -236,18 +260,24 @@ def evaluate(model, pairs: PairSet, batch: int = 128) -> dict[str, float]:
             drawn = model(window, masks)
             losses.append(float(part_loss(drawn, truth, weight)) * len(idx))
             w = (weight > 0).float() * weight.clamp(max=1.0)
-            drawn_se.append((((drawn - truth) / 2) ** 2 * w).sum(dim=(1, 2, 3)).numpy())
-            input_se.append((((window - truth) / 2) ** 2 * w).sum(dim=(1, 2, 3)).numpy())
-            weights.append(w.sum(dim=(1, 2, 3)).numpy() * 3)
+            drawn_se.append((((drawn - truth) / 2) ** 2 * w).sum(dim=(1, 2, 3)).cpu().numpy())
+            input_se.append((((window - truth) / 2) ** 2 * w).sum(dim=(1, 2, 3)).cpu().numpy())
+            weights.append(w.sum(dim=(1, 2, 3)).cpu().numpy() * 3)
+            mouth = masks[:, 1:]
+            sharp.append(torch.stack([_sharpness(drawn, mouth), _sharpness(truth, mouth), mouth.sum(dim=(1, 2, 3))], 1).cpu().numpy())
     drawn_se, input_se, weights = map(np.concatenate, (drawn_se, input_se, weights))
+    sharp = np.concatenate(sharp)
+    beyond = pairs.beyond.cpu().numpy()
 
     def psnr(errors: np.ndarray, where: np.ndarray) -> float:
         return float(np.mean(10 * np.log10(1.0 / np.maximum(errors[where] / weights[where], 1e-10)))) if where.any() else float("nan")
 
+    open_mouth = sharp[:, 2] >= 20  # windows whose open mouth covers at least 20 pixels
+    sharpness = float(sharp[open_mouth, 0].mean() / max(sharp[open_mouth, 1].mean(), 1e-6)) if open_mouth.any() else float("nan")
     every = np.ones(len(pairs), bool)
     return {"loss": sum(losses) / max(len(pairs), 1), "psnr": psnr(drawn_se, every), "psnr_input": psnr(input_se, every),
-            "psnr_beyond": psnr(drawn_se, pairs.beyond), "psnr_input_beyond": psnr(input_se, pairs.beyond),
-            "beyond": int(pairs.beyond.sum()), "pairs": len(pairs)}
+            "psnr_beyond": psnr(drawn_se, beyond), "psnr_input_beyond": psnr(input_se, beyond),
+            "open_sharpness": sharpness, "beyond": int(beyond.sum()), "pairs": len(pairs)}
 
 
 def preview(model, pairs: PairSet, count: int = 8) -> np.ndarray:
@@ -255,88 +285,128 @@ def preview(model, pairs: PairSet, count: int = 8) -> np.ndarray:
     real frame, one column per pair -> (3 P, count P, 3) uint8 RGB."""
     import torch
 
-    chosen = np.flatnonzero(pairs.beyond)[:count]
+    chosen = np.flatnonzero(pairs.beyond.cpu().numpy())[:count]
     if not len(chosen):
         chosen = np.arange(min(count, len(pairs)))
     window, masks, _, _ = batch_tensors(pairs, chosen)
     with torch.no_grad():
         drawn = model(window, masks)
-    drawn = np.clip(np.rint((drawn.numpy().transpose(0, 2, 3, 1) + 1) * 127.5), 0, 255).astype(np.uint8)
-    rows = [pairs.synthesis[chosen], drawn, pairs.truth[chosen]]
+    drawn = np.clip(np.rint((drawn.cpu().numpy().transpose(0, 2, 3, 1) + 1) * 127.5), 0, 255).astype(np.uint8)
+    rows = [pairs.synthesis[chosen].cpu().numpy(), drawn, pairs.truth[chosen].cpu().numpy()]
     return np.concatenate([np.concatenate(list(row), axis=1) for row in rows], axis=0)
 
 
+@dataclasses.dataclass(frozen=True)
+class Adversary:
+    """The adversarial terms of a part generator's training (``weight`` 0: none). A patch discriminator
+    (``models_def.part_generator.PartDiscriminator``) judges the window with the target's lips; its
+    non-saturating loss at ``weight``, an L1 between its features of the drawn and the real window at
+    ``feature_matching`` (steadies the generator, as in the frame model), and R1 (``r1``: gamma, on real
+    windows) on the discriminator, which learns at ``critic_lr`` x the generator's rate."""
+
+    weight: float = 0.0
+    feature_matching: float = 0.0
+    r1: float = 0.0
+    critic_lr: float = CRITIC_LR
+    critic_width: int = 32
+
+
 def train(pairs_dir: Path, out: Path, steps: int = 3000, batch: int = 32, lr: float = 1e-3, seed: int = 0,
-          eval_every: int = 250, save_every: int = 250, threads: int = 2, adversarial: float = 0.0,
-          init_from: Path | None = None) -> dict:
+          eval_every: int = 250, save_every: int = 250, threads: int = 2, adversarial: float | Adversary = 0.0,
+          init_from: Path | None = None, device: str = "cpu", minutes: float = 0.0,
+          widths: tuple[int, ...] | None = None, hole: int | None = None) -> dict:
     """Step 2 (module docstring). ``out``: ``checkpoint.pt`` (resumable), ``best/`` (the lowest validation
     loss, a ``PartGenerator.save_pretrained`` folder), ``steps/<step>/`` (each evaluated step's), ``log.jsonl`` and
-    ``preview.png`` (``preview`` of the
-    validation pairs at the last evaluation).
+    ``preview.png`` (``preview`` of the validation pairs at the last evaluation; ``steps/<step>.png`` each).
 
-    ``adversarial`` > 0 adds a patch discriminator (``models_def.part_generator.PartDiscriminator``, judging the
-    window with the target's lips) and its non-saturating loss at that weight, so that an open mouth is drawn as
-    one plausible mouth (a dark cavity, teeth or not) rather than the average of them that L1 alone settles on.
-    ``init_from``: a ``best/`` folder to start the generator from (a new run only)."""
+    ``adversarial``: an ``Adversary`` (or its weight alone), so that an open mouth is drawn as one plausible
+    mouth (a dark cavity, teeth or not) rather than the average of them that L1 alone settles on.
+    ``init_from``: a ``best/`` folder to start the generator from (a new run only); else ``widths`` and ``hole``
+    size a new one (``PartGeneratorConfig``). ``minutes`` > 0: the run also ends (and its learning rate decays)
+    by this run's wall time, whichever of the two comes first; ``device``: where it trains ("cuda" on a GPU)."""
     import torch
+    import torch.nn.functional as F
     from tqdm import tqdm
 
     from landmarks.imageio import write_image
-    import torch.nn.functional as F
-
     from models_def.part_generator import PartDiscriminator, PartGenerator, PartGeneratorConfig
 
+    adversary = adversarial if isinstance(adversarial, Adversary) else Adversary(weight=float(adversarial))
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
-    train_pairs, val_pairs = load_pairs(pairs_dir / "train"), load_pairs(pairs_dir / "test")
-    model = (PartGenerator.from_pretrained(init_from) if init_from is not None
-             else PartGenerator(PartGeneratorConfig(size=train_pairs.synthesis.shape[1])))
+    train_pairs, val_pairs = load_pairs(pairs_dir / "train", device), load_pairs(pairs_dir / "test", device)
+    if init_from is not None:
+        model = PartGenerator.from_pretrained(init_from)
+    else:
+        sizes = {"widths": tuple(widths)} if widths else {}
+        sizes.update({} if hole is None else {"hole": hole})
+        model = PartGenerator(PartGeneratorConfig(size=train_pairs.synthesis.shape[1], **sizes))
+    model.to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=lr, betas=(0.9, 0.99))
-    critic = PartDiscriminator(model.config) if adversarial > 0 else None
-    critic_optimizer = None if critic is None else torch.optim.Adam(critic.parameters(), lr=lr * CRITIC_LR,
+    critic = None if adversary.weight <= 0 else PartDiscriminator(model.config, adversary.critic_width).to(device)
+    critic_optimizer = None if critic is None else torch.optim.Adam(critic.parameters(), lr=lr * adversary.critic_lr,
                                                                     betas=(0.5, 0.99))
     out.mkdir(parents=True, exist_ok=True)
     checkpoint = out / "checkpoint.pt"
     step, best = 0, math.inf
     if checkpoint.is_file():
-        state = torch.load(checkpoint, weights_only=True)
+        state = torch.load(checkpoint, weights_only=True, map_location=device)
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         if critic is not None and "critic" in state:
             critic.load_state_dict(state["critic"])
             critic_optimizer.load_state_dict(state["critic_optimizer"])
         step, best = int(state["step"]), float(state["best"])
-    rng = np.random.default_rng([seed, step])
+    generator = torch.Generator(device=device).manual_seed(seed * 1_000_003 + step)
     log = (out / "log.jsonl").open("a")
     bar = tqdm(total=steps, initial=step, desc="part generator", unit="step")
     started = time.perf_counter()
-    while step < steps:
+    budget = 60.0 * minutes
+
+    def progress() -> float:
+        done = step / steps
+        return max(done, (time.perf_counter() - started) / budget) if budget > 0 else done
+
+    while progress() < 1.0:
         model.train()
-        idx = rng.integers(0, len(train_pairs), batch)
-        window, masks, truth, weight = batch_tensors(train_pairs, idx, rng.random(batch) < 0.5, rng)
-        decay = 0.5 * (1 + math.cos(math.pi * min(step / steps, 1.0)))  # cosine decay over the run
+        idx = torch.randint(0, len(train_pairs), (batch,), generator=generator, device=device)
+        flip = torch.rand(batch, generator=generator, device=device) < 0.5
+        window, masks, truth, weight = batch_tensors(train_pairs, idx, flip, generator)
+        decay = 0.5 * (1 + math.cos(math.pi * min(progress(), 1.0)))  # cosine decay over the run
         for group in optimizer.param_groups:
             group["lr"] = lr * decay
         for group in [] if critic is None else critic_optimizer.param_groups:
-            group["lr"] = lr * CRITIC_LR * decay
+            group["lr"] = lr * adversary.critic_lr * decay
         drawn = model(window, masks)
         loss = part_loss(drawn, truth, weight)
         if critic is not None:
             critic.requires_grad_(False)
-            loss = loss + adversarial * F.softplus(-critic(drawn, masks)).mean()
+            fake_logits, fake_features = critic(drawn, masks, features=True)
+            loss = loss + adversary.weight * F.softplus(-fake_logits).mean()
+            if adversary.feature_matching > 0:
+                _, real_features = critic(truth, masks, features=True)
+                loss = loss + adversary.feature_matching * sum(
+                    (fake - real.detach()).abs().mean() for fake, real in zip(fake_features, real_features)) / len(fake_features)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
         if critic is not None:  # the discriminator's step: real frames against the drawn ones
             critic.requires_grad_(True)
-            critic_loss = (F.softplus(-critic(truth, masks)).mean() + F.softplus(critic(drawn.detach(), masks)).mean())
+            real = truth.detach().requires_grad_(adversary.r1 > 0)
+            real_logits = critic(real, masks)
+            critic_loss = F.softplus(-real_logits).mean() + F.softplus(critic(drawn.detach(), masks)).mean()
+            if adversary.r1 > 0:
+                (grad,) = torch.autograd.grad(real_logits.sum(), real, create_graph=True)
+                critic_loss = critic_loss + 0.5 * adversary.r1 * grad.pow(2).sum(dim=(1, 2, 3)).mean()
             critic_optimizer.zero_grad(set_to_none=True)
             critic_loss.backward()
             critic_optimizer.step()
         step += 1
         bar.update(1)
-        bar.set_postfix(loss=f"{loss.item():.4f}")
-        if step % eval_every == 0 or step == steps:
+        finished = progress() >= 1.0
+        if step % 50 == 0:
+            bar.set_postfix(loss=f"{loss.item():.4f}")
+        if step % eval_every == 0 or finished:
             model.eval()
             scores = evaluate(model, val_pairs)
             scores.update(step=step, train_loss=loss.item(), seconds=time.perf_counter() - started)
@@ -344,13 +414,16 @@ def train(pairs_dir: Path, out: Path, steps: int = 3000, batch: int = 32, lr: fl
             log.flush()
             bar.write(f"step {step}: val loss {scores['loss']:.4f}, mouth PSNR {scores['psnr']:.2f} dB "
                       f"(synthesis {scores['psnr_input']:.2f}), beyond the shots {scores['psnr_beyond']:.2f} "
-                      f"({scores['psnr_input_beyond']:.2f}, {scores['beyond']} pairs)")
+                      f"({scores['psnr_input_beyond']:.2f}, {scores['beyond']} pairs), open-mouth sharpness "
+                      f"{scores['open_sharpness']:.2f}")
             if scores["loss"] < best:
                 best = scores["loss"]
                 model.save_pretrained(out / "best")
-            write_image(out / "preview.png", preview(model, val_pairs))
+            picture = preview(model, val_pairs)
+            write_image(out / "preview.png", picture)
             model.save_pretrained(out / "steps" / f"{step:06d}")  # to choose by eye where L1 and looks disagree
-        if step % save_every == 0 or step == steps:
+            write_image(out / "steps" / f"{step:06d}.png", picture)
+        if step % save_every == 0 or finished:
             temp = checkpoint.with_suffix(".tmp")
             state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step, "best": best}
             if critic is not None:
@@ -372,7 +445,10 @@ def run_pairs(cfg) -> None:
 
 def run_train(cfg) -> None:
     """Entry point of ``lsr parts train`` (``lsr.config.PartTrainConfig``)."""
+    adversary = Adversary(weight=cfg.adversarial, feature_matching=cfg.feature_matching, r1=cfg.r1,
+                          critic_lr=cfg.critic_lr, critic_width=cfg.critic_width)
     result = train(cfg.pairs, cfg.out, steps=cfg.steps, batch=cfg.batch_size, lr=cfg.lr, seed=cfg.seed,
                    eval_every=cfg.eval_every, save_every=cfg.eval_every, threads=cfg.threads,
-                   adversarial=cfg.adversarial, init_from=cfg.init_from)
+                   adversarial=adversary, init_from=cfg.init_from, device=cfg.device, minutes=cfg.minutes,
+                   widths=tuple(cfg.widths) if cfg.widths else None, hole=cfg.hole)
     print(f"trained to step {result['step']}; best validation loss {result['best_val_loss']:.4f}: {cfg.out / 'best'}")

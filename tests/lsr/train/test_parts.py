@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from landmarks.part_window import MOUTH, extract, to_window, window_transform
-from lsr.train.parts import _choose_shots, batch_tensors, clip_pairs, evaluate, load_pairs, train
+from lsr.train.parts import Adversary, _choose_shots, batch_tensors, clip_pairs, evaluate, load_pairs, train
 
 
 def test_closed_shots_come_from_the_least_open_mouths(rng):
@@ -93,10 +93,20 @@ def test_adversarial_training_keeps_its_discriminator_across_a_resume(tmp_path, 
     _fake_pairs(tmp_path / "pairs" / "train", drawn_face, 6, 0)
     _fake_pairs(tmp_path / "pairs" / "test", drawn_face, 2, 1)
     run = tmp_path / "run"
-    train(tmp_path / "pairs", run, steps=2, batch=2, eval_every=2, save_every=2, threads=1, adversarial=0.1)
+    adversary = Adversary(weight=0.1, feature_matching=1.0, r1=1.0, critic_lr=1.0, critic_width=8)
+    train(tmp_path / "pairs", run, steps=2, batch=2, eval_every=2, save_every=2, threads=1, adversarial=adversary,
+          widths=(8, 16), hole=-1)
     state = torch.load(run / "checkpoint.pt", weights_only=True)
     assert "critic" in state and "critic_optimizer" in state
-    assert (run / "steps" / "000002" / "config.json").is_file()
+    assert (run / "steps" / "000002" / "config.json").is_file() and (run / "steps" / "000002.png").is_file()
+    from models_def.part_generator import PartGenerator
+
+    assert PartGenerator.from_pretrained(run / "best").config.widths == (8, 16)
+    log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    assert 0.0 <= log[-1]["open_sharpness"] and np.isfinite(log[-1]["psnr"])
+    timed = train(tmp_path / "pairs", run / "timed", steps=10**6, batch=2, eval_every=10**6, threads=1,
+                  minutes=1e-4)  # the wall-time budget ends the run (and writes its last evaluation)
+    assert 1 <= timed["step"] < 10**6 and (run / "timed" / "best" / "config.json").is_file()
     resumed = train(tmp_path / "pairs", run / "next", steps=2, batch=2, eval_every=2, save_every=2, threads=1,
                     adversarial=0.1, init_from=run / "best")
     assert resumed["step"] == 2
