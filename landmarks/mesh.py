@@ -341,7 +341,7 @@ def _forget_eye_thread() -> None:  # a forked child has no such thread
 os.register_at_fork(after_in_child=_forget_eye_thread)
 
 
-def _eye_thread() -> concurrent.futures.ThreadPoolExecutor:
+def eye_thread() -> concurrent.futures.ThreadPoolExecutor:
     """The thread that runs the second eye's iris net while the calling thread runs the first."""
     global _EYE_THREAD
     with _EYE_LOCK:
@@ -371,7 +371,7 @@ def refine_eye_contours(image: np.ndarray, mesh: np.ndarray) -> np.ndarray:
         region = eye_region(refined, corners)
         if region.side >= 1.0:
             eyes.append((region, contour, mirrored, eye_input(image, region, mirrored)))
-    second = _eye_thread().submit(_iris_points, eyes[1][3]) if len(eyes) > 1 else None
+    second = eye_thread().submit(_iris_points, eyes[1][3]) if len(eyes) > 1 else None
     found = [_iris_points(eyes[0][3])] if eyes else []
     if second is not None:
         found.append(second.result())

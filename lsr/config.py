@@ -253,6 +253,11 @@ class ReenactConfig:
     nearest); nearest = from the nearest shot warped onto the target where the driver opens it wider than the
     shots; blend = the network's blend of all its shots (smoother, opens less). Default: drawn when the model has
     a mouth generator, else nearest. Compared by `lsr eval --mouths`."""
+    eyes: Literal["drawn", "blend"] = "blend"
+    """drawn = one iris per eye, the subject's own (its shot with the most open eyes), laid where the driver looks
+    (MediaPipe's iris net on the driver's frames) inside the driven lids, clipped by them; blend = the network's
+    blend of the shots (two irises where they looked two ways). A video or image driver only. Compared by
+    `lsr eval --eyes`."""
     paste_back: bool = False
     """Composite the re-enacted face into full frames of --scene (background and body stay, hair follows the head);
     otherwise output the crop-sized synthesis."""

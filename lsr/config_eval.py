@@ -62,6 +62,10 @@ class EvalConfig:
     """A warp-guided model's mouth: drawn (redrawn by the model's mouth generator, lsr.core.parts), nearest (from the
     nearest warped shot, landmarks.nearest_mouth) or blend (the network's blend of all its shots); empty: the model's
     default (drawn when it has a mouth generator); more than one adds a row per extra choice ("+blend-mouth")."""
+    eyes: tuple[Literal["drawn", "blend"], ...] = ()
+    """A model's eyes: drawn (one iris per eye, the subject's own, where the target looks: lsr.core.parts) or blend
+    (the network's blend of its shots); empty: the model's default; more than one adds a row per extra choice
+    ("+blend-eyes")."""
     detector_upsample: int = 1
     """dlib only: pyramid upsampling; 1 finds the faces of 224-px crops at 1/4 the cost of 2."""
     bucket_thresholds: tuple[float, ...] = ()

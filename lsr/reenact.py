@@ -191,6 +191,7 @@ def make_reenactor(cfg: ReenactConfig) -> ReenactorBase:
         reenactor = Reenactor(weights, device=resolve_device(cfg.device), precision=cfg.precision, detector=cfg.detector)
     if cfg.mouth is not None:
         reenactor.mouth = cfg.mouth
+    reenactor.eyes = cfg.eyes
     return reenactor
 
 

@@ -40,15 +40,18 @@ from lsr.core.sources import (
     load_subject_shots,
     read_landmark_array,
     resize_shots,
+    same_input,
     scale_points,
+    source_key,
     track_driver,
 )
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.eyelids import LOOK_AHEAD
 from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
 from lsr.core.overlap import finish_behind, prefetch
+from lsr.core.scene_source import paste_into_driver, paste_into_scene
 from lsr.core.images import from_network, square_resize, to_network
-from lsr.core.parts import MOUTHS, draws_mouth, finish_mouth
+from lsr.core.parts import EYES, MOUTHS, DriverGaze, draws_mouth, finish_eyes, finish_mouth, subject_irises
 
 Mode = Literal["auto", "relative", "absolute"]
 Scene = Literal["source", "driver"]
@@ -96,6 +99,15 @@ class Subject:
     """(1, D) float32."""
     source: str | None
     """Resolved source path when the source was one file or folder (decides the default mode)."""
+    _irises: tuple | None = dataclasses.field(default=None, repr=False)
+
+    @property
+    def irises(self) -> tuple:
+        """(the irises drawn into its frames or None, the anchor shot's gaze (2, 2)): ``lsr.core.parts.subject_irises``,
+        found on first use."""
+        if self._irises is None:
+            self._irises = subject_irises(self.shots.frames, self.shots.landmarks, self.shots.anchor)
+        return self._irises
 
     @property
     def reference_landmarks(self) -> np.ndarray:
@@ -130,6 +142,8 @@ class ReenactedFrame:
     """(C_l, S, S) float32: the generator's layout (only when asked for and the variant has one)."""
     landmarks: np.ndarray | None = None
     """(68, 2) float64: the target landmarks in crop pixels (after retargeting; None without a face)."""
+    gaze: np.ndarray | None = None
+    """(2, 2) float64: the target's gaze (``landmarks.iris.gaze_offsets``), when the eyes are drawn."""
 
 
 @dataclasses.dataclass
@@ -174,6 +188,7 @@ class ReenactorBase:
         """How a warp-guided model's references are warped when meshes are at hand: "mesh" (piecewise affine over
         the face mesh, TPS outside) or "tps" (the 68-point TPS everywhere)."""
         self._mouth: str = "drawn" if draws_mouth(backend) else "nearest"
+        self._eyes: str = "blend"
         self.subject: Subject | None = None
         self.last_stats = ReenactStats()
 
@@ -193,6 +208,18 @@ class ReenactorBase:
             raise InputFileError("--mouth drawn needs a model with a mouth generator (a weights folder with mouth/, or an "
                               "ONNX bundle with mouth_generator.onnx); use --mouth nearest")
         self._mouth = mouth
+
+    @property
+    def eyes(self) -> str:
+        """"drawn": one iris per eye, the subject's own, where the driver looks (``lsr.core.parts.finish_eyes``;
+        frame drivers only: a landmark driver has no irises); "blend": the network's blend of its shots."""
+        return self._eyes
+
+    @eyes.setter
+    def eyes(self, eyes: str) -> None:
+        if eyes not in EYES:
+            raise ValueError(f"eyes must be one of {EYES}, got {eyes!r}")
+        self._eyes = eyes
 
     @property
     def resolution(self) -> int:
@@ -243,8 +270,8 @@ class ReenactorBase:
             source, self.crop_size, k=k, detector=self.detector, face_index=face_index, anchor=anchor
         )
         if not cache:
-            return self._encode(shots, _source_key(source))
-        self.subject = self._encode(shots, _source_key(source))
+            return self._encode(shots, source_key(source))
+        self.subject = self._encode(shots, source_key(source))
         self.last_stats = ReenactStats()
         self.last_stats.add("subject_encoding", time.perf_counter() - started)
         return self.subject
@@ -265,7 +292,7 @@ class ReenactorBase:
     # ---- frames ----------------------------------------------------------------------------------------
     def synthesize_crop(
         self, crop_landmarks: np.ndarray, with_layout: bool = False, latents: tuple[np.ndarray, np.ndarray] | None = None,
-        subject: Subject | None = None, crop_mesh: np.ndarray | None = None,
+        subject: Subject | None = None, crop_mesh: np.ndarray | None = None, gaze: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Target landmarks (68, 2) in crop pixels -> (synthesis (C, C, 3) uint8, landmark image (S, S, 3) uint8, layout).
 
@@ -275,17 +302,19 @@ class ReenactorBase:
         (``landmarks.mesh_warp.warp_references_mesh``), else by the 68-point TPS (``landmarks.tps.warp_references``).
         latents: (layout_latent, style_latent), (1, D) each, in place of the subject's (e.g. one shot's alone).
         subject: an encoded subject other than the cached one (a live stream's own, ``lsr.core.live``).
+        gaze: the target's (2, 2) ``landmarks.iris.gaze_offsets``, for ``eyes`` "drawn".
         """
         landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject, crop_mesh)
-        image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks, subject)
+        image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks, subject, gaze)
         return image, landmark_image, layout
 
     def synthesize_inputs(self, inputs: dict[str, np.ndarray], with_layout: bool = False,
-                          crop_landmarks: np.ndarray | None = None, subject: Subject | None = None
-                          ) -> tuple[np.ndarray, np.ndarray | None]:
+                          crop_landmarks: np.ndarray | None = None, subject: Subject | None = None,
+                          gaze: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """``network_inputs``' dict -> (synthesis (C, C, 3) uint8, layout (C_l, S, S) float32 or None). ``crop_landmarks``
         given, ``mouth`` "nearest" or "drawn": the mouth of ``subject``'s nearest warped shot as
-        ``landmarks.nearest_mouth`` says; "drawn": then redrawn by the mouth generator (``lsr.core.parts``)."""
+        ``landmarks.nearest_mouth`` says; "drawn": then redrawn by the mouth generator (``lsr.core.parts``); and with
+        a ``gaze``, the eyes as ``eyes`` says."""
         image, layout = self.backend.synthesize(
             inputs["landmark_image"], inputs["layout_latent"], inputs["style_latent"], with_layout,
             *((inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()),
@@ -295,6 +324,8 @@ class ReenactorBase:
             shot_landmarks = (subject or self._require_subject()).shots.landmarks
             image = finish_mouth(image, self.mouth, inputs, crop_landmarks, shot_landmarks, self.warp_references,
                                  self.backend)
+        if crop_landmarks is not None and gaze is not None and self.eyes == "drawn":
+            image = finish_eyes(image, self.eyes, crop_landmarks, gaze, (subject or self._require_subject()).irises[0])
         return image, None if layout is None else np.asarray(layout[0], np.float32)
 
     def network_inputs(self, crop_landmarks: np.ndarray, latents: tuple[np.ndarray, np.ndarray] | None = None,
@@ -364,10 +395,10 @@ class ReenactorBase:
             raise InputFileError(f"retarget must be one of {', '.join(RETARGET_MODES)}, got {retarget!r}")
         subject = self._require_subject()
         info = describe_driver(driver)
-        relative = mode == "relative" or (mode == "auto" and not _same_input(subject.source, driver))
+        relative = mode == "relative" or (mode == "auto" and not same_input(subject.source, driver))
         with_layout = with_layout and self.backend.layout_kind != "none"
         self.last_stats = stats = ReenactStats()
-        into_source = paste_back and scene == "source" and not _same_input(subject.source, driver)
+        into_source = paste_back and scene == "source" and not same_input(subject.source, driver)
         scenes = None
         if into_source:
             from lsr.core.scene_source import SourceScene
@@ -425,16 +456,16 @@ class ReenactorBase:
         return landmarks[0], mesh if self._uses_mesh_references() else None
 
     def _prepare(self, index: int, driver_frame: np.ndarray | None, target: np.ndarray, stats: ReenactStats,
-                 target_mesh: np.ndarray | None = None, finish: Callable | None = None, image: np.ndarray | None = None
-                 ) -> _Prepared:
+                 target_mesh: np.ndarray | None = None, finish: Callable | None = None, image: np.ndarray | None = None,
+                 gaze: np.ndarray | None = None) -> _Prepared:
         """A face frame made ready for the network (on the preparing thread): the target's landmark image and, for a
         warp-guided model, its nearest shots warped onto it. finish: the frame's paste-back (run behind the loop);
         image: the frame's picture until then (None: the synthesis)."""
         started = time.perf_counter()
         landmark_image, inputs = self.network_inputs(target, crop_mesh=target_mesh)
         stats.add("warps", time.perf_counter() - started)
-        return _Prepared(ReenactedFrame(index, image, True, driver_frame, landmark_image, None, None, target), inputs,
-                         finish)
+        return _Prepared(ReenactedFrame(index, image, True, driver_frame, landmark_image, None, None, target, gaze),
+                         inputs, finish)
 
     def _synthesized(self, items, with_layout: bool, stats: ReenactStats) -> Iterator[ReenactedFrame | Callable]:
         """The network on each prepared frame, here (the items come from the preparing thread); the frames, or their
@@ -448,14 +479,16 @@ class ReenactorBase:
                     return
                 if isinstance(item, _Prepared):
                     started, frame = time.perf_counter(), item.frame
-                    frame.synthesis, frame.layout = self.synthesize_inputs(item.inputs, with_layout, frame.landmarks)
+                    frame.synthesis, frame.layout = self.synthesize_inputs(item.inputs, with_layout, frame.landmarks,
+                                                                           gaze=frame.gaze)
                     stats.add("synthesis", time.perf_counter() - started)
                     frame.image = frame.synthesis if frame.image is None else frame.image
                     item = frame if item.finish is None else functools.partial(item.finish, frame)
                 yield item
 
     def _into_scene(self, scenes, index: int, driver_frame: np.ndarray | None, target: np.ndarray,
-                    stats: ReenactStats, target_mesh: np.ndarray | None = None) -> _Prepared:
+                    stats: ReenactStats, target_mesh: np.ndarray | None = None, gaze: np.ndarray | None = None
+                    ) -> _Prepared:
         """The target (anchor crop pixels; its mesh, when there is one) prepared at the next scene frame's head pose,
         its finisher compositing the synthesis into that scene frame."""
         scene = next(scenes)
@@ -463,7 +496,7 @@ class ReenactorBase:
         if target_mesh is not None:
             target_mesh = scene.place_mesh(target_mesh)
         return self._prepare(index, driver_frame, target, stats, target_mesh,
-                             functools.partial(_paste_into_scene, scene=scene, stats=stats), scene.image)
+                             functools.partial(paste_into_scene, scene=scene, stats=stats), scene.image, gaze)
 
     def _landmark_driver(self, driver, info: DriverInfo, relative: bool, smooth: bool, landmark_space, landmark_size,
                          stats: ReenactStats, scenes=None) -> Iterator[ReenactedFrame | _Prepared]:
@@ -504,6 +537,7 @@ class ReenactorBase:
         reference = DriverReference()
         ahead, tracked = track_driver(info, tracker, LOOK_AHEAD if relative else 0)  # the lids at rest, first
         reference.look_ahead([points for points, _, _ in ahead], [mesh for _, mesh, _ in ahead])
+        gazes = DriverGaze(self._require_subject().irises[1] if relative else None) if self.eyes == "drawn" else None
         frames = prefetch(tracked)  # decoding and tracking on a thread, a few frames ahead of the synthesis
         index = 0
         for frame, points, mesh, tracking_seconds in frames:
@@ -522,6 +556,7 @@ class ReenactorBase:
                                                         retarget)
             elif one_euro is not None:
                 one_euro.reset()  # never smooth across a gap
+            gaze = None if gazes is None or crop_landmarks is None else gazes(frame, raw_points)
             stats.add("landmarks", time.perf_counter() - started)
             if crop_landmarks is None:
                 stats.no_face += 1
@@ -535,10 +570,10 @@ class ReenactorBase:
                 continue
             stats.frames += 1
             if scenes is not None:
-                yield self._into_scene(scenes, index, frame, crop_landmarks, stats, crop_mesh)
+                yield self._into_scene(scenes, index, frame, crop_landmarks, stats, crop_mesh, gaze)
             else:  # paste_back: into the driver's own frame (its head and scene around the face), behind the loop
                 yield self._prepare(index, frame, crop_landmarks, stats, crop_mesh, functools.partial(
-                    _paste_into_driver, points=points, matrix=matrix, stats=stats) if paste_back else None)
+                    paste_into_driver, points=points, matrix=matrix, stats=stats) if paste_back else None, gaze=gaze)
             index += 1
         if stats.frames and stats.no_face == stats.frames:  # a writer that is still open discards its file
             raise NoFaceError(f"no face found in any of the {stats.frames} frame(s) of the driver {info.path}; "
@@ -558,42 +593,7 @@ def _with_progress(frames: Iterator[ReenactedFrame], total: int) -> Iterator[Ree
         yield from bar
 
 
-def _paste_into_scene(frame: ReenactedFrame, scene, stats: ReenactStats) -> ReenactedFrame:
-    """``frame`` (its image the scene frame) with the synthesis composited into that scene frame at the frame's
-    target (``SceneFrame.composite``); a scene frame whose face was not found stays as it is."""
-    if scene.landmarks is not None:
-        started = time.perf_counter()
-        frame.image = scene.composite(frame.landmarks, frame.synthesis)
-        stats.add("paste_back", time.perf_counter() - started)
-    return frame
-
-
-def _paste_into_driver(frame: ReenactedFrame, points: np.ndarray, matrix: np.ndarray,
-                       stats: ReenactStats) -> ReenactedFrame:
-    """``frame`` (its image the synthesis) with the synthesis composited into its driver frame
-    (``landmarks.scene.composite_face``: the driver's head and scene around the face)."""
-    from landmarks.scene import composite_face, place_in_frame
-
-    started = time.perf_counter()
-    frame.image = composite_face(frame.driver_frame, points, place_in_frame(frame.landmarks, matrix), frame.synthesis,
-                                 matrix).frame
-    stats.add("paste_back", time.perf_counter() - started)
-    return frame
-
-
 def default_crop_size(backend: SynthesisBackend) -> int:
     """The crop (and output) side: ``crop_scale`` (model config) times the model resolution for a warp-guided model
     (detail comes from the warped shots, the network runs at its own resolution), else the model resolution."""
     return int(backend.resolution) * (int(getattr(backend, "crop_scale", 2)) if getattr(backend, "warp_references", 0) else 1)
-
-
-def _source_key(source) -> str | None:
-    if isinstance(source, (str, os.PathLike)):
-        return str(Path(source).resolve())
-    if isinstance(source, (list, tuple)) and len(source) == 1 and isinstance(source[0], (str, os.PathLike)):
-        return str(Path(source[0]).resolve())
-    return None
-
-
-def _same_input(source_key: str | None, driver) -> bool:
-    return source_key is not None and isinstance(driver, (str, os.PathLike)) and str(Path(driver).resolve()) == source_key

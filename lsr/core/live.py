@@ -24,6 +24,7 @@ import numpy as np
 
 from landmarks.mesh_retarget import DriverReference
 from lsr.core.engine import ReenactorBase, Subject
+from lsr.core.parts import DriverGaze
 from lsr.core.provenance import draw_watermark
 
 MIN_FPS, MAX_FPS = 2.0, 60.0  # the One-Euro filter's rate follows the frames' spacing, within these bounds
@@ -70,6 +71,7 @@ class LiveSession:
         self.one_euro = OneEuroFilter(25.0, driving_cutoffs()) if smooth else None
         self.scene = next(SourceScene(subject.shots, reenactor.crop_size)) if paste_back else None
         self.reference = DriverReference()
+        self.gazes = DriverGaze(subject.irises[1]) if reenactor.eyes == "drawn" else None  # drawn eyes' gaze
         self.last: LiveFrame | None = None
         self._last_time: float | None = None
         self.frames = self.faces = 0
@@ -77,6 +79,8 @@ class LiveSession:
     def recentre(self) -> None:
         """The next face becomes the driver's neutral face (relative motion is measured from it)."""
         self.reference.reset()
+        if self.gazes is not None:
+            self.gazes.reference = None
 
     def _mark(self, image: np.ndarray) -> np.ndarray:
         return draw_watermark(image) if self.watermark else image
@@ -114,6 +118,7 @@ class LiveSession:
             self._last_time = None
             return self.still(NO_FACE_NOTE, started)
         gaps, _ = self.reference.lids(points)  # as detected; a camera has nothing ahead
+        gaze = None if self.gazes is None else self.gazes(frame, points)
         if self.one_euro is not None:
             if self._last_time is not None and now > self._last_time:
                 self.one_euro.fps = float(np.clip(1.0 / (now - self._last_time), MIN_FPS, MAX_FPS))
@@ -122,12 +127,12 @@ class LiveSession:
         crop_landmarks = transform_landmarks(points, crop_transform(points, self.reenactor.crop_size))
         self.reference.start(crop_landmarks)
         return self._inputs(retarget_driving(crop_landmarks, self.reference.landmarks,
-                                             self.subject.reference_landmarks, gaps), started)
+                                             self.subject.reference_landmarks, gaps), started, gaze)
 
-    def _inputs(self, target: np.ndarray, started: float) -> Prepared:
+    def _inputs(self, target: np.ndarray, started: float, gaze: np.ndarray | None = None) -> Prepared:
         landmark_image, inputs = self.reenactor.network_inputs(target, subject=self.subject)
         return Prepared(np.asarray(target, np.float64), landmark_image, inputs, time.perf_counter() - started,
-                        self.frames)
+                        self.frames, gaze)
 
     def render(self, target: np.ndarray) -> LiveFrame:
         """Target landmarks (68, 2) in the anchor's crop pixels (e.g. the anchor's own, edited by
@@ -146,7 +151,7 @@ class LiveSession:
         """The second half: the network, then the composite into the scene and the synthetic mark."""
         started = time.perf_counter()
         synthesis, layout = self.reenactor.synthesize_inputs(prepared.inputs, self.with_layout, prepared.target,
-                                                             self.subject)
+                                                             self.subject, prepared.gaze)
         image = synthesis if self.scene is None else self.scene.composite(prepared.target, synthesis)
         self.faces += 1
         self.last = LiveFrame(self._mark(image), True, layout, prepared.landmark_image,
@@ -165,3 +170,5 @@ class Prepared:
     """``ReenactorBase.network_inputs``."""
     seconds: float
     index: int
+    gaze: np.ndarray | None = None
+    """(2, 2) where the target looks (drawn eyes, ``lsr.core.parts.DriverGaze``), or None."""

@@ -1,5 +1,9 @@
-"""The mouth step after the frame synthesis (issues 23 and 40), torch-free: the nearest warped shot's mouth, and
-the mouth drawn by a part generator over it.
+"""The parts' steps after the frame synthesis (issues 23 and 40), torch-free: the nearest warped shot's mouth, the
+mouth drawn by a part generator over it, and the eyes drawn with one iris where the driver looks.
+
+``finish_eyes`` applies a reenactor's ``eyes`` choice (``EYES``): the subject's irises (``subject_irises``: the
+shot with the most open eyes, and the anchor shot's gaze, which relative motion starts from) drawn into the
+synthesis at the target's gaze (``DriverGaze``, ``sequence_gazes``; ``landmarks.iris``).
 
 ``finish_mouth`` applies a reenactor's ``mouth`` choice (``MOUTHS``). ``draw_mouth`` cuts the mouth's window out of the synthesised crop (``landmarks.part_window``), gives it and the
 target's lip masks to the backend's part generator (``models_def.part_generator``: the torch module or its ONNX
@@ -13,12 +17,16 @@ from collections.abc import Callable
 
 import numpy as np
 
+from landmarks.iris import IrisDonor, draw_irises, find_irises, gaze_offsets, iris_donor, retarget_gaze
 from lsr.core.images import from_network, to_network
 from landmarks.part_window import (MOUTH, PartWindow, extract, lip_masks, paste, paste_weight, to_window,
                                    window_eye_distance, window_transform)
 
 PartRunner = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """(window (1, 3, P, P) float32 in [-1, 1], masks (1, 2, P, P) float32 in [0, 1]) -> (1, 3, P, P) in [-1, 1]."""
+EYES = ("drawn", "blend")
+"""A model's eyes: one iris per eye, the subject's own, drawn where the driver looks ("drawn", ``landmarks.iris``)
+or the network's blend of its shots ("blend")."""
 MOUTHS = ("drawn", "nearest", "blend")
 """A warp-guided model's mouth: the nearest warped shot's where the target opens it wider than the shots, then
 redrawn by the mouth generator ("drawn"); without the redrawing ("nearest"); the network's blend alone ("blend")."""
@@ -69,3 +77,55 @@ def draw_mouth(image: np.ndarray, crop_landmarks: np.ndarray, run: PartRunner, p
     window, masks, points, transform = found
     drawn = from_network(run(window, masks)[0])
     return paste(image, drawn, paste_weight(points, part.size, window_eye_distance(part)), transform)
+
+
+def subject_irises(frames: np.ndarray, landmarks: np.ndarray, anchor: int) -> tuple[IrisDonor | None, np.ndarray]:
+    """A subject's shots (K, C, C, 3) uint8 with their landmarks (K, 68, 2) -> (the irises drawn into its frames,
+    ``landmarks.iris.iris_donor``, or None; the anchor shot's gaze (2, 2), NaN where not found)."""
+    donor = iris_donor(frames, landmarks)
+    return donor, gaze_offsets(find_irises(frames[anchor], landmarks[anchor]), landmarks[anchor])
+
+
+def sequence_gazes(frames, landmarks: np.ndarray) -> np.ndarray:
+    """A whole sequence's gazes: N x (H, W, 3) uint8, (N, 68, 2) -> (N, 2, 2) ``landmarks.iris.gaze_offsets``,
+    NaN where an iris is not found or the eye is closing against its median aperture over the sequence."""
+    irises = np.stack([find_irises(frame, points) for frame, points in zip(frames, landmarks)]) if len(frames) else \
+        np.zeros((0, 2, 4))
+    opened = np.nanmedian(irises[..., 3], axis=0) if np.isfinite(irises[..., 3]).any() else None
+    return np.stack([gaze_offsets(i, p, opened) for i, p in zip(irises, landmarks)]) if len(frames) else np.zeros((0, 2, 2))
+
+
+class DriverGaze:
+    """A driver's gaze, frame by frame, as the target's: ``source`` None, its own (absolute); else ``source`` (2, 2)
+    (the subject's anchor gaze) moved by the driver's since its first frame whose irises were found
+    (``landmarks.iris.retarget_gaze``), as relative motion moves the 68 points. An eye is closing (no gaze) against
+    the median of its last ``HISTORY`` apertures."""
+
+    HISTORY = 150
+
+    def __init__(self, source: np.ndarray | None) -> None:
+        self.source = source
+        self.reference: np.ndarray | None = None
+        self.apertures: list[np.ndarray] = []
+
+    def __call__(self, frame: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """frame (H, W, 3) uint8 and its 68 points (the tracker's, frame pixels) -> the target's gaze (2, 2)."""
+        irises = find_irises(frame, points)
+        if np.isfinite(irises[:, 3]).all():
+            self.apertures = (self.apertures + [irises[:, 3]])[-self.HISTORY:]
+        gaze = gaze_offsets(irises, points, np.median(self.apertures, axis=0) if self.apertures else None)
+        if self.source is None:
+            return gaze
+        if self.reference is None and np.isfinite(gaze).all():
+            self.reference = gaze
+        return gaze if self.reference is None else retarget_gaze(gaze, self.reference, self.source)
+
+
+def finish_eyes(image: np.ndarray, eyes: str, crop_landmarks: np.ndarray, gaze: np.ndarray | None,
+                donor: IrisDonor | None) -> np.ndarray:
+    """The synthesis ``image`` (C, C, 3) uint8 with its eyes as ``eyes`` says: "drawn" lays ``donor``'s irises at
+    ``gaze`` (2, 2) into the lids of ``crop_landmarks`` (68, 2) (``landmarks.iris.draw_irises``); "blend", or no
+    gaze or donor, leaves it."""
+    if eyes != "drawn" or gaze is None or donor is None:
+        return image
+    return draw_irises(image, crop_landmarks, gaze, donor)

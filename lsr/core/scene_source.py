@@ -13,6 +13,7 @@ anchor's face to this frame's, so in a video the source's own head motion plays 
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Iterator
 
 import cv2
@@ -121,3 +122,28 @@ class SourceScene:
                 image = cv2.cvtColor(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
                 yield self._frame(image, points if points is not None else first)
             order = list(range(len(cache) - 1, 0, -1)) + list(range(0, len(cache) - 1))
+
+
+# ---- the engine's finishers: each frame's paste-back, run behind the network (lsr.core.overlap) --------
+
+
+def paste_into_scene(frame, scene, stats):
+    """A re-enacted frame (``lsr.core.engine.ReenactedFrame``, its image the scene frame) with the synthesis composited into that scene frame at the frame's
+    target (``SceneFrame.composite``); a scene frame whose face was not found stays as it is."""
+    if scene.landmarks is not None:
+        started = time.perf_counter()
+        frame.image = scene.composite(frame.landmarks, frame.synthesis)
+        stats.add("paste_back", time.perf_counter() - started)
+    return frame
+
+
+def paste_into_driver(frame, points: np.ndarray, matrix: np.ndarray, stats):
+    """A re-enacted frame (its image the synthesis) with the synthesis composited into its driver frame
+    (``landmarks.scene.composite_face``: the driver's head and scene around the face)."""
+    from landmarks.scene import composite_face, place_in_frame
+
+    started = time.perf_counter()
+    frame.image = composite_face(frame.driver_frame, points, place_in_frame(frame.landmarks, matrix), frame.synthesis,
+                                 matrix).frame
+    stats.add("paste_back", time.perf_counter() - started)
+    return frame

@@ -479,3 +479,17 @@ def scale_mesh(mesh: np.ndarray, scale: float) -> np.ndarray:
     """(..., 468, 3) mesh between crop sides: x, y as ``scale_points``, depth times ``scale`` -> float64."""
     mesh = np.asarray(mesh, np.float64)
     return np.concatenate([scale_points(mesh[..., :2], scale), mesh[..., 2:] * scale], axis=-1)
+
+
+def source_key(source) -> str | None:
+    """The resolved path of a source that is one file or folder (a list of one too), else None."""
+    if isinstance(source, (str, os.PathLike)):
+        return str(Path(source).resolve())
+    if isinstance(source, (list, tuple)) and len(source) == 1 and isinstance(source[0], (str, os.PathLike)):
+        return str(Path(source[0]).resolve())
+    return None
+
+
+def same_input(source_key: str | None, driver) -> bool:
+    """Whether ``driver`` is the very file or folder the subject came from (``source_key``'s)."""
+    return source_key is not None and isinstance(driver, (str, os.PathLike)) and str(Path(driver).resolve()) == source_key

@@ -69,12 +69,14 @@ class LsrModelMethod:
 
     def __init__(self, weights: str | os.PathLike, *, device: str = "cpu", finetune_steps: int = 0,
                  finetune_lr: float = DEFAULT_FINETUNE_LR, name: str | None = None, reenactor=None,
-                 reference_warp: str = "mesh", mouth: str | None = None) -> None:
+                 reference_warp: str = "mesh", mouth: str | None = None, eyes: str | None = None) -> None:
         """reenactor: a ready ``ReenactorBase`` (e.g. ``deploy.runtime.OnnxReenactor`` over the bundle at
         ``weights``); None = load the torch model from ``weights``. reference_warp: how a warp-guided model's
         references are warped ("mesh": over the face mesh, given the meshes; "tps": the 68-point TPS). mouth: a
         warp-guided model's mouth ("drawn": redrawn by its mouth generator; "nearest": the nearest warped shot's;
-        "blend": the network's; None: the model's default, ``lsr.core.engine.ReenactorBase.mouth``)."""
+        "blend": the network's; None: the model's default, ``lsr.core.engine.ReenactorBase.mouth``). eyes: "drawn"
+        (one iris where the target looks: the protocol then passes ``target_gazes``) or "blend" (None: the model's
+        default, ``ReenactorBase.eyes``)."""
         self.weights = Path(weights)
         self.device = device
         self.finetune_steps = finetune_steps
@@ -92,6 +94,9 @@ class LsrModelMethod:
         reenactor.reference_warp = reference_warp
         if mouth is not None:
             reenactor.mouth = mouth
+        if eyes is not None:
+            reenactor.eyes = eyes
+        self.uses_gazes = reenactor.eyes == "drawn"
         self.needs_target_segmentation = self.variant == "oracle_seg"
         # the protocol then passes the shots' and targets' meshes where it has them (TPS references where not)
         self.uses_meshes = bool(reenactor.warp_references) and reference_warp == "mesh"
@@ -123,11 +128,12 @@ class LsrModelMethod:
 
     def reenact(self, shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray,
                 target_segmentations: np.ndarray | None = None, shot_meshes: np.ndarray | None = None,
-                target_meshes: np.ndarray | None = None) -> np.ndarray:
+                target_meshes: np.ndarray | None = None, target_gazes: np.ndarray | None = None) -> np.ndarray:
         """shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (T, 68, 2);
         target_segmentations: (T, S, S) uint8 class ids, ground truth of the targets (``oracle_seg`` only);
         shot_meshes (K, 468, 3), target_meshes (T, 468, 3): face meshes for the references' mesh warp (NaN rows:
-        none; that target's references are TPS-warped) -> (T, S, S, 3) uint8."""
+        none; that target's references are TPS-warped); target_gazes (T, 2, 2): where each target looks
+        (``landmarks.iris.gaze_offsets``; NaN: not found), for drawn eyes -> (T, S, S, 3) uint8."""
         check_method_inputs(shots, shot_landmarks, target_landmarks)
         scale = self._encode(shots, shot_landmarks, shot_meshes)
         size = shots[0].shape[0]
@@ -136,9 +142,11 @@ class LsrModelMethod:
         if target_meshes is None:
             target_meshes = np.full((len(target_landmarks), 468, 3), np.nan, np.float32)
         outputs = []
-        for points, mesh in zip(target_landmarks, target_meshes):
+        gazes = [None] * len(target_landmarks) if target_gazes is None else list(target_gazes)
+        for points, mesh, gaze in zip(target_landmarks, target_meshes, gazes):
             crop_mesh = scale_mesh(mesh, scale) if np.isfinite(mesh).all() else None
-            outputs.append(_resize(self.reenactor.synthesize_crop(scale_points(points, scale), crop_mesh=crop_mesh)[0], size))
+            image = self.reenactor.synthesize_crop(scale_points(points, scale), crop_mesh=crop_mesh, gaze=gaze)[0]
+            outputs.append(_resize(image, size))
         return np.stack(outputs) if outputs else np.zeros((0, size, size, 3), np.uint8)
 
     def _reenact_with_oracle(self, target_landmarks: np.ndarray, target_segmentations: np.ndarray | None,

@@ -106,6 +106,12 @@ def takes_meshes(method: Any) -> bool:
     return bool(getattr(method, "needs_meshes", False) or getattr(method, "uses_meshes", False))
 
 
+def takes_gazes(method: Any) -> bool:
+    """The method is passed ``target_gazes=`` (T, 2, 2), where each target looks (``landmarks.iris.gaze_offsets``
+    of the hold-out or, cross-identity, the driver's relative gaze): it ``uses_gazes`` (drawn eyes)."""
+    return bool(getattr(method, "uses_gazes", False))
+
+
 def gives_meshes(detector: Any) -> bool:
     """Whether ``detector`` finds face meshes (``landmarks.mesh_track.MeshDetector`` has ``meshes``)."""
     return callable(getattr(detector, "meshes", None))
@@ -377,6 +383,13 @@ def _add_warp_counts(counts: dict[str, Any], name: str, k: int, kind: str, befor
         table[method] = table.get(method, 0) + value - before.get(method, 0)
 
 
+def _relative_gazes(driver: np.ndarray, source: np.ndarray, retarget_gaze) -> np.ndarray:
+    """A driver's gazes (T, 2, 2) as ``lsr reenact`` gives them to the source (``lsr.core.parts.DriverGaze``): the
+    source's anchor gaze moved by the driver's since its first frame whose irises were found."""
+    found = np.flatnonzero(np.isfinite(driver).all(axis=(1, 2)))
+    return driver if not len(found) else retarget_gaze(driver, driver[found[0]], source)
+
+
 def _rows_or_none(array: np.ndarray | None, rows: np.ndarray) -> np.ndarray | None:
     return None if array is None else array[rows]
 
@@ -499,6 +512,16 @@ def run_protocol(
             judges = [None if judged_by is None else parts.CrossJudge(
                 judged_by, sequence.driver_frames, sequence.driver_landmarks, shots, shot_landmarks)
                 for sequence, _ in sequences]  # the driver and shots read once, for every method
+            gaze_inputs: dict[str, np.ndarray] = {}  # what drawn eyes get, self and cross (per driver)
+            cross_gazes: list[dict[str, np.ndarray]] = [{} for _ in sequences]
+            if any(takes_gazes(method) for method in methods):
+                from landmarks.iris import retarget_gaze
+                from lsr.core.parts import sequence_gazes
+
+                gaze_inputs = {"target_gazes": sequence_gazes(targets, target_landmarks)}
+                anchor_gazes = [sequence_gazes(s.anchor_shot[None], s.anchor_landmarks[None])[0] for s, _ in sequences]
+                cross_gazes = [{"target_gazes": _relative_gazes(sequence_gazes(s.driver_frames, s.driver_landmarks), anchor,
+                                                                retarget_gaze)} for (s, _), anchor in zip(sequences, anchor_gazes)]
             mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
             cross_meshes: list[dict[str, np.ndarray]] = [{} for _ in sequences]  # per driver, made once
             if any(takes_meshes(method) for method in methods) and identity.has_meshes:
@@ -520,6 +543,8 @@ def run_protocol(
                 extra_inputs = {"target_segmentations": target_segmentations} if oracle else {}
                 if takes_meshes(model):
                     extra_inputs.update(mesh_inputs or {})
+                if takes_gazes(model):
+                    extra_inputs.update(gaze_inputs)
                 outputs = model.reenact(shots, shot_landmarks, target_landmarks, **extra_inputs)
                 _add_warp_counts(counts, name, k, "self", before, _warp_counts(model))
                 _check_outputs(outputs, len(targets), targets.shape[1:], name)
@@ -548,12 +573,15 @@ def run_protocol(
                         **{key: float(values[row]) for key, values in extra.items()},
                         **part_scores[row], **beyond[row],
                     })
-                for (sequence, driver_segmentations), meshes_of, sequence_judge in zip(sequences, cross_meshes, judges):
+                for (sequence, driver_segmentations), meshes_of, gazes_of, sequence_judge in zip(
+                        sequences, cross_meshes, cross_gazes, judges):
                     before = _warp_counts(model)
                     # the oracle sees the driving frames' segmentation, i.e. the driver's own (not retargeted) layout
                     extra_inputs = {"target_segmentations": driver_segmentations} if oracle else {}
                     if takes_meshes(model):
                         extra_inputs.update(meshes_of)
+                    if takes_gazes(model):
+                        extra_inputs.update(gazes_of)
                     crossed = model.reenact(shots, shot_landmarks, sequence.targets, **extra_inputs)
                     _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))
                     _check_outputs(crossed, len(sequence.targets), targets.shape[1:], name)

@@ -475,17 +475,20 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
 
         models = [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps,
                                  finetune_lr=cfg.finetune_lr, reference_warp=cfg.reference_warps[0],
-                                 mouth=cfg.mouths[0] if cfg.mouths else None) for folder in cfg.weights]
+                                 mouth=cfg.mouths[0] if cfg.mouths else None, eyes=cfg.eyes[0] if cfg.eyes else None)
+                  for folder in cfg.weights]
         methods += label_by_variant(models, cfg.weights)
         # the same models with their references warped another way, or another mouth, in the same run
-        extras = [(warp, cfg.mouths[0] if cfg.mouths else None, f"+{warp}-refs") for warp in cfg.reference_warps[1:]]
-        extras += [(cfg.reference_warps[0], mouth, f"+{mouth}-mouth") for mouth in cfg.mouths[1:]]
-        for warp, mouth, suffix in extras:
+        mouth, eyes = cfg.mouths[0] if cfg.mouths else None, cfg.eyes[0] if cfg.eyes else None
+        extras = [(warp, mouth, eyes, f"+{warp}-refs") for warp in cfg.reference_warps[1:]]
+        extras += [(cfg.reference_warps[0], other, eyes, f"+{other}-mouth") for other in cfg.mouths[1:]]
+        extras += [(cfg.reference_warps[0], mouth, other, f"+{other}-eyes") for other in cfg.eyes[1:]]
+        for warp, mouth, eyes, suffix in extras:
             for model in models:
                 if model.reenactor.warp_references:
                     methods.append(LsrModelMethod(model.weights, device=cfg.device, finetune_steps=cfg.finetune_steps,
                                                   finetune_lr=cfg.finetune_lr, reference_warp=warp, mouth=mouth,
-                                                  name=f"{model.name}{suffix}"))
+                                                  eyes=eyes, name=f"{model.name}{suffix}"))
     retargets_meshes = cfg.cross_identity and cfg.retarget == "3d"  # the drivers' and anchors' meshes move the 68 points
     if gives_meshes(detector) and layout != "fsth" and (retargets_meshes or any(takes_meshes(m) for m in methods)):
         attach_meshes(identities, detector, cache_dir=Path(cfg.out) / "cache", progress=cfg.progress)

@@ -111,3 +111,35 @@ def test_the_onnx_bundle_draws_the_same_mouth(folders, tmp_path):
     target = shots.landmarks[2]
     images = [side.synthesize_crop(target)[0].astype(int) for side in (torch_side, onnx_side)]
     assert np.abs(images[0] - images[1]).max() <= 2
+
+
+def test_drawn_eyes_change_the_eyes_only_and_only_with_a_gaze(folders):
+    import cv2
+
+    from landmarks.iris import EYE_RINGS, PATCH, IrisDonor
+    from lsr.pipeline import Reenactor
+
+    reenactor = Reenactor(folders, crop_size=SIDE)
+    assert reenactor.eyes == "blend"  # the default until drawn eyes meet their bar (MODEL_CARD)
+    reenactor.encode_subject(_shots())
+    patch = np.full((PATCH, PATCH, 3), 230, np.uint8)
+    cv2.circle(patch, (PATCH // 2, PATCH // 2), PATCH // 3, (20, 20, 20), -1)
+    reenactor.subject._irises = (IrisDonor(np.stack([patch, patch]), np.array([0.2, 0.2]), np.array([230.0, 230.0]), 0),
+                                 np.zeros((2, 2)))
+    target = reenactor.subject.shots.landmarks[1]
+    gaze = np.array([[0.1, 0.0], [0.1, 0.0]])
+    blend = reenactor.synthesize_crop(target, gaze=gaze)[0]
+    reenactor.eyes = "drawn"
+    assert (reenactor.synthesize_crop(target)[0] == blend).all()  # no gaze (a landmark driver): the blend
+    drawn = reenactor.synthesize_crop(target, gaze=gaze)[0]
+    changed = np.abs(drawn.astype(int) - blend.astype(int)).max(axis=-1) > 0
+    assert changed.any()
+    eyes = np.zeros_like(changed)
+    for ring in EYE_RINGS:
+        lids = target[list(ring)]
+        x0, y0 = np.floor(lids.min(axis=0)).astype(int) - 1
+        x1, y1 = np.ceil(lids.max(axis=0)).astype(int) + 2
+        eyes[y0:y1, x0:x1] = True
+    assert not (changed & ~eyes).any()
+    with pytest.raises(ValueError, match="eyes"):
+        reenactor.eyes = "googly"
