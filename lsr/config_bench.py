@@ -264,6 +264,9 @@ class BenchReenactConfig:
     mouths: tuple[Literal["drawn", "nearest", "blend"], ...] = ()
     """A warp-guided model's mouth (as `lsr reenact --mouth`), one row each; e.g. drawn nearest times the mouth
     generator against the per-frame path without it, in the same run. Empty: the model's default."""
+    eyes: tuple[Literal["drawn", "blend"], ...] = ()
+    """The eyes (as `lsr reenact --eyes`), one row each; drawn blend prints the drawn eyes' frame-rate ratio. Empty:
+    the default (blend)."""
     paste_back: bool = True
     k: int = 4
     device: Literal["auto", "cpu", "cuda"] = "auto"

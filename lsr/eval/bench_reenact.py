@@ -69,8 +69,10 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
             label = "the shipped default" if cfg.weights is None else f"`{shown_path(weights)}`"
         clip = trim_clip(video, temp / "driving.mp4", cfg.frames)
         synthesis_ms: dict[tuple[str, str], dict[str, float]] = {}
-        mouths = cfg.mouths or (None,)
-        for runtime, detector, mouth in [(r, d, m) for r in cfg.runtimes for d in cfg.detectors for m in mouths]:
+        fps: dict[tuple[str, str, str], dict[str, float]] = {}  # end to end, per eyes choice
+        mouths, eyes_choices = cfg.mouths or (None,), cfg.eyes or (None,)
+        for runtime, detector, mouth, eyes in [(r, d, m, e) for r in cfg.runtimes for d in cfg.detectors for m in mouths
+                                               for e in eyes_choices]:
             threads = network_threads(cfg.threads)  # as lsr reenact chooses them
             if runtime == "onnx":
                 from deploy.runtime import OnnxReenactor
@@ -85,38 +87,44 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
                 reenactor = Reenactor(weights, device=device, detector=detector)
             if mouth is not None:
                 reenactor.mouth = mouth
+            if eyes is not None:
+                reenactor.eyes = eyes
             started = time.perf_counter()
             reenactor.encode_subject(clip, k=cfg.k)
             encode_subject_s = time.perf_counter() - started
             synth_ms = synthesis_only_ms(reenactor)
             started = time.perf_counter()
             synthesis_ms.setdefault((runtime, detector), {})[reenactor.mouth] = synth_ms
-            stats = run_job(reenactor, Job(clip, clip, temp / f"out_{runtime}_{detector}_{reenactor.mouth}.mp4"),
+            stats = run_job(reenactor, Job(clip, clip, temp / f"out_{runtime}_{detector}_{reenactor.mouth}_{reenactor.eyes}.mp4"),
                             _job_options(cfg.paste_back, runtime))
+            fps.setdefault((runtime, detector, reenactor.mouth), {})[reenactor.eyes] = stats.frames / (time.perf_counter() - started)
             wall = time.perf_counter() - started
             per_frame = {stage: 1000 * stats.seconds.get(stage, 0.0) / max(1, stats.frames)
                          for stage in ("decode", "landmarks", "warps", "synthesis", "paste_back", "encode")}
             end_to_end = stats.frames / wall
             rows.append(
-                f"| {runtime} | {detector} | {reenactor.mouth} | {stats.frames} | {stats.no_face} | {per_frame['decode']:.1f} | {per_frame['landmarks']:.1f} | "
+                f"| {runtime} | {detector} | {reenactor.mouth} | {reenactor.eyes} | {stats.frames} | {stats.no_face} | {per_frame['decode']:.1f} | {per_frame['landmarks']:.1f} | "
                 f"{encode_subject_s:.2f} | {per_frame['warps']:.1f} | {per_frame['synthesis']:.1f} | {per_frame['paste_back']:.1f} | "
                 f"{per_frame['encode']:.1f} | {end_to_end:.2f} | {synth_ms:.1f} ({1000 / synth_ms:.2f} fps) | "
                 f"{end_to_end * synth_ms / 1000:.2f} |"
             )
-            if runtime == "torch" and detector == cfg.detectors[0] and mouth == mouths[0]:
+            if runtime == "torch" and detector == cfg.detectors[0] and mouth == mouths[0] and eyes == eyes_choices[0]:
                 lm = reenactor.subject.shots.landmarks
                 notes.append(f"bf16 (torch, {device}): {reenactor.precision_error(list(lm), 'bf16')}")
     table = "\n".join([
         f"Model {label}, {cfg.frames} frames of {video.name}, paste-back {cfg.paste_back}, device {device}, "
         f"network threads {network_threads(cfg.threads)}",
         "",
-        "| runtime | detector | mouth | frames | no face | decode ms | landmarks ms | subject encoding s | warps ms | network ms "
+        "| runtime | detector | mouth | eyes | frames | no face | decode ms | landmarks ms | subject encoding s | warps ms | network ms "
         "| paste-back ms | encode ms | end-to-end fps | synthesis only ms | end-to-end / synthesis-only |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
         *[f"Synthesis only, {runtime} / {detector}: the drawn mouth costs {times['drawn'] / times['nearest']:.2f}x "
           f"the per-frame path without it ({times['drawn']:.1f} against {times['nearest']:.1f} ms, same run)."
           for (runtime, detector), times in synthesis_ms.items() if {"drawn", "nearest"} <= set(times)],
+        *[f"End to end, {runtime} / {detector} / {mouth} mouth: drawn eyes run at {rates['drawn'] / rates['blend']:.2f}x the "
+          f"frame rate of blended ones ({rates['drawn']:.2f} against {rates['blend']:.2f} fps, same run)."
+          for (runtime, detector, mouth), rates in fps.items() if {"drawn", "blend"} <= set(rates)],
         "",
         "Stages overlap (lsr.core.overlap), each ms its time on its own thread, sharing the cores: decoding and "
         "tracking on one thread, smoothing, retargeting and the warps of the nearest shots on a second (landmarks ms "

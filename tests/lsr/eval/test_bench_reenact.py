@@ -36,12 +36,12 @@ def test_warp_guided_model_is_timed_on_both_runtimes(tmp_path):
     assert [row.split("|")[2].strip() for row in rows] == ["mesh", "hog", "mesh", "hog"]
     for row in rows:
         cells = [cell.strip() for cell in row.strip("|").split("|")]
-        assert cells[2] == "nearest"  # the model's default mouth: it has no mouth generator
-        assert int(cells[3]) == 4 and float(cells[11]) > 0  # frames, end-to-end fps
+        assert cells[2] == "nearest" and cells[3] == "blend"  # the defaults: no mouth generator, blended eyes
+        assert int(cells[4]) == 4 and float(cells[12]) > 0  # frames, end-to-end fps
     assert "`" in table.splitlines()[0]  # the model named as given, not a random preset
 
 
-def test_the_drawn_mouth_is_timed_against_the_path_without_it(tmp_path):
+def test_the_drawn_mouth_and_eyes_are_timed_against_the_path_without_them(tmp_path):
     from lsr.config import BenchReenactConfig
     from lsr.eval.bench_reenact import run_bench_reenact
     from models_def.part_generator import MOUTH_FOLDER, PartGenerator
@@ -49,10 +49,12 @@ def test_the_drawn_mouth_is_timed_against_the_path_without_it(tmp_path):
     weights, clip = _weights_and_clip(tmp_path)
     PartGenerator().save_pretrained(weights / MOUTH_FOLDER)
     table = run_bench_reenact(BenchReenactConfig(video=clip, weights=weights, frames=3, k=2, threads=1,
-                                                 mouths=("drawn", "nearest")))
+                                                 mouths=("drawn", "nearest"), eyes=("drawn", "blend"), runtimes=("onnx",)))
     rows = [line for line in table.splitlines() if line.startswith(("| torch |", "| onnx |")) and line.count("|") > 10]
-    assert [row.split("|")[3].strip() for row in rows] == ["drawn", "nearest", "drawn", "nearest"]
-    assert table.count("the drawn mouth costs") == 2  # one ratio per runtime, from the same run
+    assert [row.split("|")[3].strip() for row in rows] == ["drawn", "drawn", "nearest", "nearest"]
+    assert [row.split("|")[4].strip() for row in rows] == ["drawn", "blend", "drawn", "blend"]
+    assert table.count("the drawn mouth costs") == 1  # one ratio per runtime, from the same run
+    assert table.count("drawn eyes run at") == 2  # one per mouth
 
 
 def test_no_flags_times_the_shipped_default():
