@@ -6,15 +6,19 @@ of them looks where the driver looks. Here the gaze is measured apart from the 6
 one iris:
 
 1. **Found** (``find_irises``): the iris net (``landmarks.mesh``'s, on the same 64x64 eye squares, levelled on each
-   eye's corners of the 68 points) gives each iris' centre and radius.
+   eye's corners of the 68 points) gives each iris' centre and radius and the lid gap of its own eye contour. The
+   mesh tracker runs the same net on the same eyes and keeps what it found (``tracker.irises``), so a tracked
+   driver costs nothing more.
 2. **Carried** (``gaze_offsets``): the centre in the eye's own frame (from its corners' midpoint, along and across
-   the corner line), in eye widths: a gaze that moves onto any face, whatever its size or roll.
+   the corner line), in eye widths: a gaze that moves onto any face, whatever its size or roll. An eye closing
+   (its gap below ``CLOSED`` of its gap when open) has none.
 3. **Drawn** (``draw_irises``): in the synthesis, inside the target's eye aperture (the 68 points' lid polygon),
-   one iris, cut from the subject's own shot with the most open eyes (``IrisDonor``), is laid at the target's eye
-   centre plus the gaze, sized by the eye's width and clipped by the lids, with a soft edge; another iris of the
-   blend, a dark blob away from it (where the shots looked elsewhere), is filled from the white around it
-   (``cv2.inpaint``). The rest of the eye (the lash line, the lids' shadow) stays the blend's: filling every dark
-   pixel inside the lids cost the validation people's eye regions 1.6 dB.
+   where the synthesis shows the eye's white (``SCLERA``), one iris, cut from the subject's own shot with the most
+   open eyes (``IrisDonor``), is laid at the target's eye centre plus the gaze, sized by the eye's width and
+   clipped by the lids, with a soft edge; another iris of the blend, a dark blob away from it (where the shots
+   looked elsewhere), is filled from the white around it (``cv2.inpaint``). The rest of the eye (the lash line,
+   the lids' shadow) stays the blend's: filling every dark pixel inside the lids cost the validation people's eye
+   regions 1.2 dB.
 
 Numpy and OpenCV only (the inference core's rule); the iris net runs on onnxruntime.
 """
@@ -46,6 +50,10 @@ WHITE_QUANTILE = 0.85
 """An eye's white: this quantile of the grey levels inside its lid polygon."""
 DARK = 0.8
 """Inside the lids, pixels darker than this fraction of the white may be another iris of the blend (``_ghosts``)."""
+SCLERA = 1.1
+"""An eye is drawn only where the synthesis shows its white: the bright of its lids' inside (``WHITE_QUANTILE``) at
+least this many times the skin around it. A blend that draws the eye shut or narrow has none, and an iris drawn
+there is a dark spot on the lid."""
 GHOST_AREA = 0.3
 """A dark blob inside the lids, outside the drawn iris, is another iris when at least this share of an iris' area..."""
 GHOST_HEIGHT = 0.8
@@ -76,46 +84,15 @@ def find_irises(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
 
 
 def _find_iris(image: np.ndarray, points: np.ndarray, eye: int) -> np.ndarray:
-    """``find_irises``' row for one eye, on this thread's iris net session."""
-    from landmarks.mesh import EYE_ROI_SCALE, IRIS_FILE, IRIS_SIZE, Region, eye_crop, eye_input, session, to_frame
+    """``find_irises``' row for one eye (``landmarks.mesh.eye_iris``), on this thread's iris net session."""
+    from landmarks.mesh import EYE_ROI_SCALE, Region, eye_input, eye_iris, iris_outputs
 
     centre, axis, width = _eye_axes(points, eye)
     if width < 1.0:
         return np.full(4, np.nan)
-    net = session(IRIS_FILE)
     region = Region((float(centre[0]), float(centre[1])), width * EYE_ROI_SCALE, float(np.arctan2(axis[1], axis[0])))
     mirrored = EYES[eye][2]
-    outputs = dict(zip([o.name for o in net.get_outputs()],
-                       net.run(None, {net.get_inputs()[0].name: eye_input(image, region, mirrored)})))
-    iris = outputs["output_iris"].reshape(5, 3)[:, :2].astype(np.float64)
-    contour = outputs["output_eyes_contours_and_brows"].reshape(71, 3)[:16, :2].astype(np.float64)
-    if mirrored:
-        iris[:, 0] = IRIS_SIZE - iris[:, 0]
-        contour[:, 0] = IRIS_SIZE - contour[:, 0]
-    iris = to_frame(iris - 0.5, eye_crop(region))
-    radius = float(np.mean(np.linalg.norm(iris[1:] - iris[0], axis=1)))
-    # the lid gap of the net's own contour (corner, 7 lower-lid points, corner, 7 upper-lid points), middle three
-    gaps = np.linalg.norm(contour[11:14] - contour[3:6], axis=1) * (region.side / IRIS_SIZE)
-    return np.array([iris[0, 0], iris[0, 1], radius, float(np.mean(gaps)) / width])
-    net = session(IRIS_FILE)
-    for eye, (_, _, mirrored) in enumerate(EYES):
-        centre, axis, width = _eye_axes(points, eye)
-        if width < 1.0:
-            continue
-        region = Region((float(centre[0]), float(centre[1])), width * EYE_ROI_SCALE, float(np.arctan2(axis[1], axis[0])))
-        outputs = dict(zip([o.name for o in net.get_outputs()],
-                           net.run(None, {net.get_inputs()[0].name: eye_input(image, region, mirrored)})))
-        iris = outputs["output_iris"].reshape(5, 3)[:, :2].astype(np.float64)
-        contour = outputs["output_eyes_contours_and_brows"].reshape(71, 3)[:16, :2].astype(np.float64)
-        if mirrored:
-            iris[:, 0] = IRIS_SIZE - iris[:, 0]
-            contour[:, 0] = IRIS_SIZE - contour[:, 0]
-        iris = to_frame(iris - 0.5, eye_crop(region))
-        radius = float(np.mean(np.linalg.norm(iris[1:] - iris[0], axis=1)))
-        # the lid gap of the net's own contour (corner, 7 lower-lid points, corner, 7 upper-lid points), middle three
-        gaps = np.linalg.norm(contour[11:14] - contour[3:6], axis=1) * (region.side / IRIS_SIZE)
-        found[eye] = (iris[0, 0], iris[0, 1], radius, float(np.mean(gaps)) / width)
-    return found
+    return eye_iris(*iris_outputs(eye_input(image, region, mirrored)), region, mirrored)
 
 
 def gaze_offsets(irises: np.ndarray, landmarks: np.ndarray, open_apertures: np.ndarray | None = None) -> np.ndarray:
@@ -210,6 +187,13 @@ def _polygon(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return mask.astype(np.float32) / 255.0
 
 
+def _skin(grey: np.ndarray, aperture: np.ndarray) -> float:
+    """The median grey of the skin just around an eye: a ring 2-5 pixels outside its lid polygon (``aperture``)."""
+    lids = (aperture > 0.05).astype(np.uint8)
+    ring = cv2.dilate(lids, np.ones((11, 11), np.uint8)) & ~cv2.dilate(lids, np.ones((5, 5), np.uint8)).astype(bool)
+    return float(np.median(grey[ring.astype(bool)])) if ring.any() else 0.0
+
+
 def _ghosts(grey: np.ndarray, inside: np.ndarray, white: float, iris: np.ndarray, radius: float) -> np.ndarray:
     """The blend's other irises in an eye's box, outside the drawn one's disc (``iris``, bool, grown a little):
     dark blobs (below ``DARK`` x ``white``) inside the lids and away from the lid line (one pixel in) that are at
@@ -254,6 +238,8 @@ def draw_irises(image: np.ndarray, landmarks: np.ndarray, offsets: np.ndarray, d
         if inside.sum() < 4:
             continue
         white = float(np.quantile(grey[inside], WHITE_QUANTILE))
+        if white < SCLERA * _skin(grey, aperture):  # the synthesis shows this eye shut: an iris would sit on the lid
+            continue
         local = iris_centre - (x0, y0)
         ys, xs = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float32)
         distance = np.hypot(xs - local[0], ys - local[1])

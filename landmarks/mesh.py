@@ -10,7 +10,7 @@ MediaPipe's own graphs (face_detection_short_range_cpu, face_landmark_front_cpu)
 2. **Region of interest**: a square 1.5x the box's longer side, rotated so the eye line is level.
 3. **Mesh**: the region is sampled into 192x192 in [0, 1]; the net returns 468 (x, y, z) points in those
    pixels and a face-presence logit. Points go back to the frame through the region's affine transform.
-3b. **Eyes** (``refine_eye_contours``; MediaPipe's iris_landmark_left_and_right_cpu graph, as its face mesh does
+3b. **Eyes** (``refine_eyes``; MediaPipe's iris_landmark_left_and_right_cpu graph, as its face mesh does
    with refined landmarks): a square 2.3x the eye-corner distance around each eye, levelled, is sampled into 64x64
    in [0, 1] (the image-right eye mirrored: the net knows image-left eyes); the iris net's first 16 of its 71 eye
    points replace the mesh's 16 eye-contour vertices of that eye (x, y; z stays). The mesh net alone barely moves
@@ -288,11 +288,14 @@ def region_from_mesh(mesh: np.ndarray) -> Region:
 
 @dataclasses.dataclass
 class MeshResult:
-    """mesh: (468, 3) float32 in frame pixels; presence: face probability in [0, 1]; region: the crop used."""
+    """mesh: (468, 3) float32 in frame pixels; presence: face probability in [0, 1]; region: the crop used;
+    irises: the iris net's irises."""
 
     mesh: np.ndarray
     presence: float
     region: Region
+    irises: np.ndarray | None = None
+    """(2, 4) float64 [x, y, radius, aperture] per eye, image left first (``eye_iris``), when the eyes were refined."""
 
 
 def to_frame(points: np.ndarray, crop: np.ndarray) -> np.ndarray:
@@ -350,43 +353,67 @@ def eye_thread() -> concurrent.futures.ThreadPoolExecutor:
         return _EYE_THREAD
 
 
-def _iris_points(tensor: np.ndarray) -> np.ndarray:
-    """The iris net's 71 eye points (x, y, z) in its 64x64 crop, on this thread's session."""
+def iris_outputs(tensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The iris net on one eye's input, on this thread's session: (its 71 eye points (x, y, z), its 5 iris points
+    (centre, then 4 on the edge)) in its 64x64 crop."""
     net = session(IRIS_FILE)
     outputs = net.run(None, {net.get_inputs()[0].name: tensor})
-    return next(out for out in outputs if out.size == 71 * 3).reshape(71, 3)
+    return (next(out for out in outputs if out.size == 71 * 3).reshape(71, 3),
+            next(out for out in outputs if out.size == 5 * 3).reshape(5, 3))
 
 
-def refine_eye_contours(image: np.ndarray, mesh: np.ndarray) -> np.ndarray:
-    """``mesh`` with both eyes' 16 contour vertices (x, y) from the iris net (module docstring, step 3b).
-    image: (H, W, 3) uint8 RGB; mesh: (468, 3) frame pixels -> (468, 3) float32 (a copy; unchanged when the mesh
-    is not finite or an eye's corners coincide). The two eyes run at once, the second on another thread: the net
-    is single-threaded and compute-bound, so both take about 3.2 ms on 2 cores where one after the other took 5.7
-    (and batching them, 5.6)."""
+def eye_iris(eye_points: np.ndarray, iris: np.ndarray, region: Region, mirrored: bool) -> np.ndarray:
+    """``iris_outputs`` of one eye's square -> (4,) float64 [x, y, radius, aperture]: the iris centre and radius in
+    frame pixels, and the lid gap of the net's own contour (corner, 7 lower-lid points, corner, 7 upper-lid points:
+    the middle three pairs) over the eye's corner distance."""
+    iris, contour = np.array(iris[:, :2], np.float64), np.array(eye_points[:16, :2], np.float64)
+    if mirrored:
+        iris[:, 0] = IRIS_SIZE - iris[:, 0]
+        contour[:, 0] = IRIS_SIZE - contour[:, 0]
+    iris = to_frame(iris - 0.5, eye_crop(region))
+    radius = float(np.mean(np.linalg.norm(iris[1:] - iris[0], axis=1)))
+    gap = float(np.mean(np.linalg.norm(contour[11:14] - contour[3:6], axis=1))) / IRIS_SIZE * EYE_ROI_SCALE
+    return np.array([iris[0, 0], iris[0, 1], radius, gap])
+
+
+def refine_eyes(image: np.ndarray, mesh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``mesh`` with both eyes' 16 contour vertices (x, y) from the iris net (module docstring, step 3b), and the
+    irises the net found on the way. image: (H, W, 3) uint8 RGB; mesh: (468, 3) frame pixels -> ((468, 3) float32
+    (a copy; unchanged when the mesh is not finite or an eye's corners coincide), (2, 4) ``eye_iris`` rows, NaN
+    where not run). The two eyes run at once, the second on another thread: the net is single-threaded and
+    compute-bound, so both take about 3.2 ms on 2 cores where one after the other took 5.7 (and batching them,
+    5.6)."""
     refined = np.array(mesh, np.float32)
+    irises = np.full((2, 4), np.nan)
     if not np.isfinite(refined).all():
-        return refined
+        return refined, irises
     eyes = []
-    for corners, contour, mirrored in EYE_CONTOURS:  # the corners are not contour vertices of the other eye
+    for eye, (corners, contour, mirrored) in enumerate(EYE_CONTOURS):  # the corners are not the other eye's
         region = eye_region(refined, corners)
         if region.side >= 1.0:
-            eyes.append((region, contour, mirrored, eye_input(image, region, mirrored)))
-    second = eye_thread().submit(_iris_points, eyes[1][3]) if len(eyes) > 1 else None
-    found = [_iris_points(eyes[0][3])] if eyes else []
+            eyes.append((eye, region, contour, mirrored, eye_input(image, region, mirrored)))
+    second = eye_thread().submit(iris_outputs, eyes[1][4]) if len(eyes) > 1 else None
+    found = [iris_outputs(eyes[0][4])] if eyes else []
     if second is not None:
         found.append(second.result())
-    for (region, contour, mirrored, _), eye_points in zip(eyes, found):
+    for (eye, region, contour, mirrored, _), (eye_points, iris) in zip(eyes, found):
         points = eye_points[: len(contour), :2].astype(np.float64)
         if mirrored:
             points[:, 0] = IRIS_SIZE - points[:, 0]
         points -= 0.5  # the net's pixels span [0, 64] (MediaPipe's normalised points); OpenCV's centres are integers
         refined[list(contour), :2] = to_frame(points, eye_crop(region))
-    return refined
+        irises[eye] = eye_iris(eye_points, iris, region, mirrored)
+    return refined, irises
+
+
+def refine_eye_contours(image: np.ndarray, mesh: np.ndarray) -> np.ndarray:
+    """``refine_eyes``' mesh alone."""
+    return refine_eyes(image, mesh)[0]
 
 
 def predict_mesh(image: np.ndarray, region: Region, eyes: bool = True) -> MeshResult:
     """Run the face-mesh net inside ``region`` of ``image`` ((H, W, 3) uint8 RGB); eyes: then refine both eyes'
-    contours with the iris net (``refine_eye_contours``)."""
+    contours with the iris net and keep its irises (``refine_eyes``)."""
     matrix = region.to_crop(MESH_SIZE)
     crop = cv2.warpAffine(image, matrix, (MESH_SIZE, MESH_SIZE), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     tensor = (crop.astype(np.float32) / 255.0)[None]  # (1, 192, 192, 3) in [0, 1]
@@ -397,9 +424,10 @@ def predict_mesh(image: np.ndarray, region: Region, eyes: bool = True) -> MeshRe
     z = points[:, 2] * (region.side / MESH_SIZE)
     mesh = np.concatenate([xy, z[:, None]], axis=1).astype(np.float32)
     presence = float(sigmoid(flag.reshape(-1)[0]))
+    irises = None
     if eyes:
-        mesh = refine_eye_contours(image, mesh)
-    return MeshResult(mesh=mesh, presence=presence, region=region)
+        mesh, irises = refine_eyes(image, mesh)
+    return MeshResult(mesh=mesh, presence=presence, region=region, irises=irises)
 
 
 def sources() -> dict[str, Any]:

@@ -1,7 +1,8 @@
 """The default face detector and tracker: MediaPipe's BlazeFace and face mesh (``landmarks.mesh``), giving the
 468-point mesh and the iBUG-68 points mapped from it (``landmarks.mesh68``). Apache-2.0 models, onnxruntime only.
 
-Tracking (per frame; (H, W, 3) uint8 RGB in, (68, 2) float32 out, the full mesh kept in ``tracker.mesh``):
+Tracking (per frame; (H, W, 3) uint8 RGB in, (68, 2) float32 out, the full mesh kept in ``tracker.mesh`` and the
+iris net's irises in ``tracker.irises``):
 
 1. While tracking, the mesh net runs in the region predicted from the previous frame's mesh (MediaPipe's
    landmarks-to-region: the square 1.5x the mesh's extent, levelled on the eye corners). 3-5 ms.
@@ -43,7 +44,7 @@ def box_area(box: np.ndarray) -> float:
 
 class MeshDetector(FaceDetector):
     """BlazeFace (short range, tiled for small faces) + the 468-point mesh, its eye contours refined by the iris net
-    (``landmarks.mesh.refine_eye_contours``), 68 points mapped from it.
+    (``landmarks.mesh.refine_eyes``), 68 points mapped from it.
 
     min_score: detection probability threshold (MediaPipe's 0.5); min_presence: the mesh net's face
     probability below which a detection is dropped (a detector false positive).
@@ -104,6 +105,7 @@ class MeshTracker(FrameTracker):
 
     def reset(self) -> None:
         self.mesh: np.ndarray | None = None
+        self.irises: np.ndarray | None = None  # the last frame's (2, 4) ``landmarks.mesh.eye_iris`` rows
         self.last_box: np.ndarray | None = None  # kept across losses: prefer the same face afterwards
         self.detections = 0
 
@@ -117,25 +119,26 @@ class MeshTracker(FrameTracker):
         shift = np.linalg.norm((box[:2] + box[2:]) / 2.0 - (old[:2] + old[2:]) / 2.0)
         return bool(shift <= self.max_shift * old_size)
 
-    def _detect(self, frame: np.ndarray) -> np.ndarray | None:
+    def _detect(self, frame: np.ndarray) -> face_mesh.MeshResult | None:
         self.detections += 1
         found = self.detector.meshes(frame)
         if not found:
             return None
         choice = pick_face([mesh_box(result.mesh) for _, result in found], self.last_box, self.face_index)
-        return None if choice is None else found[choice][1].mesh
+        return None if choice is None else found[choice][1]
 
     def update(self, frame: np.ndarray) -> np.ndarray | None:
         """Track one frame. frame: (H, W, 3) uint8 RGB. Returns (68, 2) float32 or None (missing)."""
         frame = self.checked_frame(frame)
-        mesh = None
+        kept = None
         if self.mesh is not None:
             result = face_mesh.predict_mesh(frame, face_mesh.region_from_mesh(self.mesh))
             if result.presence >= self.detector.min_presence and self._plausible(result.mesh, self.mesh):
-                mesh = result.mesh
-        if mesh is None:
-            mesh = self._detect(frame)
-        self.mesh = mesh
+                kept = result
+        if kept is None:
+            kept = self._detect(frame)
+        mesh = self.mesh = None if kept is None else kept.mesh
+        self.irises = None if kept is None else kept.irises
         if mesh is None:
             return None
         self.last_box = mesh_box(mesh)

@@ -536,11 +536,11 @@ class ReenactorBase:
         one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
         reference = DriverReference()
         ahead, tracked = track_driver(info, tracker, LOOK_AHEAD if relative else 0)  # the lids at rest, first
-        reference.look_ahead([points for points, _, _ in ahead], [mesh for _, mesh, _ in ahead])
+        reference.look_ahead([points for points, *_ in ahead], [mesh for _, mesh, *_ in ahead])
         gazes = DriverGaze(self._require_subject().irises[1] if relative else None) if self.eyes == "drawn" else None
         frames = prefetch(tracked)  # decoding and tracking on a thread, a few frames ahead of the synthesis
         index = 0
-        for frame, points, mesh, tracking_seconds in frames:
+        for frame, points, mesh, irises, tracking_seconds in frames:
             started = time.perf_counter() - tracking_seconds
             raw_points = points
             if points is not None and one_euro is not None:
@@ -556,7 +556,7 @@ class ReenactorBase:
                                                         retarget)
             elif one_euro is not None:
                 one_euro.reset()  # never smooth across a gap
-            gaze = None if gazes is None or crop_landmarks is None else gazes(frame, raw_points)
+            gaze = None if gazes is None or crop_landmarks is None else gazes(frame, raw_points, irises)
             stats.add("landmarks", time.perf_counter() - started)
             if crop_landmarks is None:
                 stats.no_face += 1

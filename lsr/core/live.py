@@ -118,7 +118,7 @@ class LiveSession:
             self._last_time = None
             return self.still(NO_FACE_NOTE, started)
         gaps, _ = self.reference.lids(points)  # as detected; a camera has nothing ahead
-        gaze = None if self.gazes is None else self.gazes(frame, points)
+        gaze = None if self.gazes is None else self.gazes(frame, points, getattr(self.tracker, "irises", None))
         if self.one_euro is not None:
             if self._last_time is not None and now > self._last_time:
                 self.one_euro.fps = float(np.clip(1.0 / (now - self._last_time), MIN_FPS, MAX_FPS))

@@ -436,14 +436,16 @@ def iter_driver_frames(info: DriverInfo) -> Iterator[np.ndarray]:
 def track_driver(info: DriverInfo, tracker, look_ahead: int = 0) -> tuple[list, Iterator]:
     """A video or image-folder driver's frames with their faces: (the first ``look_ahead`` frames' faces, tracked
     now, before any is driven; an iterator over every frame that tracks the rest as it goes). A face: (points
-    (68, 2) or None, mesh (468, 3) or None: the mesh tracker's, seconds it took); the iterator gives (frame,
-    *face). The driver is decoded twice where it looks ahead; ``tracker`` tracks each frame once, in order."""
+    (68, 2) or None, mesh (468, 3) or None and irises (2, 4) or None: the mesh tracker's, seconds it took); the
+    iterator gives (frame, *face). The driver is decoded twice where it looks ahead; ``tracker`` tracks each frame
+    once, in order."""
 
-    def track(frame: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None, float]:
+    def track(frame: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, float]:
         started = time.perf_counter()
         points = tracker.update(frame)
-        mesh = getattr(tracker, "mesh", None)  # the mesh tracker's; dlib's gives none
-        return points, None if mesh is None else np.array(mesh), time.perf_counter() - started
+        mesh, irises = getattr(tracker, "mesh", None), getattr(tracker, "irises", None)  # dlib's gives neither
+        return (points, None if mesh is None else np.array(mesh), None if irises is None else np.array(irises),
+                time.perf_counter() - started)
 
     ahead = []
     if look_ahead > 0:

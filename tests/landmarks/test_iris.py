@@ -118,3 +118,20 @@ def test_the_iris_net_finds_the_bundled_speakers_irises_inside_her_eyes():
         assert 0.12 * width < irises[eye, 2] < 0.35 * width
     assert (np.abs(gaze_offsets(irises, points)) < 0.25).all()  # she looks at the camera
     assert np.isnan(find_irises(frame, np.full((68, 2), np.nan))).all()
+
+
+def test_the_mesh_tracker_keeps_the_irises_it_found_refining_the_eyes():
+    """The tracker's iris net pass gives the irises that find_irises would (free for drawn eyes)."""
+    from landmarks.detectors import make_tracker
+    from landmarks.video import iter_frames
+    from lsr.examples import REAL_SOURCE
+
+    tracker = make_tracker("mesh")
+    for frame in list(iter_frames(REAL_SOURCE))[:3]:
+        points = tracker.update(frame)
+    own = find_irises(frame, points)
+    assert tracker.irises.shape == (2, 4) and np.isfinite(tracker.irises).all()
+    assert np.abs(tracker.irises[:, :2] - own[:, :2]).max() < 1.0  # pixels
+    assert np.abs(tracker.irises[:, 3] / own[:, 3] - 1).max() < 0.2  # apertures: over the mesh's corner distance there
+    tracker.update(np.zeros_like(frame))
+    assert tracker.irises is None
