@@ -50,6 +50,11 @@ WHITE_QUANTILE = 0.85
 """An eye's white: this quantile of the grey levels inside its lid polygon."""
 DARK = 0.8
 """Inside the lids, pixels darker than this fraction of the white may be another iris of the blend (``_ghosts``)."""
+IRIS_RAMP = 0.25
+"""A donor pixel is laid fully where it is this fraction of its eye's white darker than the white, not at all where
+it is as bright: the patch's ring of lid or skin around the iris stays out."""
+DONOR_DARK = 0.7
+"""A donor's iris: its centre at most this fraction of its eye's white (``_looks_like_an_iris``)."""
 SCLERA = 1.1
 """An eye is drawn only where the synthesis shows its white: the bright of its lids' inside (``WHITE_QUANTILE``) at
 least this many times the skin around it. A blend that draws the eye shut or narrow has none, and an iris drawn
@@ -139,8 +144,9 @@ class IrisDonor:
 
 
 def iris_donor(frames: np.ndarray, landmarks: np.ndarray) -> IrisDonor | None:
-    """The irises of the shot whose eyes are most open (both found): frames (K, S, S, 3) uint8, landmarks (K, 68, 2)
-    in their pixels -> ``IrisDonor``, or None when no shot has both irises."""
+    """The irises of the shot whose eyes are most open (both found, both dark against their eye's white):
+    frames (K, S, S, 3) uint8, landmarks (K, 68, 2) in their pixels -> ``IrisDonor``, or None when no shot has
+    both."""
     order = np.argsort(-np.array([eye_apertures(points).min() for points in landmarks]), kind="stable")
     for shot in order:
         irises = find_irises(frames[shot], landmarks[shot])
@@ -155,8 +161,19 @@ def iris_donor(frames: np.ndarray, landmarks: np.ndarray) -> IrisDonor | None:
             patches.append(cv2.warpAffine(frames[shot], matrix, (PATCH, PATCH), flags=cv2.INTER_AREA if scale < 1
                                           else cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
             radii.append(radius / _eye_axes(landmarks[shot], eye)[2])
-        return IrisDonor(np.stack(patches), np.array(radii), np.array(whites), int(shot))
+        if all(_looks_like_an_iris(patch, white) for patch, white in zip(patches, whites)):
+            return IrisDonor(np.stack(patches), np.array(radii), np.array(whites), int(shot))
     return None
+
+
+def _looks_like_an_iris(patch: np.ndarray, white: float) -> bool:
+    """A donor patch whose centre (the inner half of the iris) is darker than ``DONOR_DARK`` of its eye's white: on
+    a blurred or lid-covered eye the net still places an iris, and that patch would be lid or skin."""
+    grey = cv2.cvtColor(patch, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    middle = PATCH // 2
+    reach = max(1, round(PATCH / PATCH_SPAN / 2))
+    return bool(np.isfinite(white) and grey[middle - reach:middle + reach, middle - reach:middle + reach].mean()
+                < DONOR_DARK * white)
 
 
 def _white(image: np.ndarray, landmarks: np.ndarray, eye: int) -> float:
@@ -253,9 +270,12 @@ def draw_irises(image: np.ndarray, landmarks: np.ndarray, offsets: np.ndarray, d
         matrix = np.array([[scale, 0.0, PATCH / 2 - 0.5 - scale * local[0]], [0.0, scale, PATCH / 2 - 0.5 - scale * local[1]]])
         iris = cv2.warpAffine(donor.patches[eye], matrix, (shape[1], shape[0]), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                               borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
-        if np.isfinite(donor.whites[eye]) and donor.whites[eye] > 0:  # the donor's lighting to the target's
-            iris = iris * float(np.clip(white / donor.whites[eye], 0.8, 1.25))
-        alpha = (disc * aperture)[..., None]
+        darkness = np.ones(shape, np.float32)
+        if np.isfinite(donor.whites[eye]) and donor.whites[eye] > 0:
+            # only the donor's iris itself: its pixels darker than its eye's white (not the lid or skin around it)
+            darkness = np.clip((donor.whites[eye] - iris.mean(axis=2)) / (IRIS_RAMP * donor.whites[eye]), 0.0, 1.0)
+            iris = iris * float(np.clip(white / donor.whites[eye], 0.8, 1.25))  # the donor's lighting to the target's
+        alpha = (disc * aperture * darkness)[..., None]
         eye_box = alpha * iris + (1.0 - alpha) * clean.astype(np.float32)
         # only inside the aperture (soft at the lids) does the drawn eye replace the synthesis
         keep = aperture[..., None]

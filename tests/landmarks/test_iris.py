@@ -135,3 +135,21 @@ def test_the_mesh_tracker_keeps_the_irises_it_found_refining_the_eyes():
     assert np.abs(tracker.irises[:, 3] / own[:, 3] - 1).max() < 0.2  # apertures: over the mesh's corner distance there
     tracker.update(np.zeros_like(frame))
     assert tracker.irises is None
+
+
+def test_the_donor_is_the_most_open_shot_whose_irises_look_like_irises():
+    from landmarks.detectors import make_detector
+    from landmarks.iris import iris_donor
+    from landmarks.video import iter_frames
+    from lsr.examples import REAL_SOURCE
+
+    frames = list(iter_frames(REAL_SOURCE))[:40:8]
+    detector = make_detector()
+    points = np.stack([detector.detect(frame)[0].landmarks for frame in frames])
+    donor = iris_donor(np.stack(frames), points)
+    assert donor is not None and donor.patches.shape == (2, PATCH, PATCH, 3)
+    assert (0.1 < donor.radii).all() and (donor.radii < 0.35).all() and (donor.whites > 100).all()
+    grey = donor.patches.mean(axis=-1)
+    assert (grey[:, PATCH // 2, PATCH // 2] < 0.7 * donor.whites).all()  # a dark iris at the centre
+    blurred = np.stack([np.full_like(frame, 150) for frame in frames])  # flat skin: the net's irises are no irises
+    assert iris_donor(blurred, points) is None
