@@ -292,3 +292,40 @@ def test_covering_shots_are_the_ones_lsr_reenact_would_choose(rng):
     with pytest.raises(ConfigError, match="shot_choice"):
         protocol.run_protocol([spy], [identity], [3], protocol.FaceAnalysis(_FixedFaceDetector(identity.input_landmarks[1])),
                               progress=False, shot_choice="evenly")
+
+
+class _GazeSpy(_TargetSpy):
+    """A method with drawn eyes: the protocol passes it where each target looks."""
+
+    uses_gazes = True
+
+    def __init__(self, name: str):
+        super().__init__(name)
+        self.gazes = []
+
+    def reenact(self, shots, shot_landmarks, target_landmarks, target_gazes=None):
+        self.gazes.append(np.array(target_gazes))
+        return super().reenact(shots, shot_landmarks, target_landmarks)
+
+
+def test_drawn_eyes_get_the_holdouts_gaze_and_cross_identity_the_drivers_relative_gaze(rng, monkeypatch):
+    import lsr.core.parts
+
+    def fake_gazes(frames, landmarks):  # each frame's mean grey as its gaze: distinct per frame, no iris net
+        values = np.array([frame.mean() / 255.0 for frame in frames])
+        return np.repeat(values[:, None, None], 2, axis=1) * np.array([1.0, 0.5])
+
+    monkeypatch.setattr(lsr.core.parts, "sequence_gazes", fake_gazes)
+    identities = [_posed_identity(rng, "a"), _posed_identity(rng, "b")]
+    spy, plain = _GazeSpy("eyes"), _TargetSpy("plain")
+    analysis = protocol.FaceAnalysis(_FixedFaceDetector(identities[0].holdout_landmarks[2]))
+    protocol.run_protocol([spy, plain], identities, [5], analysis, finetune=False, progress=False)
+    self_a, cross_a = spy.gazes[0], spy.gazes[1]  # identity a: self, then driven by b
+    np.testing.assert_allclose(self_a, fake_gazes(identities[0].holdout_frames, None))
+    from landmarks.expression import pick_anchor
+
+    anchor = pick_anchor(identities[0].input_landmarks.astype(np.float64), (96, 96))
+    driver = fake_gazes(identities[1].holdout_frames, None)
+    source = fake_gazes(identities[0].input_frames[anchor][None], None)[0]
+    np.testing.assert_allclose(cross_a, source + driver - driver[0])  # relative, as lsr reenact moves it
+    assert len(plain.targets) == len(spy.targets)  # a method without drawn eyes is called as before
