@@ -332,3 +332,21 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
                 f"{fmt(row['output_teeth'], 2)} ({fmt(row['driver_teeth'], 2)}) | {row['open_frames']} | "
                 f"{row['judge_no_face']} |")
     return lines
+
+
+def gaze_inputs(targets: np.ndarray, target_landmarks: np.ndarray, sequences: Sequence[Any]
+                ) -> tuple[dict[str, np.ndarray], list[dict[str, np.ndarray]]]:
+    """What a method with drawn eyes is given (``protocol.takes_gazes``): self re-enactment, the hold-outs' own gaze
+    ``{"target_gazes": (T, 2, 2)}``; cross-identity, one such dict per ``cross.CrossSequence``: the driver's gaze
+    as ``lsr reenact`` gives it to the source (``lsr.core.parts.DriverGaze``), the anchor shot's moved by the
+    driver's since its first frame whose irises were found."""
+    from landmarks.iris import retarget_gaze
+    from lsr.core.parts import sequence_gazes
+
+    crossed = []
+    for sequence in sequences:
+        driver = sequence_gazes(sequence.driver_frames, sequence.driver_landmarks)
+        anchor = sequence_gazes(sequence.anchor_shot[None], sequence.anchor_landmarks[None])[0]
+        found = np.flatnonzero(np.isfinite(driver).all(axis=(1, 2)))
+        crossed.append({"target_gazes": driver if not len(found) else retarget_gaze(driver, driver[found[0]], anchor)})
+    return {"target_gazes": sequence_gazes(targets, target_landmarks)}, crossed

@@ -383,15 +383,6 @@ def _add_warp_counts(counts: dict[str, Any], name: str, k: int, kind: str, befor
         table[method] = table.get(method, 0) + value - before.get(method, 0)
 
 
-def _relative_gazes(driver: np.ndarray, source: np.ndarray) -> np.ndarray:
-    """A driver's gazes (T, 2, 2) as ``lsr reenact`` gives them to the source (``lsr.core.parts.DriverGaze``): the
-    source's anchor gaze moved by the driver's since its first frame whose irises were found."""
-    from landmarks.iris import retarget_gaze
-
-    found = np.flatnonzero(np.isfinite(driver).all(axis=(1, 2)))
-    return driver if not len(found) else retarget_gaze(driver, driver[found[0]], source)
-
-
 def _rows_or_none(array: np.ndarray | None, rows: np.ndarray) -> np.ndarray | None:
     return None if array is None else array[rows]
 
@@ -514,15 +505,9 @@ def run_protocol(
             judges = [None if judged_by is None else parts.CrossJudge(
                 judged_by, sequence.driver_frames, sequence.driver_landmarks, shots, shot_landmarks)
                 for sequence, _ in sequences]  # the driver and shots read once, for every method
-            gaze_inputs: dict[str, np.ndarray] = {}  # what drawn eyes get, self and cross (per driver)
-            cross_gazes: list[dict[str, np.ndarray]] = [{} for _ in sequences]
-            if any(takes_gazes(method) for method in methods):
-                from lsr.core.parts import sequence_gazes
-
-                gaze_inputs = {"target_gazes": sequence_gazes(targets, target_landmarks)}
-                anchor_gazes = [sequence_gazes(s.anchor_shot[None], s.anchor_landmarks[None])[0] for s, _ in sequences]
-                cross_gazes = [{"target_gazes": _relative_gazes(sequence_gazes(s.driver_frames, s.driver_landmarks), anchor)}
-                               for (s, _), anchor in zip(sequences, anchor_gazes)]
+            # what drawn eyes get, self and cross (per driver)
+            gaze_inputs, cross_gazes = parts.gaze_inputs(targets, target_landmarks, [s for s, _ in sequences]) if any(
+                takes_gazes(method) for method in methods) else ({}, [{} for _ in sequences])
             mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
             cross_meshes: list[dict[str, np.ndarray]] = [{} for _ in sequences]  # per driver, made once
             if any(takes_meshes(method) for method in methods) and identity.has_meshes:

@@ -315,7 +315,7 @@ def test_drawn_eyes_get_the_holdouts_gaze_and_cross_identity_the_drivers_relativ
         values = np.array([frame.mean() / 255.0 for frame in frames])
         return np.repeat(values[:, None, None], 2, axis=1) * np.array([1.0, 0.5])
 
-    monkeypatch.setattr(lsr.core.parts, "sequence_gazes", fake_gazes)
+    monkeypatch.setattr(lsr.core.parts, "sequence_gazes", fake_gazes)  # read at each call (lsr.eval.parts.gaze_inputs)
     identities = [_posed_identity(rng, "a"), _posed_identity(rng, "b")]
     spy, plain = _GazeSpy("eyes"), _TargetSpy("plain")
     analysis = protocol.FaceAnalysis(_FixedFaceDetector(identities[0].holdout_landmarks[2]))
