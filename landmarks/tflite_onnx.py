@@ -1,7 +1,10 @@
-"""Convert the small TFLite CNNs of MediaPipe's face detector and face mesh to ONNX (conversion time only).
+"""Convert the small TFLite CNNs of MediaPipe's face detector, face mesh, iris net and selfie segmenter to ONNX
+(conversion time only).
 
-The two graphs are plain convolutional nets: CONV_2D, DEPTHWISE_CONV_2D, PRELU / RELU, ADD, MAX_POOL_2D, PAD,
-RESHAPE, CONCATENATION, with float16 weights behind DEQUANTIZE ops. This converter covers exactly that set and
+The graphs are plain convolutional nets: CONV_2D, DEPTHWISE_CONV_2D, PRELU / RELU, ADD, MAX_POOL_2D, PAD,
+RESHAPE, CONCATENATION, with float16 weights behind DEQUANTIZE ops; the selfie segmenter adds HARD_SWISH,
+LOGISTIC, AVERAGE_POOL_2D and MUL (its squeeze-and-excite blocks), RESIZE_BILINEAR and MediaPipe's custom
+Convolution2DTransposeBias. This converter covers exactly that set and
 refuses anything else by name, so a new op never converts silently wrong. Tensors are kept NCHW inside the
 ONNX graph (onnxruntime's native layout): the NHWC input is transposed once at the start, and a tensor goes back
 to NHWC only where an op's semantics need it (RESHAPE, CONCATENATION) and at the outputs, so every output has
@@ -217,6 +220,77 @@ class _Builder:
         scaled = self.node("Mul", [negative, self.add_initializer("alpha", slope)], "prelu_scaled")
         self.set(int(op.Outputs(0)), self.node("Sub", [positive, scaled], "prelu"), "nchw")
 
+    def unary(self, op: Any, onnx_op: str) -> None:
+        """An elementwise op of one input (HARD_SWISH, LOGISTIC), in whatever layout its input is held."""
+        source = int(op.Inputs(0))
+        layout = self.layouts[source]
+        self.set(int(op.Outputs(0)), self.node(onnx_op, [self.value(source, layout)], onnx_op.lower()), layout)
+
+    def average_pool(self, op: Any) -> None:
+        """AVERAGE_POOL_2D; TFLite's SAME padding averages over the pixels inside only (count_include_pad 0)."""
+        source = int(op.Inputs(0))
+        options = self.options(op, "Pool2DOptions")
+        kh, kw = options.FilterHeight(), options.FilterWidth()
+        stride = (options.StrideH(), options.StrideW())
+        _, height, width, _ = self.shape(source)
+        if options.Padding() == self.tflite.Padding.SAME:
+            top, bottom = _same_pads(height, kh, stride[0])
+            left, right = _same_pads(width, kw, stride[1])
+        else:
+            top = bottom = left = right = 0
+        out = self.node("AveragePool", [self.value(source, "nchw")], "avgpool", kernel_shape=[kh, kw],
+                        strides=list(stride), pads=[top, left, bottom, right], count_include_pad=0)
+        self.set(int(op.Outputs(0)), self.activation(out, options.FusedActivationFunction()), "nchw")
+
+    def mul(self, op: Any) -> None:
+        """MUL of two tensors of rank 4 (broadcasting as numpy does: both held NCHW) or of a tensor and a constant."""
+        first, second = int(op.Inputs(0)), int(op.Inputs(1))
+        names = []
+        for index in (first, second):
+            if index in self.names:
+                names.append(self.value(index, "nchw") if len(self.shape(index)) == 4 else self.names[index])
+            else:  # a constant: NHWC -> NCHW for rank 4, else broadcast over the channels last as TFLite does
+                value = self.constant(index)
+                value = value.transpose(_NHWC_TO_NCHW) if value.ndim == 4 else value.reshape(-1)[:, None, None]
+                names.append(self.add_initializer("mul", value.astype(np.float32)))
+        out = self.node("Mul", names, "mul")
+        options = self.options(op, "MulOptions")
+        self.set(int(op.Outputs(0)), self.activation(out, options.FusedActivationFunction()), "nchw")
+
+    def resize_bilinear(self, op: Any) -> None:
+        source, target = int(op.Inputs(0)), int(op.Outputs(0))
+        options = self.options(op, "ResizeBilinearOptions")
+        if options.AlignCorners():
+            mode = "align_corners"
+        elif options.HalfPixelCenters():
+            mode = "half_pixel"
+        else:
+            mode = "asymmetric"  # TFLite's default: source = destination x scale
+        _, height, width, channels = self.shape(target)
+        sizes = self.add_initializer("sizes", np.array([1, channels, height, width], np.int64))
+        out = self.node("Resize", [self.value(source, "nchw"), "", "", sizes], "resize", mode="linear",
+                        coordinate_transformation_mode=mode)
+        self.set(target, out, "nchw")
+
+    def transpose_conv_bias(self, op: Any) -> None:
+        """MediaPipe's custom Convolution2DTransposeBias (its options: padding, stride width, stride height as int32;
+        weights (O, kh, kw, I), bias (O,)) as ONNX ConvTranspose with the TFLite output's size."""
+        source, weights_index, bias_index = (int(v) for v in op.InputsAsNumpy()[:3])
+        padding, stride_w, stride_h = np.frombuffer(op.CustomOptionsAsNumpy().tobytes(), np.int32)[:3]
+        kernel = self.constant(weights_index).transpose(3, 0, 1, 2)  # (I, O, kh, kw)
+        _, height, width, _ = self.shape(int(op.Outputs(0)))
+        _, in_height, in_width, _ = self.shape(source)
+        kh, kw = kernel.shape[2:]
+        if padding == self.tflite.Padding.VALID or (kh <= stride_h and kw <= stride_w):
+            total = (0, 0)
+        else:
+            total = (max((in_height - 1) * stride_h + kh - height, 0), max((in_width - 1) * stride_w + kw - width, 0))
+        pads = [total[0] // 2, total[1] // 2, total[0] - total[0] // 2, total[1] - total[1] // 2]
+        out = self.node("ConvTranspose", [self.value(source, "nchw"), self.add_initializer("w", kernel),
+                                          self.add_initializer("b", self.constant(bias_index))], "deconv",
+                        kernel_shape=[int(kh), int(kw)], strides=[int(stride_h), int(stride_w)], pads=pads)
+        self.set(int(op.Outputs(0)), out, "nchw")
+
     def relu(self, op: Any) -> None:
         source = int(op.Inputs(0))
         layout = self.layouts[source]
@@ -261,12 +335,23 @@ class _Builder:
             "PAD": self.pad,
             "RESHAPE": self.reshape,
             "CONCATENATION": self.concat,
+            "HARD_SWISH": lambda op: self.unary(op, "HardSwish"),
+            "LOGISTIC": lambda op: self.unary(op, "Sigmoid"),
+            "AVERAGE_POOL_2D": self.average_pool,
+            "MUL": self.mul,
+            "RESIZE_BILINEAR": self.resize_bilinear,
         }
         for position in range(self.graph.OperatorsLength()):
             op = self.graph.Operators(position)
             name = _op_name(self.tflite, self.model, op)
             if name == "DEQUANTIZE":  # float16 weight -> float32: folded into the constant it feeds
                 self.constants[int(op.Outputs(0))] = self.constant(int(op.Inputs(0)))
+                continue
+            if name == "CUSTOM":
+                custom = self.model.OperatorCodes(op.OpcodeIndex()).CustomCode().decode()
+                if custom != "Convolution2DTransposeBias":
+                    raise ConversionError(f"TFLite custom op {custom} is not handled by this converter")
+                self.transpose_conv_bias(op)
                 continue
             if name not in handlers:
                 raise ConversionError(f"TFLite op {name} is not handled by this converter")

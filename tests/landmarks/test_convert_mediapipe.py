@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -169,3 +170,32 @@ class TestRebuildFromWheel:
         sparse.write_bytes(cm.read_member(wheel, "mediapipe/modules/face_detection/face_detection_full_range_sparse.tflite"))
         with pytest.raises(ConversionError, match="DENSIFY"):
             convert(sparse)
+
+    def test_the_selfie_segmenter_converts_and_matches_its_original(self, wheel, convert_tools, tmp_path):
+        """MediaPipe's person segmenter (for a matte of what moves with the head: issue 40, item 4): its squeeze-and-
+        excite blocks (HARD_SWISH, LOGISTIC, AVERAGE_POOL_2D, MUL), RESIZE_BILINEAR and the custom transposed
+        convolution convert, and the ONNX graph's matte matches the TFLite original's on a real frame."""
+        import onnxruntime as ort
+        from ai_edge_litert.interpreter import Interpreter
+
+        from landmarks.tflite_onnx import convert
+        from landmarks.video import iter_frames
+        from lsr.examples import REAL_SOURCE
+
+        source = tmp_path / "selfie_segmentation.tflite"
+        source.write_bytes(cm.read_member(wheel, "mediapipe/modules/selfie_segmentation/selfie_segmentation.tflite"))
+        model = convert(source)
+        assert {"HardSwish", "AveragePool", "Resize", "ConvTranspose", "Sigmoid"} <= {n.op_type for n in model.graph.node}
+        frame = next(iter(iter_frames(REAL_SOURCE)))
+        tensor = (cv2.resize(frame, (256, 256), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0)[None]
+        original = Interpreter(model_path=str(source))
+        original.allocate_tensors()
+        original.set_tensor(original.get_input_details()[0]["index"], tensor)
+        original.invoke()
+        expected = original.get_tensor(original.get_output_details()[0]["index"])
+        session = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+        matte = session.run(None, {session.get_inputs()[0].name: tensor})[0]
+        assert matte.shape == expected.shape == (1, 256, 256, 1)
+        assert np.abs(matte - expected).max() < 1e-3
+        person = matte[0, :, :, 0] > 0.5  # the speaker, hair included, against a blue wall
+        assert 0.15 < person.mean() < 0.6 and person[200:, 128].all() and not person[:20, :20].any()
