@@ -66,3 +66,22 @@ def test_the_face_crop_instead_of_the_scene(reenactor, tmp_path):
     assert not first.face and first.image.shape == (reenactor.crop_size, reenactor.crop_size, 3)
     frame = session.step(render_video(45, 1, 256).frames[0])
     assert frame.face and frame.image.shape == (reenactor.crop_size, reenactor.crop_size, 3) and frame.layout is None
+
+
+def test_drawn_eyes_follow_the_cameras_gaze_from_the_trackers_irises(reenactor, tmp_path):
+    from lsr.core.live import LiveSession
+    from lsr.data.synth import render_video
+
+    subject = reenactor.encode_subject(_shots(tmp_path, 46, 2, pad=48), k=2, cache=False)
+    reenactor.eyes = "drawn"
+    try:
+        session = LiveSession(reenactor, subject, paste_back=False, watermark=False)
+        assert session.gazes is not None
+        camera = render_video(47, 3, 256).frames
+        prepared = session.prepare(camera[0])
+        assert prepared.gaze is not None and prepared.gaze.shape == (2, 2)  # the mesh tracker's irises, no rerun
+        assert session.finish(prepared).face and session.step(camera[1]).face
+        session.recentre()
+        assert session.gazes.reference is None
+    finally:
+        reenactor.eyes = "blend"
