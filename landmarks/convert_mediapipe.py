@@ -34,7 +34,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from landmarks import mesh
+from landmarks import mesh, segment
 from landmarks.errors import InputFileError, LandmarksError
 from landmarks.imageio import atomic_output, write_json
 
@@ -50,10 +50,11 @@ MODELS = (
     ("mediapipe/modules/face_detection/face_detection_short_range.tflite", mesh.DETECTOR_FILE),
     ("mediapipe/modules/face_landmark/face_landmark.tflite", mesh.MESH_FILE),
     ("mediapipe/modules/iris_landmark/iris_landmark.tflite", mesh.IRIS_FILE),
+    ("mediapipe/modules/selfie_segmentation/selfie_segmentation.tflite", segment.SEGMENTER_FILE),
 )
 FRAMES_PER_VIDEO = 10
 POINT_TOLERANCE = 0.05  # crop pixels (of 192 for the mesh, 64 for the eyes): far below what anything downstream sees
-SCORE_TOLERANCE = 1e-3  # sigmoid scores: detection and face presence
+SCORE_TOLERANCE = 1e-3  # sigmoid scores: detection and face presence, and the segmenter's matte
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CLIPS = ("../shared/data/clips/tpsmm_driving.mp4",)
 DEFAULT_REAL_GLOB = "../shared/data/real_talking_heads/real0*/**/*.mp4"
@@ -61,10 +62,10 @@ DEFAULT_REAL_COUNT = 2
 RANDOM_SIDE = 256
 
 NOTICE = f"""\
-face_detection_short_range.onnx, face_landmark.onnx and iris_landmark.onnx in this folder are converted from the
-TensorFlow Lite models mediapipe/modules/face_detection/face_detection_short_range.tflite,
-mediapipe/modules/face_landmark/face_landmark.tflite and mediapipe/modules/iris_landmark/iris_landmark.tflite of
-MediaPipe {VERSION}
+face_detection_short_range.onnx, face_landmark.onnx, iris_landmark.onnx and selfie_segmentation.onnx in this folder
+are converted from the TensorFlow Lite models mediapipe/modules/face_detection/face_detection_short_range.tflite,
+mediapipe/modules/face_landmark/face_landmark.tflite, mediapipe/modules/iris_landmark/iris_landmark.tflite and
+mediapipe/modules/selfie_segmentation/selfie_segmentation.tflite of MediaPipe {VERSION}
 (Copyright Google LLC; Apache License, Version 2.0: see LICENSE in this folder).
 
 Changes made: the file format was converted from TensorFlow Lite to ONNX (landmarks/tflite_onnx.py), and the
@@ -208,8 +209,14 @@ def compare_frame(image: np.ndarray, nets: dict[str, tuple[Any, Any]]) -> dict[s
         if len(eyes) != 2:
             raise ParityError("the iris net should give 71 x 3 eye points")
         iris_px = max(iris_px, float(np.linalg.norm(eyes[0][:, :2].astype(np.float64) - eyes[1][:, :2], axis=1).max()))
+    # the segmenter on the whole frame, as landmarks.segment.person_matte gives it
+    small = cv2.resize(image, (segment.SEGMENTER_SIZE, segment.SEGMENTER_SIZE), interpolation=cv2.INTER_AREA)
+    segmenter_in = (small.astype(np.float32) / 255.0)[None]
+    tflite_segmenter, onnx_segmenter = nets[segment.SEGMENTER_FILE]
+    segmenter_diff = _max_abs(tflite_segmenter.run(segmenter_in), _run_onnx(onnx_segmenter, segmenter_in))
     return {
         "detected": detected,
+        "matte": max(segmenter_diff.values()),
         "detector_max_abs": detector_diff,
         "detection_score": score_diff,
         "mesh_max_abs": mesh_diff,
@@ -274,7 +281,7 @@ def check_conversion(tflite_models: dict[str, bytes], onnx_models: dict[str, byt
         rows.append(_summarise("random", [0], [compare_frame(image, nets)]))
         inputs = (f"no video given or found: one seeded random image (numpy default_rng(0), {RANDOM_SIDE}x{RANDOM_SIDE} uint8); "
                   "no face in it, so the mesh saw a centred square crop")
-    keys = ("detection_score", "mesh_point_px", "presence_score", "iris_point_px")
+    keys = ("detection_score", "mesh_point_px", "presence_score", "iris_point_px", "matte")
     worst = {key: max(row[key] for row in rows) for key in keys}
     for key in ("detector_max_abs", "mesh_max_abs", "iris_max_abs"):
         worst[key] = _merge_max(row[key] for row in rows)
@@ -290,7 +297,7 @@ def check_conversion(tflite_models: dict[str, bytes], onnx_models: dict[str, byt
     failed = [f"{key.split('_')[0]} points differ by {worst[key]:.4g} crop px (> {POINT_TOLERANCE})"
               for key in ("mesh_point_px", "iris_point_px") if not worst[key] <= POINT_TOLERANCE]
     failed += [f"{key.replace('_', ' ')}s differ by {worst[key]:.4g} (> {SCORE_TOLERANCE})"
-               for key in ("detection_score", "presence_score") if not worst[key] <= SCORE_TOLERANCE]
+               for key in ("detection_score", "presence_score", "matte") if not worst[key] <= SCORE_TOLERANCE]
     if failed:
         raise ParityError(f"converted nets disagree with the TFLite originals: {'; '.join(failed)}; nothing written")
     return record
@@ -318,6 +325,7 @@ def _summarise(source: str, indices: list[int], results: list[dict[str, Any]]) -
         "presence_score": max(result["presence_score"] for result in results),
         "iris_max_abs": _merge_max(result["iris_max_abs"] for result in results),
         "iris_point_px": max(result["iris_point_px"] for result in results),
+        "matte": max(result["matte"] for result in results),
     }
 
 
@@ -408,7 +416,7 @@ def convert_wheel(wheel: Path | None, out: Path, videos: Sequence[Path],
 
 def summary_table(record: dict[str, Any]) -> str:
     header = ("input", "frames", "faces", "det |d|max", "det score d", "mesh |d|max", "point d px", "presence d",
-              "eye point d px")
+              "eye point d px", "matte d")
     lines = []
     check = record["check"]
     for row in [*check["per_input"], {"source": "all", "frames": sum((r["frames"] for r in check["per_input"]), []),
@@ -417,7 +425,7 @@ def summary_table(record: dict[str, Any]) -> str:
         lines.append((row["source"], str(len(row["frames"])), str(row["faces_detected"]),
                       f"{max(row['detector_max_abs'].values()):.2e}", f"{row['detection_score']:.2e}",
                       f"{max(row['mesh_max_abs'].values()):.2e}", f"{row['mesh_point_px']:.2e}",
-                      f"{row['presence_score']:.2e}", f"{row['iris_point_px']:.2e}"))
+                      f"{row['presence_score']:.2e}", f"{row['iris_point_px']:.2e}", f"{row['matte']:.2e}"))
     widths = [max(len(cells[i]) for cells in [header, *lines]) for i in range(len(header))]
     text = [" | ".join(cell.ljust(width) for cell, width in zip(cells, widths)) for cells in [header, *lines]]
     text.insert(1, "-+-".join("-" * width for width in widths))

@@ -1,0 +1,30 @@
+"""A person's matte: MediaPipe's selfie segmenter on onnxruntime (for issue 40's turn matte: what moves with the
+head, hair included, against what stays).
+
+The net (``selfie_segmentation.onnx``, converted from the same pinned MediaPipe wheel as the face models:
+``landmarks.convert_mediapipe``) takes the whole frame squashed to 256x256 RGB in [0, 1] and returns the
+probability that each pixel is a person. ``person_matte`` resizes it back to the frame's size.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from landmarks.mesh import session
+
+SEGMENTER_FILE = "selfie_segmentation.onnx"
+SEGMENTER_SIZE = 256
+
+
+def person_matte(image: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 RGB -> (H, W) float32 in [0, 1]: how much each pixel is a person (hair and clothes too)."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8 or min(image.shape[:2]) < 1:
+        raise ValueError(f"image must be (H, W, 3) uint8, got {image.shape} {image.dtype}")
+    height, width = image.shape[:2]
+    small = cv2.resize(image, (SEGMENTER_SIZE, SEGMENTER_SIZE),
+                       interpolation=cv2.INTER_AREA if min(height, width) > SEGMENTER_SIZE else cv2.INTER_LINEAR)
+    net = session(SEGMENTER_FILE)
+    matte = net.run(None, {net.get_inputs()[0].name: (small.astype(np.float32) / 255.0)[None]})[0][0, :, :, 0]
+    return np.clip(cv2.resize(matte, (width, height), interpolation=cv2.INTER_LINEAR), 0.0, 1.0).astype(np.float32)
