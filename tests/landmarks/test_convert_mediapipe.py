@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from landmarks import convert_mediapipe as cm
-from landmarks import mesh
+from landmarks import mesh, segment
 
 WHEEL_BYTES = 35_622_638  # size of the pinned wheel: finds it among pip's cache entries without hashing them all
 
@@ -82,7 +82,7 @@ class TestShippedFiles:
     def test_sources_match_the_onnx_files(self):
         record = mesh.sources()
         assert record["source"]["sha256"] == cm.WHEEL_SHA256 and record["source"]["version"] == cm.VERSION
-        shipped = sorted((mesh.DETECTOR_FILE, mesh.MESH_FILE, mesh.IRIS_FILE))
+        shipped = sorted((mesh.DETECTOR_FILE, mesh.MESH_FILE, mesh.IRIS_FILE, segment.SEGMENTER_FILE))
         assert sorted(entry["onnx"] for entry in record["models"]) == shipped
         for entry in record["models"]:
             path = mesh.ASSETS / entry["onnx"]
@@ -111,6 +111,8 @@ class TestShippedFiles:
         worst = record["check"]["max"]
         assert worst["mesh_point_px"] <= cm.POINT_TOLERANCE and worst["iris_point_px"] <= cm.POINT_TOLERANCE
         assert worst["detection_score"] <= cm.SCORE_TOLERANCE and worst["presence_score"] <= cm.SCORE_TOLERANCE
+        assert worst["matte"] <= cm.SCORE_TOLERANCE
+        assert [m["onnx"] for m in record["models"]] == [name for _, name in cm.MODELS]
         assert not [s for s in _strings(record) if s.startswith("/") or "/work/" in s or "/tmp/" in s]
 
     def test_package_data_ships_every_asset(self):
@@ -148,7 +150,7 @@ class TestWithoutWheel:
 
 class TestRebuildFromWheel:
     def test_rebuild_is_byte_identical_to_the_shipped_files(self, rebuilt):
-        for name in (mesh.DETECTOR_FILE, mesh.MESH_FILE, mesh.IRIS_FILE, "LICENSE", "NOTICE"):
+        for name in (mesh.DETECTOR_FILE, mesh.MESH_FILE, mesh.IRIS_FILE, segment.SEGMENTER_FILE, "LICENSE", "NOTICE"):
             assert cm.sha256_file(rebuilt / name) == cm.sha256_file(mesh.ASSETS / name), name
         record = json.loads((rebuilt / "SOURCES.json").read_text())
         assert record["models"] == mesh.sources()["models"]
