@@ -31,6 +31,8 @@ import math
 import cv2
 import numpy as np
 
+from landmarks.part_window import polygon_mask
+
 EYES = ((36, 39, False), (42, 45, True))
 """Per eye of the 68 points, image left first: its corners (outer or inner, left to right in the image) and whether
 the iris net sees it mirrored (the net knows image-left eyes)."""
@@ -184,8 +186,12 @@ def _white(image: np.ndarray, landmarks: np.ndarray, eye: int) -> float:
     box = image[y0:y1, x0:x1]
     if box.size == 0:
         return math.nan
-    inside = _polygon(points - (x0, y0), box.shape[:2]) > 0.5
-    grey = cv2.cvtColor(np.ascontiguousarray(box), cv2.COLOR_RGB2GRAY)
+    inside = polygon_mask(points - (x0, y0), box.shape[:2]) > 0.5
+    return _white_level(cv2.cvtColor(np.ascontiguousarray(box), cv2.COLOR_RGB2GRAY), inside)
+
+
+def _white_level(grey: np.ndarray, inside: np.ndarray) -> float:
+    """The ``WHITE_QUANTILE`` of ``grey`` inside the lids (``inside``, bool); NaN with fewer than 4 pixels there."""
     return float(np.quantile(grey[inside], WHITE_QUANTILE)) if inside.sum() >= 4 else math.nan
 
 
@@ -196,12 +202,6 @@ def retarget_gaze(driver: np.ndarray, driver_reference: np.ndarray, source: np.n
     driver = np.asarray(driver, np.float64)
     shift = np.asarray(source, np.float64) - np.asarray(driver_reference, np.float64)
     return driver + np.where(np.isfinite(shift), shift, 0.0)
-
-
-def _polygon(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    mask = np.zeros(shape, np.uint8)
-    cv2.fillPoly(mask, [np.round(points * 16).astype(np.int32)], 255, lineType=cv2.LINE_AA, shift=4)
-    return mask.astype(np.float32) / 255.0
 
 
 def _skin(grey: np.ndarray, aperture: np.ndarray) -> float:
@@ -249,12 +249,12 @@ def draw_irises(image: np.ndarray, landmarks: np.ndarray, offsets: np.ndarray, d
             continue
         box = result[y0:y1, x0:x1]
         shape = box.shape[:2]
-        aperture = _polygon(lids - (x0, y0), shape)
+        aperture = polygon_mask(lids - (x0, y0), shape)
         grey = cv2.cvtColor(box, cv2.COLOR_RGB2GRAY).astype(np.float32)
         inside = aperture > 0.5
-        if inside.sum() < 4:
+        white = _white_level(grey, inside)
+        if not np.isfinite(white):
             continue
-        white = float(np.quantile(grey[inside], WHITE_QUANTILE))
         if white < SCLERA * _skin(grey, aperture):  # the synthesis shows this eye shut: an iris would sit on the lid
             continue
         local = iris_centre - (x0, y0)

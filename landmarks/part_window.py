@@ -87,8 +87,9 @@ def extract(image: np.ndarray, transform: np.ndarray, size: int) -> np.ndarray:
     return cv2.warpAffine(image, transform, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
-def _polygon(points: np.ndarray, size: int) -> np.ndarray:
-    mask = np.zeros((size, size), np.uint8)
+def polygon_mask(points: np.ndarray, shape: int | tuple[int, int]) -> np.ndarray:
+    """An anti-aliased filled polygon: points (N, 2) in pixels, shape (H, W) or a side -> (H, W) float32 in [0, 1]."""
+    mask = np.zeros((shape, shape) if np.ndim(shape) == 0 else tuple(shape), np.uint8)
     cv2.fillPoly(mask, [np.round(points * 16).astype(np.int32)], 255, lineType=cv2.LINE_AA, shift=4)
     return mask.astype(np.float32) * (1.0 / 255.0)
 
@@ -97,7 +98,7 @@ def lip_masks(window_landmarks: np.ndarray, size: int) -> np.ndarray:
     """(2, size, size) float32 in [0, 1]: the outer-lip polygon and the open mouth (inside the inner lips) of
     landmarks (68, 2) in window pixels. A closed mouth's inner polygon has no area: its mask is (nearly) empty."""
     points = np.asarray(window_landmarks, np.float64)
-    return np.stack([_polygon(points[OUTER_LIPS], size), _polygon(points[INNER_LIPS], size)])
+    return np.stack([polygon_mask(points[OUTER_LIPS], size), polygon_mask(points[INNER_LIPS], size)])
 
 
 def paste_weight(window_landmarks: np.ndarray, size: int, eye_distance: float) -> np.ndarray:
@@ -105,7 +106,7 @@ def paste_weight(window_landmarks: np.ndarray, size: int, eye_distance: float) -
     of ``eye_distance`` (in window pixels), faded to 0 at the window's edge so no step is left there."""
     grow = max(1, round(MOUTH_MARGIN * eye_distance))
     sigma = max(0.5, MOUTH_FEATHER * eye_distance)
-    mask = (_polygon(np.asarray(window_landmarks, np.float64)[OUTER_LIPS], size) * 255).astype(np.uint8)
+    mask = (polygon_mask(np.asarray(window_landmarks, np.float64)[OUTER_LIPS], size) * 255).astype(np.uint8)
     mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1)))
     weight = cv2.GaussianBlur(mask.astype(np.float32) * (1.0 / 255.0), (0, 0), sigma)
     ramp = np.minimum(np.arange(size), np.arange(size)[::-1]).astype(np.float32)

@@ -183,7 +183,8 @@ class _Builder:
                         dilations=list(dilation), pads=[top, left, bottom, right], group=group)
         self.set(int(op.Outputs(0)), self.activation(out, options.FusedActivationFunction()), "nchw")
 
-    def max_pool(self, op: Any) -> None:
+    def pool(self, op: Any, onnx_op: str, **attrs: Any) -> None:
+        """MAX_POOL_2D / AVERAGE_POOL_2D with TFLite's padding made explicit (``attrs``: extra ONNX attributes)."""
         source = int(op.Inputs(0))
         options = self.options(op, "Pool2DOptions")
         kh, kw = options.FilterHeight(), options.FilterWidth()
@@ -194,8 +195,8 @@ class _Builder:
             left, right = _same_pads(width, kw, stride[1])
         else:
             top = bottom = left = right = 0
-        out = self.node("MaxPool", [self.value(source, "nchw")], "pool", kernel_shape=[kh, kw],
-                        strides=list(stride), pads=[top, left, bottom, right])
+        out = self.node(onnx_op, [self.value(source, "nchw")], "pool" if onnx_op == "MaxPool" else "avgpool",
+                        kernel_shape=[kh, kw], strides=list(stride), pads=[top, left, bottom, right], **attrs)
         self.set(int(op.Outputs(0)), self.activation(out, options.FusedActivationFunction()), "nchw")
 
     def add(self, op: Any) -> None:
@@ -221,26 +222,10 @@ class _Builder:
         self.set(int(op.Outputs(0)), self.node("Sub", [positive, scaled], "prelu"), "nchw")
 
     def unary(self, op: Any, onnx_op: str) -> None:
-        """An elementwise op of one input (HARD_SWISH, LOGISTIC), in whatever layout its input is held."""
+        """An elementwise op of one input (RELU, HARD_SWISH, LOGISTIC), in whatever layout its input is held."""
         source = int(op.Inputs(0))
         layout = self.layouts[source]
         self.set(int(op.Outputs(0)), self.node(onnx_op, [self.value(source, layout)], onnx_op.lower()), layout)
-
-    def average_pool(self, op: Any) -> None:
-        """AVERAGE_POOL_2D; TFLite's SAME padding averages over the pixels inside only (count_include_pad 0)."""
-        source = int(op.Inputs(0))
-        options = self.options(op, "Pool2DOptions")
-        kh, kw = options.FilterHeight(), options.FilterWidth()
-        stride = (options.StrideH(), options.StrideW())
-        _, height, width, _ = self.shape(source)
-        if options.Padding() == self.tflite.Padding.SAME:
-            top, bottom = _same_pads(height, kh, stride[0])
-            left, right = _same_pads(width, kw, stride[1])
-        else:
-            top = bottom = left = right = 0
-        out = self.node("AveragePool", [self.value(source, "nchw")], "avgpool", kernel_shape=[kh, kw],
-                        strides=list(stride), pads=[top, left, bottom, right], count_include_pad=0)
-        self.set(int(op.Outputs(0)), self.activation(out, options.FusedActivationFunction()), "nchw")
 
     def mul(self, op: Any) -> None:
         """MUL of two tensors of rank 4 (broadcasting as numpy does: both held NCHW) or of a tensor and a constant."""
@@ -291,11 +276,6 @@ class _Builder:
                         kernel_shape=[int(kh), int(kw)], strides=[int(stride_h), int(stride_w)], pads=pads)
         self.set(int(op.Outputs(0)), out, "nchw")
 
-    def relu(self, op: Any) -> None:
-        source = int(op.Inputs(0))
-        layout = self.layouts[source]
-        self.set(int(op.Outputs(0)), self.node("Relu", [self.value(source, layout)], "relu"), layout)
-
     def pad(self, op: Any) -> None:
         source = int(op.Inputs(0))
         paddings = self.constant(int(op.Inputs(1))).astype(np.int64)  # (4, 2) NHWC (begin, end)
@@ -328,16 +308,17 @@ class _Builder:
         handlers = {
             "CONV_2D": lambda op: self.conv(op, depthwise=False),
             "DEPTHWISE_CONV_2D": lambda op: self.conv(op, depthwise=True),
-            "MAX_POOL_2D": self.max_pool,
+            "MAX_POOL_2D": lambda op: self.pool(op, "MaxPool"),
             "ADD": self.add,
             "PRELU": self.prelu,
-            "RELU": self.relu,
+            "RELU": lambda op: self.unary(op, "Relu"),
             "PAD": self.pad,
             "RESHAPE": self.reshape,
             "CONCATENATION": self.concat,
             "HARD_SWISH": lambda op: self.unary(op, "HardSwish"),
             "LOGISTIC": lambda op: self.unary(op, "Sigmoid"),
-            "AVERAGE_POOL_2D": self.average_pool,
+            # TFLite's SAME padding averages over the pixels inside only
+            "AVERAGE_POOL_2D": lambda op: self.pool(op, "AveragePool", count_include_pad=0),
             "MUL": self.mul,
             "RESIZE_BILINEAR": self.resize_bilinear,
         }

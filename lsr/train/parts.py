@@ -156,13 +156,11 @@ def build_pairs(data: Path, out: Path, weights: Path | None = None, k: int = 8, 
 @dataclasses.dataclass
 class PairSet:
     """Every pair of a folder, as torch tensors on one device (batches are drawn there): synthesis / truth
-    (N, P, P, 3) uint8, window_landmarks (N, 68, 2) float32, the lip masks (N, 2, P, P) and the loss weight
-    (N, 1, P, P) of each pair's landmarks, and whether the target opens its mouth wider than every shot
-    (``beyond``, (N,) bool)."""
+    (N, P, P, 3) uint8, the lip masks (N, 2, P, P) and the loss weight (N, 1, P, P) of each pair's landmarks, and
+    whether the target opens its mouth wider than every shot (``beyond``, (N,) bool)."""
 
     synthesis: "torch.Tensor"
     truth: "torch.Tensor"
-    window_landmarks: "torch.Tensor"
     masks: "torch.Tensor"
     weight: "torch.Tensor"
     beyond: "torch.Tensor"
@@ -192,8 +190,8 @@ def load_pairs(folder: Path, device: str = "cpu") -> PairSet:
     def tensor(values: np.ndarray):
         return torch.from_numpy(np.ascontiguousarray(values)).to(device)
 
-    return PairSet(tensor(arrays["synthesis"]), tensor(arrays["truth"]), tensor(arrays["window_landmarks"]),
-                   tensor(masks), tensor(weight.astype(np.float32)), tensor(arrays["beyond"]))
+    return PairSet(tensor(arrays["synthesis"]), tensor(arrays["truth"]), tensor(masks), tensor(weight.astype(np.float32)),
+                   tensor(arrays["beyond"]))
 
 
 def batch_tensors(pairs: PairSet, indices, flip=None, generator=None):
@@ -205,12 +203,12 @@ def batch_tensors(pairs: PairSet, indices, flip=None, generator=None):
     import torch
 
     device = pairs.synthesis.device
-    indices = torch.as_tensor(np.asarray(indices) if not torch.is_tensor(indices) else indices, device=device).long()
+    indices = torch.as_tensor(indices, device=device).long()
     synthesis = pairs.synthesis[indices].permute(0, 3, 1, 2).float()
     truth = pairs.truth[indices].permute(0, 3, 1, 2).float()
     masks, weight = pairs.masks[indices], pairs.weight[indices]
     if flip is not None:
-        flip = torch.as_tensor(np.asarray(flip) if not torch.is_tensor(flip) else flip, device=device).bool()
+        flip = torch.as_tensor(flip, device=device).bool()
         if bool(flip.any()):
             mirror = flip[:, None, None, None]
             synthesis, truth = torch.where(mirror, synthesis.flip(-1), synthesis), torch.where(mirror, truth.flip(-1), truth)
