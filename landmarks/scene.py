@@ -9,7 +9,10 @@ A frame is layers that move as they do in life; only the face is synthesised:
   target's (the lips and eyelids do not count: they are expression). The warp fades smoothly to none at the
   edge of the head region (``head_weight``), so the neck stretches a little and the body never moves. One
   coherent layer: the hair is the scene's, never an average of disagreeing warps, so it cannot ghost, and the
-  scene's own cheek and chin sit where the target's are, so none peeks out beside the new face;
+  scene's own cheek and chin sit where the target's are, so none peeks out beside the new face. Given the
+  scene's person matte (``SceneLayers``, issue 40's turn matte), only the person moves: the background inside
+  the head region stays where it is (no wave at a turn), and what the moved head uncovers is the background
+  filled in from around it (``background_plate``);
 * **face**: the synthesised crop inside the face mask (the hull of the target's landmarks, with the forehead),
   feathered, and colour-matched to the head layer along the seam (a smooth offset field measured just inside
   the face edge).
@@ -47,6 +50,10 @@ COLOUR_LIMIT = 40.0  # grey levels: larger offsets are lighting the face itself,
 STILL = 0.25  # pixels: a head motion smaller than this leaves the head layer untouched
 HEAD_WARP_INDEX = [*range(0, 36), 36, 39, 42, 45]  # outline, brows, nose, eye corners: not the lips and lids
 HEAD_GRID_CELLS = 48  # the head layer's field is made every side / 48 pixels (at least 4) and interpolated
+PERSON_LEVEL = 0.1  # a matte above this is the person (hair's soft edge included): the plate fills it in ...
+PERSON_REACH = 0.03  # ... and this far around it (fraction of the face side), where the matte's edge is unsure
+PLATE_SIDE = 384  # the plate's fill is made at most this many pixels wide and high
+MOVING = 1.0  # pixels: where the head layer moves this far or more, the matte parts person from background
 
 
 def face_side(landmarks: np.ndarray) -> float:
@@ -166,6 +173,56 @@ def blur(image: np.ndarray, sigma: float) -> np.ndarray:
 
 
 @dataclasses.dataclass
+class SceneLayers:
+    """A scene frame split into what moves with the head and what stays (``background_plate``)."""
+
+    matte: np.ndarray
+    """(H, W) float32 in [0, 1]: how much each pixel is the person (``landmarks.segment.person_matte``)."""
+    plate: np.ndarray
+    """(H, W, 3) uint8: the scene without the person, the background filled in where the person was."""
+
+
+def fill_in(image: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Fill an image where it is unknown from the known pixels around (push-pull: a pyramid of weighted means,
+    each level's holes taken from the next coarser level): (H, W, C) float32, (H, W) float32 weights in [0, 1]
+    -> (H, W, C) float32, equal to ``image`` where ``known`` is 1, smooth across the holes."""
+    levels = []
+    weighted, weight = image * known[..., None], known.astype(np.float32)
+    while min(weight.shape) > 2:
+        levels.append((weighted, weight))
+        weighted, weight = cv2.pyrDown(weighted), cv2.pyrDown(weight)
+    filled = weighted.reshape(-1, image.shape[2]).sum(0) / max(float(weight.sum()), 1e-6)
+    filled = np.broadcast_to(filled, weighted.shape).astype(np.float32)
+    for weighted, weight in reversed(levels):
+        coarse = cv2.resize(filled, weight.shape[::-1], interpolation=cv2.INTER_LINEAR).reshape(weighted.shape)
+        trust = np.minimum(weight, 1.0)[..., None]  # a level's mean where its pixels saw enough known weight
+        filled = weighted / np.maximum(weight, 1e-6)[..., None] * trust + coarse * (1.0 - trust)
+    return filled
+
+
+def background_plate(scene: np.ndarray, scene_landmarks: np.ndarray, matte: np.ndarray) -> SceneLayers:
+    """The scene's layers for ``composite_face``: its person matte, and the background with the person (and a
+    margin of ``PERSON_REACH`` of the face side around the matte's edge) filled in from around (``fill_in``).
+
+    scene: (H, W, 3) uint8; scene_landmarks: (68, 2) frame pixels of its face; matte: (H, W) float32 in [0, 1]."""
+    matte = np.clip(np.asarray(matte, np.float32), 0.0, 1.0)
+    if matte.shape != scene.shape[:2]:
+        raise ValueError(f"the matte must be the scene's size {scene.shape[:2]}, got {matte.shape}")
+    reach = max(1, round(PERSON_REACH * face_side(_check(scene, scene_landmarks, "scene_landmarks"))))
+    person = cv2.dilate((matte > PERSON_LEVEL).astype(np.uint8), cv2.getStructuringElement(
+        cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1)))
+    known = (1 - person).astype(np.float32)
+    height, width = matte.shape
+    shrink = max(1.0, max(height, width) / PLATE_SIDE)  # the fill is smooth: made small, then enlarged
+    small_hw = (max(1, round(width / shrink)), max(1, round(height / shrink)))
+    small = fill_in(cv2.resize(scene, small_hw, interpolation=cv2.INTER_AREA).astype(np.float32),
+                    cv2.resize(known, small_hw, interpolation=cv2.INTER_AREA))
+    filled = cv2.resize(np.clip(np.rint(small), 0, 255).astype(np.uint8), (width, height),
+                        interpolation=cv2.INTER_LINEAR)
+    return SceneLayers(matte, np.where(person[..., None] > 0, filled, scene))  # the background itself, bit for bit
+
+
+@dataclasses.dataclass
 class Composite:
     """What ``composite_face`` made: the frame and, for inspection, its layers' masks (in the frame's box)."""
 
@@ -187,13 +244,15 @@ def _check(frame: np.ndarray, points: np.ndarray, name: str) -> np.ndarray:
 
 
 def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landmarks: np.ndarray,
-                   face_crop: np.ndarray, crop_matrix: np.ndarray) -> Composite:
+                   face_crop: np.ndarray, crop_matrix: np.ndarray, layers: SceneLayers | None = None) -> Composite:
     """Put a synthesised face into a scene frame, the head (hair) following it rigidly (module docstring).
 
     scene: (H, W, 3) uint8 the frame to composite into (the source's anchor shot or source video frame);
     scene_landmarks: (68, 2) the scene's own face, frame pixels;
     target_landmarks: (68, 2) where the face is drawn (the retargeted driving landmarks), frame pixels;
-    face_crop: (C, C, 3) uint8 the synthesis, a crop of the frame under ``crop_matrix`` ((2, 3) frame -> crop).
+    face_crop: (C, C, 3) uint8 the synthesis, a crop of the frame under ``crop_matrix`` ((2, 3) frame -> crop);
+    layers: the scene's person matte and background plate (``background_plate``): only the person moves with the
+    head, the background stays and fills what the head uncovers. None: everything in the head region moves.
     """
     if scene.ndim != 3 or scene.shape[2] != 3 or scene.dtype != np.uint8:
         raise ValueError(f"scene must be (H, W, 3) uint8, got {scene.shape} {scene.dtype}")
@@ -233,6 +292,8 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
         source_y = warp.densify(shift_y * weight)
         source_y += np.arange(y0, y1, dtype=np.float32)[:, None]
         moved_head = cv2.remap(scene, source_x, source_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+        if layers is not None:
+            moved_head = _keep_background(moved_head, layers, source_x, source_y, box)
         del source_x, source_y
         # interpolated, the field leaks a sub-pixel shift just past the ellipses: the scene stays there, bit for bit
         outside = _inside_heads(ellipses, roi_hw, (x0, y0)) == 0
@@ -287,6 +348,21 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     full_alpha = np.zeros(roi_hw, np.float32)
     full_alpha[fy0 - y0 : fy1 - y0, fx0 - x0 : fx1 - x0] = alpha
     return Composite(output, box, full_alpha, motion)
+
+
+def _keep_background(moved_head: np.ndarray, layers: SceneLayers, source_x: np.ndarray, source_y: np.ndarray,
+                     box: tuple[int, int, int, int]) -> np.ndarray:
+    """The moved head layer (the box's pixels) where the moved matte says person; elsewhere the background plate,
+    where the layer moves (``MOVING`` pixels or more; less, the layer stays as it was). (h, w, 3) uint8 -> same."""
+    x0, y0, x1, y1 = box
+    moving = np.hypot(source_x - np.arange(x0, x1, dtype=np.float32)[None, :],
+                      source_y - np.arange(y0, y1, dtype=np.float32)[:, None])
+    moving = np.minimum(moving, MOVING, out=moving) / MOVING
+    moved_matte = cv2.remap(layers.matte, source_x, source_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    background = (1.0 - moved_matte) * moving
+    blended = moved_head.astype(np.float32)
+    blended += background[..., None] * (layers.plate[y0:y1, x0:x1].astype(np.float32) - blended)
+    return np.clip(np.rint(blended), 0, 255).astype(np.uint8)
 
 
 def _within_head(ellipses: list[tuple[np.ndarray, np.ndarray]], shape: tuple[int, int], offset: tuple[int, int]

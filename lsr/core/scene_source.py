@@ -15,11 +15,15 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from lsr.core.sources import SubjectShots
+
+if TYPE_CHECKING:
+    from landmarks.scene import SceneLayers
 
 JPEG_QUALITY = 95
 
@@ -34,14 +38,21 @@ class SceneFrame:
     """(2, 3) frame -> crop transform of that face at the crop side."""
     motion: tuple[float, np.ndarray, np.ndarray] | None
     """Similarity (scale, R, t) from the anchor's crop landmarks to this frame's, crop pixels."""
+    layers: SceneLayers | None = dataclasses.field(default=None, repr=False)
+    """``landmarks.scene.SceneLayers`` of this frame (its person matte and background plate), made by the first
+    ``composite`` and kept: a still scene pays for them once."""
 
     def composite(self, crop_landmarks: np.ndarray, synthesis: np.ndarray) -> np.ndarray:
         """A synthesised face crop (its target landmarks in this frame's crop pixels) put into this frame
-        (``landmarks.scene.composite_face``) -> (H, W, 3) uint8."""
-        from landmarks.scene import composite_face, place_in_frame
+        (``landmarks.scene.composite_face``, the person moving with the head and the background staying)
+        -> (H, W, 3) uint8."""
+        from landmarks.scene import background_plate, composite_face, place_in_frame
+        from landmarks.segment import person_matte
 
+        if self.layers is None:
+            self.layers = background_plate(self.image, self.landmarks, person_matte(self.image))
         return composite_face(self.image, self.landmarks, place_in_frame(crop_landmarks, self.matrix), synthesis,
-                              self.matrix).frame
+                              self.matrix, self.layers).frame
 
     def place(self, crop_landmarks: np.ndarray) -> np.ndarray:
         """Target landmarks in the anchor's crop coordinates -> this frame's crop coordinates (68, 2)."""
@@ -139,7 +150,8 @@ def paste_into_scene(frame, scene, stats):
 
 def paste_into_driver(frame, points: np.ndarray, matrix: np.ndarray, stats):
     """A re-enacted frame (its image the synthesis) with the synthesis composited into its driver frame
-    (``landmarks.scene.composite_face``: the driver's head and scene around the face)."""
+    (``landmarks.scene.composite_face``: the driver's head and scene around the face; the head barely moves,
+    its target being the driver's own face, so no person matte is made)."""
     from landmarks.scene import composite_face, place_in_frame
 
     started = time.perf_counter()

@@ -111,3 +111,86 @@ def test_small_and_close_up_faces_change_nothing_outside_their_head_region(rng, 
     np.testing.assert_array_equal(result.frame[~region], scene[~region])
     nose = np.round(target[30]).astype(int)
     assert np.abs(result.frame[nose[1], nose[0]].astype(int) - 90).max() < 45  # the face is there
+
+
+def _person_scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A scene whose person (a red head disc and hair, matte 1) stands against a blue textured wall (matte 0):
+    (H, W, 3) uint8, (68, 2) face landmarks, (H, W) float32 matte."""
+    import cv2
+
+    scene, points = _scene(rng)
+    wall = scene.astype(np.float32) * [0.2, 0.4, 1.0]  # blue, textured
+    person = np.zeros(SIZE, np.uint8)
+    centre = points.mean(0) - [0.0, 0.15 * face_side(points)]
+    axes = (int(0.22 * face_side(points)), int(0.32 * face_side(points)))  # inside the head region, with wall around
+    cv2.ellipse(person, tuple(int(v) for v in centre), axes, 0, 0, 360, 1, -1)
+    skin = scene.astype(np.float32) * [1.0, 0.4, 0.2]  # red, textured (the hair a warp can be followed on)
+    image = np.where(person[..., None] > 0, skin, wall)
+    return np.clip(image, 0, 255).astype(np.uint8), points, person.astype(np.float32)
+
+
+def test_with_a_matte_the_wall_stays_the_person_moves_and_what_they_uncover_is_wall(rng):
+    from landmarks.scene import background_plate
+
+    scene, points, matte = _person_scene(rng)
+    layers = background_plate(scene, points, matte)
+    away = cv2_dilated(matte, 25) == 0  # the wall away from the person's edge (and the plate's margin)
+    np.testing.assert_array_equal(layers.plate[away], scene[away])
+    assert layers.plate[matte > 0][:, 2].mean() > 2 * layers.plate[matte > 0][:, 0].mean()  # the person: filled with wall
+    shift = 14.0
+    target = points + [shift, 0.0]
+    matrix = crop_transform(target, 128)
+    face = np.full((128, 128, 3), 90, np.uint8)
+    plain = composite_face(scene, points, target, face, matrix).frame
+    result = composite_face(scene, points, target, face, matrix, layers)
+    matted = result.frame
+    region = head_region([points, target], SIZE)
+    x0, y0, x1, y1 = result.box
+    face_layer = np.zeros(SIZE, bool)
+    face_layer[y0:y1, x0:x1] = result.face_alpha > 0
+    np.testing.assert_array_equal(matted[~region], scene[~region])
+    # the wall inside the head region, away from the person where it was and where it is: the scene's, unmoved
+    moved_matte = np.roll(matte, int(shift), axis=1)
+    still_wall = region & away & (cv2_dilated(moved_matte, 25) == 0) & ~face_layer
+    assert still_wall.sum() > 500
+    matted_error = np.abs(matted[still_wall].astype(int) - scene[still_wall]).max(1)
+    plain_error = np.abs(plain[still_wall].astype(int) - scene[still_wall]).max(1)
+    # (bit for bit where the head layer moves a pixel or more; where it moves less, the scene as before)
+    assert (matted_error == 0).mean() > 0.8 and matted_error.mean() < 0.2 * plain_error.mean()  # without: it waves
+    # what the head uncovers (person before, wall after, on its trailing side) is wall: blue, not red
+    uncovered = region & (matte > 0) & (cv2_dilated(moved_matte, 5) == 0) & ~face_layer
+    assert uncovered.sum() > 50
+    red, blue = matted[uncovered][:, 0].astype(float).mean(), matted[uncovered][:, 2].astype(float).mean()
+    assert blue > 2 * red
+    # the hair above the forehead moved with the head as without the matte
+    top = int(points[19, 1] - 0.2 * face_side(points))
+    columns = slice(int(points[27, 0]) - 8 + int(shift), int(points[27, 0]) + int(shift))
+    np.testing.assert_array_equal(matted[top - 3 : top + 3, columns], plain[top - 3 : top + 3, columns])
+
+
+def cv2_dilated(mask: np.ndarray, size: int) -> np.ndarray:
+    import cv2
+
+    return cv2.dilate((mask > 0).astype(np.uint8), np.ones((size, size), np.uint8))
+
+
+def test_fill_in_keeps_what_is_known_and_fills_holes_smoothly_from_around(rng):
+    from landmarks.scene import fill_in
+
+    ramp = np.tile(np.linspace(0, 200, 64, dtype=np.float32), (48, 1))[..., None].repeat(3, 2)
+    known = np.ones((48, 64), np.float32)
+    known[10:30, 20:44] = 0
+    filled = fill_in(ramp, known)
+    np.testing.assert_allclose(filled[known == 1], ramp[known == 1], atol=1e-3)
+    hole = filled[10:30, 20:44, 0]
+    assert ramp[..., 0][known == 1].min() <= hole.min() and hole.max() <= ramp[..., 0][known == 1].max()
+    assert hole[:, -1].mean() > hole[:, 0].mean() + 20  # the ramp carries on across the hole
+    assert np.isfinite(fill_in(ramp, np.zeros_like(known))).all()  # nothing known: no NaN
+
+
+def test_a_plate_needs_a_matte_of_the_scene_size(rng):
+    from landmarks.scene import background_plate
+
+    scene, points, matte = _person_scene(rng)
+    with pytest.raises(ValueError, match="matte"):
+        background_plate(scene, points, matte[:-1])
