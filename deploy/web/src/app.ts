@@ -1,0 +1,2 @@
+// The page (filled in by the web runtime).
+export {};

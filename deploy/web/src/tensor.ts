@@ -1,0 +1,30 @@
+// Arrays as the Python side has them: a flat typed array in row-major (C) order with its shape. Images are
+// (H, W, 3) uint8 RGB (or float32), points (N, 2) float64 (x, y) frame or crop pixels, integer values at pixel
+// centres, and a 2-D affine a (2, 3) row-major matrix [a, b, c, d, e, f] mapping (x, y) to (ax + by + c, dx + ey + f).
+
+export type TypedArray = Uint8Array | Uint8ClampedArray | Int32Array | Float32Array | Float64Array;
+
+export interface Tensor<T extends TypedArray = TypedArray> {
+  data: T;
+  shape: number[];
+}
+
+export type Affine = [number, number, number, number, number, number];
+
+export function tensor<T extends TypedArray>(data: T, shape: number[]): Tensor<T> {
+  const size = shape.reduce((a, b) => a * b, 1);
+  if (data.length !== size) throw new Error(`data of ${data.length} values cannot have shape [${shape}]`);
+  return { data, shape };
+}
+
+/** (N, 2) points -> [x, y] of point i. */
+export function point(points: Tensor, i: number): [number, number] {
+  return [points.data[2 * i], points.data[2 * i + 1]];
+}
+
+export function checkPoints(points: Tensor, count: number | null, name: string): void {
+  if (points.shape.length !== 2 || points.shape[1] !== 2 || (count !== null && points.shape[0] !== count)) {
+    throw new Error(`${name} must be (${count ?? "N"}, 2) points, got [${points.shape}]`);
+  }
+  for (const value of points.data) if (!Number.isFinite(value)) throw new Error(`${name} must be finite`);
+}

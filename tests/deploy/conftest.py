@@ -1,0 +1,74 @@
+"""Fixtures of the deploy tests: ``web``, the web runtime's library (deploy/web) built for Node, to compare each
+browser step with its Python reference: ``web.call("cropTransform", points, 256)``. numpy arrays go over as tensors
+and come back as numpy. Skips without Node.js and npm."""
+
+from __future__ import annotations
+
+import base64
+import json
+import shutil
+import subprocess
+from typing import Any
+
+import pytest
+
+import numpy as np
+
+DTYPES = {"uint8": np.uint8, "int32": np.int32, "float32": np.float32, "float64": np.float64}
+
+
+def _encode(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        array = np.ascontiguousarray(value)
+        if array.dtype.name not in DTYPES:
+            array = array.astype(np.float64)
+        return {"__tensor__": base64.b64encode(array.astype(array.dtype.newbyteorder("<")).tobytes()).decode(),
+                "dtype": array.dtype.name, "shape": list(array.shape)}
+    if isinstance(value, (list, tuple)):
+        return [_encode(item) for item in value]
+    if isinstance(value, dict):
+        return {key: _encode(item) for key, item in value.items()}
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _decode(value: Any) -> Any:
+    if isinstance(value, dict) and "__tensor__" in value:
+        data = np.frombuffer(base64.b64decode(value["__tensor__"]), DTYPES[value["dtype"]])
+        return data.reshape(value["shape"]).copy()
+    if isinstance(value, list):
+        return [_decode(item) for item in value]
+    if isinstance(value, dict):
+        return {key: _decode(item) for key, item in value.items()}
+    return value
+
+
+class WebLibrary:
+    """The built Node bundle (``deploy.web_build.ensure_built``)."""
+
+    def __init__(self, bundle) -> None:
+        self.bundle = bundle
+
+    def calls(self, *calls: tuple[str, list]) -> list[Any]:
+        """Several calls in one Node process: [(function name, [args...]), ...] -> their results."""
+        request = json.dumps({"calls": [{"fn": name, "args": _encode(list(args))} for name, args in calls]})
+        done = subprocess.run(["node", str(self.bundle)], input=request, capture_output=True, text=True, check=False)
+        if done.returncode != 0 or not done.stdout:
+            raise RuntimeError(f"node failed ({done.returncode}): {done.stderr[-2000:]}")
+        reply = json.loads(done.stdout)
+        if "error" in reply:
+            raise RuntimeError(reply["error"])
+        return _decode(reply["results"])
+
+    def call(self, name: str, *args: Any) -> Any:
+        return self.calls((name, list(args)))[0]
+
+
+@pytest.fixture(scope="session")
+def web() -> WebLibrary:
+    from deploy.web_build import ensure_built
+
+    if shutil.which("node") is None or shutil.which("npm") is None:
+        pytest.skip("Node.js and npm are needed for the web runtime's tests")
+    return WebLibrary(ensure_built() / "lsr.node.mjs")
