@@ -2,3 +2,13 @@
 // reference (deploy/README.md lists them in order).
 export * from "./tensor.js";
 export * from "./geometry.js";
+export * from "./raster.js";
+export * from "./smooth.js";
+export * from "./retarget.js";
+export * from "./mouth.js";
+export * from "./facedetect.js";
+export * from "./facemesh.js";
+export * from "./tracker.js";
+export * from "./remap.js";
+export * from "./tps.js";
+export * from "./composite.js";

@@ -1,0 +1,559 @@
+// Composite a re-enacted face into a scene frame: landmarks/scene.py (composite_face, with its SceneLayers path
+// _keep_background, the head layer's rigid + TPS field made on a grid, _inside_heads, _within_head, the face
+// layer's feathered hull alpha and the colour match with blur), with the OpenCV pieces it calls ported to give
+// the same pixels: cv2.ellipse and cv2.fillConvexPoly (drawing.cpp: ellipse2Poly, FillConvexPoly, Line, Line2),
+// cv2.convexHull, cv2.distanceTransform (DIST_L2, 3x3 chamfer) and cv2.GaussianBlur (float32, reflect-101).
+// Outside the head box the frame is the scene's, bit for bit.
+
+import { cropTransform, faceGeometry, invertAffine, similarityAffine, similarityProcrustes,
+         transformPoints } from "./geometry.js";
+import { PixelImage, bilinearAt, densifyGrid, gaussianBlurF32, remapCubic, resizeArea, resizeLinear,
+         roundHalfEven as rint, warpAffineCubic } from "./remap.js";
+import { RIGID_INDEX } from "./retarget.js";
+import { Affine, Tensor, checkPoints, tensor } from "./tensor.js";
+import { tpsGridMap } from "./tps.js";
+
+// landmarks/scene.py
+const HEAD_CENTRE_UP = 0.08;
+const HEAD_SEMI_AXES = [0.36, 0.46];
+const HEAD_INNER = 0.7;
+const FOREHEAD_LIFT = 0.3;
+const FACE_MARGIN = 0.02;
+const FACE_FEATHER = 0.05;
+const COLOUR_BAND = 0.06;
+const COLOUR_SIGMA = 0.12;
+const COLOUR_LIMIT = 40.0;
+const STILL = 0.25;
+const HEAD_WARP_INDEX = [...Array.from({ length: 36 }, (_, i) => i), 36, 39, 42, 45];
+const HEAD_GRID_CELLS = 48;
+const MOVING = 1.0;
+const f32 = Math.fround;
+
+/** The scene split into what moves with the head and what stays (landmarks.scene.SceneLayers, made in Python by
+ * background_plate). matte: (H, W) float32 in [0, 1]; plate: (H, W, 3) uint8. */
+export interface SceneLayers { matte: Tensor<Float32Array>; plate: Tensor<Uint8Array> }
+
+/** What compositeFace made (landmarks.scene.Composite). */
+export interface Composite {
+  frame: Tensor<Uint8Array>;  // (H, W, 3): the scene with the re-enacted head
+  box: Box | null;  // (x0, y0, x1, y1): the only region that differs from the scene
+  faceAlpha: Tensor<Float32Array> | null;  // (y1 - y0, x1 - x0): the face layer's weight
+  headMotion: Affine | null;  // the head's rigid part, the similarity scene -> target on RIGID_INDEX
+}
+
+interface Ellipse { cx: number; cy: number; ax: number; ay: number }
+/** (x0, y0, x1, y1) frame pixels. */
+export type Box = [number, number, number, number];
+
+/** The face's crop side in frame pixels (landmarks.scene.face_side). */
+export function faceSide(landmarks: Tensor): number {
+  const m = cropTransform(landmarks, 1024);
+  return 1024 / Math.sqrt(Math.abs(m[0] * m[4] - m[1] * m[3]));
+}
+
+function headEllipse(points: Tensor): Ellipse {
+  const side = faceSide(points), [left, right, mouth] = faceGeometry(points);
+  const cx = ((left[0] + right[0]) / 2 + mouth[0]) / 2, cy = ((left[1] + right[1]) / 2 + mouth[1]) / 2;
+  return { cx, cy: cy - HEAD_CENTRE_UP * side, ax: HEAD_SEMI_AXES[0] * side, ay: HEAD_SEMI_AXES[1] * side };
+}
+
+/** A head ellipse's radius at frame pixel (x, y), float32 as numpy has it (landmarks.scene._radius_at). */
+function radiusAt(e: Ellipse, x: number, y: number): number {
+  const across = f32(f32(f32(x) - f32(e.cx)) / f32(e.ax)), down = f32(f32(f32(y) - f32(e.cy)) / f32(e.ay));
+  return f32(Math.sqrt(f32(f32(across * across) + f32(down * down))));
+}
+
+function smoothWeight(radius: number): number {
+  const ramp = Math.min(Math.max(f32(f32(1 - radius) / f32(1 - HEAD_INNER)), 0), 1);
+  return f32(ramp * ramp * (3 - 2 * ramp));
+}
+
+function boxOf(ellipses: Ellipse[], height: number, width: number, margin = 2): Box | null {
+  const x0 = Math.max(Math.floor(Math.min(...ellipses.map((e) => e.cx - e.ax))) - margin, 0);
+  const y0 = Math.max(Math.floor(Math.min(...ellipses.map((e) => e.cy - e.ay))) - margin, 0);
+  const x1 = Math.min(Math.ceil(Math.max(...ellipses.map((e) => e.cx + e.ax))) + margin + 1, width);
+  const y1 = Math.min(Math.ceil(Math.max(...ellipses.map((e) => e.cy + e.ay))) + margin + 1, height);
+  return x0 >= x1 || y0 >= y1 ? null : [x0, y0, x1, y1];
+}
+
+/** (x0, y0, x1, y1) bounding every given face's head region, clipped to the frame; null if outside it
+ * (landmarks.scene.head_box). */
+export function headBox(landmarksList: Tensor[], height: number, width: number, margin = 2): Box | null {
+  return boxOf(landmarksList.map(headEllipse), height, width, margin);
+}
+
+// ---- drawing.cpp: filled ellipses and convex polygons, 8-connected ------------------------------------------
+
+const XY_SHIFT = 16, XY_ONE = 1 << XY_SHIFT;
+const SIN_TABLE = Float32Array.from({ length: 451 }, (_, i) => Number(Math.sin((i * Math.PI) / 180).toFixed(7)));
+const shr = (value: number, bits: number) => Math.floor(value / 2 ** bits);  // int64 >> bits
+
+/** clipLine on an (width, height) image, int64 arithmetic: clips p = [x1, y1, x2, y2] in place; false if outside. */
+function clipLine(width: number, height: number, p: number[]): boolean {
+  if (width <= 0 || height <= 0) return false;
+  const right = width - 1, bottom = height - 1;
+  const code = (x: number, y: number) => (x < 0 ? 1 : 0) + (x > right ? 2 : 0) + (y < 0 ? 4 : 0) + (y > bottom ? 8 : 0);
+  let c1 = code(p[0], p[1]), c2 = code(p[2], p[3]);
+  if ((c1 & c2) === 0 && (c1 | c2) !== 0) {
+    if (c1 & 12) {
+      const a = c1 < 8 ? 0 : bottom;
+      p[0] += Math.trunc(((a - p[1]) * (p[2] - p[0])) / (p[3] - p[1]));
+      p[1] = a;
+      c1 = (p[0] < 0 ? 1 : 0) + (p[0] > right ? 2 : 0);
+    }
+    if (c2 & 12) {
+      const a = c2 < 8 ? 0 : bottom;
+      p[2] += Math.trunc(((a - p[3]) * (p[2] - p[0])) / (p[3] - p[1]));
+      p[3] = a;
+      c2 = (p[2] < 0 ? 1 : 0) + (p[2] > right ? 2 : 0);
+    }
+    if ((c1 & c2) === 0 && (c1 | c2) !== 0) {
+      if (c1) {
+        const a = c1 === 1 ? 0 : right;
+        p[1] += Math.trunc(((a - p[0]) * (p[3] - p[1])) / (p[2] - p[0]));
+        p[0] = a;
+        c1 = 0;
+      }
+      if (c2) {
+        const a = c2 === 1 ? 0 : right;
+        p[3] += Math.trunc(((a - p[2]) * (p[3] - p[1])) / (p[2] - p[0]));
+        p[2] = a;
+        c2 = 0;
+      }
+    }
+  }
+  return (c1 | c2) === 0;
+}
+
+/** Line (LineIterator, 8-connected, left to right) of integer points. */
+function line(img: Uint8Array, width: number, height: number, x1: number, y1: number, x2: number, y2: number): void {
+  if (x1 < 0 || x1 >= width || x2 < 0 || x2 >= width || y1 < 0 || y1 >= height || y2 < 0 || y2 >= height) {
+    const p = [x1, y1, x2, y2];
+    if (!clipLine(width, height, p)) return;
+    [x1, y1, x2, y2] = p;
+  }
+  let dx = x2 - x1, dy = y2 - y1;
+  if (dx < 0) { dx = -dx; dy = -dy; x1 = x2; y1 = y2; }
+  const sy = dy < 0 ? -1 : 1;
+  dy = Math.abs(dy);
+  const steep = dy > dx;
+  if (steep) [dx, dy] = [dy, dx];
+  let err = dx - 2 * dy, x = x1, y = y1;
+  for (let i = 0; i <= dx; i++) {
+    img[y * width + x] = 1;
+    const minor = err < 0;
+    err += -2 * dy + (minor ? 2 * dx : 0);
+    if (steep) { y += sy; if (minor) x += 1; } else { x += 1; if (minor) y += sy; }
+  }
+}
+
+/** Line2: a line between points in 1/65536 pixels. */
+function line2(img: Uint8Array, width: number, height: number, p1x: number, p1y: number, p2x: number, p2y: number
+               ): void {
+  const p = [p1x, p1y, p2x, p2y];
+  if (!clipLine(width * XY_ONE, height * XY_ONE, p)) return;
+  let [x1, y1, x2, y2] = p;
+  const dx0 = x2 - x1, dy0 = y2 - y1, ax = Math.abs(dx0), ay = Math.abs(dy0);
+  let xStep: number, yStep: number, ecount: number;
+  const put = (x: number, y: number) => { if (x >= 0 && x < width && y >= 0 && y < height) img[y * width + x] = 1; };
+  if (ax > ay) {
+    const dy = dx0 < 0 ? -dy0 : dy0;
+    if (dx0 < 0) [x1, y1, x2, y2] = [x2, y2, x1, y1];
+    xStep = XY_ONE;
+    yStep = Math.trunc((dy * XY_ONE) / (ax | 1));
+    ecount = shr(x2 - x1, XY_SHIFT);
+  } else {
+    const dx = dy0 < 0 ? -dx0 : dx0;
+    if (dy0 < 0) [x1, y1, x2, y2] = [x2, y2, x1, y1];
+    xStep = Math.trunc((dx * XY_ONE) / (ay | 1));
+    yStep = XY_ONE;
+    ecount = shr(y2 - y1, XY_SHIFT);
+  }
+  x1 += XY_ONE >> 1;
+  y1 += XY_ONE >> 1;
+  put(shr(x2 + (XY_ONE >> 1), XY_SHIFT), shr(y2 + (XY_ONE >> 1), XY_SHIFT));
+  if (ax > ay) {
+    x1 = shr(x1, XY_SHIFT);
+    for (; ecount >= 0; ecount--, x1++, y1 += yStep) put(x1, shr(y1, XY_SHIFT));
+  } else {
+    y1 = shr(y1, XY_SHIFT);
+    for (; ecount >= 0; ecount--, x1 += xStep, y1++) put(shr(x1, XY_SHIFT), y1);
+  }
+}
+
+/** FillConvexPoly (LINE_8): vertices (x, y) in 1/2^shift pixels, value 1. */
+function fillConvexPoly(img: Uint8Array, width: number, height: number, v: number[][], shift: number): void {
+  const npts = v.length, delta = shift ? 1 << (shift - 1) : 0, half = XY_ONE >> 1, up = 2 ** (XY_SHIFT - shift);
+  let p0 = [v[npts - 1][0] * up, v[npts - 1][1] * up];
+  let xmin = v[0][0], xmax = v[0][0], ymin = v[0][1], ymax = v[0][1], imin = 0;
+  for (let i = 0; i < npts; i++) {
+    const [px, py] = v[i];
+    if (py < ymin) { ymin = py; imin = i; }
+    ymax = Math.max(ymax, py); xmax = Math.max(xmax, px); xmin = Math.min(xmin, px);
+    const p = [px * up, py * up];
+    if (shift === 0) line(img, width, height, p0[0] / XY_ONE, p0[1] / XY_ONE, p[0] / XY_ONE, p[1] / XY_ONE);
+    else line2(img, width, height, p0[0], p0[1], p[0], p[1]);
+    p0 = p;
+  }
+  xmin = shr(xmin + delta, shift); xmax = shr(xmax + delta, shift);
+  ymin = shr(ymin + delta, shift); ymax = shr(ymax + delta, shift);
+  if (npts < 3 || xmax < 0 || ymax < 0 || xmin >= width || ymin >= height) return;
+  ymax = Math.min(ymax, height - 1);
+  const edge = [{ idx: imin, di: 1, x: -XY_ONE, dx: 0, ye: ymin },
+                { idx: imin, di: npts - 1, x: -XY_ONE, dx: 0, ye: ymin }];
+  let edges = npts, y = ymin;
+  do {
+    for (const e of edge) {
+      if (y < e.ye) continue;
+      let idx0 = e.idx, idx = idx0 + e.di;
+      if (idx >= npts) idx -= npts;
+      for (; edges-- > 0;) {
+        const ty = shr(v[idx][1] + delta, shift);
+        if (ty > y) {
+          const xs = v[idx0][0] * up, xe = v[idx][0] * up;
+          e.ye = ty;
+          e.dx = Math.trunc(((xe - xs) * 2 + (ty - y)) / (2 * (ty - y)));
+          e.x = xs;
+          e.idx = idx;
+          break;
+        }
+        idx0 = idx;
+        idx += e.di;
+        if (idx >= npts) idx -= npts;
+      }
+    }
+    if (edges < 0) break;
+    if (y >= 0) {
+      const [left, right] = edge[0].x > edge[1].x ? [edge[1], edge[0]] : [edge[0], edge[1]];
+      let xx1 = shr(left.x + half, XY_SHIFT), xx2 = shr(right.x + half, XY_SHIFT);
+      if (xx2 >= 0 && xx1 < width) {
+        xx1 = Math.max(xx1, 0);
+        xx2 = Math.min(xx2, width - 1);
+        img.fill(1, y * width + xx1, y * width + xx2 + 1);
+      }
+    }
+    edge[0].x += edge[0].dx;
+    edge[1].x += edge[1].dx;
+  } while (++y <= ymax);
+}
+
+/** cv2.ellipse(mask, centre, axes, 0, 0, 360, 1, -1, cv2.LINE_8, shift=4) (centre, axes in 1/16 pixels). */
+function fillEllipse(img: Uint8Array, width: number, height: number, cx16: number, cy16: number, ax16: number,
+                     ay16: number): void {
+  const up = 2 ** (XY_SHIFT - 4), cx = cx16 * up, cy = cy16 * up, aw = Math.abs(ax16 * up), ah = Math.abs(ay16 * up);
+  let delta = shr(Math.max(aw, ah) + (XY_ONE >> 1), XY_SHIFT);
+  delta = delta < 3 ? 90 : delta < 10 ? 30 : delta < 15 ? 18 : 5;
+  const points: number[][] = [];
+  for (let i = 0; i < 360 + delta; i += delta) {
+    const angle = Math.min(i, 360);
+    const rounded = [cx + aw * SIN_TABLE[450 - angle], cy + ah * SIN_TABLE[angle]].map((value) => {
+      const high = rint(value / XY_ONE) * XY_ONE;
+      return high + rint(value - high);
+    });
+    const last = points[points.length - 1];
+    if (!last || last[0] !== rounded[0] || last[1] !== rounded[1]) points.push(rounded);
+  }
+  if (points.length === 1) points.splice(0, 1, [cx, cy], [cx, cy]);
+  fillConvexPoly(img, width, height, points, XY_SHIFT);
+}
+
+/** (h, w) uint8 of a region at (x0, y0): 1 inside any head ellipse shrunk by 1.5 pixels
+ * (landmarks.scene._inside_heads). */
+function insideHeads(ellipses: Ellipse[], height: number, width: number, x0: number, y0: number): Uint8Array {
+  const mask = new Uint8Array(height * width);
+  for (const e of ellipses) {
+    fillEllipse(mask, width, height, rint((e.cx - x0) * 16), rint((e.cy - y0) * 16),
+                rint(Math.max(e.ax - 1.5, 0) * 16), rint(Math.max(e.ay - 1.5, 0) * 16));
+  }
+  return mask;
+}
+
+/** cv2.convexHull of integer points (flat x, y): the hull's vertices, no collinear ones. */
+function convexHull(points: number[]): number[][] {
+  const pts: number[][] = [];
+  for (let i = 0; i < points.length; i += 2) pts.push([points[i], points[i + 1]]);
+  pts.sort((a, b) => a[0] - b[0] || a[1] - b[1]);
+  if (pts.length < 3) return pts;
+  const cross = (o: number[], a: number[], b: number[]) =>
+    (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
+  const lower: number[][] = [], upper: number[][] = [];
+  for (const p of pts) {
+    while (lower.length >= 2 && cross(lower[lower.length - 2], lower[lower.length - 1], p) <= 0) lower.pop();
+    lower.push(p);
+  }
+  for (let i = pts.length - 1; i >= 0; i--) {
+    const p = pts[i];
+    while (upper.length >= 2 && cross(upper[upper.length - 2], upper[upper.length - 1], p) <= 0) upper.pop();
+    upper.push(p);
+  }
+  return [...lower.slice(0, -1), ...upper.slice(0, -1)];
+}
+
+// ---- distance transform and blur (landmarks.scene.blur) ----------------------------------------------------
+
+/** cv2.distanceTransform(mask, cv2.DIST_L2, 3): for each nonzero pixel its 3x3-chamfer distance (0.955, 1.3693) to
+ * the nearest zero pixel; (h, w) float32. */
+function distanceTransform(mask: Uint8Array, width: number, height: number, inverted: boolean): Float32Array {
+  const a = f32(0.955), b = f32(1.3693), far = 32768, stride = width + 2;
+  const t = new Float64Array((height + 2) * stride).fill(far);
+  for (let y = 0; y < height; y++) {
+    for (let x = 0, i = (y + 1) * stride + 1; x < width; x++, i++) {
+      if ((mask[y * width + x] !== 0) === inverted) { t[i] = 0; continue; }
+      t[i] = Math.min(t[i - stride - 1] + b, t[i - stride] + a, t[i - stride + 1] + b, t[i - 1] + a, far);
+    }
+  }
+  const out = new Float32Array(width * height);
+  for (let y = height - 1; y >= 0; y--) {
+    for (let x = width - 1, i = (y + 1) * stride + width; x >= 0; x--, i--) {
+      let d = t[i];
+      if (d > a) d = t[i] = Math.min(d, t[i + stride + 1] + b, t[i + stride] + a, t[i + stride - 1] + b, t[i + 1] + a);
+      out[y * width + x] = d;
+    }
+  }
+  return out;
+}
+
+/** Gaussian blur at any sigma, large sigmas on a shrunk copy (landmarks.scene.blur): (h, w, channels) float32. */
+function blur(image: Float32Array, width: number, height: number, channels: number, sigma: number): Float32Array {
+  if (sigma <= 6) return gaussianBlurF32(image, width, height, channels, Math.max(sigma, 0.1));
+  const factor = sigma / 3;
+  const smallW = Math.max(1, rint(width / factor)), smallH = Math.max(1, rint(height / factor));
+  const small = resizeArea({ data: image, width, height, channels }, smallW, smallH);
+  const blurred = gaussianBlurF32(small, smallW, smallH, channels, 3);
+  return resizeLinear({ data: blurred, width: smallW, height: smallH, channels }, width, height);
+}
+
+/** landmarks.scene.blur on a tensor: (h, w[, c]) float32 (the tests compare it with OpenCV's). */
+export function sceneBlur(image: Tensor<Float32Array>, sigma: number): Tensor<Float32Array> {
+  const [height, width, channels = 1] = image.shape;
+  return tensor(blur(Float32Array.from(image.data), width, height, channels, sigma), [...image.shape]);
+}
+
+/** The composite's masks on their own (the tests compare them with OpenCV's): "ellipse" (cv2.ellipse as
+ * _inside_heads calls it: centre (x, y), semi-axes (a, b) in pixels), "hull" (cv2.fillConvexPoly of the
+ * cv2.convexHull of integer points), "distance" (cv2.distanceTransform of the hull's outside, DIST_L2, 3). */
+export function sceneMask(kind: "ellipse" | "hull" | "distance", height: number, width: number, values: number[]
+                          ): Tensor<Uint8Array> | Tensor<Float32Array> {
+  if (kind === "ellipse") {
+    const mask = new Uint8Array(height * width);
+    for (let i = 0; i < values.length; i += 4) {
+      insideHeads([{ cx: values[i], cy: values[i + 1], ax: values[i + 2], ay: values[i + 3] }], height, width, 0, 0)
+        .forEach((v, j) => { mask[j] |= v; });
+    }
+    return tensor(mask, [height, width]);
+  }
+  const hull = new Uint8Array(height * width);
+  fillConvexPoly(hull, width, height, convexHull(values), 0);
+  return kind === "hull" ? tensor(hull, [height, width])
+    : tensor(distanceTransform(hull, width, height, true), [height, width]);
+}
+
+// ---- the composite ------------------------------------------------------------------------------------------
+
+function checkScene(scene: Tensor<Uint8Array>): void {
+  if (scene.shape.length !== 3 || scene.shape[2] !== 3 || !(scene.data instanceof Uint8Array)) {
+    throw new Error(`scene must be (H, W, 3) uint8, got [${scene.shape}]`);
+  }
+}
+
+function rows(points: Tensor, indices: number[], dx: number, dy: number): Tensor<Float64Array> {
+  const out = new Float64Array(indices.length * 2);
+  indices.forEach((index, i) => {
+    out[2 * i] = points.data[2 * index] - dx;
+    out[2 * i + 1] = points.data[2 * index + 1] - dy;
+  });
+  return tensor(out, [indices.length, 2]);
+}
+
+/** The head layer, in place in `output` (the box only): the scene moved by the head's rigid motion plus a TPS that
+ * lands its outline on the target's, fading to none at the head ellipses' edge; with layers, only the person moves
+ * and the background plate fills what it uncovers (landmarks.scene.composite_face's head layer, _keep_background). */
+function headLayer(scene: Tensor<Uint8Array>, output: Uint8Array, scenePoints: Tensor, targetPoints: Tensor,
+                   motion: Affine, ellipses: Ellipse[], box: Box, side: number, layers: SceneLayers | null): void {
+  const [x0, y0, x1, y1] = box, w = x1 - x0, h = y1 - y0, [height, width] = scene.shape;
+  const moved = transformPoints(scenePoints, motion);
+  const step = Math.max(4, rint(side / HEAD_GRID_CELLS));
+  const warp = tpsGridMap(rows(moved, HEAD_WARP_INDEX, x0, y0), rows(targetPoints, HEAD_WARP_INDEX, x0, y0), h, w,
+                          { gridStep: step });
+  const inverse = invertAffine(motion), { xs, ys } = warp.grid, cols = xs.length, count = xs.length * ys.length;
+  const shiftX = new Float64Array(count), shiftY = new Float64Array(count);
+  let largest = 0;
+  for (let j = 0, p = 0; j < ys.length; j++) {
+    for (let i = 0; i < cols; i++, p++) {
+      const mx = warp.mapX[p] + x0, my = warp.mapY[p] + y0;
+      shiftX[p] = inverse[0] * mx + inverse[1] * my + inverse[2] - (xs[i] + x0);
+      shiftY[p] = inverse[3] * mx + inverse[4] * my + inverse[5] - (ys[j] + y0);
+      largest = Math.max(largest, Math.abs(shiftX[p]), Math.abs(shiftY[p]));
+    }
+  }
+  if (!(largest > STILL)) return;
+  for (let j = 0, p = 0; j < ys.length; j++) {
+    for (let i = 0; i < cols; i++, p++) {
+      let weight = 0;
+      for (const e of ellipses) weight = Math.max(weight, smoothWeight(radiusAt(e, xs[i] + x0, ys[j] + y0)));
+      shiftX[p] *= weight;
+      shiftY[p] *= weight;
+    }
+  }
+  const sourceX = densifyGrid(warp.grid, shiftX), sourceY = densifyGrid(warp.grid, shiftY);
+  for (let y = 0, i = 0; y < h; y++) {
+    for (let x = 0; x < w; x++, i++) {
+      sourceX[i] = f32(sourceX[i] + f32(x0 + x));
+      sourceY[i] = f32(sourceY[i] + f32(y0 + y));
+    }
+  }
+  // interpolated, the field leaks a sub-pixel shift just past the ellipses: the scene stays there, bit for bit
+  const inside = insideHeads(ellipses, h, w, x0, y0);
+  const movedHead = remapCubic({ data: scene.data, width, height, channels: 3 }, sourceX, sourceY, "reflect",
+                               new Uint8Array(w * h * 3), inside);
+  const matte: PixelImage<Float32Array> | null = layers
+    ? { data: layers.matte.data, width, height, channels: 1 } : null;
+  for (let y = 0, i = 0; y < h; y++) {
+    for (let x = 0; x < w; x++, i++) {
+      if (!inside[i]) continue;
+      const o = ((y0 + y) * width + x0 + x) * 3;
+      if (!matte || !layers) {
+        output[o] = movedHead[3 * i]; output[o + 1] = movedHead[3 * i + 1]; output[o + 2] = movedHead[3 * i + 2];
+        continue;
+      }
+      const dx = sourceX[i] - (x0 + x), dy = sourceY[i] - (y0 + y);
+      const moving = f32(Math.min(f32(Math.sqrt(dx * dx + dy * dy)), MOVING) / MOVING);
+      const background = f32((1 - f32(bilinearAt(matte, sourceX[i], sourceY[i], "reflect"))) * moving);
+      for (let c = 0; c < 3; c++) {
+        const head = movedHead[3 * i + c];
+        const value = rint(f32(head + f32(background * f32(layers.plate.data[o + c] - head))));
+        output[o + c] = value < 0 ? 0 : value > 255 ? 255 : value;
+      }
+    }
+  }
+}
+
+/** Put a synthesised face into a scene frame, the head (hair) following it (landmarks.scene.composite_face).
+ * scene: (H, W, 3) uint8; sceneLandmarks: (68, 2) the scene's own face; targetLandmarks: (68, 2) where the face is
+ * drawn; faceCrop: (C, C, 3) uint8 the synthesis, a crop of the frame under cropMatrix (frame -> crop); layers: the
+ * scene's person matte and background plate (only the person moves), or null (the whole head region moves). */
+export function compositeFace(scene: Tensor<Uint8Array>, sceneLandmarks: Tensor, targetLandmarks: Tensor,
+                              faceCrop: Tensor<Uint8Array>, cropMatrix: Affine | number[],
+                              layers: SceneLayers | null = null): Composite {
+  checkScene(scene);
+  checkPoints(sceneLandmarks, 68, "scene_landmarks");
+  checkPoints(targetLandmarks, 68, "target_landmarks");
+  const [height, width] = scene.shape;
+  if (layers && (layers.matte.shape[0] !== height || layers.matte.shape[1] !== width
+                 || layers.plate.shape[0] !== height || layers.plate.shape[1] !== width)) {
+    throw new Error(`the layers must be the scene's size [${height}, ${width}]`);
+  }
+  const motion = similarityAffine(similarityProcrustes(sceneLandmarks, targetLandmarks, RIGID_INDEX));
+  const ellipses = [headEllipse(sceneLandmarks), headEllipse(targetLandmarks)];
+  const box = boxOf(ellipses, height, width);
+  const output = Uint8Array.from(scene.data);
+  if (!box) return { frame: tensor(output, [...scene.shape]), box: null, faceAlpha: null, headMotion: null };
+  const [x0, y0, x1, y1] = box, side = faceSide(targetLandmarks);
+  headLayer(scene, output, sceneLandmarks, targetLandmarks, motion, ellipses, box, side, layers);
+  const frame = tensor(output, [...scene.shape]);
+
+  // face layer, in the face's own box (the hull, its margin and feather): the synthesis, exactly inverse-warped
+  const reach = Math.ceil((FACE_MARGIN + FACE_FEATHER) * side) + 2;
+  const [left, right, mouth] = faceGeometry(targetLandmarks), t = targetLandmarks.data;
+  const liftX = FOREHEAD_LIFT * ((left[0] + right[0]) / 2 - mouth[0]);
+  const liftY = FOREHEAD_LIFT * ((left[1] + right[1]) / 2 - mouth[1]);
+  const outline: number[] = [];
+  for (let i = 0; i < 27; i++) outline.push(t[2 * i] + (i >= 17 ? liftX : 0), t[2 * i + 1] + (i >= 17 ? liftY : 0));
+  const outlineX = outline.filter((_, i) => i % 2 === 0), outlineY = outline.filter((_, i) => i % 2 === 1);
+  const fx0 = Math.max(Math.floor(Math.min(...outlineX)) - reach, x0);
+  const fy0 = Math.max(Math.floor(Math.min(...outlineY)) - reach, y0);
+  const fx1 = Math.min(Math.ceil(Math.max(...outlineX)) + reach + 1, x1);
+  const fy1 = Math.min(Math.ceil(Math.max(...outlineY)) + reach + 1, y1);
+  if (fx0 >= fx1 || fy0 >= fy1) return { frame, box, faceAlpha: null, headMotion: motion };
+  const fw = fx1 - fx0, fh = fy1 - fy0, pixels = fw * fh;
+  const c = cropMatrix;
+  const faceMatrix: Affine = [c[0], c[1], c[2] + c[0] * fx0 + c[1] * fy0, c[3], c[4], c[5] + c[3] * fx0 + c[4] * fy0];
+  const cropSide = faceCrop.shape[0];
+  const crop = { data: faceCrop.data, width: faceCrop.shape[1], height: cropSide, channels: 3 };
+  const face = warpAffineCubic(crop, faceMatrix, fw, fh, "replicate");
+  // the crop's inside (edge pixels in from its border) under a bilinear warp: a separable indicator, so per axis
+  const edge = Math.max(1, Math.floor(cropSide / 32));
+  const indicator = (v: number) => {
+    const v0 = Math.floor(v), a = v - v0;
+    return (v0 >= edge && v0 < cropSide - edge ? 1 - a : 0) + (v0 + 1 >= edge && v0 + 1 < cropSide - edge ? a : 0);
+  };
+  const footprint = new Float32Array(pixels);
+  for (let y = 0, i = 0; y < fh; y++) {
+    for (let x = 0; x < fw; x++, i++) {
+      const u = faceMatrix[0] * x + faceMatrix[1] * y + faceMatrix[2];
+      footprint[i] = indicator(u) * indicator(faceMatrix[3] * x + faceMatrix[4] * y + faceMatrix[5]);
+    }
+  }
+  const hull = new Uint8Array(pixels);
+  fillConvexPoly(hull, fw, fh, convexHull(outline.map((v, i) => rint(v - (i % 2 === 0 ? fx0 : fy0)))), 0);
+  const outside = distanceTransform(hull, fw, fh, true);
+  const within = withinHead(ellipses, fw, fh, fx0, fy0);
+  const alpha = new Float32Array(pixels);
+  for (let i = 0; i < pixels; i++) {
+    const inward = FACE_MARGIN * side + (FACE_FEATHER * side) / 2 - outside[i];
+    const ramp = Math.min(Math.max(inward / (FACE_FEATHER * side), 0), 1);
+    alpha[i] = ramp * ramp * (3 - 2 * ramp) * footprint[i] * (within ? within[i] : 1);
+  }
+
+  // colour match: a smooth offset that makes the face's edge agree with the head layer around it
+  const head = new Float32Array(pixels * 3), faceF = new Float32Array(pixels * 3);
+  for (let y = 0, i = 0; y < fh; y++) {
+    for (let x = 0; x < fw; x++, i++) {
+      const o = ((fy0 + y) * width + fx0 + x) * 3;
+      for (let k = 0; k < 3; k++) { head[3 * i + k] = output[o + k]; faceF[3 * i + k] = face[3 * i + k]; }
+    }
+  }
+  const insideHull = distanceTransform(hull, fw, fh, false);
+  const band = new Float32Array(pixels);
+  let bandSum = 0;
+  for (let i = 0; i < pixels; i++) {
+    band[i] = hull[i] > 0 && insideHull[i] < COLOUR_BAND * side && footprint[i] > 0.99 ? 1 : 0;
+    bandSum += band[i];
+  }
+  if (bandSum > 16) {
+    const sigma = COLOUR_SIGMA * side, difference = new Float32Array(pixels * 3), total = [0, 0, 0];
+    for (let i = 0; i < pixels; i++) {
+      for (let k = 0; k < 3; k++) {
+        difference[3 * i + k] = (head[3 * i + k] - faceF[3 * i + k]) * band[i];
+        total[k] += difference[3 * i + k];
+      }
+    }
+    const spread = blur(band, fw, fh, 1, sigma), colour = blur(difference, fw, fh, 3, sigma);
+    for (let i = 0; i < pixels; i++) {
+      for (let k = 0; k < 3; k++) {
+        const offset = spread[i] <= 1e-3 ? total[k] / bandSum : f32(colour[3 * i + k] / Math.max(spread[i], f32(1e-3)));
+        faceF[3 * i + k] += Math.min(Math.max(offset, -COLOUR_LIMIT), COLOUR_LIMIT);
+      }
+    }
+  }
+  for (let y = 0, i = 0; y < fh; y++) {  // head + (face - head) * alpha
+    for (let x = 0; x < fw; x++, i++) {
+      const o = ((fy0 + y) * width + fx0 + x) * 3;
+      for (let k = 0; k < 3; k++) {
+        const value = rint(f32(f32(f32(faceF[3 * i + k] - head[3 * i + k]) * alpha[i]) + head[3 * i + k]));
+        output[o + k] = value < 0 ? 0 : value > 255 ? 255 : value;
+      }
+    }
+  }
+  const fullAlpha = new Float32Array((y1 - y0) * (x1 - x0));
+  for (let y = 0; y < fh; y++) {
+    fullAlpha.set(alpha.subarray(y * fw, (y + 1) * fw), (fy0 - y0 + y) * (x1 - x0) + fx0 - x0);
+  }
+  return { frame, box, faceAlpha: tensor(fullAlpha, [y1 - y0, x1 - x0]), headMotion: motion };
+}
+
+/** 1 inside the head regions, ramping to 0 over their outermost 5 %; null when the whole box lies inside one of
+ * them (landmarks.scene._within_head). */
+function withinHead(ellipses: Ellipse[], width: number, height: number, x0: number, y0: number): Float32Array | null {
+  const corners = [[x0, y0], [x0 + width - 1, y0], [x0, y0 + height - 1], [x0 + width - 1, y0 + height - 1]];
+  if (ellipses.some((e) => corners.every(([x, y]) => radiusAt(e, x, y) <= f32(0.95)))) return null;
+  const out = new Float32Array(width * height);
+  for (let y = 0, i = 0; y < height; y++) {
+    for (let x = 0; x < width; x++, i++) {
+      let radius = Infinity;
+      for (const e of ellipses) radius = Math.min(radius, radiusAt(e, x0 + x, y0 + y));
+      out[i] = Math.min(Math.max(f32(f32(1 - radius) / f32(0.05)), 0), 1);
+    }
+  }
+  return out;
+}

@@ -1,0 +1,433 @@
+// The mouth from the nearest warped shot over the synthesis, as the live session finishes a frame with mouth
+// "nearest": lsr/core/parts.py (finish_mouth) and landmarks/nearest_mouth.py (mouth_weight, mouth_strength, mismatch,
+// keep_nearest_mouth). The region's mask is drawn as OpenCV draws it (cv2.fillPoly, LINE_AA, shift 2: its LineAA
+// edges and scan-line fill, ported from imgproc/src/drawing.cpp), grown by cv2.dilate with cv2's elliptic element and
+// feathered by cv2.GaussianBlur (float32, reflect-101 border); the blend in float32 as numpy computes it.
+
+import { Tensor, tensor } from "./tensor.js";
+import { interOcularDistance, mouthOpening } from "./retarget.js";
+
+export const MOUTH_MARGIN = 0.15;
+export const MOUTH_FEATHER = 0.04;
+export const MISMATCH: [number, number] = [15.0, 25.0];
+export const CLOSED_MOUTH = 0.05;
+
+const f32 = Math.fround;
+
+/** numpy.rint / Python round: to the nearest integer, ties to even. */
+function roundHalfEven(x: number): number {
+  const r = Math.round(x);
+  return r - x === 0.5 && r % 2 !== 0 ? r - 1 : r;
+}
+
+// ------------------------------------------------------------------------------ cv2.fillPoly(LINE_AA), 1 channel
+
+const XY_SHIFT = 16, XY_ONE = 1 << XY_SHIFT;
+const SLOPE_CORR = [181, 181, 181, 182, 182, 183, 184, 185, 187, 188, 190, 192, 194, 196, 198, 201,
+  203, 206, 209, 211, 214, 218, 221, 224, 227, 231, 235, 238, 242, 246, 250, 254];
+const FILTER_TABLE = [168, 177, 185, 194, 202, 210, 218, 224, 231, 236, 241, 246, 249, 252, 254, 254,
+  254, 254, 252, 249, 246, 241, 236, 231, 224, 218, 210, 202, 194, 185, 177, 168,
+  158, 149, 140, 131, 122, 114, 105, 97, 89, 82, 75, 68, 62, 56, 50, 45,
+  40, 36, 32, 28, 25, 22, 19, 16, 14, 12, 11, 9, 8, 7, 5, 5];
+
+/** C's int64 arithmetic right shift by 16 (floor division), exact for any safe integer. */
+function shr16(value: number): number {
+  return Math.floor(value / XY_ONE);
+}
+
+/** cv::clipLine(Size2l, ...): the segment clipped to [0, width-1] x [0, height-1]; false when outside. */
+function clipLine(width: number, height: number, p: number[]): boolean {
+  const right = width - 1, bottom = height - 1;
+  if (width <= 0 || height <= 0) return false;
+  let [x1, y1, x2, y2] = p;
+  let c1 = +(x1 < 0) + +(x1 > right) * 2 + +(y1 < 0) * 4 + +(y1 > bottom) * 8;
+  let c2 = +(x2 < 0) + +(x2 > right) * 2 + +(y2 < 0) * 4 + +(y2 > bottom) * 8;
+  if ((c1 & c2) === 0 && (c1 | c2) !== 0) {
+    let a: number;
+    if (c1 & 12) {
+      a = c1 < 8 ? 0 : bottom;
+      x1 += Math.trunc(((a - y1) * (x2 - x1)) / (y2 - y1));
+      y1 = a;
+      c1 = +(x1 < 0) + +(x1 > right) * 2;
+    }
+    if (c2 & 12) {
+      a = c2 < 8 ? 0 : bottom;
+      x2 += Math.trunc(((a - y2) * (x2 - x1)) / (y2 - y1));
+      y2 = a;
+      c2 = +(x2 < 0) + +(x2 > right) * 2;
+    }
+    if ((c1 & c2) === 0 && (c1 | c2) !== 0) {
+      if (c1) {
+        a = c1 === 1 ? 0 : right;
+        y1 += Math.trunc(((a - x1) * (y2 - y1)) / (x2 - x1));
+        x1 = a;
+        c1 = 0;
+      }
+      if (c2) {
+        a = c2 === 1 ? 0 : right;
+        y2 += Math.trunc(((a - x2) * (y2 - y1)) / (x2 - x1));
+        x2 = a;
+        c2 = 0;
+      }
+    }
+  }
+  p[0] = x1; p[1] = y1; p[2] = x2; p[3] = y2;
+  return (c1 | c2) === 0;
+}
+
+/** cv::LineAA on a 1-channel uint8 image: points in XY_SHIFT fixed point. */
+function lineAA(img: Uint8Array, width: number, height: number, p: number[], color: number): void {
+  if (!clipLine(width * XY_ONE, height * XY_ONE, p)) return;
+  let [x1, y1, x2, y2] = p;
+  let dx = x2 - x1, dy = y2 - y1;
+  const ax = Math.abs(dx), ay = Math.abs(dy);
+  let xStep: number, yStep: number, ecount: number, slope: number, i: number, j: number;
+  if (ax > ay) {
+    if (dx < 0) { dy = -dy; [x1, x2] = [x2, x1]; [y1, y2] = [y2, y1]; }
+    xStep = XY_ONE;
+    yStep = Math.trunc((dy * XY_ONE) / (ax % 2 === 1 ? ax : ax + 1));
+    x2 += XY_ONE;
+    ecount = shr16(x2) - shr16(x1);
+    const frac = -(x1 & (XY_ONE - 1));
+    y1 += shr16(yStep * frac) + (XY_ONE >> 1);
+    slope = (yStep >> (XY_SHIFT - 5)) & 0x3f;
+    slope ^= yStep < 0 ? 0x3f : 0;
+    i = (x1 >> (XY_SHIFT - 7)) & 0x78;
+    j = (x2 >> (XY_SHIFT - 7)) & 0x78;
+  } else {
+    if (dy < 0) { dx = -dx; [x1, x2] = [x2, x1]; [y1, y2] = [y2, y1]; }
+    xStep = Math.trunc((dx * XY_ONE) / (ay % 2 === 1 ? ay : ay + 1));
+    yStep = XY_ONE;
+    y2 += XY_ONE;
+    ecount = shr16(y2) - shr16(y1);
+    const frac = -(y1 & (XY_ONE - 1));
+    x1 += shr16(xStep * frac) + (XY_ONE >> 1);
+    slope = (xStep >> (XY_SHIFT - 5)) & 0x3f;
+    slope ^= xStep < 0 ? 0x3f : 0;
+    i = (y1 >> (XY_SHIFT - 7)) & 0x78;
+    j = (y2 >> (XY_SHIFT - 7)) & 0x78;
+  }
+  slope = slope & 0x20 ? 0x100 : SLOPE_CORR[slope];
+  const t0 = slope << 7, t1 = ((0x78 - i) | 4) * slope, t2 = (j | 4) * slope;
+  const ep = [0, 0, 0, 0, 0, 0, 0, 0, slope];
+  ep[1] = ep[3] = (((((j - i) & 0x78) | 4) * slope) >> 8) & 0x1ff;
+  ep[2] = (t1 >> 8) & 0x1ff;
+  ep[4] = (((((j - i) + 0x80) | 4) * slope) >> 8) & 0x1ff;
+  ep[5] = ((t1 + t0) >> 8) & 0x1ff;
+  ep[6] = (t2 >> 8) & 0x1ff;
+  ep[7] = ((t2 + t0) >> 8) & 0x1ff;
+  const put = (x: number, y: number, a: number): void => {
+    const at = y * width + x;
+    let v = img[at];
+    v += ((color - v) * a + 127) >> 8;
+    v += ((color - v) * a + 127) >> 8;
+    img[at] = v & 0xff;
+  };
+  let scount = 0;
+  const corr = (): number => ep[(((+(scount >= 2) + 1) & (scount | 2)) * 3) + ((+(ecount >= 2) + 1) & (ecount | 2))];
+  if (ax > ay) {
+    for (let x = shr16(x1); ecount >= 0; x++, y1 += yStep, scount++, ecount--) {
+      if (x < 0 || x >= width) continue;
+      const y = shr16(y1) - 1, epCorr = corr(), dist = (y1 >> (XY_SHIFT - 5)) & 31;
+      if (y >= 0 && y < height) put(x, y, ((epCorr * FILTER_TABLE[dist + 32]) >> 8) & 0xff);
+      if (y + 1 >= 0 && y + 1 < height) put(x, y + 1, ((epCorr * FILTER_TABLE[dist]) >> 8) & 0xff);
+      if (y + 2 >= 0 && y + 2 < height) put(x, y + 2, ((epCorr * FILTER_TABLE[63 - dist]) >> 8) & 0xff);
+    }
+  } else {
+    for (let y = shr16(y1); ecount >= 0; y++, x1 += xStep, scount++, ecount--) {
+      if (y < 0 || y >= height) continue;
+      const x = shr16(x1) - 1, epCorr = corr(), dist = (x1 >> (XY_SHIFT - 5)) & 31;
+      if (x >= 0 && x < width) put(x, y, ((epCorr * FILTER_TABLE[dist + 32]) >> 8) & 0xff);
+      if (x + 1 >= 0 && x + 1 < width) put(x + 1, y, ((epCorr * FILTER_TABLE[dist]) >> 8) & 0xff);
+      if (x + 2 >= 0 && x + 2 < width) put(x + 2, y, ((epCorr * FILTER_TABLE[63 - dist]) >> 8) & 0xff);
+    }
+  }
+}
+
+interface PolyEdge { y0: number; y1: number; x: number; dx: number }
+
+/** cv2.fillPoly(img, [points], color, cv2.LINE_AA, shift) on a 1-channel uint8 image: the anti-aliased outline
+ * (CollectPolyEdges' LineAA per edge), then the scan-line fill of the interior (FillEdgeCollection).
+ * points: flat (x, y) integers in 1/2^shift pixels. */
+function fillPolyAA(img: Uint8Array, width: number, height: number, points: Int32Array, color: number,
+                    shift: number): void {
+  const count = points.length / 2, delta = (1 << shift) >> 1, up = 2 ** (XY_SHIFT - shift), down = 2 ** shift;
+  const edges: PolyEdge[] = [];
+  let x0 = points[2 * count - 2] * up, y0 = Math.floor((points[2 * count - 1] + delta) / down);
+  for (let k = 0; k < count; k++) {
+    const x1 = points[2 * k] * up, y1 = Math.floor((points[2 * k + 1] + delta) / down);
+    lineAA(img, width, height, [x0, y0 * XY_ONE, x1, y1 * XY_ONE], color);
+    if (y0 !== y1) {
+      const dx = Math.trunc((x1 - x0) / (y1 - y0));
+      edges.push(y0 < y1 ? { y0, y1, x: x0, dx } : { y0: y1, y1: y0, x: x1, dx });
+    }
+    x0 = x1;
+    y0 = y1;
+  }
+  if (edges.length < 2) return;
+  let yMin = Infinity, yMax = -Infinity, xMin = Infinity, xMax = -Infinity;
+  for (const e of edges) {
+    const xEnd = e.x + (e.y1 - e.y0) * e.dx;
+    yMin = Math.min(yMin, e.y0); yMax = Math.max(yMax, e.y1);
+    xMin = Math.min(xMin, e.x, xEnd); xMax = Math.max(xMax, e.x, xEnd);
+  }
+  if (yMax < 0 || yMin >= height || xMax < 0 || xMin >= width * XY_ONE) return;
+  yMax = Math.min(yMax, height);
+  // Each scan line fills between consecutive pairs of the edges crossing it (y0 <= y < y1), ordered by their x there:
+  // FillEdgeCollection's active-edge list, whose x advance by dx per line.
+  const xs: number[] = [];
+  for (let y = yMin; y < yMax; y++) {
+    xs.length = 0;
+    for (const e of edges) if (e.y0 <= y && y < e.y1) xs.push(e.x + (y - e.y0) * e.dx);
+    if (y < 0) continue;
+    xs.sort((a, b) => a - b);
+    for (let k = 0; k + 1 < xs.length; k += 2) {
+      let left = shr16(xs[k] + XY_ONE - 1), right = shr16(xs[k + 1]);
+      if (left < width && right >= 0) {
+        left = Math.max(left, 0);
+        right = Math.min(right, width - 1);
+        img.fill(color, y * width + left, y * width + right + 1);
+      }
+    }
+  }
+}
+
+// ------------------------------------------------------------------------ cv2.dilate (ellipse), cv2.GaussianBlur
+
+/** cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2r + 1, 2r + 1))), constant (ignored) border. */
+function dilateEllipse(src: Uint8Array, width: number, height: number, r: number): Uint8Array {
+  const halfWidths: number[] = []; // per kernel row dy = -r..r, the half width of its run of ones
+  const inv = r ? 1.0 / (r * r) : 0;
+  for (let dy = -r; dy <= r; dy++) halfWidths.push(roundHalfEven(r * Math.sqrt((r * r - dy * dy) * inv)));
+  // rowMax[h][y * width + x]: max of row y over [x - h, x + h], built up from h = 0
+  const rowMax: Uint8Array[] = [src];
+  for (let h = 1; h <= r; h++) {
+    const previous = rowMax[h - 1], next = new Uint8Array(previous);
+    for (let y = 0; y < height; y++) {
+      const row = y * width;
+      for (let x = 0; x < width; x++) {
+        let v = next[row + x];
+        if (x - h >= 0 && src[row + x - h] > v) v = src[row + x - h];
+        if (x + h < width && src[row + x + h] > v) v = src[row + x + h];
+        next[row + x] = v;
+      }
+    }
+    rowMax.push(next);
+  }
+  const out = new Uint8Array(width * height);
+  for (let y = 0; y < height; y++) {
+    for (let k = 0; k < halfWidths.length; k++) {
+      const sy = y + k - r;
+      if (sy < 0 || sy >= height) continue;
+      const from = rowMax[Math.min(halfWidths[k], r)], row = sy * width, at = y * width;
+      for (let x = 0; x < width; x++) if (from[row + x] > out[at + x]) out[at + x] = from[row + x];
+    }
+  }
+  return out;
+}
+
+/** cv::getGaussianKernel(n, sigma, CV_32F) for sigma > 0 (its bit-exact double sums, then float32). */
+function gaussianKernel(n: number, sigma: number): Float32Array {
+  const scale = -0.125 / (sigma * sigma), half = (n - 1) >> 1, values: number[] = [];
+  let sum = 0;
+  for (let i = 0, x = 1 - n; i < half; i++, x += 2) {
+    const t = Math.exp(x * x * scale);
+    values.push(t);
+    sum += t;
+  }
+  sum = sum * 2 + 1;
+  if ((n & 1) === 0) sum += 1;
+  const mul = 1 / sum, kernel = new Float32Array(n);
+  for (let i = 0; i < half; i++) kernel[i] = kernel[n - 1 - i] = values[i] * mul;
+  kernel[half] = mul;
+  if ((n & 1) === 0) kernel[half + 1] = mul;
+  return kernel;
+}
+
+/** cv::borderInterpolate(p, len, BORDER_REFLECT_101). */
+function reflect101(p: number, len: number): number {
+  if (len === 1) return 0;
+  while (p < 0 || p >= len) p = p < 0 ? -p : 2 * len - 2 - p;
+  return p;
+}
+
+/** cv2.GaussianBlur(src float32, (0, 0), sigma): separable, kernel side cvRound(8 sigma + 1) | 1, reflect-101. */
+function gaussianBlur(src: Float32Array, width: number, height: number, sigma: number): Float32Array {
+  const n = roundHalfEven(sigma * 8 + 1) | 1, kernel = gaussianKernel(n, sigma), anchor = n >> 1;
+  const rows = new Float32Array(width * height), out = new Float32Array(width * height);
+  const xIndex = new Int32Array(width * n);
+  for (let x = 0; x < width; x++) for (let k = 0; k < n; k++) xIndex[x * n + k] = reflect101(x + k - anchor, width);
+  for (let y = 0; y < height; y++) {
+    const row = y * width;
+    for (let x = 0; x < width; x++) {
+      let s = 0;
+      for (let k = 0; k < n; k++) s += kernel[k] * src[row + xIndex[x * n + k]];
+      rows[row + x] = s;
+    }
+  }
+  const column = new Float64Array(width);
+  for (let y = 0; y < height; y++) {
+    column.fill(0);
+    for (let k = 0; k < n; k++) {
+      const weight = kernel[k], from = reflect101(y + k - anchor, height) * width;
+      for (let x = 0; x < width; x++) column[x] += weight * rows[from + x];
+    }
+    out.set(column, y * width);
+  }
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------- nearest mouth
+
+/** The mouth region's weight over its box (landmarks.nearest_mouth.mouth_weight). */
+export interface MouthRegion {
+  /** (y1 - y0, x1 - x0) float32 in [0, 1]. */
+  weight: Tensor<Float32Array>;
+  /** [x0, y0, x1, y1] in the image's pixels. */
+  box: [number, number, number, number];
+}
+
+/** The mouth region: the target's outer-lip polygon grown by MOUTH_MARGIN and feathered by MOUTH_FEATHER (of its
+ * eye distance) over its bounding box (landmarks.nearest_mouth.mouth_weight). landmarks (68, 2) pixels of an image
+ * height x width -> the region, or null when the landmarks are not finite or the region lies outside the image. */
+export function mouthWeight(landmarks: Tensor, height: number, width: number): MouthRegion | null {
+  const p = landmarks.data;
+  if (landmarks.shape.length !== 2 || landmarks.shape[0] !== 68 || landmarks.shape[1] !== 2) {
+    throw new Error(`landmarks must be (68, 2), got [${landmarks.shape}]`);
+  }
+  for (const value of p) if (!Number.isFinite(value)) return null;
+  const eyes = interOcularDistance(p);
+  const grow = Math.max(1, roundHalfEven(MOUTH_MARGIN * eyes)), sigma = Math.max(0.5, MOUTH_FEATHER * eyes);
+  const reach = grow + Math.ceil(3 * sigma) + 1;
+  let minX = Infinity, minY = Infinity, maxX = -Infinity, maxY = -Infinity;
+  for (let i = 48; i < 60; i++) {
+    minX = Math.min(minX, p[2 * i]); maxX = Math.max(maxX, p[2 * i]);
+    minY = Math.min(minY, p[2 * i + 1]); maxY = Math.max(maxY, p[2 * i + 1]);
+  }
+  const x0 = Math.max(Math.floor(minX) - reach, 0), y0 = Math.max(Math.floor(minY) - reach, 0);
+  const x1 = Math.min(Math.ceil(maxX) + reach + 1, width), y1 = Math.min(Math.ceil(maxY) + reach + 1, height);
+  if (x1 <= x0 || y1 <= y0) return null;
+  const w = x1 - x0, h = y1 - y0, mask = new Uint8Array(w * h), polygon = new Int32Array(24);
+  for (let i = 0; i < 12; i++) {
+    polygon[2 * i] = roundHalfEven((p[2 * (48 + i)] - x0) * 4);
+    polygon[2 * i + 1] = roundHalfEven((p[2 * (48 + i) + 1] - y0) * 4);
+  }
+  fillPolyAA(mask, w, h, polygon, 255, 2);
+  const grown = dilateEllipse(mask, w, h, grow), scaled = new Float32Array(w * h), unit = f32(1.0 / 255.0);
+  for (let i = 0; i < scaled.length; i++) scaled[i] = grown[i] * unit;
+  return { weight: tensor(gaussianBlur(scaled, w, h, sigma), [h, w]), box: [x0, y0, x1, y1] };
+}
+
+function checkImage(image: Tensor, name: string): [number, number] {
+  if (image.shape.length !== 3 || image.shape[2] !== 3 || !(image.data instanceof Uint8Array)) {
+    throw new Error(`${name} must be (S, S, 3) uint8, got [${image.shape}]`);
+  }
+  return [image.shape[0], image.shape[1]];
+}
+
+/** Indices of the `count` shots nearest the target (landmarks.tps.nearest_shots: mean point distance over the
+ * target's eye-centre distance, ties by index, shots without a face last), repeated to `count` (np.resize). */
+function nearestShots(shotLandmarks: Tensor, target: ArrayLike<number>, count: number): number[] {
+  const k = shotLandmarks.shape[0], s = shotLandmarks.data, eyes = interOcularDistance(target);
+  const distances: number[] = [];
+  for (let shot = 0; shot < k; shot++) {
+    let sum = 0;
+    for (let i = 0; i < 68; i++) {
+      const dx = s[shot * 136 + 2 * i] - target[2 * i], dy = s[shot * 136 + 2 * i + 1] - target[2 * i + 1];
+      sum += Math.sqrt(dx * dx + dy * dy);
+    }
+    const d = eyes > 0 ? sum / 68 / eyes : NaN;
+    distances.push(Number.isNaN(d) ? Infinity : d);
+  }
+  const order = distances.map((_, i) => i).sort((a, b) => distances[a] - distances[b] || a - b);
+  const chosen = order.slice(0, Math.max(1, Math.min(count, k)));
+  return Array.from({ length: count }, (_, i) => chosen[i % chosen.length]);
+}
+
+/** How much of the nearest shot's mouth to take (landmarks.nearest_mouth.mouth_strength): (the target's mouth
+ * opening - the median of the references' shots') / CLOSED_MOUTH, clipped to [0, 1] (0 when not finite).
+ * landmarks (68, 2); shotLandmarks (K, 68, 2), the same pixels; indices: the shots the references came from (the
+ * warp's, nearest first), or a count to choose them here as the warp does. */
+export function mouthStrength(landmarks: Tensor, shotLandmarks: Tensor, indices: Tensor | ArrayLike<number> | number
+                              ): number {
+  const chosen = typeof indices === "number" ? nearestShots(shotLandmarks, landmarks.data, indices)
+    : Array.from("shape" in indices ? indices.data : indices);
+  const openings = chosen.map((i) => mouthOpening(shotLandmarks.data.subarray(i * 136, (i + 1) * 136)));
+  let median: number;
+  if (openings.some(Number.isNaN)) median = NaN;
+  else {
+    openings.sort((a, b) => a - b);
+    const h = openings.length >> 1;
+    median = openings.length % 2 ? openings[h] : (openings[h - 1] + openings[h]) / 2;
+  }
+  const excess = mouthOpening(landmarks.data) - median;
+  return Number.isFinite(excess) ? Math.min(Math.max(excess / CLOSED_MOUTH, 0), 1) : 0;
+}
+
+/** How unlike the synthesis the nearest shot is around the mouth: the mean absolute difference in grey levels over
+ * the region's feathered edge (weight 0.02-0.5) where the shot's warp is valid (landmarks.nearest_mouth.mismatch). */
+function mismatch(image: ArrayLike<number>, nearest: ArrayLike<number>, valid: ArrayLike<number>, width: number,
+                  region: MouthRegion): number {
+  const [x0, y0, x1, y1] = region.box, w = x1 - x0, weight = region.weight.data;
+  let sum = 0, count = 0;
+  for (let y = y0; y < y1; y++) {
+    for (let x = x0; x < x1; x++) {
+      const v = weight[(y - y0) * w + (x - x0)], at = y * width + x;
+      if (!(v > 0.02 && v < 0.5 && valid[at] > 0.5)) continue;
+      const d = Math.abs(nearest[3 * at] - image[3 * at]) + Math.abs(nearest[3 * at + 1] - image[3 * at + 1]) +
+        Math.abs(nearest[3 * at + 2] - image[3 * at + 2]);
+      sum += f32(d / 3);
+      count++;
+    }
+  }
+  return count ? sum / count : 0.0;
+}
+
+/** `image` with the mouth region taken from `nearest` where its warp is valid, at `strength`, less where the shot is
+ * unlike the synthesis around the mouth (landmarks.nearest_mouth.keep_nearest_mouth). image, nearest: (S, S, 3)
+ * uint8 data; nearestValid: (S, S) in [0, 1]; landmarks: (68, 2) target pixels. Returns `image` itself when nothing
+ * is taken, else a new image (or `image` written in place when inPlace). */
+export function keepNearestMouth(image: Tensor, nearest: Uint8Array, nearestValid: ArrayLike<number>, landmarks: Tensor,
+                                 strength = 1.0, inPlace = false): Tensor {
+  const [height, width] = checkImage(image, "image");
+  if (nearest.length !== image.data.length) throw new Error("image and nearest must have the same shape");
+  const region = strength > 0 ? mouthWeight(landmarks, height, width) : null;
+  if (region === null) return image;
+  const [low, high] = MISMATCH, m = mismatch(image.data, nearest, nearestValid, width, region);
+  strength *= Math.min(Math.max((high - m) / (high - low), 0.0), 1.0);
+  if (strength <= 0) return image;
+  const out = inPlace ? image : tensor(new Uint8Array(image.data), [...image.shape]);
+  const data = out.data, source = image.data, [x0, y0, x1, y1] = region.box, w = x1 - x0;
+  const weight = region.weight.data, s = f32(Math.min(strength, 1.0));
+  for (let y = y0; y < y1; y++) {
+    for (let x = x0; x < x1; x++) {
+      const at = y * width + x, valid = f32(Math.min(Math.max(nearestValid[at], 0.0), 1.0));
+      const wt = f32(f32(s * weight[(y - y0) * w + (x - x0)]) * valid), rest = f32(1.0 - wt);
+      for (let c = 0; c < 3; c++) {
+        const mixed = f32(f32(wt * nearest[3 * at + c]) + f32(rest * source[3 * at + c]));
+        data[3 * at + c] = Math.min(Math.max(roundHalfEven(mixed), 0), 255);
+      }
+    }
+  }
+  return out;
+}
+
+/** The synthesis with the nearest warped shot's mouth, mouth mode "nearest" (lsr.core.parts.finish_mouth):
+ * as far as mouthStrength says, keepNearestMouth of the first reference.
+ * image: (C, C, 3) uint8 synthesis; warped: (N, C, C, 3) uint8 the references the network got (the TPS warp's,
+ * nearest first), masks: (N, C, C) their validity; indices: (N,) the shots they came from; cropLandmarks: (68, 2)
+ * the target in crop pixels; shotLandmarks: (K, 68, 2) the subject's shots' -> (C, C, 3) uint8 (`image` itself when
+ * the shots already show this mouth, most frames; written into `image` when inPlace). */
+export function finishMouthNearest(image: Tensor, warped: Tensor, masks: Tensor, indices: Tensor | number[],
+                                   cropLandmarks: Tensor, shotLandmarks: Tensor, inPlace = false): Tensor {
+  const [height, width] = checkImage(image, "image");
+  if (warped.shape.length !== 4 || warped.shape[1] !== height || warped.shape[2] !== width || warped.shape[3] !== 3 ||
+      !(warped.data instanceof Uint8Array)) {
+    throw new Error(`warped must be (N, ${height}, ${width}, 3) uint8, got [${warped.shape}]`);
+  }
+  const strength = mouthStrength(cropLandmarks, shotLandmarks, indices);
+  if (!(strength > 0)) return image; // most frames: the shots show this mouth
+  const pixels = height * width;
+  return keepNearestMouth(image, warped.data.subarray(0, 3 * pixels), masks.data.subarray(0, pixels), cropLandmarks,
+                          strength, inPlace);
+}

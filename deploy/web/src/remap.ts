@@ -1,0 +1,404 @@
+// Samplers as the Python references call them from OpenCV: cv2.remap / cv2.warpAffine with INTER_CUBIC on uint8 and
+// INTER_LINEAR on float32 (OpenCV 5 samples both at the exact float position with float weights, rounded to nearest),
+// cv2.resize (INTER_AREA to shrink, INTER_LINEAR to enlarge, float32), cv2.GaussianBlur (float32), the border rules
+// (cv2.borderInterpolate), and the coarse grids smooth maps are made on, then densified bilinearly
+// (landmarks.tps._Grid). Used by tps.ts (landmarks/tps.py: _remap, _Grid) and composite.ts (landmarks/scene.py).
+
+import { Affine, Tensor, tensor } from "./tensor.js";
+
+export type BorderMode = "constant" | "replicate" | "reflect" | "reflect101";
+
+/** Where index p of a row of `length` reads from under a border rule; -1 for a constant border
+ * (cv2.borderInterpolate). */
+export function borderIndex(p: number, length: number, border: BorderMode): number {
+  if (p >= 0 && p < length) return p;
+  if (border === "replicate") return p < 0 ? 0 : length - 1;
+  if (border === "constant") return -1;
+  if (length === 1) return 0;
+  const delta = border === "reflect101" ? 1 : 0;
+  do { p = p < 0 ? -p - 1 + delta : length - 1 - (p - length) - delta; } while (p < 0 || p >= length);
+  return p;
+}
+
+/** Round half to even, as cvRound (and numpy's rint / Python's round) do. */
+export function roundHalfEven(value: number): number {
+  const rounded = Math.round(value);
+  return rounded - value === 0.5 && rounded % 2 !== 0 ? rounded - 1 : rounded;
+}
+
+// ---- bicubic (OpenCV 5: float weights at the exact float position, Keys' a = -0.75) -------------------------
+
+/** Keys' cubic weights (a = -0.75) of the 4 taps around a sample at fraction t in [0, 1), into w[o..o+3]. */
+function cubicWeights(t: number, w: Float64Array, o: number): void {
+  const A = -0.75, u = 1 - t, p = t + 1;
+  w[o] = ((A * p - 5 * A) * p + 8 * A) * p - 4 * A;
+  w[o + 1] = ((A + 2) * t - (A + 3)) * t * t + 1;
+  w[o + 2] = ((A + 2) * u - (A + 3)) * u * u + 1;
+  w[o + 3] = 1 - w[o] - w[o + 1] - w[o + 2];
+}
+
+const weights = new Float64Array(8);
+
+function saturate(sum: number): number {
+  const value = roundHalfEven(sum);
+  return value < 0 ? 0 : value > 255 ? 255 : value;
+}
+
+/** cubicAt for 3 channels at (x, y) whose 4 x 4 taps (from (ix - 1, iy - 1)) lie inside the image: the usual case. */
+function cubicInside3(src: Uint8Array, stride: number, x: number, y: number, ix: number, iy: number, dst: Uint8Array,
+                      o: number): void {
+  const A = -0.75, t = x - ix, u = 1 - t, p = t + 1, q = y - iy, v = 1 - q, r = q + 1;
+  const w0 = ((A * p - 5 * A) * p + 8 * A) * p - 4 * A, w1 = ((A + 2) * t - (A + 3)) * t * t + 1;
+  const w2 = ((A + 2) * u - (A + 3)) * u * u + 1, w3 = 1 - w0 - w1 - w2;
+  const h0 = ((A * r - 5 * A) * r + 8 * A) * r - 4 * A, h1 = ((A + 2) * q - (A + 3)) * q * q + 1;
+  const h2 = ((A + 2) * v - (A + 3)) * v * v + 1, h3 = 1 - h0 - h1 - h2;
+  const a = (iy - 1) * stride + (ix - 1) * 3, b = a + stride, c = b + stride, d = c + stride;
+  dst[o] = saturate(h0 * (src[a] * w0 + src[a + 3] * w1 + src[a + 6] * w2 + src[a + 9] * w3)
+    + h1 * (src[b] * w0 + src[b + 3] * w1 + src[b + 6] * w2 + src[b + 9] * w3)
+    + h2 * (src[c] * w0 + src[c + 3] * w1 + src[c + 6] * w2 + src[c + 9] * w3)
+    + h3 * (src[d] * w0 + src[d + 3] * w1 + src[d + 6] * w2 + src[d + 9] * w3));
+  dst[o + 1] = saturate(h0 * (src[a + 1] * w0 + src[a + 4] * w1 + src[a + 7] * w2 + src[a + 10] * w3)
+    + h1 * (src[b + 1] * w0 + src[b + 4] * w1 + src[b + 7] * w2 + src[b + 10] * w3)
+    + h2 * (src[c + 1] * w0 + src[c + 4] * w1 + src[c + 7] * w2 + src[c + 10] * w3)
+    + h3 * (src[d + 1] * w0 + src[d + 4] * w1 + src[d + 7] * w2 + src[d + 10] * w3));
+  dst[o + 2] = saturate(h0 * (src[a + 2] * w0 + src[a + 5] * w1 + src[a + 8] * w2 + src[a + 11] * w3)
+    + h1 * (src[b + 2] * w0 + src[b + 5] * w1 + src[b + 8] * w2 + src[b + 11] * w3)
+    + h2 * (src[c + 2] * w0 + src[c + 5] * w1 + src[c + 8] * w2 + src[c + 11] * w3)
+    + h3 * (src[d + 2] * w0 + src[d + 5] * w1 + src[d + 8] * w2 + src[d + 11] * w3));
+}
+
+/** One output pixel of OpenCV's bicubic at source (x, y): its `channels` values, rounded and saturated, to
+ * dst[dstOffset...]. A constant border reads 0. */
+function cubicAt(src: Uint8Array, width: number, height: number, channels: number, x: number, y: number,
+                 border: BorderMode, dst: Uint8Array, dstOffset: number): void {
+  if (!(Math.abs(x) < 1e7 && Math.abs(y) < 1e7)) {  // far off (or NaN): only the border is read
+    x = Math.max(-1e7, Math.min(1e7, x || 0));
+    y = Math.max(-1e7, Math.min(1e7, y || 0));
+  }
+  const ix = Math.floor(x), iy = Math.floor(y), sx = ix - 1, sy = iy - 1, stride = width * channels;
+  const w = weights;
+  cubicWeights(x - ix, w, 0);
+  cubicWeights(y - iy, w, 4);
+  if (sx >= 0 && sx < width - 3 && sy >= 0 && sy < height - 3) {
+    const base = sy * stride + sx * channels;
+    for (let k = 0; k < channels; k++) {
+      let sum = 0;
+      for (let r = 0, row = base + k; r < 4; r++, row += stride) {
+        sum += w[4 + r] * (src[row] * w[0] + src[row + channels] * w[1] + src[row + 2 * channels] * w[2]
+          + src[row + 3 * channels] * w[3]);
+      }
+      dst[dstOffset + k] = saturate(sum);
+    }
+    return;
+  }
+  if (border === "constant" && (sx >= width || sx + 4 <= 0 || sy >= height || sy + 4 <= 0)) {
+    for (let k = 0; k < channels; k++) dst[dstOffset + k] = 0;
+    return;
+  }
+  const x0 = borderIndex(sx, width, border), x1 = borderIndex(sx + 1, width, border);
+  const x2 = borderIndex(sx + 2, width, border), x3 = borderIndex(sx + 3, width, border);
+  for (let k = 0; k < channels; k++) {
+    let sum = 0;
+    for (let r = 0; r < 4; r++) {
+      const yr = borderIndex(sy + r, height, border);
+      if (yr < 0) continue;
+      const row = yr * stride + k;
+      sum += w[4 + r] * ((x0 >= 0 ? src[row + x0 * channels] * w[0] : 0)
+        + (x1 >= 0 ? src[row + x1 * channels] * w[1] : 0)
+        + (x2 >= 0 ? src[row + x2 * channels] * w[2] : 0)
+        + (x3 >= 0 ? src[row + x3 * channels] * w[3] : 0));
+    }
+    dst[dstOffset + k] = saturate(sum);
+  }
+}
+
+/** A source image: (height, width, channels) row-major. */
+export interface PixelImage<T> { data: T; width: number; height: number; channels: number }
+
+/** cv2.remap(src, mapX, mapY, cv2.INTER_CUBIC, borderMode=border) for uint8: output pixel i samples the source at
+ * (mapX[i], mapY[i]). only: when given, the pixels where it is 0 are left as dst has them. dst: (mapX.length *
+ * channels) values, made when not given. */
+export function remapCubic(src: PixelImage<Uint8Array>, mapX: Float32Array, mapY: Float32Array, border: BorderMode,
+                           dst?: Uint8Array, only?: Uint8Array): Uint8Array {
+  const channels = src.channels;
+  const out = dst ?? new Uint8Array(mapX.length * channels);
+  const { data, width, height } = src, stride = width * channels, fast = channels === 3;
+  for (let i = 0; i < mapX.length; i++) {
+    if (only && !only[i]) continue;
+    const x = mapX[i], y = mapY[i], ix = Math.floor(x), iy = Math.floor(y);
+    if (fast && ix >= 1 && ix < width - 2 && iy >= 1 && iy < height - 2) {
+      cubicInside3(data, stride, x, y, ix, iy, out, 3 * i);
+    } else cubicAt(data, width, height, channels, x, y, border, out, i * channels);
+  }
+  return out;
+}
+
+/** cv2.warpAffine(src, m, (width, height), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP, borderMode=border) for
+ * uint8: output (x, y) samples the source at m (x, y), the position in float32 as OpenCV 5 computes it. */
+export function warpAffineCubic(src: PixelImage<Uint8Array>, m: Affine, width: number, height: number,
+                                border: BorderMode): Uint8Array {
+  const f = Math.fround, channels = src.channels, m0 = f(m[0]), m3 = f(m[3]);
+  const stride = src.width * channels, fast = channels === 3;
+  const out = new Uint8Array(width * height * channels);
+  for (let y = 0; y < height; y++) {
+    const mx = f(y * m[1] + m[2]), my = f(y * m[4] + m[5]);
+    for (let x = 0; x < width; x++) {
+      const u = f(m0 * x + mx), v = f(m3 * x + my), iu = Math.floor(u), iv = Math.floor(v);
+      if (fast && iu >= 1 && iu < src.width - 2 && iv >= 1 && iv < src.height - 2) {
+        cubicInside3(src.data, stride, u, v, iu, iv, out, (y * width + x) * 3);
+      } else cubicAt(src.data, src.width, src.height, channels, u, v, border, out, (y * width + x) * channels);
+    }
+  }
+  return out;
+}
+
+/** Bilinear sample of a one-channel float image at (x, y) (cv2.remap / warpAffine INTER_LINEAR on float32); a
+ * constant border reads 0. */
+export function bilinearAt(src: PixelImage<Float32Array>, x: number, y: number, border: BorderMode): number {
+  const x0 = Math.floor(x), y0 = Math.floor(y);
+  const a = x - x0, b = y - y0, { width, height, data } = src;
+  if (x0 >= 0 && x0 < width - 1 && y0 >= 0 && y0 < height - 1) {
+    const r0 = y0 * width + x0, r1 = r0 + width;
+    return (data[r0] * (1 - a) + data[r0 + 1] * a) * (1 - b) + (data[r1] * (1 - a) + data[r1 + 1] * a) * b;
+  }
+  const c0 = borderIndex(x0, width, border), c1 = borderIndex(x0 + 1, width, border);
+  const i0 = borderIndex(y0, height, border), i1 = borderIndex(y0 + 1, height, border);
+  const r0 = i0 < 0 ? -1 : i0 * width, r1 = i1 < 0 ? -1 : i1 * width;
+  const p00 = r0 < 0 || c0 < 0 ? 0 : data[r0 + c0], p01 = r0 < 0 || c1 < 0 ? 0 : data[r0 + c1];
+  const p10 = r1 < 0 || c0 < 0 ? 0 : data[r1 + c0], p11 = r1 < 0 || c1 < 0 ? 0 : data[r1 + c1];
+  return (p00 * (1 - a) + p01 * a) * (1 - b) + (p10 * (1 - a) + p11 * a) * b;
+}
+
+// ---- resize (float32, any channels) -------------------------------------------------------------------------
+
+/** cv2.resize(src, (width, height), interpolation=cv2.INTER_AREA) to shrink a float32 image (resize.cpp:
+ * computeResizeAreaTab: each output pixel the area-weighted mean of the source pixels it covers). */
+export function resizeArea(src: PixelImage<Float32Array>, width: number, height: number): Float32Array {
+  const { channels } = src;
+  const xs = areaTable(src.width, width), ys = areaTable(src.height, height);
+  const rows = new Float64Array(src.height * width * channels);  // each source row shrunk across
+  for (let sy = 0; sy < src.height; sy++) {
+    const from = sy * src.width * channels, to = sy * width * channels;
+    for (let k = 0; k < xs.count; k++) {
+      const di = to + xs.dst[k] * channels, si = from + xs.src[k] * channels, a = xs.alpha[k];
+      for (let c = 0; c < channels; c++) rows[di + c] += a * src.data[si + c];
+    }
+  }
+  const out = new Float64Array(height * width * channels), line = width * channels;
+  for (let k = 0; k < ys.count; k++) {
+    const di = ys.dst[k] * line, si = ys.src[k] * line, b = ys.alpha[k];
+    for (let i = 0; i < line; i++) out[di + i] += b * rows[si + i];
+  }
+  return Float32Array.from(out);
+}
+
+function areaTable(sourceSize: number, size: number
+                   ): { dst: Int32Array; src: Int32Array; alpha: Float64Array; count: number } {
+  const scale = sourceSize / size;
+  const dst = new Int32Array(sourceSize * 2 + 2), src = new Int32Array(sourceSize * 2 + 2);
+  const alpha = new Float64Array(sourceSize * 2 + 2);
+  let k = 0;
+  for (let dx = 0; dx < size; dx++) {
+    const fsx1 = dx * scale, fsx2 = fsx1 + scale, cell = Math.min(scale, sourceSize - fsx1);
+    let sx1 = Math.ceil(fsx1), sx2 = Math.floor(fsx2);
+    sx2 = Math.min(sx2, sourceSize - 1);
+    sx1 = Math.min(sx1, sx2);
+    if (sx1 - fsx1 > 1e-3) { dst[k] = dx; src[k] = sx1 - 1; alpha[k++] = Math.fround((sx1 - fsx1) / cell); }
+    for (let sx = sx1; sx < sx2; sx++) { dst[k] = dx; src[k] = sx; alpha[k++] = Math.fround(1 / cell); }
+    if (fsx2 - sx2 > 1e-3) {
+      dst[k] = dx; src[k] = sx2; alpha[k++] = Math.fround(Math.min(Math.min(fsx2 - sx2, 1), cell) / cell);
+    }
+  }
+  return { dst, src, alpha, count: k };
+}
+
+/** cv2.resize(src, (width, height), interpolation=cv2.INTER_LINEAR) of a float32 image (pixel centres aligned,
+ * the edge pixels replicated). */
+export function resizeLinear(src: PixelImage<Float32Array>, width: number, height: number): Float32Array {
+  const { channels } = src;
+  const [x0, ax] = linearTable(src.width, width), [y0, ay] = linearTable(src.height, height);
+  const out = new Float32Array(width * height * channels);
+  const line = src.width * channels;
+  for (let y = 0; y < height; y++) {
+    const r0 = y0[y] * line, r1 = Math.min(y0[y] + 1, src.height - 1) * line, b = ay[y];
+    for (let x = 0; x < width; x++) {
+      const c0 = x0[x] * channels, c1 = Math.min(x0[x] + 1, src.width - 1) * channels, a = ax[x];
+      for (let c = 0; c < channels; c++) {
+        const top = src.data[r0 + c0 + c] * (1 - a) + src.data[r0 + c1 + c] * a;
+        const bottom = src.data[r1 + c0 + c] * (1 - a) + src.data[r1 + c1 + c] * a;
+        out[(y * width + x) * channels + c] = top * (1 - b) + bottom * b;
+      }
+    }
+  }
+  return out;
+}
+
+function linearTable(sourceSize: number, size: number): [Int32Array, Float64Array] {
+  const scale = sourceSize / size, index = new Int32Array(size), fraction = new Float64Array(size);
+  for (let d = 0; d < size; d++) {
+    const position = Math.fround((d + 0.5) * scale - 0.5);
+    let s = Math.floor(position), a = position - s;
+    if (s < 0) { s = 0; a = 0; }
+    if (s >= sourceSize - 1) { s = sourceSize - 1; a = 0; }
+    index[d] = s;
+    fraction[d] = a;
+  }
+  return [index, fraction];
+}
+
+// ---- Gaussian blur (float32, any channels) -----------------------------------------------------------------
+
+/** cv::getGaussianKernel(n, sigma, CV_32F). */
+function gaussianKernel(n: number, sigma: number): Float32Array {
+  const scale = -0.5 / (sigma * sigma), kernel = new Float32Array(n), values: number[] = [];
+  let sum = 0;
+  for (let i = 0; i < n; i++) {
+    const x = i - (n - 1) * 0.5, t = Math.exp(scale * x * x);
+    values.push(t);
+    sum += t;
+  }
+  values.forEach((t, i) => { kernel[i] = t / sum; });
+  return kernel;
+}
+
+function reflect101(p: number, length: number): number {
+  if (length === 1) return 0;
+  while (p < 0 || p >= length) p = p < 0 ? -p : 2 * length - 2 - p;
+  return p;
+}
+
+/** cv2.GaussianBlur(src, (0, 0), sigma) of an (h, w, channels) float32 image: separable, side round(8 sigma + 1) | 1,
+ * reflect-101 border. */
+export function gaussianBlurF32(src: Float32Array, width: number, height: number, channels: number, sigma: number
+                                ): Float32Array {
+  const n = roundHalfEven(sigma * 8 + 1) | 1, kernel = gaussianKernel(n, sigma), anchor = n >> 1;
+  const rows = new Float32Array(src.length), out = new Float32Array(src.length);
+  const xIndex = new Int32Array(width * n), yIndex = new Int32Array(height * n);
+  for (let x = 0; x < width; x++) {
+    for (let k = 0; k < n; k++) xIndex[x * n + k] = reflect101(x + k - anchor, width) * channels;
+  }
+  for (let y = 0; y < height; y++) {
+    for (let k = 0; k < n; k++) yIndex[y * n + k] = reflect101(y + k - anchor, height) * width * channels;
+  }
+  for (let y = 0; y < height; y++) {
+    const row = y * width * channels;
+    for (let x = 0; x < width; x++) {
+      for (let c = 0; c < channels; c++) {
+        let s = 0;
+        for (let k = 0; k < n; k++) s += kernel[k] * src[row + xIndex[x * n + k] + c];
+        rows[row + x * channels + c] = s;
+      }
+    }
+  }
+  const line = width * channels;
+  for (let y = 0; y < height; y++) {
+    for (let i = 0; i < line; i++) {
+      let s = 0;
+      for (let k = 0; k < n; k++) s += kernel[k] * rows[yIndex[y * n + k] + i];
+      out[y * line + i] = s;
+    }
+  }
+  return out;
+}
+
+// ---- coarse grids (landmarks.tps._Grid) ---------------------------------------------------------------------
+
+/** Where a map is evaluated: every pixel (step 1), or every `step` pixels with the last row and column included
+ * (landmarks.tps._Grid). points: (rows * cols, 2) flat (x, y), row-major. */
+export interface CoarseGrid {
+  height: number;
+  width: number;
+  step: number;
+  xs: Float64Array;
+  ys: Float64Array;
+  points: Float64Array;
+}
+
+function axis(size: number, step: number): Float64Array {
+  const values: number[] = [];
+  for (let v = 0; v < size; v += step) values.push(v);
+  if (values[values.length - 1] !== size - 1) values.push(size - 1);
+  return Float64Array.from(values);
+}
+
+export function coarseGrid(height: number, width: number, step: number): CoarseGrid {
+  step = Math.max(1, Math.trunc(step));
+  const xs = axis(width, step), ys = axis(height, step);
+  const points = new Float64Array(xs.length * ys.length * 2);
+  for (let j = 0, p = 0; j < ys.length; j++) {
+    for (let i = 0; i < xs.length; i++, p += 2) { points[p] = xs[i]; points[p + 1] = ys[j]; }
+  }
+  return { height, width, step, xs, ys, points };
+}
+
+interface Interpolation { lower: Int32Array; w0: Float32Array; w1: Float32Array }
+const interpolations = new Map<string, Interpolation>();
+
+/** Linear interpolation from samples at `coarse` to 0..size-1, float32 weights
+ * (landmarks.tps._interpolation_matrix). */
+function interpolation(size: number, coarse: Float64Array): Interpolation {
+  const key = `${size}:${coarse.length}:${coarse[1]}`;
+  const cached = interpolations.get(key);
+  if (cached) return cached;
+  const lower = new Int32Array(size), w0 = new Float32Array(size), w1 = new Float32Array(size);
+  let upper = 1;
+  for (let p = 0; p < size; p++) {
+    while (upper < coarse.length - 1 && coarse[upper] <= p) upper++;
+    const fraction = (p - coarse[upper - 1]) / (coarse[upper] - coarse[upper - 1]);
+    lower[p] = upper - 1;
+    w0[p] = 1 - fraction;
+    w1[p] = fraction;
+  }
+  const table = { lower, w0, w1 };
+  if (interpolations.size > 16) interpolations.clear();
+  interpolations.set(key, table);
+  return table;
+}
+
+/** Values on the grid (rows, cols) -> (H, W) float32 at every pixel, bilinear, float32 like numpy's two products. */
+export function densifyGrid(grid: CoarseGrid, values: ArrayLike<number>): Float32Array {
+  const { height, width } = grid, cols = grid.xs.length;
+  if (grid.step === 1) return Float32Array.from(values);
+  const rows = interpolation(height, grid.ys), across = interpolation(width, grid.xs);
+  const half = new Float32Array(height * cols), out = new Float32Array(height * width);
+  for (let y = 0; y < height; y++) {
+    const a = rows.lower[y] * cols, b = a + cols, w0 = rows.w0[y], w1 = rows.w1[y];
+    for (let j = 0; j < cols; j++) {
+      half[y * cols + j] = w0 * Math.fround(values[a + j]) + w1 * Math.fround(values[b + j]);
+    }
+  }
+  for (let y = 0; y < height; y++) {
+    const line = y * cols;
+    for (let x = 0; x < width; x++) {
+      const l = line + across.lower[x];
+      out[y * width + x] = across.w0[x] * half[l] + across.w1[x] * half[l + 1];
+    }
+  }
+  return out;
+}
+
+// ---- the same on tensors (the Python tests call these against OpenCV) ----------------------------------------
+
+function pixelImage<T extends Uint8Array | Float32Array>(tensor: Tensor<T>): PixelImage<T> {
+  return { data: tensor.data, height: tensor.shape[0], width: tensor.shape[1], channels: tensor.shape[2] ?? 1 };
+}
+
+/** cv2.remap(src, mapX, mapY, cv2.INTER_CUBIC, borderMode) for (H, W[, C]) uint8 and (h, w) float32 maps. */
+export function remapImage(src: Tensor<Uint8Array>, mapX: Tensor<Float32Array>, mapY: Tensor<Float32Array>,
+                           border: BorderMode = "replicate"): Tensor<Uint8Array> {
+  const out = remapCubic(pixelImage(src), Float32Array.from(mapX.data), Float32Array.from(mapY.data), border);
+  return tensor(out, [...mapX.shape, ...src.shape.slice(2)]);
+}
+
+/** cv2.warpAffine(src, m, (width, height), cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP, borderMode) for uint8. */
+export function warpAffineImage(src: Tensor<Uint8Array>, m: Affine, width: number, height: number,
+                                border: BorderMode = "replicate"): Tensor<Uint8Array> {
+  return tensor(warpAffineCubic(pixelImage(src), m, width, height, border), [height, width, ...src.shape.slice(2)]);
+}
+
+/** cv2.resize of a (H, W[, C]) float32 image: INTER_AREA ("area") or INTER_LINEAR ("linear"). */
+export function resizeImage(src: Tensor<Float32Array>, width: number, height: number, interpolation: "area" | "linear"
+                            ): Tensor<Float32Array> {
+  const out = (interpolation === "area" ? resizeArea : resizeLinear)(pixelImage(src), width, height);
+  return tensor(out, [height, width, ...src.shape.slice(2)]);
+}
