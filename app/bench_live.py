@@ -335,27 +335,38 @@ def run_live(url: str, y4m: Path, seconds: float, warmup: float, screenshot: Pat
         live.LIVE_TRACE = None
 
 
-def run_bench_live(cfg: BenchLiveConfig) -> LiveMeasure:
-    """Entry point of ``lsr bench live``."""
+def camera_file(path: Path, video: Path | None, seconds: float) -> Path:
+    """The fake camera's .y4m: ``seconds`` of ``video`` (letterboxed), or 4 s of a synthetic talking person on loop."""
+    count = int(seconds * CAMERA_FPS) if video is not None else 4 * CAMERA_FPS
+    return write_y4m(path, camera_frames(video, count))
+
+
+def live_tab(weights: Path | None, y4m: Path, seconds: float, warmup: float, screenshot: Path | None,
+             examples_dir: Path, port: int = 0) -> LiveMeasure:
+    """The app served in this process, its live tab in Chromium with ``y4m`` as the camera, measured."""
     from app.ui import build_app, launch
     from lsr.config import AppConfig
+
+    app_cfg = AppConfig(weights=weights, port=port or _free_port(), device="cpu", examples_dir=examples_dir)
+    app_cfg.validate()
+    demo, store, files = build_app(app_cfg)
+    url = launch(demo, app_cfg, files, block=False)
+    try:
+        return run_live(url, y4m, seconds, warmup, screenshot)
+    finally:
+        demo.close()
+        files.drop_all()
+
+
+def run_bench_live(cfg: BenchLiveConfig) -> LiveMeasure:
+    """Entry point of ``lsr bench live``."""
     from lsr.eval import sections
     from lsr.machine import machine_markdown, shown_path
 
     with tempfile.TemporaryDirectory(prefix="lsr-bench-live-") as temp:
         temp = Path(temp)
-        count = int((cfg.seconds + cfg.warmup) * CAMERA_FPS) if cfg.camera_video is not None else 4 * CAMERA_FPS
-        y4m = write_y4m(temp / "camera.y4m", camera_frames(cfg.camera_video, count))
-        port = cfg.port or _free_port()
-        app_cfg = AppConfig(weights=cfg.weights, port=port, device="cpu", examples_dir=temp / "examples")
-        app_cfg.validate()
-        demo, store, files = build_app(app_cfg)
-        url = launch(demo, app_cfg, files, block=False)
-        try:
-            result = run_live(url, y4m, cfg.seconds, cfg.warmup, cfg.screenshot)
-        finally:
-            demo.close()
-            files.drop_all()
+        y4m = camera_file(temp / "camera.y4m", cfg.camera_video, cfg.seconds + cfg.warmup)
+        result = live_tab(cfg.weights, y4m, cfg.seconds, cfg.warmup, cfg.screenshot, temp / "examples", cfg.port)
         server = handler_loop(cfg.weights, camera_frames(cfg.camera_video, 5 * CAMERA_FPS), temp / "examples")
         sliders = slider_updates(cfg.weights, temp / "examples")
     label = "the shipped default" if cfg.weights is None else f"`{shown_path(cfg.weights)}`"

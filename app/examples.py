@@ -23,8 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
+from lsr.examples import EXAMPLE_SHOTS
+
 EXAMPLES_VERSION = 2  # bump when the recipe changes: a new folder name, old caches are left alone
-SOURCE_SHOTS = 4
+SOURCE_SHOTS = EXAMPLE_SHOTS
 DRIVER_FRAMES = 32
 EXAMPLE_FPS = 25
 TONE_HZ = 440.0  # the driving clip carries audio so "the output keeps the audio" can be seen and tested
@@ -94,13 +96,12 @@ def _generate(folder: Path) -> None:
     from landmarks.detectors import make_detector
     from landmarks.imageio import write_image
     from landmarks.video import iter_frames
-    from lsr.examples import REAL_DRIVER, REAL_SOURCE
+    from lsr.examples import REAL_DRIVER, REAL_SOURCE, example_shots
 
     layout = _layout(folder)
     # Person A: shots spread over its clip, so head pose and expression differ between the K shots.
-    source = list(iter_frames(REAL_SOURCE))
-    for path, index in zip(layout.source_images, np.linspace(0, len(source) - 1, SOURCE_SHOTS).round().astype(int)):
-        write_image(path, source[index])
+    for path, shot in zip(layout.source_images, example_shots(SOURCE_SHOTS)):
+        write_image(path, shot)
     driver = np.stack([frame for _, frame in zip(range(DRIVER_FRAMES), iter_frames(REAL_DRIVER))])
     write_clip_with_tone(layout.driving_video, driver)
     detector = make_detector()

@@ -10,12 +10,14 @@ import shutil
 import subprocess
 from pathlib import Path
 
+from landmarks.errors import LandmarksError
+
 WEB = Path(__file__).resolve().parent / "web"
 DIST = WEB / "dist"
-BUNDLES = ("app.js", "lsr.node.mjs")
+BUNDLES = ("app.js", "tracker.worker.js", "lsr.node.mjs")
 
 
-class WebBuildError(RuntimeError):
+class WebBuildError(LandmarksError):
     """npm is missing, or installing or building the web runtime failed (the message says which and why)."""
 
 
@@ -44,6 +46,7 @@ def ensure_built() -> Path:
 
 
 def onnxruntime_files() -> list[Path]:
-    """The onnxruntime-web files a page needs beside app.js: its ES module and the WASM (SIMD, threads) build."""
+    """The onnxruntime-web files a page needs beside app.js: its WASM-only ES module and the WASM (SIMD, threads)
+    build (14 MB; the WebGPU build would add 28 MB)."""
     dist = WEB / "node_modules" / "onnxruntime-web" / "dist"
-    return [dist / "ort.min.mjs", dist / "ort-wasm-simd-threaded.mjs", dist / "ort-wasm-simd-threaded.wasm"]
+    return [dist / "ort.wasm.min.mjs", dist / "ort-wasm-simd-threaded.mjs", dist / "ort-wasm-simd-threaded.wasm"]

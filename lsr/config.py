@@ -20,6 +20,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchSpeedConfig,
     BenchReenactConfig,
     BenchLiveConfig,
+    BenchWebConfig,
     BenchSoakConfig,
     BenchFinetuneConfig,
     BenchHardConfig,
@@ -361,9 +362,14 @@ class ExportConfig:
     """--int8: driving video whose landmark images calibrate; default --calibration-source."""
     calibration_frames: int = 32
     calibration_k: OptionalInt = None
+    web: OptionalPath = None
+    """Write the static web site here instead of the bundle: the example person re-enacted from the webcam in the
+    browser (deploy/web, onnxruntime-web; needs Node.js and npm to build). Serve the folder with any static server."""
 
     def validate(self) -> None:
         check_weights(self.weights)
+        if self.web is not None and self.int8:
+            raise ConfigError("--web writes the site with the fp32 frame generator; leave out --int8")
         if self.calibration_frames < 1:
             raise ConfigError(f"--calibration-frames must be >= 1, got {self.calibration_frames}")
 

@@ -224,6 +224,32 @@ class BenchLiveConfig:
 
 
 @dataclasses.dataclass
+class BenchWebConfig:
+    """The static web site (`lsr export --web`) in Chromium with a fake camera against the app's live tab, same run:
+    frame rate, camera-to-screen latency and their ratios (a table with machine info; needs /usr/bin/chromium,
+    playwright, Node.js and npm)."""
+
+    weights: OptionalPath = None
+    """Model folder; default: the shipped default model."""
+    camera_video: OptionalPath = None
+    """A clip to play as the camera (its first frames, letterboxed to 640x480); default a synthetic talking person."""
+    seconds: float = 30.0
+    """Measured stream time of each, after the warm-up."""
+    warmup: float = 5.0
+    """Seconds of stream after the first result that are not measured."""
+    screenshot: OptionalPath = None
+    """Also save a screenshot of the web page here (PNG)."""
+    out_md: OptionalPath = None
+    """Also write the table as the 'web' section of this markdown file (e.g. BENCHMARKS.md)."""
+
+    def validate(self) -> None:
+        if self.seconds <= 0 or self.warmup < 0:
+            raise ConfigError("--seconds must be > 0 and --warmup >= 0")
+        if self.camera_video is not None and not Path(self.camera_video).is_file():
+            raise ConfigError(f"--camera-video {self.camera_video} is not a file")
+
+
+@dataclasses.dataclass
 class BenchSoakConfig:
     """The app under a long live stream and batch re-enactments at once, on 127.0.0.1: does its resident memory
     hold after the warm-up (a table with machine info; needs /usr/bin/chromium and playwright)?"""

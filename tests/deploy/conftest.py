@@ -10,6 +10,7 @@ import shutil
 import subprocess
 from typing import Any
 
+import numpy as np
 import pytest
 
 import numpy as np
@@ -72,3 +73,45 @@ def web() -> WebLibrary:
     if shutil.which("node") is None or shutil.which("npm") is None:
         pytest.skip("Node.js and npm are needed for the web runtime's tests")
     return WebLibrary(ensure_built() / "lsr.node.mjs")
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory, web):
+    """``lsr export --web``'s site of the shipped default, in a temp folder."""
+    from lsr.export_web import write_site
+    from lsr.weights import resolve_weights
+
+    return write_site(resolve_weights(None), tmp_path_factory.mktemp("web") / "site")
+
+
+@pytest.fixture(scope="module")
+def python_session(site):
+    """A factory of Python live sessions (``lsr.core.live.LiveSession``, the live tab's) on the site's person and
+    scene layers (its 8-bit matte), unmarked: the reference of the browser's output."""
+    from landmarks.scene import SceneLayers
+    from lsr.core.live import LiveSession
+    from lsr.export_bundle import cached_bundle
+    from lsr.export_web import example_subject
+    from lsr.weights import resolve_weights
+
+    reenactor, subject, _ = example_subject(cached_bundle(resolve_weights(None)), site.k)
+    person = site.folder / "person"
+    shapes = json.loads((person / "subject.json").read_text())["shapes"]
+    matte = np.frombuffer((person / "matte.u8").read_bytes(), np.uint8).reshape(shapes["matte"])
+    plate = np.frombuffer((person / "plate.u8").read_bytes(), np.uint8).reshape(shapes["plate"])
+
+    def session() -> LiveSession:
+        live = LiveSession(reenactor, subject, paste_back=True, smooth=True, with_layout=False, watermark=False)
+        live.scene.layers = SceneLayers(matte.astype(np.float32) / 255, plate)
+        return live
+
+    return session
+
+
+@pytest.fixture(scope="session")
+def driver_frames():
+    """count -> the first ``count`` frames (count, H, W, 3) of the bundled driver (lsr.examples.REAL_DRIVER)."""
+    from landmarks.video import iter_frames
+    from lsr.examples import REAL_DRIVER
+
+    return lambda count: np.stack([frame for _, frame in zip(range(count), iter_frames(REAL_DRIVER))])

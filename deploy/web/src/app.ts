@@ -1,2 +1,240 @@
-// The page (filled in by the web runtime).
-export {};
+// The page (deploy/web/static/index.html): the webcam drives the example person, everything on this machine.
+// Test and benchmark hooks live on `window.lsr` (tests/deploy/test_web_browser.py, lsr bench web).
+
+import * as ort from "onnxruntime-web";
+
+import { RemoteTracker } from "./remote_tracker.js";
+import { LiveFrame, LiveSession, Site, loadSite } from "./session.js";
+import { Tensor, tensor } from "./tensor.js";
+
+const CAMERA = { width: { ideal: 320 }, height: { ideal: 240 } }; // as lsr app's live tab asks (app/ui.py)
+const MARK = "SYNTHETIC";
+
+interface Stats {
+  grabbed: number[]; shown: number[]; latency: number[]; ms: number[]; stages: Record<string, number>[];
+  faces: number; frames: number;
+}
+
+declare global {
+  interface Window { lsr: Record<string, unknown> }
+}
+
+const element = <T extends HTMLElement>(id: string) => document.getElementById(id) as T;
+
+/** Cross-origin isolation (for WASM threads) through sw.js on a static host that sends no headers: register it
+ * and reload once. */
+async function isolate(): Promise<boolean> {
+  if (globalThis.crossOriginIsolated || !("serviceWorker" in navigator) || sessionStorage.getItem("lsr-isolating")) {
+    return false;
+  }
+  await navigator.serviceWorker.register("./sw.js");
+  await navigator.serviceWorker.ready;
+  sessionStorage.setItem("lsr-isolating", "1");
+  location.reload();
+  return true;
+}
+
+function configureOnnxRuntime(): void {
+  ort.env.wasm.wasmPaths = new URL("./", location.href).href;
+  // The frame generator's threads: the cores beside this thread and the tracker's worker (one thread each), at
+  // most 4. On 2 cores that is 1: measured there, the stages overlap best so (10.6 fps against 7.9 with 2 threads).
+  // ?threads=N asks for N. More than one needs cross-origin isolation (sw.js).
+  const asked = Number(new URLSearchParams(location.search).get("threads"));
+  const most = globalThis.crossOriginIsolated ? Math.min(4, navigator.hardwareConcurrency || 1) : 1;
+  const spare = Math.max(1, Math.min(4, (navigator.hardwareConcurrency || 1) - 2));
+  ort.env.wasm.numThreads = Math.min(asked > 0 ? asked : spare, most);
+  ort.env.wasm.proxy = true;  // the networks run in a worker: this thread tracks and warps the next frame meanwhile
+}
+
+/** An RGB (H, W, 3) frame -> RGBA ImageData. */
+function toImageData(image: Tensor<Uint8Array>): ImageData {
+  const [height, width] = image.shape;
+  const rgba = new Uint8ClampedArray(width * height * 4);
+  for (let i = 0, j = 0; i < image.data.length; i += 3, j += 4) {
+    rgba[j] = image.data[i]; rgba[j + 1] = image.data[i + 1]; rgba[j + 2] = image.data[i + 2]; rgba[j + 3] = 255;
+  }
+  return new ImageData(rgba, width, height);
+}
+
+/** RGBA canvas pixels -> an RGB (H, W, 3) frame. */
+function fromImageData(pixels: ImageData): Tensor<Uint8Array> {
+  const rgb = new Uint8Array(pixels.width * pixels.height * 3);
+  for (let i = 0, j = 0; j < pixels.data.length; i += 3, j += 4) {
+    rgb[i] = pixels.data[j]; rgb[i + 1] = pixels.data[j + 1]; rgb[i + 2] = pixels.data[j + 2];
+  }
+  return tensor(rgb, [pixels.height, pixels.width, 3]);
+}
+
+/** The provenance mark of lsr.core.provenance.draw_watermark: white text on a darkened box, bottom right. */
+function drawMark(context: CanvasRenderingContext2D, width: number, height: number): void {
+  const size = Math.max(10, Math.round(Math.min(width, height) / 22));
+  context.font = `600 ${size}px system-ui, sans-serif`;
+  const textWidth = context.measureText(MARK).width, pad = Math.max(2, Math.round(size / 3));
+  context.fillStyle = "rgba(0, 0, 0, 0.6)";
+  context.fillRect(width - textWidth - 3 * pad, height - size - 3 * pad, textWidth + 2 * pad, size + 2 * pad);
+  context.fillStyle = "#fff";
+  context.textBaseline = "bottom";
+  context.fillText(MARK, width - textWidth - 2 * pad, height - 2 * pad);
+}
+
+/** The latent layout as parts (lsr.layout_view.layout_parts_rgb: each pixel's strongest channel in a fixed colour)
+ * with a legend of the channels covering at least 2 % of it. */
+function drawLayout(canvas: HTMLCanvasElement, legend: HTMLElement, layout: Tensor<Float32Array>, site: Site): void {
+  const [channels, height, width] = layout.shape, plane = height * width;
+  const palette = site.config.layout_palette, names = site.config.layout_legend;
+  const rgba = new Uint8ClampedArray(plane * 4), counts = new Array(channels).fill(0);
+  for (let p = 0; p < plane; p++) {
+    let best = 0;
+    for (let c = 1; c < channels; c++) if (layout.data[c * plane + p] > layout.data[best * plane + p]) best = c;
+    counts[best] += 1;
+    const colour = palette[best % palette.length];
+    rgba.set([colour[0], colour[1], colour[2], 255], 4 * p);
+  }
+  canvas.width = width; canvas.height = height;
+  canvas.getContext("2d")!.putImageData(new ImageData(rgba, width, height), 0, 0);
+  const shown = counts.map((count, c) => [count / plane, c]).filter(([share]) => share >= 0.02)
+    .sort((a, b) => b[0] - a[0]).slice(0, 6);
+  legend.innerHTML = shown.map(([, c]) => {
+    const colour = palette[c % palette.length];
+    return `<div><span style="background:rgb(${colour.join(",")})"></span>${names?.[c] ?? `channel ${c}`}</div>`;
+  }).join("");
+}
+
+const median = (values: number[]) => {
+  if (!values.length) return NaN;
+  const sorted = [...values].sort((a, b) => a - b);
+  return sorted[Math.floor(sorted.length / 2)];
+};
+
+function base64ToBytes(text: string): Uint8Array {
+  const binary = atob(text), bytes = new Uint8Array(binary.length);
+  for (let i = 0; i < binary.length; i++) bytes[i] = binary.charCodeAt(i);
+  return bytes;
+}
+
+function bytesToBase64(bytes: Uint8Array): string {
+  let binary = "";
+  for (let i = 0; i < bytes.length; i += 0x8000) binary += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+  return btoa(binary);
+}
+
+async function main(): Promise<void> {
+  if (await isolate()) return;
+  configureOnnxRuntime();
+  const status = element<HTMLSpanElement>("status"), statsLine = element<HTMLParagraphElement>("stats");
+  const output = element<HTMLCanvasElement>("output"), layoutCanvas = element<HTMLCanvasElement>("layout");
+  const video = element<HTMLVideoElement>("camera"), start = element<HTMLButtonElement>("start");
+  const recentre = element<HTMLButtonElement>("recentre");
+  const wasmPaths = ort.env.wasm.wasmPaths as string;
+  const site = await loadSite(async (path) => new Uint8Array(await (await fetch(path)).arrayBuffer()),
+                              (assets) => RemoteTracker.create("./tracker.worker.js", assets, wasmPaths));
+  const [height, width] = site.person.scene.shape;
+  output.width = width; output.height = height;
+  const context = output.getContext("2d")!;
+  const show = (frame: Tensor<Uint8Array>) => { context.putImageData(toImageData(frame), 0, 0); drawMark(context, width, height); };
+  show(site.person.scene);
+  const threads = ort.env.wasm.numThreads;
+  status.textContent = `Ready (onnxruntime-web, WASM, ${threads} thread${threads === 1 ? "" : "s"}). Start the camera to drive the person.`;
+  const stats: Stats = { grabbed: [], shown: [], latency: [], ms: [], stages: [], faces: 0, frames: 0 };
+  let session = new LiveSession(site, site.config.layout !== "none");
+  let running = false;
+
+  const grabCanvas = document.createElement("canvas");
+  const grabContext = grabCanvas.getContext("2d", { willReadFrequently: true })!;
+  const nextFrame = () => new Promise<void>((resolve) => {
+    if ("requestVideoFrameCallback" in video) video.requestVideoFrameCallback(() => resolve());
+    else requestAnimationFrame(() => resolve());
+  });
+
+  const record = (result: LiveFrame, grabbed: number) => {
+    show(result.image);
+    if (result.layout) drawLayout(layoutCanvas, element("legend"), result.layout, site);
+    const shown = performance.now();
+    stats.frames += 1;
+    if (result.face) stats.faces += 1;
+    stats.grabbed.push(grabbed); stats.shown.push(shown); stats.latency.push(shown - grabbed); stats.ms.push(result.ms);
+    stats.stages.push(result.stages as Record<string, number>);
+    const recent = stats.shown.filter((time) => time > shown - 2000);
+    const fps = recent.length > 1 ? (recent.length - 1) / ((recent[recent.length - 1] - recent[0]) / 1000) : NaN;
+    statsLine.textContent = `${fps.toFixed(1)} fps · ${result.ms.toFixed(0)} ms per frame · latency ` +
+      `${median(stats.latency.slice(-30)).toFixed(0)} ms · frame ${stats.frames}` +
+      (result.face ? "" : " · no face in the camera: showing the last frame");
+  };
+
+  const grab = async () => {
+    await nextFrame();
+    while (!video.videoWidth) await nextFrame();
+    grabCanvas.width = video.videoWidth; grabCanvas.height = video.videoHeight;
+    const grabbed = performance.now();
+    grabContext.drawImage(video, 0, 0);
+    const frame = fromImageData(grabContext.getImageData(0, 0, grabCanvas.width, grabCanvas.height));
+    const points = await site.tracker.update(frame);
+    return { grabbed, points, track: performance.now() - grabbed };
+  };
+
+  /** Three frames in flight, each stage on its own thread: the tracker's worker finds the face in the newest camera
+   * frame, this thread retargets and warps the shots of the one before, and onnxruntime's worker runs the network of
+   * the one before that. Frames are shown in order. */
+  async function loop(): Promise<void> {
+    let finishing: Promise<void> = Promise.resolve();
+    let tracking = grab();
+    while (running) {
+      const { grabbed, points, track } = await tracking;
+      tracking = grab();
+      const prepared = session.fromPoints(points, grabbed / 1000, grabbed, track);
+      await finishing;
+      if ("image" in prepared) {
+        record(prepared, grabbed);
+        finishing = Promise.resolve();
+      } else {
+        finishing = session.finish(prepared).then((result) => record(result, grabbed));
+      }
+    }
+    await finishing;
+    await tracking;
+  }
+
+  async function startCamera(): Promise<void> {
+    start.disabled = true;
+    try {
+      video.srcObject = await navigator.mediaDevices.getUserMedia({ video: CAMERA, audio: false });
+      await video.play();
+    } catch (error) {
+      status.textContent = `The camera did not start: ${error instanceof Error ? error.message : error}`;
+      start.disabled = false;
+      return;
+    }
+    status.textContent = "Live: your face drives the person.";
+    recentre.disabled = false;
+    running = true;
+    void loop();
+  }
+
+  start.disabled = false;
+  start.onclick = () => void startCamera();
+  recentre.onclick = () => session.recentre();
+
+  window.lsr = {
+    site, stats, threads, startCamera,
+    /** Fresh session, frames (base64 of (T, H, W, 3) uint8) at fps -> base64 of the composited (T, H', W', 3). */
+    reenactFrames: async (frames: string, shape: number[], fps: number) => {
+      const fresh = new LiveSession(site, false), data = base64ToBytes(frames), size = shape[1] * shape[2] * 3;
+      const out = new Uint8Array(shape[0] * width * height * 3);
+      for (let t = 0; t < shape[0]; t++) {
+        const frame = tensor(data.slice(t * size, (t + 1) * size), [shape[1], shape[2], 3]);
+        out.set((await fresh.step(frame, t / fps)).image.data, t * width * height * 3);
+      }
+      return bytesToBase64(out);
+    },
+    resetSession: () => { session = new LiveSession(site, site.config.layout !== "none"); },
+  };
+  document.body.dataset.ready = "1";
+  if (new URLSearchParams(location.search).has("autostart")) void startCamera();
+}
+
+main().catch((error) => {
+  const status = document.getElementById("status");
+  if (status) status.textContent = `Failed: ${error instanceof Error ? error.message : error}`;
+  document.body.dataset.failed = String(error);
+  console.error(error);
+});

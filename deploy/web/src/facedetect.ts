@@ -195,7 +195,7 @@ export class FaceDetector {
   async detectFaces(image: Tensor<Uint8Array>, left = 0, top = 0, width = image.shape[1], height = image.shape[0]):
       Promise<Detection[]> {
     const { scale, offset } = letterbox({ image, left, top, width, height }, DETECTOR_SIZE, this.input);
-    const feeds = { [this.session.inputNames[0]]: new ort.Tensor("float32", this.input, [1, DETECTOR_SIZE, DETECTOR_SIZE, 3]) };
+    const feeds = { [this.session.inputNames[0]]: new ort.Tensor("float32", this.input.slice(), [1, DETECTOR_SIZE, DETECTOR_SIZE, 3]) };
     const outputs = await this.session.run(feeds);
     let regressors: Float32Array | null = null, logits: Float32Array | null = null;
     for (const name of this.session.outputNames) {

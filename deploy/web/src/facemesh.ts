@@ -153,7 +153,7 @@ export class FaceMesh {
     const matrix = regionToCrop(region, MESH_SIZE);
     warpAffineInto(image, matrix, MESH_SIZE, false, false, this.meshInput);
     const session = this.meshSession;
-    const outputs = await session.run({ [session.inputNames[0]]: new ort.Tensor("float32", this.meshInput, [1, MESH_SIZE, MESH_SIZE, 3]) });
+    const outputs = await session.run({ [session.inputNames[0]]: new ort.Tensor("float32", this.meshInput.slice(), [1, MESH_SIZE, MESH_SIZE, 3]) });
     const raw = outputBySize(outputs, session.outputNames, MESH_POINTS * 3);
     const flag = outputBySize(outputs, session.outputNames, 1);
     const inverse = invertAffine(matrix), depth = region.side / MESH_SIZE;
@@ -173,7 +173,7 @@ export class FaceMesh {
   async irisOutputs(image: Tensor<Uint8Array>, region: Region, mirrored: boolean): Promise<{ eye: Float32Array; iris: Float32Array }> {
     warpAffineInto(image, eyeCrop(region), IRIS_SIZE, true, mirrored, this.eyeInput);
     const session = this.irisSession;
-    const outputs = await session.run({ [session.inputNames[0]]: new ort.Tensor("float32", this.eyeInput, [1, IRIS_SIZE, IRIS_SIZE, 3]) });
+    const outputs = await session.run({ [session.inputNames[0]]: new ort.Tensor("float32", this.eyeInput.slice(), [1, IRIS_SIZE, IRIS_SIZE, 3]) });
     return { eye: outputBySize(outputs, session.outputNames, 71 * 3), iris: outputBySize(outputs, session.outputNames, 5 * 3) };
   }
 

@@ -12,3 +12,5 @@ export * from "./tracker.js";
 export * from "./remap.js";
 export * from "./tps.js";
 export * from "./composite.js";
+export * from "./network.js";
+export * from "./session.js";

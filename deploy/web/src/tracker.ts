@@ -8,7 +8,9 @@
 // then createTracker(assets); per frame await tracker.update(frame) -> (68, 2) frame pixels or null.
 
 import * as ort from "onnxruntime-web";
+
 import { Detection, FaceDetector } from "./facedetect.js";
+import { folderReader } from "./files.js";
 import { FaceMesh, MESH_POINTS, MeshResult, regionFromDetection, regionFromMesh } from "./facemesh.js";
 import { Tensor, tensor } from "./tensor.js";
 
@@ -288,9 +290,7 @@ export async function loadTrackerAssets(read: (path: string) => Promise<Uint8Arr
 /** Node only: the assets from a folder laid out as landmarks/assets (node:fs imported at run time, so that browser
  * bundles never pull it in). */
 export async function readTrackerAssets(folder: string): Promise<TrackerAssets> {
-  const fsModule = "node:fs/promises";
-  const fs = (await import(/* @vite-ignore */ fsModule)) as typeof import("node:fs/promises");
-  return loadTrackerAssets(async (path) => new Uint8Array(await fs.readFile(`${folder}/${path}`)));
+  return loadTrackerAssets(await folderReader(folder));
 }
 
 /** What trackFramesDetailed gives: (T, 68, 2) points, (T, 468, 3) meshes, (T, 2, 4) irises (NaN where no face), the

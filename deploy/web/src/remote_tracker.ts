@@ -1,0 +1,40 @@
+// The page's side of src/tracker_worker.ts: the tracker's `update` as a message round trip.
+
+import { TrackerAssets } from "./tracker.js";
+import { Tensor, tensor } from "./tensor.js";
+
+export class RemoteTracker {
+  private next = 0;
+  private readonly waiting = new Map<number, { resolve: (points: Tensor<Float64Array> | null) => void; reject: (error: Error) => void }>();
+
+  private constructor(private readonly worker: Worker) {
+    worker.onmessage = (event: MessageEvent) => {
+      const { id, points, error } = event.data;
+      const pending = this.waiting.get(id);
+      if (!pending) return;
+      this.waiting.delete(id);
+      if (error !== undefined) pending.reject(new Error(`the tracker failed: ${error}`));
+      else pending.resolve(points === null ? null : tensor(points as Float64Array, [68, 2]));
+    };
+  }
+
+  /** Start the worker (the script `url`, an ES module) and hand it the tracker's assets. */
+  static async create(url: string, assets: TrackerAssets, wasmPaths: string): Promise<RemoteTracker> {
+    const worker = new Worker(url, { type: "module" });
+    await new Promise<void>((resolve, reject) => {
+      worker.onmessage = (event: MessageEvent) => (event.data.ready ? resolve() : reject(new Error(event.data.error)));
+      worker.onerror = (event) => reject(new Error(`the tracker worker did not start: ${event.message}`));
+      worker.postMessage({ assets, wasmPaths });
+    });
+    return new RemoteTracker(worker);
+  }
+
+  /** An (H, W, 3) RGB frame (handed over to the worker) -> its (68, 2) points, or null without a face. */
+  update(frame: Tensor<Uint8Array>): Promise<Tensor<Float64Array> | null> {
+    const id = this.next++;
+    return new Promise((resolve, reject) => {
+      this.waiting.set(id, { resolve, reject });
+      this.worker.postMessage({ id, frame }, [frame.data.buffer as ArrayBuffer]);
+    });
+  }
+}

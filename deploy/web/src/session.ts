@@ -1,0 +1,232 @@
+// The live path end to end: lsr/core/live.py LiveSession, on the site `lsr export --web` writes (lsr/export_web.py).
+// Per frame: camera frame -> track 68 points -> smooth -> crop -> retarget onto the person's anchor shot -> landmark
+// image -> warp the nearest shots -> frame generator -> the nearest mouth -> composite into the person's scene.
+// A frame without a face shows the last good output again.
+
+import { compositeFace, SceneLayers } from "./composite.js";
+import { folderReader } from "./files.js";
+import { Affine, Tensor, tensor } from "./tensor.js";
+import { invertAffine, transformPoints } from "./geometry.js";
+import { finishMouthNearest } from "./mouth.js";
+import { FrameGenerator, Latents } from "./network.js";
+import { drawLandmarks } from "./raster.js";
+import { DriverReference, liveTarget } from "./retarget.js";
+import { LiveSmoother } from "./smooth.js";
+import { References, warpReferences } from "./tps.js";
+import { TrackerAssets, createTracker, loadTrackerAssets } from "./tracker.js";
+
+/** site.json (lsr/export_web.py write_site). */
+export interface SiteConfig {
+  resolution: number;
+  crop_size: number;
+  references: number;
+  latent_dim: number;
+  layout: string;
+  layout_palette: number[][];
+  layout_legend: string[] | null;
+  mouth: string;
+  k: number;
+}
+
+/** The example person encoded ahead of time (person/ of the site). */
+export interface Person {
+  shots: Tensor<Uint8Array>;  // (K, C, C, 3) crops
+  shotLandmarks: Tensor<Float64Array>;  // (K, 68, 2) crop pixels
+  anchor: number;
+  latents: Latents;
+  scene: Tensor<Uint8Array>;  // (H, W, 3): the anchor's frame, what the face is composited into
+  sceneLandmarks: Tensor<Float64Array>;  // (68, 2) its face, frame pixels
+  sceneMatrix: Affine;  // frame -> crop of that face
+  layers: SceneLayers;
+}
+
+export type Reader = (path: string) => Promise<Uint8Array>;
+
+/** What finds the 68 points in a camera frame: src/tracker.ts MeshTracker here, or the page's worker of it. */
+export interface Tracker { update(frame: Tensor<Uint8Array>): Promise<Tensor<Float64Array> | null> }
+
+export interface Site { config: SiteConfig; person: Person; generator: FrameGenerator; tracker: Tracker }
+
+/** Read a site through `read` (fetch in a browser, the file system in Node): its config, the person, the frame
+ * generator and the face tracker (`makeTracker` given: that one, e.g. in a worker; else src/tracker.ts here). */
+export async function loadSite(read: Reader,
+                               makeTracker?: (assets: TrackerAssets) => Promise<Tracker>): Promise<Site> {
+  const text = async (path: string) => JSON.parse(new TextDecoder().decode(await read(path)));
+  const config = (await text("site.json")) as SiteConfig;
+  const subject = await text("person/subject.json");
+  const shapes = subject.shapes as Record<string, number[]>;
+  const raw = async (name: string) => tensor(await read(`person/${name}.u8`), shapes[name]);
+  const [shots, scene, plate, matte8] = await Promise.all(["shots", "scene", "plate", "matte"].map(raw));
+  const matte = new Float32Array(matte8.data.length);
+  for (let i = 0; i < matte.length; i++) matte[i] = matte8.data[i] / 255;
+  const generator = await FrameGenerator.create(await read("models/frame_generator.onnx"), {
+    resolution: config.resolution, cropSize: config.crop_size, references: config.references });
+  const assets = await loadTrackerAssets((path) => read(`models/${path}`));
+  const tracker = makeTracker ? await makeTracker(assets) : await createTracker(assets);
+  const person: Person = {
+    shots: shots as Tensor<Uint8Array>,
+    shotLandmarks: tensor(Float64Array.from((subject.shot_landmarks as number[][][]).flat(2)), [subject.k, 68, 2]),
+    anchor: subject.anchor,
+    latents: { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) },
+    scene: scene as Tensor<Uint8Array>,
+    sceneLandmarks: tensor(Float64Array.from((subject.scene.landmarks as number[][]).flat()), [68, 2]),
+    sceneMatrix: subject.scene.matrix as Affine,
+    layers: { matte: tensor(matte, matte8.shape.slice(0, 2)), plate: plate as Tensor<Uint8Array> },
+  };
+  return { config, person, generator, tracker };
+}
+
+/** Milliseconds of each stage of one frame. */
+export type Stages = Record<"track" | "retarget" | "warps" | "network" | "mouth" | "composite", number>;
+
+export interface LiveFrame {
+  image: Tensor<Uint8Array>;  // (H, W, 3) the person's scene with the re-enacted face (unmarked)
+  face: boolean;  // false: no face in this camera frame; `image` is the last good output (or the scene)
+  layout: Tensor<Float32Array> | null;  // (C_l, S, S) the latent layout, when asked for
+  landmarkImage: Tensor<Uint8Array> | null;
+  target: Tensor<Float64Array> | null;  // (68, 2) the target in the anchor's crop pixels
+  ms: number;
+  stages: Partial<Stages>;
+}
+
+const now = () => performance.now();
+
+export class LiveSession {
+  private readonly smoother = new LiveSmoother();
+  private readonly reference = new DriverReference();
+  private readonly referenceLandmarks: Tensor<Float64Array>;
+  private readonly cropToScene: Affine;
+  last: LiveFrame | null = null;
+  frames = 0;
+  faces = 0;
+
+  constructor(readonly site: Site, readonly withLayout = true) {
+    const { person } = site;
+    const anchor = person.anchor * 68 * 2;
+    this.referenceLandmarks = tensor(person.shotLandmarks.data.slice(anchor, anchor + 136), [68, 2]);
+    this.cropToScene = invertAffine(person.sceneMatrix);
+  }
+
+  /** The next face becomes the driver's neutral one (LiveSession.recentre). */
+  recentre(): void {
+    this.reference.reset();
+  }
+
+  /** One camera frame (H, W, 3) RGB and its capture time in seconds -> the re-enacted frame (LiveSession.step). */
+  async step(frame: Tensor<Uint8Array>, timestamp: number): Promise<LiveFrame> {
+    const prepared = await this.prepare(frame, timestamp);
+    return "image" in prepared ? prepared : this.finish(prepared);
+  }
+
+  /** The first half of a step (LiveSession.prepare): track, smooth, retarget, the landmark image and the warped
+   * shots. A frame without a face gives its LiveFrame at once. `finish` may run while the next frame is prepared. */
+  async prepare(frame: Tensor<Uint8Array>, timestamp: number): Promise<Prepared | LiveFrame> {
+    const started = now();
+    const points = await this.site.tracker.update(frame);
+    return this.fromPoints(points, timestamp, started, now() - started);
+  }
+
+  /** `prepare` after the tracker: its points (68, 2) or null -> the network's inputs, or the face-less frame. */
+  fromPoints(points: Tensor<Float64Array> | null, timestamp: number, started = now(), track = 0): Prepared | LiveFrame {
+    this.frames += 1;
+    const tracked = now();
+    if (points === null) {
+      this.smoother.gap();
+      const shown = this.last?.image ?? this.site.person.scene;
+      return { image: shown, face: false, layout: null, landmarkImage: null, target: null, ms: now() - started,
+               stages: { track } };
+    }
+    const target = liveTarget(this.reference, points, this.smoother.step(points, timestamp), this.site.config.crop_size,
+                              this.referenceLandmarks);
+    return this.inputs(target, started, { track, retarget: now() - tracked });
+  }
+
+  /** The network's inputs for a target (68, 2) in the anchor's crop pixels: its landmark image and warped shots. */
+  inputs(target: Tensor<Float64Array>, started = now(), stages: Partial<Stages> = {}): Prepared {
+    const { config, person } = this.site;
+    const warping = now();
+    const scale = config.resolution / config.crop_size;
+    const small = tensor(Float64Array.from(target.data, (value) => value * scale), [68, 2]);
+    const landmarkImage = drawLandmarks(small, config.resolution);
+    const references = warpReferences(person.shots, person.shotLandmarks, target, config.references);
+    return { target, landmarkImage, references, started, stages: { ...stages, warps: now() - warping } };
+  }
+
+  /** Target landmarks (68, 2) in the anchor's crop pixels -> the frame (LiveSession.render). */
+  async render(target: Tensor<Float64Array>): Promise<LiveFrame> {
+    return this.finish(this.inputs(target));
+  }
+
+  /** The second half (LiveSession.finish): the network, the nearest mouth, the composite into the scene. */
+  async finish(prepared: Prepared): Promise<LiveFrame> {
+    const { config, person, generator } = this.site;
+    const { target, landmarkImage, references } = prepared;
+    const starting = now();
+    const synthesis = await generator.run(landmarkImage, person.latents, references.warped, references.masks, this.withLayout);
+    const generated = now();
+    const face = config.mouth === "nearest"
+      ? finishMouthNearest(synthesis.image, references.warped, references.masks, references.indices, target,
+                           person.shotLandmarks, true) as Tensor<Uint8Array>
+      : synthesis.image;
+    const mouthed = now();
+    const composite = compositeFace(person.scene, person.sceneLandmarks, transformPoints(target, this.cropToScene), face,
+                                    person.sceneMatrix, person.layers);
+    const done = now();
+    this.faces += 1;
+    const frame: LiveFrame = {
+      image: composite.frame, face: true, layout: synthesis.layout, landmarkImage, target,
+      ms: done - starting + Object.values(prepared.stages).reduce((a, b) => a + (b ?? 0), 0),
+      stages: { ...prepared.stages, network: generated - starting, mouth: mouthed - generated, composite: done - mouthed },
+    };
+    this.last = frame;
+    return frame;
+  }
+}
+
+/** A frame's network inputs, between LiveSession.prepare and LiveSession.finish. */
+export interface Prepared {
+  target: Tensor<Float64Array>;
+  landmarkImage: Tensor<Uint8Array>;
+  references: References;
+  started: number;
+  stages: Partial<Stages>;
+}
+
+/** Node, for the tests: the site in `folder` driven by frames (T, H, W, 3) at `fps` -> the composited frames
+ * (T, H', W', 3), the (T, 68, 2) targets (NaN: no face) and each frame's ms. */
+export async function reenactFrames(folder: string, frames: Tensor<Uint8Array>, fps = 25) {
+  const site = await loadSite(await folderReader(folder));
+  const session = new LiveSession(site, false);
+  const [count, height, width] = frames.shape;
+  const size = height * width * 3;
+  const outputs: Uint8Array[] = [];
+  const targets = new Float64Array(count * 136).fill(NaN);
+  const ms: number[] = [];
+  const stages: Partial<Stages>[] = [];
+  for (let t = 0; t < count; t++) {
+    const frame = tensor(frames.data.slice(t * size, (t + 1) * size) as Uint8Array, [height, width, 3]);
+    const result = await session.step(frame, t / fps);
+    outputs.push(result.image.data);
+    if (result.target) targets.set(result.target.data, t * 136);
+    ms.push(result.ms);
+    stages.push(result.stages);
+  }
+  const shape = site.person.scene.shape;
+  const stacked = new Uint8Array(count * shape[0] * shape[1] * 3);
+  outputs.forEach((output, t) => stacked.set(output, t * output.length));
+  return { frames: tensor(stacked, [count, ...shape]), targets: tensor(targets, [count, 68, 2]), ms, stages };
+}
+
+/** Node, for the tests: the site's person drawn at given crop targets (T, 68, 2) -> the composited frames. */
+export async function renderTargets(folder: string, targets: Tensor<Float64Array>) {
+  const site = await loadSite(await folderReader(folder));
+  const session = new LiveSession(site, false);
+  const count = targets.shape[0];
+  const shape = site.person.scene.shape;
+  const stacked = new Uint8Array(count * shape[0] * shape[1] * 3);
+  for (let t = 0; t < count; t++) {
+    const target = tensor(targets.data.slice(t * 136, (t + 1) * 136), [68, 2]);
+    stacked.set((await session.render(target)).image.data, t * shape[0] * shape[1] * 3);
+  }
+  return tensor(stacked, [count, ...shape]);
+}
