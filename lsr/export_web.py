@@ -5,8 +5,10 @@ What it writes (``OUT``):
 
 * ``index.html``, ``app.js`` (the web runtime, ``deploy/web``, built with npm by ``deploy.web_build``), and
   onnxruntime-web's module and WASM files;
-* ``models/``: the frame generator of the model (``lsr export``'s graph) and the face models the tracker runs
-  (MediaPipe's detector, mesh and iris nets, and the 68-from-mesh mapping, as in ``landmarks/assets``);
+* ``models/``: the frame generator and the subject encoder of the model (``lsr export``'s graphs), the face models
+  the tracker runs (MediaPipe's detector, mesh and iris nets, and the 68-from-mesh mapping, as in
+  ``landmarks/assets``) and MediaPipe's selfie segmenter: the page encodes a user's own photos with them
+  (``deploy/web/src/encode.ts``);
 * ``person/``: the example person encoded ahead of time, as ``lsr app``'s live tab encodes it: its K shots
   (crops) with their 68 points, the two latents, the anchor; its scene (the anchor's frame, its face and crop
   transform) with the person matte and background plate of the head layer (``landmarks.scene.background_plate``);
@@ -35,6 +37,10 @@ if TYPE_CHECKING:
 # the tracker's assets (deploy/web/src/tracker.ts TRACKER_ASSET_FILES), relative to landmarks/assets
 TRACKER_ASSETS = ("mediapipe/face_detection_short_range.onnx", "mediapipe/face_landmark.onnx",
                   "mediapipe/iris_landmark.onnx", "mediapipe/LICENSE", "mesh68.json", "mesh_canonical.json")
+# what the page needs to encode a user's own photos (deploy/web/src/encode.ts, segment.ts): the bundle's subject
+# encoder and the selfie segmenter of the person matte (landmarks.segment), relative to landmarks/assets
+SUBJECT_ENCODER = "subject_encoder.onnx"
+SEGMENTER = "mediapipe/selfie_segmentation.onnx"
 PAGE = Path(__file__).resolve().parents[1] / "deploy" / "web" / "static"
 
 
@@ -111,8 +117,9 @@ def write_site(weights: Path, out: Path, k: int | None = None) -> WebSite:
         models = temp / "models"
         (models / "mediapipe").mkdir(parents=True)
         shutil.copy2(bundle / "frame_generator.onnx", models / "frame_generator.onnx")
+        shutil.copy2(bundle / SUBJECT_ENCODER, models / SUBJECT_ENCODER)  # the page encodes a user's own photos
         assets = Path(__file__).resolve().parents[1] / "landmarks" / "assets"
-        for name in TRACKER_ASSETS:
+        for name in (*TRACKER_ASSETS, SEGMENTER):
             shutil.copy2(assets / name, models / name)
         person = write_person(temp / "person", reenactor, subject, scene)
         legend = load_layout_legend(weights)
@@ -163,9 +170,10 @@ def _notice() -> str:
     return (
         "# What this site holds\n\n"
         f"- The example person: {REAL_EXAMPLE} (lsr/examples/NOTICE.md).\n"
-        "- The face detector, face mesh and iris nets: MediaPipe (Apache-2.0, models/mediapipe/LICENSE), converted to ONNX by "
-        "`lsr face-models convert` (landmarks/assets/mediapipe/SOURCES.json).\n"
+        "- The face detector, face mesh, iris and selfie segmentation nets: MediaPipe (Apache-2.0, "
+        "models/mediapipe/LICENSE), converted to ONNX by `lsr face-models convert` "
+        "(landmarks/assets/mediapipe/SOURCES.json).\n"
         "- onnxruntime-web (MIT, Microsoft): ort.wasm.min.mjs and its WASM build.\n"
-        "- The frame generator: this project's model (MODEL_CARD.md).\n\n"
+        "- The frame generator and the subject encoder: this project's model (MODEL_CARD.md).\n\n"
         "Every frame it shows is synthetic and marked so.\n"
     )

@@ -72,3 +72,20 @@ def test_the_fake_camera_drives_the_person_live_with_the_mark_and_the_layout(pag
     assert page.inner_text("#legend").strip()  # the layout panel's legend names its parts
     page.screenshot(path=str(tmp_path / "web.png"))
     assert not page.errors
+
+
+def test_your_own_photos_become_the_person(page, tmp_path):
+    from landmarks.imageio import write_image
+    from lsr.examples import example_shots
+
+    paths = []
+    for index, shot in enumerate(example_shots()):
+        paths.append(tmp_path / f"photo_{index}.png")
+        write_image(paths[-1], shot)
+    page.set_input_files("#photos", [str(path) for path in paths])
+    page.wait_for_function("document.querySelector('#status').innerText.startsWith('Your person')")
+    assert "4 shots" in page.inner_text("#status")
+    assert page.is_enabled("#example")
+    page.click("#example")
+    assert page.inner_text("#status") == "The example person." and not page.is_enabled("#example")
+    assert not page.errors

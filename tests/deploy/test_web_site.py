@@ -19,7 +19,8 @@ FPS = 25.0
 def test_the_site_holds_the_page_the_models_and_the_person(site):
     names = {path.relative_to(site.folder).as_posix() for path in site.files}
     assert {"index.html", "app.js", "sw.js", "ort.wasm.min.mjs", "ort-wasm-simd-threaded.wasm", "site.json", "NOTICE.md",
-            "models/frame_generator.onnx", "models/mediapipe/face_landmark.onnx", "person/subject.json",
+            "models/frame_generator.onnx", "models/mediapipe/face_landmark.onnx", "models/subject_encoder.onnx",
+            "models/mediapipe/selfie_segmentation.onnx", "person/subject.json",
             "person/shots.u8", "person/scene.u8", "person/matte.u8", "person/plate.u8"} <= names
     config = json.loads((site.folder / "site.json").read_text())
     assert config["crop_size"] == 256 and config["resolution"] == 64 and config["references"] == 5

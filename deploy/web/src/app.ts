@@ -4,7 +4,8 @@
 import * as ort from "onnxruntime-web";
 
 import { RemoteTracker } from "./remote_tracker.js";
-import { LiveFrame, LiveSession, Site, loadSite } from "./session.js";
+import { PersonModels, encodePerson, loadPersonModels, photoFromImageData, shrinkPhoto } from "./encode.js";
+import { LiveFrame, LiveSession, Person, Site, loadSite } from "./session.js";
 import { Tensor, tensor } from "./tensor.js";
 
 const CAMERA = { width: { ideal: 320 }, height: { ideal: 240 } }; // as lsr app's live tab asks (app/ui.py)
@@ -46,14 +47,15 @@ function configureOnnxRuntime(): void {
   ort.env.wasm.proxy = true;  // the networks run in a worker: this thread tracks and warps the next frame meanwhile
 }
 
-/** An RGB (H, W, 3) frame -> RGBA ImageData. */
-function toImageData(image: Tensor<Uint8Array>): ImageData {
+/** An RGB (H, W, 3) frame -> RGBA ImageData (into `into` when it is the frame's size). */
+function toImageData(image: Tensor<Uint8Array>, into?: ImageData): ImageData {
   const [height, width] = image.shape;
-  const rgba = new Uint8ClampedArray(width * height * 4);
-  for (let i = 0, j = 0; i < image.data.length; i += 3, j += 4) {
-    rgba[j] = image.data[i]; rgba[j + 1] = image.data[i + 1]; rgba[j + 2] = image.data[i + 2]; rgba[j + 3] = 255;
+  const pixels = into && into.width === width && into.height === height ? into : new ImageData(width, height);
+  const rgba = pixels.data, data = image.data;
+  for (let i = 0, j = 0; i < data.length; i += 3, j += 4) {
+    rgba[j] = data[i]; rgba[j + 1] = data[i + 1]; rgba[j + 2] = data[i + 2]; rgba[j + 3] = 255;
   }
-  return new ImageData(rgba, width, height);
+  return pixels;
 }
 
 /** RGBA canvas pixels -> an RGB (H, W, 3) frame. */
@@ -78,26 +80,41 @@ function drawMark(context: CanvasRenderingContext2D, width: number, height: numb
 }
 
 /** The latent layout as parts (lsr.layout_view.layout_parts_rgb: each pixel's strongest channel in a fixed colour)
- * with a legend of the channels covering at least 2 % of it. */
+ * with a legend of the channels covering at least 2 % of it (the canvas sized and the legend written only when they
+ * change: each costs the page a reflow). */
 function drawLayout(canvas: HTMLCanvasElement, legend: HTMLElement, layout: Tensor<Float32Array>, site: Site): void {
-  const [channels, height, width] = layout.shape, plane = height * width;
+  const [channels, height, width] = layout.shape, plane = height * width, data = layout.data;
   const palette = site.config.layout_palette, names = site.config.layout_legend;
   const rgba = new Uint8ClampedArray(plane * 4), counts = new Array(channels).fill(0);
   for (let p = 0; p < plane; p++) {
-    let best = 0;
-    for (let c = 1; c < channels; c++) if (layout.data[c * plane + p] > layout.data[best * plane + p]) best = c;
+    let best = 0, strongest = data[p];
+    for (let c = 1, at = plane + p; c < channels; c++, at += plane) {
+      if (data[at] > strongest) { best = c; strongest = data[at]; }
+    }
     counts[best] += 1;
     const colour = palette[best % palette.length];
-    rgba.set([colour[0], colour[1], colour[2], 255], 4 * p);
+    rgba[4 * p] = colour[0]; rgba[4 * p + 1] = colour[1]; rgba[4 * p + 2] = colour[2]; rgba[4 * p + 3] = 255;
   }
-  canvas.width = width; canvas.height = height;
+  if (canvas.width !== width || canvas.height !== height) { canvas.width = width; canvas.height = height; }
   canvas.getContext("2d")!.putImageData(new ImageData(rgba, width, height), 0, 0);
   const shown = counts.map((count, c) => [count / plane, c]).filter(([share]) => share >= 0.02)
     .sort((a, b) => b[0] - a[0]).slice(0, 6);
-  legend.innerHTML = shown.map(([, c]) => {
+  const html = shown.map(([, c]) => {
     const colour = palette[c % palette.length];
     return `<div><span style="background:rgb(${colour.join(",")})"></span>${names?.[c] ?? `channel ${c}`}</div>`;
   }).join("");
+  if (legend.dataset.html !== html) { legend.innerHTML = html; legend.dataset.html = html; }
+}
+
+/** An image file -> an upright (H, W, 3) RGB photo, at most 1280 pixels on its long side (the scene is composited
+ * every frame at its full size). */
+async function decodePhoto(file: File): Promise<Tensor<Uint8Array>> {
+  const bitmap = await createImageBitmap(file, { imageOrientation: "from-image" });
+  const { width, height } = bitmap;
+  const context = new OffscreenCanvas(width, height).getContext("2d")!;
+  context.drawImage(bitmap, 0, 0);
+  bitmap.close();
+  return shrinkPhoto(photoFromImageData(context.getImageData(0, 0, width, height)), 1280);
 }
 
 const median = (values: number[]) => {
@@ -126,12 +143,24 @@ async function main(): Promise<void> {
   const video = element<HTMLVideoElement>("camera"), start = element<HTMLButtonElement>("start");
   const recentre = element<HTMLButtonElement>("recentre");
   const wasmPaths = ort.env.wasm.wasmPaths as string;
-  const site = await loadSite(async (path) => new Uint8Array(await (await fetch(path)).arrayBuffer()),
-                              (assets) => RemoteTracker.create("./tracker.worker.js", assets, wasmPaths));
+  const workers: { tracker?: RemoteTracker } = {};
+  const read = async (path: string) => new Uint8Array(await (await fetch(path)).arrayBuffer());
+  const site = await loadSite(read,
+                              async (assets) => (workers.tracker = await RemoteTracker.create("./tracker.worker.js", assets,
+                                                                                               wasmPaths)));
   const [height, width] = site.person.scene.shape;
-  output.width = width; output.height = height;
   const context = output.getContext("2d")!;
-  const show = (frame: Tensor<Uint8Array>) => { context.putImageData(toImageData(frame), 0, 0); drawMark(context, width, height); };
+  let shownPixels: ImageData | undefined;  // the canvas's pixels, the same buffer each frame
+  const show = (frame: Tensor<Uint8Array>) => {
+    const [frameHeight, frameWidth] = frame.shape;
+    if (output.width !== frameWidth || output.height !== frameHeight) {  // another person's scene
+      output.width = frameWidth; output.height = frameHeight;
+      shownPixels = undefined;
+    }
+    shownPixels = toImageData(frame, shownPixels);
+    context.putImageData(shownPixels, 0, 0);
+    drawMark(context, frameWidth, frameHeight);
+  };
   show(site.person.scene);
   const threads = ort.env.wasm.numThreads;
   status.textContent = `Ready (onnxruntime-web, WASM, ${threads} thread${threads === 1 ? "" : "s"}). Start the camera to drive the person.`;
@@ -167,8 +196,9 @@ async function main(): Promise<void> {
     grabCanvas.width = video.videoWidth; grabCanvas.height = video.videoHeight;
     const grabbed = performance.now();
     grabContext.drawImage(video, 0, 0);
-    const frame = fromImageData(grabContext.getImageData(0, 0, grabCanvas.width, grabCanvas.height));
-    const points = await site.tracker.update(frame);
+    const pixels = grabContext.getImageData(0, 0, grabCanvas.width, grabCanvas.height);
+    // the tracker's worker takes the canvas's RGBA pixels as they are (it drops the alpha)
+    const points = await (workers.tracker ? workers.tracker.updateRgba(pixels) : site.tracker.update(fromImageData(pixels)));
     return { grabbed, points, track: performance.now() - grabbed };
   };
 
@@ -181,13 +211,14 @@ async function main(): Promise<void> {
     while (running) {
       const { grabbed, points, track } = await tracking;
       tracking = grab();
-      const prepared = session.fromPoints(points, grabbed / 1000, grabbed, track);
+      const current = session;  // a person chosen meanwhile takes over from the next frame
+      const prepared = current.fromPoints(points, grabbed / 1000, grabbed, track);
       await finishing;
       if ("image" in prepared) {
         record(prepared, grabbed);
         finishing = Promise.resolve();
       } else {
-        finishing = session.finish(prepared).then((result) => record(result, grabbed));
+        finishing = current.finish(prepared).then((result) => record(result, grabbed));
       }
     }
     await finishing;
@@ -213,6 +244,34 @@ async function main(): Promise<void> {
   start.disabled = false;
   start.onclick = () => void startCamera();
   recentre.onclick = () => session.recentre();
+
+  // the person: the example one (encoded by lsr export --web), or the user's own photos encoded here
+  const layout = site.config.layout !== "none";
+  const photosInput = element<HTMLInputElement>("photos"), example = element<HTMLButtonElement>("example");
+  let personModels: Promise<PersonModels> | null = null;
+  const usePerson = (person: Person, note: string) => {
+    session = new LiveSession({ ...site, person }, layout);
+    if (!running) show(person.scene);
+    example.disabled = person === site.person;
+    status.textContent = note;
+  };
+  photosInput.onchange = async () => {
+    const files = Array.from(photosInput.files ?? []);
+    if (!files.length) return;
+    status.textContent = `Encoding ${files.length} photo${files.length === 1 ? "" : "s"}…`;
+    try {
+      const photos = await Promise.all(files.map(decodePhoto));
+      personModels ??= loadPersonModels(read);
+      const person = await encodePerson(photos, await personModels, site.config);
+      usePerson(person, `Your person: ${person.shots.shape[0]} shot${person.shots.shape[0] === 1 ? "" : "s"}.` +
+                        (person.notes.length ? ` ${person.notes.join(" ")}` : ""));
+    } catch (error) {
+      status.textContent = `Those photos could not be used: ${error instanceof Error ? error.message : error}`;
+    } finally {
+      photosInput.value = "";
+    }
+  };
+  example.onclick = () => usePerson(site.person, "The example person.");
 
   window.lsr = {
     site, stats, threads, startCamera,

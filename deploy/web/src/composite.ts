@@ -7,7 +7,7 @@
 
 import { cropTransform, faceGeometry, invertAffine, similarityAffine, similarityProcrustes,
          transformPoints } from "./geometry.js";
-import { PixelImage, bilinearAt, densifyGrid, gaussianBlurF32, remapCubic, resizeArea, resizeLinear,
+import { PixelImage, bilinearAt, clampedView, densifyGrid, gaussianBlurF32, remapCubic, resizeArea, resizeLinear,
          roundHalfEven as rint, warpAffineCubic } from "./remap.js";
 import { RIGID_INDEX } from "./retarget.js";
 import { Affine, Tensor, checkPoints, tensor } from "./tensor.js";
@@ -408,6 +408,7 @@ function headLayer(scene: Tensor<Uint8Array>, output: Uint8Array, scenePoints: T
                                new Uint8Array(w * h * 3), inside);
   const matte: PixelImage<Float32Array> | null = layers
     ? { data: layers.matte.data, width, height, channels: 1 } : null;
+  const clamped = clampedView(output);  // its stores round half to even and saturate, as rint and the clip do
   for (let y = 0, i = 0; y < h; y++) {
     for (let x = 0; x < w; x++, i++) {
       if (!inside[i]) continue;
@@ -421,8 +422,7 @@ function headLayer(scene: Tensor<Uint8Array>, output: Uint8Array, scenePoints: T
       const background = f32((1 - f32(bilinearAt(matte, sourceX[i], sourceY[i], "reflect"))) * moving);
       for (let c = 0; c < 3; c++) {
         const head = movedHead[3 * i + c];
-        const value = rint(f32(head + f32(background * f32(layers.plate.data[o + c] - head))));
-        output[o + c] = value < 0 ? 0 : value > 255 ? 255 : value;
+        clamped[o + c] = f32(head + f32(background * f32(layers.plate.data[o + c] - head)));
       }
     }
   }
@@ -526,12 +526,12 @@ export function compositeFace(scene: Tensor<Uint8Array>, sceneLandmarks: Tensor,
       }
     }
   }
+  const clamped = clampedView(output);  // its stores round half to even and saturate, as rint and the clip do
   for (let y = 0, i = 0; y < fh; y++) {  // head + (face - head) * alpha
     for (let x = 0; x < fw; x++, i++) {
       const o = ((fy0 + y) * width + fx0 + x) * 3;
       for (let k = 0; k < 3; k++) {
-        const value = rint(f32(f32(f32(faceF[3 * i + k] - head[3 * i + k]) * alpha[i]) + head[3 * i + k]));
-        output[o + k] = value < 0 ? 0 : value > 255 ? 255 : value;
+        clamped[o + k] = f32(f32(f32(faceF[3 * i + k] - head[3 * i + k]) * alpha[i]) + head[3 * i + k]);
       }
     }
   }

@@ -14,3 +14,7 @@ export * from "./tps.js";
 export * from "./composite.js";
 export * from "./network.js";
 export * from "./session.js";
+export * from "./pose.js";
+export * from "./segment.js";
+export * from "./encode.js";
+export * from "./references.js";

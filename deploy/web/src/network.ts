@@ -8,32 +8,38 @@ import { Tensor, tensor } from "./tensor.js";
 
 export interface Latents { layout: Float32Array; style: Float32Array }
 
+/** Each uint8 value's float32 in [-1, 1], v / 127.5 - 1 (as to_network computes it, then rounded to float32). */
+const NETWORK_VALUES = Float32Array.from({ length: 256 }, (_, v) => v / 127.5 - 1);
+
 /** (..., H, W, 3) uint8 pictures -> (..., 3, H, W) float32 in [-1, 1] (lsr.core.images.to_network), into `out`. */
 export function toNetwork(images: ArrayLike<number>, count: number, side: number,
                           out: Float32Array<ArrayBuffer> = new Float32Array(count * 3 * side * side)): Float32Array<ArrayBuffer> {
-  const plane = side * side;
+  const plane = side * side, values = NETWORK_VALUES;
+  if (!(images instanceof Uint8Array || images instanceof Uint8ClampedArray)) {  // any numbers: computed each
+    for (let i = 0; i < count * plane * 3; i++) {
+      const n = Math.floor(i / (plane * 3)), p = Math.floor((i % (plane * 3)) / 3), c = i % 3;
+      out[n * plane * 3 + c * plane + p] = images[i] / 127.5 - 1;
+    }
+    return out;
+  }
   for (let n = 0; n < count; n++) {
     const base = n * plane * 3;
-    for (let p = 0; p < plane; p++) {
-      const pixel = base + 3 * p;
-      out[base + p] = images[pixel] / 127.5 - 1;
-      out[base + plane + p] = images[pixel + 1] / 127.5 - 1;
-      out[base + 2 * plane + p] = images[pixel + 2] / 127.5 - 1;
+    for (let p = 0, pixel = base; p < plane; p++, pixel += 3) {
+      out[base + p] = values[images[pixel]];
+      out[base + plane + p] = values[images[pixel + 1]];
+      out[base + 2 * plane + p] = values[images[pixel + 2]];
     }
   }
   return out;
 }
 
-/** (3, H, W) float in [-1, 1] -> (H, W, 3) uint8, rounded half to even as numpy's rint (lsr.core.images.from_network). */
+/** (3, H, W) float in [-1, 1] -> (H, W, 3) uint8, rounded half to even as numpy's rint (lsr.core.images.from_network;
+ * the clamped view's store rounds half to even and saturates). */
 export function fromNetwork(image: Float32Array, side: number): Tensor<Uint8Array> {
   const plane = side * side, out = new Uint8Array(plane * 3);
+  const clamped = new Uint8ClampedArray(out.buffer);
   for (let c = 0; c < 3; c++) {
-    for (let p = 0; p < plane; p++) {
-      const value = (image[c * plane + p] + 1) * 127.5;
-      const floor = Math.floor(value), fraction = value - floor;
-      const rounded = fraction > 0.5 || (fraction === 0.5 && floor % 2 !== 0) ? floor + 1 : floor;
-      out[3 * p + c] = rounded < 0 ? 0 : rounded > 255 ? 255 : rounded;
-    }
+    for (let p = 0, i = c * plane; p < plane; p++, i++) clamped[3 * p + c] = (image[i] + 1) * 127.5;
   }
   return tensor(out, [side, side, 3]);
 }

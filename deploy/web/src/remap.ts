@@ -39,38 +39,41 @@ function cubicWeights(t: number, w: Float64Array, o: number): void {
 
 const weights = new Float64Array(8);
 
-function saturate(sum: number): number {
-  const value = roundHalfEven(sum);
-  return value < 0 ? 0 : value > 255 ? 255 : value;
+/** A uint8 array's bytes as a Uint8ClampedArray: a number stored there is rounded half to even and saturated to
+ * [0, 255] (ECMAScript's ToUint8Clamp; NaN gives 0), as cvRound + saturate_cast<uchar> do, and far faster than
+ * Math.round and a tie check. */
+export function clampedView(array: Uint8Array): Uint8ClampedArray {
+  return new Uint8ClampedArray(array.buffer, array.byteOffset, array.length);
 }
 
-/** cubicAt for 3 channels at (x, y) whose 4 x 4 taps (from (ix - 1, iy - 1)) lie inside the image: the usual case. */
-function cubicInside3(src: Uint8Array, stride: number, x: number, y: number, ix: number, iy: number, dst: Uint8Array,
-                      o: number): void {
+/** cubicAt for 3 channels at (x, y) whose 4 x 4 taps (from (ix - 1, iy - 1)) lie inside the image: the usual case.
+ * dst: the output's clamped view (rounds and saturates). */
+function cubicInside3(src: Uint8Array, stride: number, x: number, y: number, ix: number, iy: number,
+                      dst: Uint8ClampedArray, o: number): void {
   const A = -0.75, t = x - ix, u = 1 - t, p = t + 1, q = y - iy, v = 1 - q, r = q + 1;
   const w0 = ((A * p - 5 * A) * p + 8 * A) * p - 4 * A, w1 = ((A + 2) * t - (A + 3)) * t * t + 1;
   const w2 = ((A + 2) * u - (A + 3)) * u * u + 1, w3 = 1 - w0 - w1 - w2;
   const h0 = ((A * r - 5 * A) * r + 8 * A) * r - 4 * A, h1 = ((A + 2) * q - (A + 3)) * q * q + 1;
   const h2 = ((A + 2) * v - (A + 3)) * v * v + 1, h3 = 1 - h0 - h1 - h2;
   const a = (iy - 1) * stride + (ix - 1) * 3, b = a + stride, c = b + stride, d = c + stride;
-  dst[o] = saturate(h0 * (src[a] * w0 + src[a + 3] * w1 + src[a + 6] * w2 + src[a + 9] * w3)
+  dst[o] = h0 * (src[a] * w0 + src[a + 3] * w1 + src[a + 6] * w2 + src[a + 9] * w3)
     + h1 * (src[b] * w0 + src[b + 3] * w1 + src[b + 6] * w2 + src[b + 9] * w3)
     + h2 * (src[c] * w0 + src[c + 3] * w1 + src[c + 6] * w2 + src[c + 9] * w3)
-    + h3 * (src[d] * w0 + src[d + 3] * w1 + src[d + 6] * w2 + src[d + 9] * w3));
-  dst[o + 1] = saturate(h0 * (src[a + 1] * w0 + src[a + 4] * w1 + src[a + 7] * w2 + src[a + 10] * w3)
+    + h3 * (src[d] * w0 + src[d + 3] * w1 + src[d + 6] * w2 + src[d + 9] * w3);
+  dst[o + 1] = h0 * (src[a + 1] * w0 + src[a + 4] * w1 + src[a + 7] * w2 + src[a + 10] * w3)
     + h1 * (src[b + 1] * w0 + src[b + 4] * w1 + src[b + 7] * w2 + src[b + 10] * w3)
     + h2 * (src[c + 1] * w0 + src[c + 4] * w1 + src[c + 7] * w2 + src[c + 10] * w3)
-    + h3 * (src[d + 1] * w0 + src[d + 4] * w1 + src[d + 7] * w2 + src[d + 10] * w3));
-  dst[o + 2] = saturate(h0 * (src[a + 2] * w0 + src[a + 5] * w1 + src[a + 8] * w2 + src[a + 11] * w3)
+    + h3 * (src[d + 1] * w0 + src[d + 4] * w1 + src[d + 7] * w2 + src[d + 10] * w3);
+  dst[o + 2] = h0 * (src[a + 2] * w0 + src[a + 5] * w1 + src[a + 8] * w2 + src[a + 11] * w3)
     + h1 * (src[b + 2] * w0 + src[b + 5] * w1 + src[b + 8] * w2 + src[b + 11] * w3)
     + h2 * (src[c + 2] * w0 + src[c + 5] * w1 + src[c + 8] * w2 + src[c + 11] * w3)
-    + h3 * (src[d + 2] * w0 + src[d + 5] * w1 + src[d + 8] * w2 + src[d + 11] * w3));
+    + h3 * (src[d + 2] * w0 + src[d + 5] * w1 + src[d + 8] * w2 + src[d + 11] * w3);
 }
 
-/** One output pixel of OpenCV's bicubic at source (x, y): its `channels` values, rounded and saturated, to
- * dst[dstOffset...]. A constant border reads 0. */
+/** One output pixel of OpenCV's bicubic at source (x, y): its `channels` values, rounded and saturated (dst: the
+ * output's clamped view), to dst[dstOffset...]. A constant border reads 0. */
 function cubicAt(src: Uint8Array, width: number, height: number, channels: number, x: number, y: number,
-                 border: BorderMode, dst: Uint8Array, dstOffset: number): void {
+                 border: BorderMode, dst: Uint8ClampedArray, dstOffset: number): void {
   if (!(Math.abs(x) < 1e7 && Math.abs(y) < 1e7)) {  // far off (or NaN): only the border is read
     x = Math.max(-1e7, Math.min(1e7, x || 0));
     y = Math.max(-1e7, Math.min(1e7, y || 0));
@@ -87,7 +90,7 @@ function cubicAt(src: Uint8Array, width: number, height: number, channels: numbe
         sum += w[4 + r] * (src[row] * w[0] + src[row + channels] * w[1] + src[row + 2 * channels] * w[2]
           + src[row + 3 * channels] * w[3]);
       }
-      dst[dstOffset + k] = saturate(sum);
+      dst[dstOffset + k] = sum;
     }
     return;
   }
@@ -108,7 +111,7 @@ function cubicAt(src: Uint8Array, width: number, height: number, channels: numbe
         + (x2 >= 0 ? src[row + x2 * channels] * w[2] : 0)
         + (x3 >= 0 ? src[row + x3 * channels] * w[3] : 0));
     }
-    dst[dstOffset + k] = saturate(sum);
+    dst[dstOffset + k] = sum;
   }
 }
 
@@ -121,16 +124,28 @@ export interface PixelImage<T> { data: T; width: number; height: number; channel
 export function remapCubic(src: PixelImage<Uint8Array>, mapX: Float32Array, mapY: Float32Array, border: BorderMode,
                            dst?: Uint8Array, only?: Uint8Array): Uint8Array {
   const channels = src.channels;
-  const out = dst ?? new Uint8Array(mapX.length * channels);
+  const out = dst ?? new Uint8Array(mapX.length * channels), clamped = clampedView(out);
   const { data, width, height } = src, stride = width * channels, fast = channels === 3;
-  for (let i = 0; i < mapX.length; i++) {
+  const xEnd = width - 2, yEnd = height - 2, count = mapX.length;
+  for (let i = 0; i < count; i++) {
     if (only && !only[i]) continue;
-    const x = mapX[i], y = mapY[i], ix = Math.floor(x), iy = Math.floor(y);
-    if (fast && ix >= 1 && ix < width - 2 && iy >= 1 && iy < height - 2) {
-      cubicInside3(data, stride, x, y, ix, iy, out, 3 * i);
-    } else cubicAt(data, width, height, channels, x, y, border, out, i * channels);
+    const x = mapX[i], y = mapY[i];
+    // floor(x) in [1, width - 3] exactly when x is in [1, width - 2) (false for NaN): then x | 0 is its floor
+    if (fast && x >= 1 && x < xEnd && y >= 1 && y < yEnd) cubicInside3(data, stride, x, y, x | 0, y | 0, clamped, 3 * i);
+    else cubicAt(data, width, height, channels, x, y, border, clamped, i * channels);
   }
   return out;
+}
+
+/** remapCubic's pixels whose taps leave the source (the rest, remap_wasm.ts's, are left as dst has them). */
+export function remapCubicBorder(src: PixelImage<Uint8Array>, mapX: Float32Array, mapY: Float32Array,
+                                 border: BorderMode, dst: Uint8Array): void {
+  const { data, width, height, channels } = src, clamped = clampedView(dst);
+  const xEnd = width - 2, yEnd = height - 2, count = mapX.length;
+  for (let i = 0; i < count; i++) {
+    const x = mapX[i], y = mapY[i];
+    if (!(x >= 1 && x < xEnd && y >= 1 && y < yEnd)) cubicAt(data, width, height, channels, x, y, border, clamped, i * channels);
+  }
 }
 
 /** cv2.warpAffine(src, m, (width, height), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP, borderMode=border) for
@@ -139,14 +154,15 @@ export function warpAffineCubic(src: PixelImage<Uint8Array>, m: Affine, width: n
                                 border: BorderMode): Uint8Array {
   const f = Math.fround, channels = src.channels, m0 = f(m[0]), m3 = f(m[3]);
   const stride = src.width * channels, fast = channels === 3;
-  const out = new Uint8Array(width * height * channels);
+  const out = new Uint8Array(width * height * channels), clamped = clampedView(out);
+  const uEnd = src.width - 2, vEnd = src.height - 2;
   for (let y = 0; y < height; y++) {
     const mx = f(y * m[1] + m[2]), my = f(y * m[4] + m[5]);
     for (let x = 0; x < width; x++) {
-      const u = f(m0 * x + mx), v = f(m3 * x + my), iu = Math.floor(u), iv = Math.floor(v);
-      if (fast && iu >= 1 && iu < src.width - 2 && iv >= 1 && iv < src.height - 2) {
-        cubicInside3(src.data, stride, u, v, iu, iv, out, (y * width + x) * 3);
-      } else cubicAt(src.data, src.width, src.height, channels, u, v, border, out, (y * width + x) * channels);
+      const u = f(m0 * x + mx), v = f(m3 * x + my);
+      if (fast && u >= 1 && u < uEnd && v >= 1 && v < vEnd) {
+        cubicInside3(src.data, stride, u, v, u | 0, v | 0, clamped, (y * width + x) * 3);
+      } else cubicAt(src.data, src.width, src.height, channels, u, v, border, clamped, (y * width + x) * channels);
     }
   }
   return out;
@@ -331,7 +347,7 @@ export function coarseGrid(height: number, width: number, step: number): CoarseG
   return { height, width, step, xs, ys, points };
 }
 
-interface Interpolation { lower: Int32Array; w0: Float32Array; w1: Float32Array }
+export interface Interpolation { lower: Int32Array; w0: Float32Array; w1: Float32Array }
 const interpolations = new Map<string, Interpolation>();
 
 /** Linear interpolation from samples at `coarse` to 0..size-1, float32 weights
@@ -355,26 +371,46 @@ function interpolation(size: number, coarse: Float64Array): Interpolation {
   return table;
 }
 
-/** Values on the grid (rows, cols) -> (H, W) float32 at every pixel, bilinear, float32 like numpy's two products. */
-export function densifyGrid(grid: CoarseGrid, values: ArrayLike<number>): Float32Array {
-  const { height, width } = grid, cols = grid.xs.length;
-  if (grid.step === 1) return Float32Array.from(values);
-  const rows = interpolation(height, grid.ys), across = interpolation(width, grid.xs);
-  const half = new Float32Array(height * cols), out = new Float32Array(height * width);
-  for (let y = 0; y < height; y++) {
+let densifyScratch = new Float32Array(0);  // densifyGrid's rows, kept from call to call
+
+/** densifyGrid's interpolation across: each pixel column's grid column to its left and their float32 weights. */
+export function gridAcross(grid: CoarseGrid): Interpolation {
+  return interpolation(grid.width, grid.xs);
+}
+
+/** densifyGrid's first pass: the values down to every pixel row at the grid's columns, (height, cols) float32 into
+ * `out`. */
+export function densifyRows(grid: CoarseGrid, values: ArrayLike<number>, out: Float32Array): void {
+  const rows = interpolation(grid.height, grid.ys), cols = grid.xs.length;
+  for (let y = 0; y < grid.height; y++) {
     const a = rows.lower[y] * cols, b = a + cols, w0 = rows.w0[y], w1 = rows.w1[y];
     for (let j = 0; j < cols; j++) {
-      half[y * cols + j] = w0 * Math.fround(values[a + j]) + w1 * Math.fround(values[b + j]);
+      out[y * cols + j] = w0 * Math.fround(values[a + j]) + w1 * Math.fround(values[b + j]);
     }
   }
-  for (let y = 0; y < height; y++) {
+}
+
+/** Values on the grid (rows, cols) -> (H, W) float32 at every pixel, bilinear, float32 like numpy's two products;
+ * into `out` when given. */
+export function densifyGrid(grid: CoarseGrid, values: ArrayLike<number>, out?: Float32Array): Float32Array {
+  const { height, width } = grid, cols = grid.xs.length;
+  const dense = out ?? new Float32Array(height * width);
+  if (grid.step === 1) {
+    dense.set(values);
+    return dense;
+  }
+  const across = gridAcross(grid);
+  if (densifyScratch.length < height * cols) densifyScratch = new Float32Array(height * cols);
+  const half = densifyScratch, lower = across.lower, a0 = across.w0, a1 = across.w1;
+  densifyRows(grid, values, half);
+  for (let y = 0, o = 0; y < height; y++) {
     const line = y * cols;
-    for (let x = 0; x < width; x++) {
-      const l = line + across.lower[x];
-      out[y * width + x] = across.w0[x] * half[l] + across.w1[x] * half[l + 1];
+    for (let x = 0; x < width; x++, o++) {
+      const l = line + lower[x];
+      dense[o] = a0[x] * half[l] + a1[x] * half[l + 1];
     }
   }
-  return out;
+  return dense;
 }
 
 // ---- the same on tensors (the Python tests call these against OpenCV) ----------------------------------------

@@ -31,10 +31,19 @@ export class RemoteTracker {
 
   /** An (H, W, 3) RGB frame (handed over to the worker) -> its (68, 2) points, or null without a face. */
   update(frame: Tensor<Uint8Array>): Promise<Tensor<Float64Array> | null> {
+    return this.send({ frame }, frame.data.buffer as ArrayBuffer);
+  }
+
+  /** `update` of a canvas's RGBA pixels as they are (handed over): the worker drops the alpha, off this thread. */
+  updateRgba(pixels: ImageData): Promise<Tensor<Float64Array> | null> {
+    return this.send({ rgba: pixels.data, width: pixels.width, height: pixels.height }, pixels.data.buffer as ArrayBuffer);
+  }
+
+  private send(message: Record<string, unknown>, buffer: ArrayBuffer): Promise<Tensor<Float64Array> | null> {
     const id = this.next++;
     return new Promise((resolve, reject) => {
       this.waiting.set(id, { resolve, reject });
-      this.worker.postMessage({ id, frame }, [frame.data.buffer as ArrayBuffer]);
+      this.worker.postMessage({ id, ...message }, [buffer]);
     });
   }
 }

@@ -12,7 +12,7 @@ import { FrameGenerator, Latents } from "./network.js";
 import { drawLandmarks } from "./raster.js";
 import { DriverReference, liveTarget } from "./retarget.js";
 import { LiveSmoother } from "./smooth.js";
-import { References, warpReferences } from "./tps.js";
+import { References, warpReferences } from "./references.js";
 import { TrackerAssets, createTracker, loadTrackerAssets } from "./tracker.js";
 
 /** site.json (lsr/export_web.py write_site). */

@@ -6,8 +6,7 @@
 // are sampled with OpenCV's bicubic (remap.ts). Plain float64 arithmetic where Python evaluates the kernel in
 // float32: the maps agree to ~1e-3 px.
 
-import { LEFT_EYE, RIGHT_EYE } from "./geometry.js";
-import { CoarseGrid, coarseGrid, densifyGrid, remapCubic } from "./remap.js";
+import { CoarseGrid, coarseGrid, densifyGrid } from "./remap.js";
 import { Tensor, tensor } from "./tensor.js";
 
 export const DEFAULT_REGULARIZATION = 1e-3;
@@ -211,7 +210,9 @@ function solveTps(control: Float64Array, values: Float64Array, columns: number, 
            affine: solution.slice(count * columns), columns, condition };
 }
 
-/** The spline at points (M, 2) flat -> (M, columns) flat (ThinPlateSpline.dense). */
+/** The spline at points (M, 2) flat -> (M, columns) flat (ThinPlateSpline.dense). Each output is summed in the
+ * same order as a plain loop would (affine part, then the kernel terms by control point); four (or two) outputs
+ * share each pass over the kernel row. */
 function evaluate(spline: ThinPlateSpline, points: Float64Array): Float64Array {
   const { control, weights, affine, columns, scale } = spline, [cx, cy] = spline.centre;
   const count = control.length / 2, total = points.length / 2;
@@ -220,16 +221,35 @@ function evaluate(spline: ThinPlateSpline, points: Float64Array): Float64Array {
   for (let i = 0; i < count; i++) {
     for (let c = 0; c < columns; c++) transposed[c * count + i] = weights[i * columns + c];
   }
+  const start = (c: number, x: number, y: number) => affine[c] + x * affine[columns + c] + y * affine[2 * columns + c];
   for (let p = 0; p < total; p++) {
-    const x = (points[2 * p] - cx) / scale, y = (points[2 * p + 1] - cy) / scale;
+    const x = (points[2 * p] - cx) / scale, y = (points[2 * p + 1] - cy) / scale, o = p * columns;
     for (let i = 0; i < count; i++) {
-      const dx = x - control[2 * i], dy = y - control[2 * i + 1];
-      row[i] = kernel(dx * dx + dy * dy);
+      const dx = x - control[2 * i], dy = y - control[2 * i + 1], squared = dx * dx + dy * dy;
+      row[i] = squared > 0 ? squared * Math.log(squared) : 0;  // kernel(squared)
     }
-    for (let c = 0; c < columns; c++) {
-      let sum = affine[c] + x * affine[columns + c] + y * affine[2 * columns + c];
+    let c = 0;
+    for (; c + 3 < columns; c += 4) {
+      let s0 = start(c, x, y), s1 = start(c + 1, x, y), s2 = start(c + 2, x, y), s3 = start(c + 3, x, y);
+      for (let i = 0, w = c * count; i < count; i++, w++) {
+        const k = row[i];
+        s0 += k * transposed[w]; s1 += k * transposed[w + count];
+        s2 += k * transposed[w + 2 * count]; s3 += k * transposed[w + 3 * count];
+      }
+      out[o + c] = s0; out[o + c + 1] = s1; out[o + c + 2] = s2; out[o + c + 3] = s3;
+    }
+    for (; c + 1 < columns; c += 2) {
+      let s0 = start(c, x, y), s1 = start(c + 1, x, y);
+      for (let i = 0, w = c * count; i < count; i++, w++) {
+        const k = row[i];
+        s0 += k * transposed[w]; s1 += k * transposed[w + count];
+      }
+      out[o + c] = s0; out[o + c + 1] = s1;
+    }
+    for (; c < columns; c++) {
+      let sum = start(c, x, y);
       for (let i = 0, w = c * count; i < count; i++) sum += row[i] * transposed[w + i];
-      out[p * columns + c] = sum;
+      out[o + c] = sum;
     }
   }
   return out;
@@ -444,7 +464,7 @@ export function tpsGridMap(sourcePoints: Tensor, targetPoints: Tensor, height: n
            reason: reasons.join("; "), grid };
 }
 
-function dense(map: GridMap): WarpMap {
+export function dense(map: GridMap): WarpMap {
   const { grid, mapX, mapY, ...rest } = map;
   return { ...rest, mapX: densifyGrid(grid, mapX), mapY: densifyGrid(grid, mapY) };
 }
@@ -460,8 +480,14 @@ export function tpsMap(sourcePoints: Tensor, targetPoints: Tensor, height: numbe
  * rejected, goes through tpsMap alone (with its retries and fallbacks). */
 export function tpsMaps(sourceSets: Tensor[], targetPoints: Tensor, height: number, width: number,
                         settings: TpsSettings = {}): WarpMap[] {
+  return tpsGridMaps(sourceSets, targetPoints, height, width, settings).map(dense);
+}
+
+/** tpsMaps on the grid, not yet dense. */
+export function tpsGridMaps(sourceSets: Tensor[], targetPoints: Tensor, height: number, width: number,
+                     settings: TpsSettings = {}): GridMap[] {
   const o = options(settings);
-  const maps: (WarpMap | null)[] = sourceSets.map(() => null);
+  const maps: (GridMap | null)[] = sourceSets.map(() => null);
   const targetOk = targetPoints.shape.length === 2 && targetPoints.shape[1] === 2;
   const found = targetOk ? finiteRows(targetPoints) : [];
   const shared = targetOk ? sourceSets.flatMap((points, index) => {
@@ -487,96 +513,24 @@ export function tpsMaps(sourceSets: Tensor[], targetPoints: Tensor, height: numb
         const [mapX, mapY, finite] = slotMap(mapped, columns, slot);
         const folds = foldedFraction(mapX, mapY, grid.ys.length, grid.xs.length);
         if (finite && folds <= o.maxFoldedFraction) {
-          maps[index] = dense({ mapX, mapY, method: "tps", regularization: o.regularization, foldedFraction: folds,
-                                reason: "", grid });
+          maps[index] = { mapX, mapY, method: "tps", regularization: o.regularization, foldedFraction: folds,
+                          reason: "", grid };
         }
       });
     }
   }
-  return maps.map((map, index) => map ?? tpsMap(sourceSets[index], targetPoints, height, width, o));
+  return maps.map((map, index) => map ?? tpsGridMap(sourceSets[index], targetPoints, height, width, o));
 }
 
 /** (H, W) float32 in {0, 1}: the map samples inside the source image (landmarks.tps.WarpMap.valid). */
-export function warpValidMask(map: WarpMap, sourceHeight: number, sourceWidth: number, out?: Float32Array
-                              ): Float32Array {
+export function warpValidMask(map: Pick<WarpMap, "mapX" | "mapY">, sourceHeight: number, sourceWidth: number,
+                              out?: Float32Array): Float32Array {
   const f = Math.fround, slack = 1e-3;  // numpy compares the float32 maps with float32 bounds
   const low = f(-slack), right = f(sourceWidth - 1 + slack), bottom = f(sourceHeight - 1 + slack);
-  const mask = out ?? new Float32Array(map.mapX.length);
-  for (let i = 0; i < mask.length; i++) {
-    const x = map.mapX[i], y = map.mapY[i];
+  const { mapX, mapY } = map, mask = out ?? new Float32Array(mapX.length), count = mask.length;
+  for (let i = 0; i < count; i++) {
+    const x = mapX[i], y = mapY[i];
     mask[i] = x >= low && x <= right && y >= low && y <= bottom ? 1 : 0;
   }
   return mask;
-}
-
-// ---- references for the warp-guided generator ---------------------------------------------------------------
-
-/** Mean point distance over `second`'s eye-centre distance (landmarks.tps.landmark_distance): (68, 2), (68, 2) ->
- * number; NaN where either has NaN rows or `second` has no eye distance. */
-export function landmarkDistance(first: Tensor, second: Tensor, firstOffset = 0): number {
-  const a = first.data, b = second.data, count = second.shape[0];
-  let total = 0;
-  for (let i = 0, o = firstOffset; i < count; i++, o += 2) {
-    total += Math.hypot(a[o] - b[2 * i], a[o + 1] - b[2 * i + 1]);
-  }
-  const eye = (indices: number[], c: number) => indices.reduce((s, i) => s + b[2 * i + c], 0) / indices.length;
-  const eyes = Math.hypot(eye(LEFT_EYE, 0) - eye(RIGHT_EYE, 0), eye(LEFT_EYE, 1) - eye(RIGHT_EYE, 1));
-  return eyes > 0 ? total / count / eyes : NaN;
-}
-
-/** Indices of the `count` shots nearest the target (landmarkDistance, ties by index; shots with NaN last)
- * (landmarks.tps.nearest_shots). shotLandmarks: (K, 68, 2); targetLandmarks: (68, 2) -> min(count, K) indices. */
-export function nearestShots(shotLandmarks: Tensor, targetLandmarks: Tensor, count: number): number[] {
-  const shots = shotLandmarks.shape[0], stride = targetLandmarks.data.length;
-  const distances = Array.from({ length: shots }, (_, k) => {
-    const distance = landmarkDistance(shotLandmarks, targetLandmarks, k * stride);
-    return Number.isNaN(distance) ? Infinity : distance;
-  });
-  const order = Array.from({ length: shots }, (_, k) => k).sort((p, q) => distances[p] - distances[q] || p - q);
-  return order.slice(0, Math.max(1, Math.min(count, shots)));
-}
-
-export interface References {
-  warped: Tensor<Uint8Array>;  // (count, S, S, 3)
-  masks: Tensor<Float32Array>;  // (count, S, S) in {0, 1}
-  indices: number[];  // (count,)
-  methods: WarpMethod[];  // per reference: how it was warped
-}
-
-/** The `count` nearest shots, each TPS-warped onto the target landmarks, with validity masks
- * (landmarks.tps.warp_references). shots: (K, S, S, 3) uint8; shotLandmarks: (K, 68, 2); targetLandmarks: (68, 2),
- * all in the shots' pixels. With fewer than `count` shots the nearest ones repeat. */
-export function warpReferences(shots: Tensor<Uint8Array>, shotLandmarks: Tensor, targetLandmarks: Tensor, count: number,
-                               gridStep = 4): References {
-  if (shots.shape.length !== 4 || shots.shape[3] !== 3 || !(shots.data instanceof Uint8Array)) {
-    throw new Error(`shots must be (K, S, S, 3) uint8, got [${shots.shape}]`);
-  }
-  if (count < 1) throw new Error(`count must be >= 1, got ${count}`);
-  const nearest = nearestShots(shotLandmarks, targetLandmarks, count);
-  const indices = Array.from({ length: count }, (_, i) => nearest[i % nearest.length]);
-  const [, height, width] = shots.shape, pixels = height * width, points = shotLandmarks.shape.slice(1);
-  const stride = points[0] * points[1];
-  const unique = [...new Set(indices)].sort((a, b) => a - b);
-  const sets = unique.map((k) => tensor(shotLandmarks.data.slice(k * stride, (k + 1) * stride), points));
-  const warps = tpsMaps(sets, targetLandmarks, height, width, { gridStep });
-  const warped = new Uint8Array(count * pixels * 3), masks = new Float32Array(count * pixels);
-  const methods: WarpMethod[] = [];
-  indices.forEach((index, slot) => {
-    const warp = warps[unique.indexOf(index)];
-    methods.push(warp.method);
-    const first = indices.indexOf(index);
-    const image = warped.subarray(slot * pixels * 3, (slot + 1) * pixels * 3);
-    const mask = masks.subarray(slot * pixels, (slot + 1) * pixels);
-    if (first < slot) {
-      image.set(warped.subarray(first * pixels * 3, (first + 1) * pixels * 3));
-      mask.set(masks.subarray(first * pixels, (first + 1) * pixels));
-      return;
-    }
-    const shot = shots.data.subarray(index * pixels * 3, (index + 1) * pixels * 3);
-    if (warp.method === "identity") image.set(shot);
-    else remapCubic({ data: shot, width, height, channels: 3 }, warp.mapX, warp.mapY, "replicate", image);
-    warpValidMask(warp, height, width, mask);
-  });
-  return { warped: tensor(warped, [count, height, width, 3]), masks: tensor(masks, [count, height, width]), indices,
-           methods };
 }

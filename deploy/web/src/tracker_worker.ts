@@ -1,12 +1,23 @@
 // The face tracker in a worker of its own (the page's): it tracks camera frame n + 1 while the page warps the shots of
-// frame n and onnxruntime's proxy worker runs frame n - 1's network. Messages: {assets} once, then {id, frame} ->
-// {id, points (136 float64) | null} or {id, error}.
+// frame n and onnxruntime's proxy worker runs frame n - 1's network. Messages: {assets} once, then {id, frame} (or
+// {id, rgba, width, height}: a canvas's pixels) -> {id, points (136 float64) | null} or {id, error}.
 
 import * as ort from "onnxruntime-web";
 
 import { MeshTracker, TrackerAssets, createTracker } from "./tracker.js";
+import { Tensor, tensor } from "./tensor.js";
 
 let tracker: MeshTracker | null = null;
+let spare: Uint8Array | null = null;  // an RGB buffer for RGBA frames, kept from frame to frame when free
+
+/** RGBA pixels -> an (H, W, 3) RGB frame, in the spare buffer when it is free. */
+function fromRgba(rgba: Uint8ClampedArray, width: number, height: number): Tensor<Uint8Array> {
+  const size = width * height * 3;
+  const rgb = spare !== null && spare.length === size ? spare : new Uint8Array(size);
+  spare = null;
+  for (let i = 0, j = 0; i < size; i += 3, j += 4) { rgb[i] = rgba[j]; rgb[i + 1] = rgba[j + 1]; rgb[i + 2] = rgba[j + 2]; }
+  return tensor(rgb, [height, width, 3]);
+}
 
 self.onmessage = async (event: MessageEvent) => {
   const message = event.data;
@@ -18,7 +29,9 @@ self.onmessage = async (event: MessageEvent) => {
       self.postMessage({ ready: true });
       return;
     }
-    const points = await tracker!.update(message.frame);
+    const frame = message.rgba ? fromRgba(message.rgba, message.width, message.height) : message.frame;
+    const points = await tracker!.update(frame);
+    if (message.rgba) spare = frame.data;
     self.postMessage({ id: message.id, points: points === null ? null : points.data });
   } catch (error) {
     self.postMessage({ id: message.id, error: error instanceof Error ? error.message : String(error) });

@@ -1,0 +1,101 @@
+// The warp-guided generator's references: the N shots nearest the target, each TPS-warped onto it with a mask of
+// where the warp is valid (landmarks/tps.py nearest_shots, landmark_distance, warp_references).
+
+import { LEFT_EYE, RIGHT_EYE } from "./geometry.js";
+import { densifyGrid, remapCubic } from "./remap.js";
+import { CubicSources } from "./remap_wasm.js";
+import { Tensor, tensor } from "./tensor.js";
+import { WarpMethod, dense, tpsGridMaps, warpValidMask } from "./tps.js";
+
+// ---- references for the warp-guided generator ---------------------------------------------------------------
+
+/** Mean point distance over `second`'s eye-centre distance (landmarks.tps.landmark_distance): (68, 2), (68, 2) ->
+ * number; NaN where either has NaN rows or `second` has no eye distance. */
+export function landmarkDistance(first: Tensor, second: Tensor, firstOffset = 0): number {
+  const a = first.data, b = second.data, count = second.shape[0];
+  let total = 0;
+  for (let i = 0, o = firstOffset; i < count; i++, o += 2) {
+    total += Math.hypot(a[o] - b[2 * i], a[o + 1] - b[2 * i + 1]);
+  }
+  const eye = (indices: number[], c: number) => indices.reduce((s, i) => s + b[2 * i + c], 0) / indices.length;
+  const eyes = Math.hypot(eye(LEFT_EYE, 0) - eye(RIGHT_EYE, 0), eye(LEFT_EYE, 1) - eye(RIGHT_EYE, 1));
+  return eyes > 0 ? total / count / eyes : NaN;
+}
+
+/** Indices of the `count` shots nearest the target (landmarkDistance, ties by index; shots with NaN last)
+ * (landmarks.tps.nearest_shots). shotLandmarks: (K, 68, 2); targetLandmarks: (68, 2) -> min(count, K) indices. */
+export function nearestShots(shotLandmarks: Tensor, targetLandmarks: Tensor, count: number): number[] {
+  const shots = shotLandmarks.shape[0], stride = targetLandmarks.data.length;
+  const distances = Array.from({ length: shots }, (_, k) => {
+    const distance = landmarkDistance(shotLandmarks, targetLandmarks, k * stride);
+    return Number.isNaN(distance) ? Infinity : distance;
+  });
+  const order = Array.from({ length: shots }, (_, k) => k).sort((p, q) => distances[p] - distances[q] || p - q);
+  return order.slice(0, Math.max(1, Math.min(count, shots)));
+}
+
+let denseX = new Float32Array(0), denseY = new Float32Array(0);
+let cubicSources: CubicSources | null = null;
+
+/** The shots in WebAssembly memory for remap_wasm.ts (kept while the same shots come; null without WebAssembly
+ * SIMD). */
+function shotSources(shots: Tensor<Uint8Array>): CubicSources | null {
+  const [count, height, width] = shots.shape;
+  if (!cubicSources?.holds(shots.data, count, width, height)) cubicSources = CubicSources.create(shots.data, count, width, height);
+  return cubicSources;
+}
+
+export interface References {
+  warped: Tensor<Uint8Array>;  // (count, S, S, 3)
+  masks: Tensor<Float32Array>;  // (count, S, S) in {0, 1}
+  indices: number[];  // (count,)
+  methods: WarpMethod[];  // per reference: how it was warped
+}
+
+/** The `count` nearest shots, each TPS-warped onto the target landmarks, with validity masks
+ * (landmarks.tps.warp_references). shots: (K, S, S, 3) uint8; shotLandmarks: (K, 68, 2); targetLandmarks: (68, 2),
+ * all in the shots' pixels. With fewer than `count` shots the nearest ones repeat. The shots stay in WebAssembly
+ * memory for the next call with the same array (remap_wasm.ts): its values must not change in between. */
+export function warpReferences(shots: Tensor<Uint8Array>, shotLandmarks: Tensor, targetLandmarks: Tensor, count: number,
+                               gridStep = 4): References {
+  if (shots.shape.length !== 4 || shots.shape[3] !== 3 || !(shots.data instanceof Uint8Array)) {
+    throw new Error(`shots must be (K, S, S, 3) uint8, got [${shots.shape}]`);
+  }
+  if (count < 1) throw new Error(`count must be >= 1, got ${count}`);
+  const nearest = nearestShots(shotLandmarks, targetLandmarks, count);
+  const indices = Array.from({ length: count }, (_, i) => nearest[i % nearest.length]);
+  const [, height, width] = shots.shape, pixels = height * width, points = shotLandmarks.shape.slice(1);
+  const stride = points[0] * points[1];
+  const unique = [...new Set(indices)].sort((a, b) => a - b);
+  const sets = unique.map((k) => tensor(shotLandmarks.data.slice(k * stride, (k + 1) * stride), points));
+  const warps = tpsGridMaps(sets, targetLandmarks, height, width, { gridStep });
+  const warped = new Uint8Array(count * pixels * 3), masks = new Float32Array(count * pixels);
+  // each dense map in turn, in the same two buffers from frame to frame
+  if (denseX.length !== pixels) { denseX = new Float32Array(pixels); denseY = new Float32Array(pixels); }
+  const map = { mapX: denseX, mapY: denseY };
+  const sources = shotSources(shots);
+  const methods: WarpMethod[] = [];
+  indices.forEach((index, slot) => {
+    const warp = warps[unique.indexOf(index)];
+    methods.push(warp.method);
+    const first = indices.indexOf(index);
+    const image = warped.subarray(slot * pixels * 3, (slot + 1) * pixels * 3);
+    const mask = masks.subarray(slot * pixels, (slot + 1) * pixels);
+    if (first < slot) {
+      image.set(warped.subarray(first * pixels * 3, (first + 1) * pixels * 3));
+      mask.set(masks.subarray(first * pixels, (first + 1) * pixels));
+      return;
+    }
+    const shot = shots.data.subarray(index * pixels * 3, (index + 1) * pixels * 3);
+    // the dense maps, the remap and the mask in WebAssembly (remap_wasm.ts), else here
+    if (warp.method !== "identity" && sources?.warp(index, warp.grid, warp.mapX, warp.mapY, "replicate", image, mask)) return;
+    densifyGrid(warp.grid, warp.mapX, map.mapX);
+    densifyGrid(warp.grid, warp.mapY, map.mapY);
+    if (warp.method === "identity") image.set(shot);
+    else if (sources) sources.remap(index, map.mapX, map.mapY, "replicate", image);
+    else remapCubic({ data: shot, width, height, channels: 3 }, map.mapX, map.mapY, "replicate", image);
+    warpValidMask(map, height, width, mask);
+  });
+  return { warped: tensor(warped, [count, height, width, 3]), masks: tensor(masks, [count, height, width]), indices,
+           methods };
+}
