@@ -118,7 +118,7 @@ function fusedNodes(nodes: GraphNode[], graphOutputs: Set<string>): Uint8Array[]
     const side = scaled!.inputs.findIndex((name) => plain(at(name), "Relu", 1) && plain(at(at(name)!.inputs[0]), "Neg", 1)
                                                      && at(at(name)!.inputs[0])!.inputs[0] === x);
     if (side < 0) return;
-    const negative = at(scaled!.inputs[side])!, negated = at(negative.inputs[0])!, alpha = scaled!.inputs[1 - side];
+    const negative = at(scaled!.inputs[side])!, alpha = scaled!.inputs[1 - side];
     // the intermediate values feed nothing else; x itself may (its Relu and Neg both read it)
     if (![sub.inputs[0], sub.inputs[1], scaled!.inputs[side], negative.inputs[0]].every(only)) return;
     for (const name of [sub.inputs[0], sub.inputs[1], scaled!.inputs[side], negative.inputs[0]]) {

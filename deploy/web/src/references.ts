@@ -5,7 +5,7 @@ import { LEFT_EYE, RIGHT_EYE } from "./geometry.js";
 import { densifyGrid, remapCubic } from "./remap.js";
 import { CubicSources } from "./remap_wasm.js";
 import { Tensor, tensor } from "./tensor.js";
-import { WarpMethod, dense, tpsGridMaps, warpValidMask } from "./tps.js";
+import { WarpMethod, tpsGridMaps, warpValidMask } from "./tps.js";
 
 // ---- references for the warp-guided generator ---------------------------------------------------------------
 

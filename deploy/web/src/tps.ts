@@ -464,7 +464,7 @@ export function tpsGridMap(sourcePoints: Tensor, targetPoints: Tensor, height: n
            reason: reasons.join("; "), grid };
 }
 
-export function dense(map: GridMap): WarpMap {
+function dense(map: GridMap): WarpMap {
   const { grid, mapX, mapY, ...rest } = map;
   return { ...rest, mapX: densifyGrid(grid, mapX), mapY: densifyGrid(grid, mapY) };
 }
