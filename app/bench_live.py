@@ -288,9 +288,9 @@ def live_markdown(browser: LiveMeasure, server: LiveMeasure | None, label: str, 
 
 
 @contextlib.contextmanager
-def live_page(url: str, y4m: Path):
-    """Chromium (Playwright) with ``y4m`` as its camera, on ``url``'s live tab with the stream started and the page's
-    timestamp hooks (``RECORDER``) in place: yields the page; the browser closes after."""
+def camera_page(y4m: Path, viewport: tuple[int, int] = (1400, 1000), init_script: str | None = None):
+    """A page of Chromium (Playwright) with ``y4m`` as its fake camera, the camera allowed and ``init_script`` run
+    before any page script: yields the page, not yet on any URL; the browser closes after."""
     from lsr.errors import ConfigError
 
     if not CHROMIUM.is_file():
@@ -298,19 +298,29 @@ def live_page(url: str, y4m: Path):
     try:
         from playwright.sync_api import sync_playwright
     except ImportError as exc:
-        raise ConfigError("the live benchmarks need the playwright package: pip install -e '.[test]'") from exc
+        raise ConfigError("the browser benchmarks need the playwright package: pip install -e '.[test]'") from exc
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=str(CHROMIUM),
                                              args=[*CHROMIUM_ARGS, f"--use-file-for-fake-video-capture={y4m}"])
         try:
-            page = browser.new_context(viewport={"width": 1400, "height": 1000}, permissions=["camera"]).new_page()
+            width, height = viewport
+            page = browser.new_context(viewport={"width": width, "height": height}, permissions=["camera"]).new_page()
             page.set_default_timeout(START_TIMEOUT_MS)
-            page.add_init_script(f"({RECORDER})()")
-            page.goto(url)
-            start_stream(page)
+            if init_script is not None:
+                page.add_init_script(init_script)
             yield page
         finally:
             browser.close()
+
+
+@contextlib.contextmanager
+def live_page(url: str, y4m: Path):
+    """Chromium with ``y4m`` as its camera (``camera_page``), on ``url``'s live tab with the stream started and the
+    page's timestamp hooks (``RECORDER``) in place: yields the page; the browser closes after."""
+    with camera_page(y4m, init_script=f"({RECORDER})()") as page:
+        page.goto(url)
+        start_stream(page)
+        yield page
 
 
 def run_live(url: str, y4m: Path, seconds: float, warmup: float, screenshot: Path | None) -> LiveMeasure:

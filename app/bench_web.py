@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from app.bench_live import (CHROMIUM, CHROMIUM_ARGS, START_TIMEOUT_MS, LiveMeasure, camera_file, live_tab)
+from app.bench_live import CHROMIUM, LiveMeasure, camera_file, camera_page, live_tab
 
 if TYPE_CHECKING:
     from lsr.config import BenchWebConfig
@@ -35,35 +35,27 @@ def measure_site(folder: Path, y4m: Path, seconds: float, warmup: float, screens
                  ) -> tuple[LiveMeasure, dict[str, float], int]:
     """The site in ``folder`` served statically and opened in Chromium with ``y4m`` as the camera, its stream
     measured: (the measure, median ms of each stage, WASM threads)."""
-    from playwright.sync_api import sync_playwright
-
     from deploy.web_serve import serve_folder
     from landmarks.imageio import atomic_output
+    from lsr.errors import LsrError
 
-    with serve_folder(folder) as url, sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM),
-                                             args=[*CHROMIUM_ARGS, f"--use-file-for-fake-video-capture={y4m}"])
-        try:
-            page = browser.new_context(viewport={"width": 1300, "height": 900}, permissions=["camera"]).new_page()
-            page.set_default_timeout(START_TIMEOUT_MS)
-            page.goto(url)
-            page.wait_for_function("document.body.dataset.ready === '1' || document.body.dataset.failed !== undefined")
-            failed = page.evaluate("document.body.dataset.failed")
-            if failed is not None:
-                raise RuntimeError(f"the web site failed to start: {failed}")
-            page.click("#start")
-            page.wait_for_function("window.lsr.stats.faces >= 1")
-            page.wait_for_timeout(warmup * 1000)
-            begin = page.evaluate("performance.now()")
-            page.wait_for_timeout(seconds * 1000)
-            end = page.evaluate("performance.now()")
-            stats = page.evaluate("window.lsr.stats")
-            threads = int(page.evaluate("window.lsr.threads"))
-            if screenshot is not None:
-                with atomic_output(Path(screenshot)) as temp:
-                    page.screenshot(path=str(temp))
-        finally:
-            browser.close()
+    with serve_folder(folder) as url, camera_page(y4m, viewport=(1300, 900)) as page:
+        page.goto(url)
+        page.wait_for_function("document.body.dataset.ready === '1' || document.body.dataset.failed !== undefined")
+        failed = page.evaluate("document.body.dataset.failed")
+        if failed is not None:
+            raise LsrError(f"the web site failed to start: {failed}")
+        page.click("#start")
+        page.wait_for_function("window.lsr.stats.faces >= 1")
+        page.wait_for_timeout(warmup * 1000)
+        begin = page.evaluate("performance.now()")
+        page.wait_for_timeout(seconds * 1000)
+        end = page.evaluate("performance.now()")
+        stats = page.evaluate("window.lsr.stats")
+        threads = int(page.evaluate("window.lsr.threads"))
+        if screenshot is not None:
+            with atomic_output(Path(screenshot)) as temp:
+                page.screenshot(path=str(temp))
     window = [i for i, shown in enumerate(stats["shown"]) if begin <= shown <= end]
     span = (end - begin) / 1000
     result = LiveMeasure(len(window), span, len(window) / span if span > 0 else 0.0,

@@ -28,3 +28,12 @@ def person_matte(image: np.ndarray) -> np.ndarray:
     net = session(SEGMENTER_FILE)
     matte = net.run(None, {net.get_inputs()[0].name: (small.astype(np.float32) / 255.0)[None]})[0][0, :, :, 0]
     return np.clip(cv2.resize(matte, (width, height), interpolation=cv2.INTER_LINEAR), 0.0, 1.0).astype(np.float32)
+
+
+def scene_layers(image: np.ndarray, landmarks: np.ndarray):
+    """A scene frame's layers for ``landmarks.scene.composite_face``: its person matte (``person_matte``) and the
+    background plate made from it (``landmarks.scene.background_plate``). image: (H, W, 3) uint8 RGB; landmarks:
+    (68, 2) frame pixels of its face -> ``landmarks.scene.SceneLayers``."""
+    from landmarks.scene import background_plate
+
+    return background_plate(image, landmarks, person_matte(image))

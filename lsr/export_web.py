@@ -71,12 +71,11 @@ def example_subject(bundle: Path, k: int | None = None):
 def write_person(folder: Path, reenactor, subject, scene) -> dict:
     """The encoded person and its scene as files under ``folder`` (module docstring); returns subject.json's content."""
     from landmarks.imageio import write_image
-    from landmarks.scene import background_plate
-    from landmarks.segment import person_matte
+    from landmarks.segment import scene_layers
 
     folder.mkdir(parents=True, exist_ok=True)
     shots = subject.shots
-    layers = background_plate(scene.image, scene.landmarks, person_matte(scene.image))
+    layers = scene_layers(scene.image, scene.landmarks)
     matte = np.clip(np.rint(layers.matte * 255), 0, 255).astype(np.uint8)  # 8 bits: what the page reads back
     # raw uint8 (H, W[, 3]) files, their shapes in subject.json: the page and Node read them without a decoder
     pictures = {"shots": shots.frames, "scene": scene.image, "plate": layers.plate, "matte": matte}

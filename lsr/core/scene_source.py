@@ -46,11 +46,11 @@ class SceneFrame:
         """A synthesised face crop (its target landmarks in this frame's crop pixels) put into this frame
         (``landmarks.scene.composite_face``, the person moving with the head and the background staying)
         -> (H, W, 3) uint8."""
-        from landmarks.scene import background_plate, composite_face, place_in_frame
-        from landmarks.segment import person_matte
+        from landmarks.scene import composite_face, place_in_frame
+        from landmarks.segment import scene_layers
 
         if self.layers is None:
-            self.layers = background_plate(self.image, self.landmarks, person_matte(self.image))
+            self.layers = scene_layers(self.image, self.landmarks)
         return composite_face(self.image, self.landmarks, place_in_frame(crop_landmarks, self.matrix), synthesis,
                               self.matrix, self.layers).frame
 

@@ -249,11 +249,11 @@ def prepare_sequence(k: int, identity: str, driver: str, driver_rows: np.ndarray
 
 def composite(sequence: CrossSequence, outputs: np.ndarray) -> np.ndarray:
     """Each output frame composited into the anchor shot at its target: (T, S, S, 3) uint8 -> (T, S, S, 3) uint8."""
-    from landmarks.scene import background_plate, composite_face
-    from landmarks.segment import person_matte
+    from landmarks.scene import composite_face
+    from landmarks.segment import scene_layers
 
     identity_crop = np.eye(2, 3)  # outputs are already in the shots' pixel frame
-    layers = background_plate(sequence.anchor_shot, sequence.anchor_landmarks, person_matte(sequence.anchor_shot))
+    layers = scene_layers(sequence.anchor_shot, sequence.anchor_landmarks)
     return np.stack([composite_face(scene=sequence.anchor_shot, scene_landmarks=sequence.anchor_landmarks,
                                     target_landmarks=target, face_crop=output, crop_matrix=identity_crop,
                                     layers=layers).frame

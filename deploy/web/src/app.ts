@@ -6,7 +6,7 @@ import * as ort from "onnxruntime-web";
 import { RemoteTracker } from "./remote_tracker.js";
 import { PersonModels, encodePerson, loadPersonModels, photoFromImageData, shrinkPhoto } from "./encode.js";
 import { LiveFrame, LiveSession, Person, Site, loadSite } from "./session.js";
-import { Tensor, tensor } from "./tensor.js";
+import { Tensor, median, tensor } from "./tensor.js";
 
 const CAMERA = { width: { ideal: 320 }, height: { ideal: 240 } }; // as lsr app's live tab asks (app/ui.py)
 const MARK = "SYNTHETIC";
@@ -116,12 +116,6 @@ async function decodePhoto(file: File): Promise<Tensor<Uint8Array>> {
   bitmap.close();
   return shrinkPhoto(photoFromImageData(context.getImageData(0, 0, width, height)), 1280);
 }
-
-const median = (values: number[]) => {
-  if (!values.length) return NaN;
-  const sorted = [...values].sort((a, b) => a - b);
-  return sorted[Math.floor(sorted.length / 2)];
-};
 
 function base64ToBytes(text: string): Uint8Array {
   const binary = atob(text), bytes = new Uint8Array(binary.length);

@@ -33,7 +33,7 @@ import { drawLandmarks } from "./raster.js";
 import { roundHalfEven, warpAffineCubic } from "./remap.js";
 import { SEGMENTER_FILE, backgroundPlate, createSegmenter, personMatte, resizeUint8 } from "./segment.js";
 import { LiveSession, Person, Reader, Site, SiteConfig } from "./session.js";
-import { Affine, Tensor, tensor } from "./tensor.js";
+import { Affine, Tensor, median, tensor } from "./tensor.js";
 import { MeshTracker, TrackerAssets, createTracker, loadTrackerAssets, meshTo68 } from "./tracker.js";
 
 export const SUBJECT_ENCODER_FILE = "subject_encoder.onnx"; // deploy.runtime.SUBJECT_ENCODER_FILE, under models/
@@ -148,10 +148,6 @@ function faceSide(landmarks: Tensor): number {
   return 1024 / Math.sqrt(Math.abs(m[0] * m[4] - m[1] * m[3]));
 }
 
-function median(values: number[]): number {
-  const sorted = [...values].sort((a, b) => a - b), middle = sorted.length >> 1;
-  return sorted.length % 2 ? sorted[middle] : (sorted[middle - 1] + sorted[middle]) / 2;
-}
 
 /** The shots at the model resolution with their landmark images, to [-1, 1], through the subject encoder
  * (lsr.core.engine.ReenactorBase._encode, deploy.runtime.OnnxBackend.encode_subject): shots (K, C, C, 3) uint8,

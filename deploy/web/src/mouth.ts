@@ -4,6 +4,7 @@
 // edges and scan-line fill, ported from imgproc/src/drawing.cpp), grown by cv2.dilate with cv2's elliptic element and
 // feathered by cv2.GaussianBlur (float32, reflect-101 border); the blend in float32 as numpy computes it.
 
+import { dilateEllipse, gaussianBlurF32, roundHalfEven } from "./remap.js";
 import { Tensor, tensor } from "./tensor.js";
 import { interOcularDistance, mouthOpening } from "./retarget.js";
 
@@ -14,11 +15,6 @@ export const CLOSED_MOUTH = 0.05;
 
 const f32 = Math.fround;
 
-/** numpy.rint / Python round: to the nearest integer, ties to even. */
-function roundHalfEven(x: number): number {
-  const r = Math.round(x);
-  return r - x === 0.5 && r % 2 !== 0 ? r - 1 : r;
-}
 
 // ------------------------------------------------------------------------------ cv2.fillPoly(LINE_AA), 1 channel
 
@@ -194,88 +190,9 @@ function fillPolyAA(img: Uint8Array, width: number, height: number, points: Int3
 
 // ------------------------------------------------------------------------ cv2.dilate (ellipse), cv2.GaussianBlur
 
-/** cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2r + 1, 2r + 1))), constant (ignored) border. */
-function dilateEllipse(src: Uint8Array, width: number, height: number, r: number): Uint8Array {
-  const halfWidths: number[] = []; // per kernel row dy = -r..r, the half width of its run of ones
-  const inv = r ? 1.0 / (r * r) : 0;
-  for (let dy = -r; dy <= r; dy++) halfWidths.push(roundHalfEven(r * Math.sqrt((r * r - dy * dy) * inv)));
-  // rowMax[h][y * width + x]: max of row y over [x - h, x + h], built up from h = 0
-  const rowMax: Uint8Array[] = [src];
-  for (let h = 1; h <= r; h++) {
-    const previous = rowMax[h - 1], next = new Uint8Array(previous);
-    for (let y = 0; y < height; y++) {
-      const row = y * width;
-      for (let x = 0; x < width; x++) {
-        let v = next[row + x];
-        if (x - h >= 0 && src[row + x - h] > v) v = src[row + x - h];
-        if (x + h < width && src[row + x + h] > v) v = src[row + x + h];
-        next[row + x] = v;
-      }
-    }
-    rowMax.push(next);
-  }
-  const out = new Uint8Array(width * height);
-  for (let y = 0; y < height; y++) {
-    for (let k = 0; k < halfWidths.length; k++) {
-      const sy = y + k - r;
-      if (sy < 0 || sy >= height) continue;
-      const from = rowMax[Math.min(halfWidths[k], r)], row = sy * width, at = y * width;
-      for (let x = 0; x < width; x++) if (from[row + x] > out[at + x]) out[at + x] = from[row + x];
-    }
-  }
-  return out;
-}
 
-/** cv::getGaussianKernel(n, sigma, CV_32F) for sigma > 0 (its bit-exact double sums, then float32). */
-function gaussianKernel(n: number, sigma: number): Float32Array {
-  const scale = -0.125 / (sigma * sigma), half = (n - 1) >> 1, values: number[] = [];
-  let sum = 0;
-  for (let i = 0, x = 1 - n; i < half; i++, x += 2) {
-    const t = Math.exp(x * x * scale);
-    values.push(t);
-    sum += t;
-  }
-  sum = sum * 2 + 1;
-  if ((n & 1) === 0) sum += 1;
-  const mul = 1 / sum, kernel = new Float32Array(n);
-  for (let i = 0; i < half; i++) kernel[i] = kernel[n - 1 - i] = values[i] * mul;
-  kernel[half] = mul;
-  if ((n & 1) === 0) kernel[half + 1] = mul;
-  return kernel;
-}
 
-/** cv::borderInterpolate(p, len, BORDER_REFLECT_101). */
-function reflect101(p: number, len: number): number {
-  if (len === 1) return 0;
-  while (p < 0 || p >= len) p = p < 0 ? -p : 2 * len - 2 - p;
-  return p;
-}
 
-/** cv2.GaussianBlur(src float32, (0, 0), sigma): separable, kernel side cvRound(8 sigma + 1) | 1, reflect-101. */
-function gaussianBlur(src: Float32Array, width: number, height: number, sigma: number): Float32Array {
-  const n = roundHalfEven(sigma * 8 + 1) | 1, kernel = gaussianKernel(n, sigma), anchor = n >> 1;
-  const rows = new Float32Array(width * height), out = new Float32Array(width * height);
-  const xIndex = new Int32Array(width * n);
-  for (let x = 0; x < width; x++) for (let k = 0; k < n; k++) xIndex[x * n + k] = reflect101(x + k - anchor, width);
-  for (let y = 0; y < height; y++) {
-    const row = y * width;
-    for (let x = 0; x < width; x++) {
-      let s = 0;
-      for (let k = 0; k < n; k++) s += kernel[k] * src[row + xIndex[x * n + k]];
-      rows[row + x] = s;
-    }
-  }
-  const column = new Float64Array(width);
-  for (let y = 0; y < height; y++) {
-    column.fill(0);
-    for (let k = 0; k < n; k++) {
-      const weight = kernel[k], from = reflect101(y + k - anchor, height) * width;
-      for (let x = 0; x < width; x++) column[x] += weight * rows[from + x];
-    }
-    out.set(column, y * width);
-  }
-  return out;
-}
 
 // ---------------------------------------------------------------------------------------------- nearest mouth
 
@@ -315,7 +232,7 @@ export function mouthWeight(landmarks: Tensor, height: number, width: number): M
   fillPolyAA(mask, w, h, polygon, 255, 2);
   const grown = dilateEllipse(mask, w, h, grow), scaled = new Float32Array(w * h), unit = f32(1.0 / 255.0);
   for (let i = 0; i < scaled.length; i++) scaled[i] = grown[i] * unit;
-  return { weight: tensor(gaussianBlur(scaled, w, h, sigma), [h, w]), box: [x0, y0, x1, y1] };
+  return { weight: tensor(gaussianBlurF32(scaled, w, h, 1, sigma), [h, w]), box: [x0, y0, x1, y1] };
 }
 
 function checkImage(image: Tensor, name: string): [number, number] {

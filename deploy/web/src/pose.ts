@@ -7,7 +7,7 @@
 // convergence: the same minimum of the same reprojection error, so the same angles to far below a degree's
 // thousandth on a face that PnP finds at all (EPnP only supplies OpenCV's starting point).
 
-import { Tensor, checkPoints } from "./tensor.js";
+import { Tensor, checkPoints, median } from "./tensor.js";
 
 export const NUM_POINTS = 68;
 const CLOSED_MOUTH = 0.05; // landmarks.expression.CLOSED_MOUTH (mouth.ts exports the same)
@@ -270,10 +270,6 @@ export function eyeOpeningAt(points: ArrayLike<number>, index = 0): number {
   return gap(points, offset, EYE_LID_PAIRS) / interOcular(points, offset);
 }
 
-function median(values: number[]): number {
-  const sorted = [...values].sort((a, b) => a - b), middle = sorted.length >> 1;
-  return sorted.length % 2 ? sorted[middle] : (sorted[middle - 1] + sorted[middle]) / 2;
-}
 
 /** The most frontal shot with a closed mouth and open eyes (landmarks.expression.pick_anchor): landmarks (K, 68, 2)
  * in images of (height, width) -> its index. Score, lower is better: hypot(yaw, pitch) / 10 degrees, plus the mouth

@@ -277,7 +277,7 @@ function gaussianKernel(n: number, sigma: number): Float32Array {
   return kernel;
 }
 
-function reflect101(p: number, length: number): number {
+export function reflect101(p: number, length: number): number {
   if (length === 1) return 0;
   while (p < 0 || p >= length) p = p < 0 ? -p : 2 * length - 2 - p;
   return p;
@@ -432,9 +432,46 @@ export function warpAffineImage(src: Tensor<Uint8Array>, m: Affine, width: numbe
   return tensor(warpAffineCubic(pixelImage(src), m, width, height, border), [height, width, ...src.shape.slice(2)]);
 }
 
-/** cv2.resize of a (H, W[, C]) float32 image: INTER_AREA ("area") or INTER_LINEAR ("linear"). */
+/** cv2.resize of a (H, W[, C]) float32 image: INTER_AREA ("area", which OpenCV does as linear when enlarging) or
+ * INTER_LINEAR ("linear"); the same size is a copy. */
 export function resizeImage(src: Tensor<Float32Array>, width: number, height: number, interpolation: "area" | "linear"
                             ): Tensor<Float32Array> {
-  const out = (interpolation === "area" ? resizeArea : resizeLinear)(pixelImage(src), width, height);
+  const [h, w] = src.shape;
+  if (h === height && w === width) return tensor(src.data.slice(), [...src.shape]);
+  const image = pixelImage(src);
+  const out = interpolation === "area" && (width < w || height < h) ? resizeArea(image, width, height)
+    : resizeLinear(image, width, height);
   return tensor(out, [height, width, ...src.shape.slice(2)]);
+}
+
+/** cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2r + 1, 2r + 1))), constant (ignored) border. */
+export function dilateEllipse(src: Uint8Array, width: number, height: number, r: number): Uint8Array {
+  const halfWidths: number[] = []; // per kernel row dy = -r..r, the half width of its run of ones
+  const inv = r ? 1.0 / (r * r) : 0;
+  for (let dy = -r; dy <= r; dy++) halfWidths.push(roundHalfEven(r * Math.sqrt((r * r - dy * dy) * inv)));
+  // rowMax[h][y * width + x]: max of row y over [x - h, x + h], built up from h = 0
+  const rowMax: Uint8Array[] = [src];
+  for (let h = 1; h <= r; h++) {
+    const previous = rowMax[h - 1], next = new Uint8Array(previous);
+    for (let y = 0; y < height; y++) {
+      const row = y * width;
+      for (let x = 0; x < width; x++) {
+        let v = next[row + x];
+        if (x - h >= 0 && src[row + x - h] > v) v = src[row + x - h];
+        if (x + h < width && src[row + x + h] > v) v = src[row + x + h];
+        next[row + x] = v;
+      }
+    }
+    rowMax.push(next);
+  }
+  const out = new Uint8Array(width * height);
+  for (let y = 0; y < height; y++) {
+    for (let k = 0; k < halfWidths.length; k++) {
+      const sy = y + k - r;
+      if (sy < 0 || sy >= height) continue;
+      const from = rowMax[Math.min(halfWidths[k], r)], row = sy * width, at = y * width;
+      for (let x = 0; x < width; x++) if (from[row + x] > out[at + x]) out[at + x] = from[row + x];
+    }
+  }
+  return out;
 }

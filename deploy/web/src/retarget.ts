@@ -6,7 +6,7 @@
 // Points are (68, 2) float64 in row-major (x, y).
 
 import { Similarity, cropTransform, similarityProcrustes, transformPoints } from "./geometry.js";
-import { Tensor, checkPoints, tensor } from "./tensor.js";
+import { Tensor, checkPoints, median, tensor } from "./tensor.js";
 
 /** Points barely moved by expressions: upper jaw, nose, eye corners and lids (landmarks.retarget.RIGID_INDEX). */
 export const RIGID_INDEX: number[] = [0, 1, 2, 14, 15, 16, 27, 28, 29, 30, 31, 32, 33, 34, 35,
@@ -231,10 +231,6 @@ function lidsAsDriverInPlace(face: Float64Array, driver: ArrayLike<number>, refe
   setLidGapsInPlace(face, goal);
 }
 
-function median(values: number[]): number {
-  const sorted = values.slice().sort((a, b) => a - b), n = sorted.length, h = n >> 1;
-  return n % 2 ? sorted[h] : (sorted[h - 1] + sorted[h]) / 2;
-}
 
 /** The driver's reference lid gaps, robust to a blink: the median lidGaps of its last `frames` faces (and those seen
  * ahead) (landmarks.eyelids.LidReference). Call on each driver face in order -> (2,), NaN before the first. */

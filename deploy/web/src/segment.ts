@@ -9,7 +9,7 @@
 import * as ort from "onnxruntime-web";
 
 import { cropTransform } from "./geometry.js";
-import { resizeArea, resizeLinear, roundHalfEven } from "./remap.js";
+import { dilateEllipse, reflect101, resizeImage, roundHalfEven } from "./remap.js";
 import { Tensor, tensor } from "./tensor.js";
 
 export const SEGMENTER_FILE = "mediapipe/selfie_segmentation.onnx"; // landmarks.segment.SEGMENTER_FILE, under models/
@@ -37,24 +37,10 @@ function toUint8(values: ArrayLike<number>): Uint8Array {
  * the same size gives a copy, as OpenCV does. */
 export function resizeUint8(image: Tensor<Uint8Array>, width: number, height: number, interpolation: "area" | "linear"
                             ): Tensor<Uint8Array> {
-  const [h, w] = image.shape, channels = image.shape[2] ?? 1;
-  if (h === height && w === width) return tensor(image.data.slice(), [...image.shape]);
-  const source = { data: Float32Array.from(image.data), width: w, height: h, channels };
-  const out = interpolation === "area" && (width < w || height < h) ? resizeArea(source, width, height)
-    : resizeLinear(source, width, height);
-  return tensor(toUint8(out), [height, width, ...image.shape.slice(2)]);
+  const resized = resizeImage(tensor(Float32Array.from(image.data), [...image.shape]), width, height, interpolation);
+  return tensor(toUint8(resized.data), resized.shape);
 }
 
-/** cv2.resize of a (H, W[, C]) float32 map; the same size gives a copy. */
-export function resizeFloat(image: Tensor<Float32Array>, width: number, height: number, interpolation: "area" | "linear"
-                            ): Tensor<Float32Array> {
-  const [h, w] = image.shape, channels = image.shape[2] ?? 1;
-  if (h === height && w === width) return tensor(image.data.slice(), [...image.shape]);
-  const source = { data: image.data, width: w, height: h, channels };
-  const out = interpolation === "area" && (width < w || height < h) ? resizeArea(source, width, height)
-    : resizeLinear(source, width, height);
-  return tensor(out, [height, width, ...image.shape.slice(2)]);
-}
 
 /** The selfie segmenter's session from the bytes of selfie_segmentation.onnx. */
 export async function createSegmenter(model: Uint8Array): Promise<ort.InferenceSession> {
@@ -77,55 +63,13 @@ export async function personMatte(segmenter: ort.InferenceSession, image: Tensor
   const feed = { [segmenter.inputNames[0]]: new ort.Tensor("float32", input, [1, side, side, 3]) };
   const output = (await segmenter.run(feed))[segmenter.outputNames[0]];
   const probability = tensor(new Float32Array(output.data as Float32Array), [side, side]);
-  const matte = resizeFloat(probability, width, height, "linear");
+  const matte = resizeImage(probability, width, height, "linear");
   for (let i = 0; i < matte.data.length; i++) matte.data[i] = Math.min(Math.max(matte.data[i], 0), 1);
   return matte;
 }
 
-/** cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2r + 1, 2r + 1)): each row's [first, stop) columns. */
-function ellipseRows(radius: number): [number, number][] {
-  const size = 2 * radius + 1, r = radius, c = radius, inverse = r ? 1 / (r * r) : 0, rows: [number, number][] = [];
-  for (let i = 0; i < size; i++) {
-    const dy = i - r;
-    let first = 0, stop = 0;
-    if (Math.abs(dy) <= r) {
-      const dx = roundHalfEven(c * Math.sqrt((r * r - dy * dy) * inverse));
-      first = Math.max(c - dx, 0);
-      stop = Math.min(c + dx + 1, size);
-    }
-    rows.push([first, stop]);
-  }
-  return rows;
-}
 
-/** cv2.dilate of a (H, W) 0/1 mask by the ellipse of `radius` (pixels outside the mask count as 0). */
-export function dilateEllipse(mask: Uint8Array, height: number, width: number, radius: number): Uint8Array {
-  const rows = ellipseRows(radius), out = new Uint8Array(height * width);
-  const prefix = new Int32Array(height * (width + 1)); // per row: ones before column x
-  for (let y = 0; y < height; y++) {
-    const base = y * (width + 1);
-    for (let x = 0; x < width; x++) prefix[base + x + 1] = prefix[base + x] + (mask[y * width + x] ? 1 : 0);
-  }
-  for (let y = 0; y < height; y++) {
-    for (let x = 0; x < width; x++) {
-      let hit = 0;
-      for (let i = 0; i < rows.length && !hit; i++) {
-        const sy = y + i - radius, [first, stop] = rows[i];
-        if (sy < 0 || sy >= height || first >= stop) continue;
-        const x0 = Math.max(x + first - radius, 0), x1 = Math.min(x + stop - radius, width);
-        if (x1 > x0 && prefix[sy * (width + 1) + x1] - prefix[sy * (width + 1) + x0] > 0) hit = 1;
-      }
-      out[y * width + x] = hit;
-    }
-  }
-  return out;
-}
 
-function reflect101(p: number, length: number): number {
-  if (length === 1) return 0;
-  while (p < 0 || p >= length) p = p < 0 ? -p : 2 * length - 2 - p;
-  return p;
-}
 
 const PYRAMID = [1, 4, 6, 4, 1];
 
@@ -183,7 +127,7 @@ export function fillIn(image: Tensor<Float32Array>, known: Tensor<Float32Array>)
   for (let p = 0; p < h * w; p++) for (let c = 0; c < channels; c++) filled[p * channels + c] = sums[c] / Math.max(total, 1e-6);
   let fh = h, fw = w;
   for (const level of levels.reverse()) {
-    const coarse = resizeFloat(tensor(filled, [fh, fw, channels]), level.width, level.height, "linear").data;
+    const coarse = resizeImage(tensor(filled, [fh, fw, channels]), level.width, level.height, "linear").data;
     const next = new Float32Array(level.height * level.width * channels);
     for (let p = 0; p < level.height * level.width; p++) {
       const trust = Math.min(level.weight[p], 1), divisor = Math.max(level.weight[p], 1e-6);
@@ -209,13 +153,13 @@ export function backgroundPlate(scene: Tensor<Uint8Array>, landmarks: Tensor, ma
   }
   const clipped = Float32Array.from(matte.data, (v) => Math.min(Math.max(v, 0), 1));
   const reach = Math.max(1, roundHalfEven(PERSON_REACH * faceSide(landmarks)));
-  const person = dilateEllipse(Uint8Array.from(clipped, (v) => (v > PERSON_LEVEL ? 1 : 0)), height, width, reach);
+  const person = dilateEllipse(Uint8Array.from(clipped, (v) => (v > PERSON_LEVEL ? 1 : 0)), width, height, reach);
   const known = tensor(Float32Array.from(person, (v) => 1 - v), [height, width]);
   const shrink = Math.max(1, Math.max(height, width) / PLATE_SIDE);
   const smallW = Math.max(1, roundHalfEven(width / shrink)), smallH = Math.max(1, roundHalfEven(height / shrink));
   const small = resizeUint8(scene, smallW, smallH, "area");
   const filled = fillIn(tensor(Float32Array.from(small.data), [smallH, smallW, 3]),
-                        resizeFloat(known, smallW, smallH, "area"));
+                        resizeImage(known, smallW, smallH, "area"));
   const enlarged = resizeUint8(tensor(toUint8(filled.data), [smallH, smallW, 3]), width, height, "linear");
   const plate = scene.data.slice();
   for (let p = 0; p < height * width; p++) {

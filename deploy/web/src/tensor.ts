@@ -28,3 +28,9 @@ export function checkPoints(points: Tensor, count: number | null, name: string):
   }
   for (const value of points.data) if (!Number.isFinite(value)) throw new Error(`${name} must be finite`);
 }
+
+/** The median as numpy gives it (the mean of the two middle values of an even count; NaN for none). */
+export function median(values: number[]): number {
+  const sorted = [...values].sort((a, b) => a - b), middle = sorted.length >> 1;
+  return sorted.length % 2 ? sorted[middle] : (sorted[middle - 1] + sorted[middle]) / 2;
+}
