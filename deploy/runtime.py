@@ -47,7 +47,7 @@ def _session(path: Path, providers: list[str] | None, threads: int):
 
 
 class OnnxBackend:
-    """``lsr.core.engine.SynthesisBackend`` over the two ONNX graphs of a bundle folder."""
+    """``lsr.core.backend.SynthesisBackend`` over the two ONNX graphs of a bundle folder."""
 
     def __init__(self, folder: str | os.PathLike, *, int8: bool = False, providers: list[str] | None = None,
                  threads: int = 0) -> None:
@@ -75,7 +75,7 @@ class OnnxBackend:
         self.mouth_generator_size = 0 if self.mouth_session is None else int(self.mouth_session.get_inputs()[0].shape[-1])
 
     def draw_mouth(self, window: np.ndarray, masks: np.ndarray) -> np.ndarray:
-        """The mouth generator (``lsr.core.engine.SynthesisBackend``): (1, 3, P, P) + (1, 2, P, P) -> (1, 3, P, P)."""
+        """The mouth generator (``lsr.core.backend.SynthesisBackend``): (1, 3, P, P) + (1, 2, P, P) -> (1, 3, P, P)."""
         if self.mouth_session is None:
             raise BundleError(f"{self.folder} has no {MOUTH_GENERATOR_FILE}")
         feed = {"window": np.ascontiguousarray(window, np.float32), "masks": np.ascontiguousarray(masks, np.float32)}
@@ -92,7 +92,7 @@ class OnnxBackend:
                    with_layout: bool, references: np.ndarray | None = None,
                    reference_masks: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """(B, 3, S, S) + (B, D) latents [+ references, reference_masks at ``crop_size``, warp-guided bundles]
-        -> (image (B, 3, C, C) in [-1, 1], layout (B, C_l, S, S) or None); see ``lsr.core.engine.SynthesisBackend``."""
+        -> (image (B, 3, C, C) in [-1, 1], layout (B, C_l, S, S) or None); see ``lsr.core.backend.SynthesisBackend``."""
         feed = {"landmark_image": np.ascontiguousarray(landmark_image, np.float32),
                 "layout_latent": np.ascontiguousarray(layout_latent, np.float32),
                 "style_latent": np.ascontiguousarray(style_latent, np.float32)}

@@ -254,6 +254,11 @@ class ReenactConfig:
     nearest); nearest = from the nearest shot warped onto the target where the driver opens it wider than the
     shots; blend = the network's blend of all its shots (smoother, opens less). Default: drawn when the model has
     a mouth generator, else nearest. Compared by `lsr eval --mouths`."""
+    mouth_interior: Literal["driver", "shots"] = "driver"
+    """Inside an open mouth: driver = the driver frame's own cavity, teeth and tongue, laid inside the target's inner
+    lips and matched to the skin's colour (a video or image driver; the teeth are the driver's, not the source's);
+    shots = what --mouth gives (the shots' insides, stretched where none is as open). Compared by `lsr eval
+    --mouth-interiors`."""
     eyes: Literal["drawn", "blend"] = "blend"
     """drawn = one iris per eye, the subject's own (its shot with the most open eyes), laid where the driver looks
     (MediaPipe's iris net on the driver's frames) inside the driven lids, clipped by them; blend = the network's

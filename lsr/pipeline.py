@@ -25,7 +25,8 @@ from typing import Literal
 import numpy as np
 import torch
 
-from lsr.core.engine import LayoutKind, ReenactorBase, Subject
+from lsr.core.backend import LayoutKind
+from lsr.core.engine import ReenactorBase, Subject
 from lsr.core.sources import SubjectShots
 from lsr.errors import ConfigError, WeightsError
 from lsr.export import FrameGeneratorGraph
@@ -69,7 +70,7 @@ _TRACING = threading.Lock()  # one trace at a time: warnings.catch_warnings chan
 
 
 class TorchBackend:
-    """``lsr.core.engine.SynthesisBackend`` over an ``LSRModel`` (numpy in, numpy out, fp32 results).
+    """``lsr.core.backend.SynthesisBackend`` over an ``LSRModel`` (numpy in, numpy out, fp32 results).
 
     One frame at a time in fp32 on the CPU (the frame loop), the frame generator runs traced (``torch.jit.trace``,
     per input shape; the trace shares the model's parameters, and a new ``model`` drops it): eager mode dispatches
@@ -95,7 +96,7 @@ class TorchBackend:
 
     @torch.inference_mode()
     def draw_mouth(self, window: np.ndarray, masks: np.ndarray) -> np.ndarray:
-        """The mouth generator (``lsr.core.engine.SynthesisBackend``): (1, 3, P, P) + (1, 2, P, P) -> (1, 3, P, P)."""
+        """The mouth generator (``lsr.core.backend.SynthesisBackend``): (1, 3, P, P) + (1, 2, P, P) -> (1, 3, P, P)."""
         if self.mouth_generator is None:
             raise ConfigError("this model has no mouth generator")
         return self.mouth_generator(torch.from_numpy(np.ascontiguousarray(window, np.float32)),
@@ -150,7 +151,7 @@ class TorchBackend:
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """(B, 3, S, S) + (B, D) latents -> (image (B, 3, S, S) in [-1, 1], layout (B, C_l, S, S) or None).
 
-        references / reference_masks: warp-guided models (``lsr.core.engine.SynthesisBackend``); the image is then at
+        references / reference_masks: warp-guided models (``lsr.core.backend.SynthesisBackend``); the image is then at
         their side. oracle_segmentation: (B, 19, S, S) one-hot ground truth, for ``oracle_seg`` models only (evaluation).
         """
         oracle = None if oracle_segmentation is None else self._tensor(oracle_segmentation)

@@ -192,6 +192,7 @@ def make_reenactor(cfg: ReenactConfig) -> ReenactorBase:
     if cfg.mouth is not None:
         reenactor.mouth = cfg.mouth
     reenactor.eyes = cfg.eyes
+    reenactor.mouth_interior = cfg.mouth_interior
     return reenactor
 
 

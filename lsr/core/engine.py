@@ -27,7 +27,7 @@ import os
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import Literal
 
 import numpy as np
 
@@ -50,42 +50,16 @@ from landmarks.eyelids import LOOK_AHEAD
 from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
 from lsr.core.overlap import finish_behind, prefetch
 from lsr.core.scene_source import paste_into_driver, paste_into_scene
+from lsr.core.backend import SynthesisBackend
 from lsr.core.images import from_network, square_resize, to_network
-from lsr.core.parts import EYES, MOUTHS, DriverGaze, draws_mouth, finish_eyes, finish_mouth, subject_irises
+from lsr.core.parts import (EYES, MOUTH_INTERIORS, MOUTHS, DriverGaze, draws_mouth, finish_eyes, finish_mouth,
+                             subject_irises)
+from landmarks.mouth_interior import DriverMouth, cut_driver_mouth, paste_interior
 
 Mode = Literal["auto", "relative", "absolute"]
 Scene = Literal["source", "driver"]
 """What ``paste_back`` composites into: the source's own frames (its anchor shot or its video) or the driver's."""
-LayoutKind = Literal["none", "latent", "segmentation"]
 STAGES = ("decode", "landmarks", "subject_encoding", "warps", "synthesis", "paste_back")
-
-
-class SynthesisBackend(Protocol):
-    """The two networks of LSR as numpy functions (thesis §4.3: E once per subject, G per frame)."""
-
-    resolution: int
-    """Crop side S of the model."""
-    layout_kind: LayoutKind
-    """What the layout output is: 'none' (variant has none), 'latent' (C_l latent maps), 'segmentation' (19 classes)."""
-    warp_references: int
-    """N > 0: a warp-guided model; ``synthesize`` also takes the N nearest shots warped onto the target (0 = none)."""
-
-    def encode_subject(self, shots: np.ndarray, shot_landmark_images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """shots, shot_landmark_images: (1, K, 3, S, S) float32 in [-1, 1] -> (layout_latent, style_latent), (1, D) each."""
-        ...
-
-    def synthesize(
-        self, landmark_image: np.ndarray, layout_latent: np.ndarray, style_latent: np.ndarray, with_layout: bool,
-        references: np.ndarray | None = None, reference_masks: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        """landmark_image (1, 3, S, S) in [-1, 1], latents (1, D) [, references (1, N, 3, C, C) in [-1, 1] and
-        reference_masks (1, N, 1, C, C), warp-guided models, C >= S] -> (image (1, 3, C, C) in [-1, 1] (C = S
-        without references), layout (1, C_l, S, S) or None)."""
-        ...
-
-    # A backend with a mouth generator (``models_def.part_generator``) also has
-    #   mouth_generator_size: int (its window side P; 0 or absent: none) and
-    #   draw_mouth(window (1, 3, P, P) in [-1, 1], masks (1, 2, P, P) in [0, 1]) -> (1, 3, P, P) in [-1, 1].
 
 
 @dataclasses.dataclass
@@ -144,6 +118,8 @@ class ReenactedFrame:
     """(68, 2) float64: the target landmarks in crop pixels (after retargeting; None without a face)."""
     gaze: np.ndarray | None = None
     """(2, 2) float64: the target's gaze (``landmarks.iris.gaze_offsets``), when the eyes are drawn."""
+    driver_mouth: DriverMouth | None = None
+    """The driver frame's open mouth, whose interior the synthesis takes (``mouth_interior`` "driver")."""
 
 
 @dataclasses.dataclass
@@ -189,6 +165,7 @@ class ReenactorBase:
         the face mesh, TPS outside) or "tps" (the 68-point TPS everywhere)."""
         self._mouth: str = "drawn" if draws_mouth(backend) else "nearest"
         self._eyes: str = "blend"
+        self._mouth_interior: str = "driver"
         self.subject: Subject | None = None
         self.last_stats = ReenactStats()
 
@@ -208,6 +185,19 @@ class ReenactorBase:
             raise InputFileError("--mouth drawn needs a model with a mouth generator (a weights folder with mouth/, or an "
                               "ONNX bundle with mouth_generator.onnx); use --mouth nearest")
         self._mouth = mouth
+
+    @property
+    def mouth_interior(self) -> str:
+        """Inside an open mouth: "driver", the driver frame's cavity, teeth and tongue inside the target's inner lips
+        (``landmarks.mouth_interior``; where the driver is a video or a camera), or "shots", what the mouth
+        choice gives (``mouth``)."""
+        return self._mouth_interior
+
+    @mouth_interior.setter
+    def mouth_interior(self, interior: str) -> None:
+        if interior not in MOUTH_INTERIORS:
+            raise ValueError(f"mouth_interior must be one of {MOUTH_INTERIORS}, got {interior!r}")
+        self._mouth_interior = interior
 
     @property
     def eyes(self) -> str:
@@ -293,6 +283,7 @@ class ReenactorBase:
     def synthesize_crop(
         self, crop_landmarks: np.ndarray, with_layout: bool = False, latents: tuple[np.ndarray, np.ndarray] | None = None,
         subject: Subject | None = None, crop_mesh: np.ndarray | None = None, gaze: np.ndarray | None = None,
+        driver_mouth: DriverMouth | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Target landmarks (68, 2) in crop pixels -> (synthesis (C, C, 3) uint8, landmark image (S, S, 3) uint8, layout).
 
@@ -303,18 +294,21 @@ class ReenactorBase:
         latents: (layout_latent, style_latent), (1, D) each, in place of the subject's (e.g. one shot's alone).
         subject: an encoded subject other than the cached one (a live stream's own, ``lsr.core.live``).
         gaze: the target's (2, 2) ``landmarks.iris.gaze_offsets``, for ``eyes`` "drawn".
+        driver_mouth: the driver frame's mouth (``landmarks.mouth_interior.cut_driver_mouth``), for
+        ``mouth_interior`` "driver".
         """
         landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject, crop_mesh)
-        image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks, subject, gaze)
+        image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks, subject, gaze, driver_mouth)
         return image, landmark_image, layout
 
     def synthesize_inputs(self, inputs: dict[str, np.ndarray], with_layout: bool = False,
                           crop_landmarks: np.ndarray | None = None, subject: Subject | None = None,
-                          gaze: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+                          gaze: np.ndarray | None = None, driver_mouth: DriverMouth | None = None
+                          ) -> tuple[np.ndarray, np.ndarray | None]:
         """``network_inputs``' dict -> (synthesis (C, C, 3) uint8, layout (C_l, S, S) float32 or None). ``crop_landmarks``
         given, ``mouth`` "nearest" or "drawn": the mouth of ``subject``'s nearest warped shot as
         ``landmarks.nearest_mouth`` says; "drawn": then redrawn by the mouth generator (``lsr.core.parts``); and with
-        a ``gaze``, the eyes as ``eyes`` says."""
+        a ``gaze``, the eyes as ``eyes`` says; with a ``driver_mouth``, the interior as ``mouth_interior`` says."""
         image, layout = self.backend.synthesize(
             inputs["landmark_image"], inputs["layout_latent"], inputs["style_latent"], with_layout,
             *((inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()),
@@ -324,6 +318,8 @@ class ReenactorBase:
             shot_landmarks = (subject or self._require_subject()).shots.landmarks
             image = finish_mouth(image, self.mouth, inputs, crop_landmarks, shot_landmarks, self.warp_references,
                                  self.backend)
+        if crop_landmarks is not None and driver_mouth is not None and self.mouth_interior == "driver":
+            image = paste_interior(image, crop_landmarks, driver_mouth)
         if crop_landmarks is not None and gaze is not None and self.eyes == "drawn":
             image = finish_eyes(image, self.eyes, crop_landmarks, gaze, (subject or self._require_subject()).irises[0])
         return image, None if layout is None else np.asarray(layout[0], np.float32)
@@ -457,15 +453,15 @@ class ReenactorBase:
 
     def _prepare(self, index: int, driver_frame: np.ndarray | None, target: np.ndarray, stats: ReenactStats,
                  target_mesh: np.ndarray | None = None, finish: Callable | None = None, image: np.ndarray | None = None,
-                 gaze: np.ndarray | None = None) -> _Prepared:
+                 gaze: np.ndarray | None = None, driver_mouth: DriverMouth | None = None) -> _Prepared:
         """A face frame made ready for the network (on the preparing thread): the target's landmark image and, for a
         warp-guided model, its nearest shots warped onto it. finish: the frame's paste-back (run behind the loop);
         image: the frame's picture until then (None: the synthesis)."""
         started = time.perf_counter()
         landmark_image, inputs = self.network_inputs(target, crop_mesh=target_mesh)
         stats.add("warps", time.perf_counter() - started)
-        return _Prepared(ReenactedFrame(index, image, True, driver_frame, landmark_image, None, None, target, gaze),
-                         inputs, finish)
+        return _Prepared(ReenactedFrame(index, image, True, driver_frame, landmark_image, None, None, target, gaze,
+                                        driver_mouth), inputs, finish)
 
     def _synthesized(self, items, with_layout: bool, stats: ReenactStats) -> Iterator[ReenactedFrame | Callable]:
         """The network on each prepared frame, here (the items come from the preparing thread); the frames, or their
@@ -480,15 +476,16 @@ class ReenactorBase:
                 if isinstance(item, _Prepared):
                     started, frame = time.perf_counter(), item.frame
                     frame.synthesis, frame.layout = self.synthesize_inputs(item.inputs, with_layout, frame.landmarks,
-                                                                           gaze=frame.gaze)
+                                                                           gaze=frame.gaze,
+                                                                           driver_mouth=frame.driver_mouth)
                     stats.add("synthesis", time.perf_counter() - started)
                     frame.image = frame.synthesis if frame.image is None else frame.image
                     item = frame if item.finish is None else functools.partial(item.finish, frame)
                 yield item
 
     def _into_scene(self, scenes, index: int, driver_frame: np.ndarray | None, target: np.ndarray,
-                    stats: ReenactStats, target_mesh: np.ndarray | None = None, gaze: np.ndarray | None = None
-                    ) -> _Prepared:
+                    stats: ReenactStats, target_mesh: np.ndarray | None = None, gaze: np.ndarray | None = None,
+                    driver_mouth: DriverMouth | None = None) -> _Prepared:
         """The target (anchor crop pixels; its mesh, when there is one) prepared at the next scene frame's head pose,
         its finisher compositing the synthesis into that scene frame."""
         scene = next(scenes)
@@ -496,7 +493,8 @@ class ReenactorBase:
         if target_mesh is not None:
             target_mesh = scene.place_mesh(target_mesh)
         return self._prepare(index, driver_frame, target, stats, target_mesh,
-                             functools.partial(paste_into_scene, scene=scene, stats=stats), scene.image, gaze)
+                             functools.partial(paste_into_scene, scene=scene, stats=stats), scene.image, gaze,
+                             driver_mouth)
 
     def _landmark_driver(self, driver, info: DriverInfo, relative: bool, smooth: bool, landmark_space, landmark_size,
                          stats: ReenactStats, scenes=None) -> Iterator[ReenactedFrame | _Prepared]:
@@ -557,6 +555,8 @@ class ReenactorBase:
             elif one_euro is not None:
                 one_euro.reset()  # never smooth across a gap
             gaze = None if gazes is None or crop_landmarks is None else gazes(frame, raw_points, irises)
+            mouth = (cut_driver_mouth(frame, raw_points) if crop_landmarks is not None
+                     and self.mouth_interior == "driver" else None)  # the points as detected: the pixels' own
             stats.add("landmarks", time.perf_counter() - started)
             if crop_landmarks is None:
                 stats.no_face += 1
@@ -570,10 +570,11 @@ class ReenactorBase:
                 continue
             stats.frames += 1
             if scenes is not None:
-                yield self._into_scene(scenes, index, frame, crop_landmarks, stats, crop_mesh, gaze)
+                yield self._into_scene(scenes, index, frame, crop_landmarks, stats, crop_mesh, gaze, mouth)
             else:  # paste_back: into the driver's own frame (its head and scene around the face), behind the loop
                 yield self._prepare(index, frame, crop_landmarks, stats, crop_mesh, functools.partial(
-                    paste_into_driver, points=points, matrix=matrix, stats=stats) if paste_back else None, gaze=gaze)
+                    paste_into_driver, points=points, matrix=matrix, stats=stats) if paste_back else None, gaze=gaze,
+                    driver_mouth=mouth)
             index += 1
         if stats.frames and stats.no_face == stats.frames:  # a writer that is still open discards its file
             raise NoFaceError(f"no face found in any of the {stats.frames} frame(s) of the driver {info.path}; "

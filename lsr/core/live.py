@@ -7,7 +7,7 @@ One-Euro smoothing at the frames' real rate, the driver's first face (relative m
 last good output. Per frame:
 
     camera frame -> track 68 points -> smooth -> crop -> retarget onto the subject's anchor shot
-      -> synthesise (backend) -> composite into the anchor's scene (or the face crop) -> mark as synthetic
+      -> synthesise (backend; inside an open mouth, the camera frame's) -> composite into the anchor's scene (or the face crop) -> mark as synthetic
 
 A frame without a face gives the last good output again with a note, never an error, so a stream survives a
 hand in front of the camera. ``recentre()`` makes the next face the neutral one (the driver sat down again).
@@ -23,6 +23,7 @@ import time
 import numpy as np
 
 from landmarks.mesh_retarget import DriverReference
+from landmarks.mouth_interior import DriverMouth, cut_driver_mouth
 from lsr.core.engine import ReenactorBase, Subject
 from lsr.core.parts import DriverGaze
 from lsr.core.provenance import draw_watermark
@@ -119,6 +120,7 @@ class LiveSession:
             return self.still(NO_FACE_NOTE, started)
         gaps, _ = self.reference.lids(points)  # as detected; a camera has nothing ahead
         gaze = None if self.gazes is None else self.gazes(frame, points, getattr(self.tracker, "irises", None))
+        mouth = cut_driver_mouth(frame, points) if self.reenactor.mouth_interior == "driver" else None
         if self.one_euro is not None:
             if self._last_time is not None and now > self._last_time:
                 self.one_euro.fps = float(np.clip(1.0 / (now - self._last_time), MIN_FPS, MAX_FPS))
@@ -127,12 +129,13 @@ class LiveSession:
         crop_landmarks = transform_landmarks(points, crop_transform(points, self.reenactor.crop_size))
         self.reference.start(crop_landmarks)
         return self._inputs(retarget_driving(crop_landmarks, self.reference.landmarks,
-                                             self.subject.reference_landmarks, gaps), started, gaze)
+                                             self.subject.reference_landmarks, gaps), started, gaze, mouth)
 
-    def _inputs(self, target: np.ndarray, started: float, gaze: np.ndarray | None = None) -> Prepared:
+    def _inputs(self, target: np.ndarray, started: float, gaze: np.ndarray | None = None,
+                driver_mouth: DriverMouth | None = None) -> Prepared:
         landmark_image, inputs = self.reenactor.network_inputs(target, subject=self.subject)
         return Prepared(np.asarray(target, np.float64), landmark_image, inputs, time.perf_counter() - started,
-                        self.frames, gaze)
+                        self.frames, gaze, driver_mouth)
 
     def render(self, target: np.ndarray) -> LiveFrame:
         """Target landmarks (68, 2) in the anchor's crop pixels (e.g. the anchor's own, edited by
@@ -151,7 +154,7 @@ class LiveSession:
         """The second half: the network, then the composite into the scene and the synthetic mark."""
         started = time.perf_counter()
         synthesis, layout = self.reenactor.synthesize_inputs(prepared.inputs, self.with_layout, prepared.target,
-                                                             self.subject, prepared.gaze)
+                                                             self.subject, prepared.gaze, prepared.driver_mouth)
         image = synthesis if self.scene is None else self.scene.composite(prepared.target, synthesis)
         self.faces += 1
         self.last = LiveFrame(self._mark(image), True, layout, prepared.landmark_image,
@@ -172,3 +175,5 @@ class Prepared:
     index: int
     gaze: np.ndarray | None = None
     """(2, 2) where the target looks (drawn eyes, ``lsr.core.parts.DriverGaze``), or None."""
+    driver_mouth: DriverMouth | None = None
+    """The camera frame's open mouth (``landmarks.mouth_interior``), or None."""

@@ -27,6 +27,8 @@ PartRunner = Callable[[np.ndarray, np.ndarray], np.ndarray]
 EYES = ("drawn", "blend")
 """A model's eyes: one iris per eye, the subject's own, drawn where the driver looks ("drawn", ``landmarks.iris``)
 or the network's blend of its shots ("blend")."""
+MOUTH_INTERIORS = ("driver", "shots")
+"""Inside an open mouth: the driver frame's (``landmarks.mouth_interior``) or what ``MOUTHS``' choice gives."""
 MOUTHS = ("drawn", "nearest", "blend")
 """A warp-guided model's mouth: the nearest warped shot's where the target opens it wider than the shots, then
 redrawn by the mouth generator ("drawn"); without the redrawing ("nearest"); the network's blend alone ("blend")."""

@@ -141,6 +141,19 @@ def test_video_driver_passes_faceless_frames_through_in_the_driver_scene(reenact
     assert crop_output[1].image.shape == (64, 64, 3) and crop_output[0].image.shape == (64, 64, 3)
 
 
+def test_a_video_driver_gives_each_open_mouth_frame_its_interior(reenactor, tmp_path):
+    from lsr.data.synth import render_video
+
+    clip = write_clip(tmp_path / "talk.mp4", list(render_video(44, 5, 256).frames), audio=False)  # opens at frame 4
+    out = list(reenactor(clip))
+    assert out[4].driver_mouth is not None and out[4].driver_mouth.patch.ndim == 3  # landmarks.mouth_interior
+    reenactor.mouth_interior = "shots"
+    try:
+        assert all(frame.driver_mouth is None for frame in reenactor(clip))
+    finally:
+        reenactor.mouth_interior = "driver"
+
+
 def test_bf16_error_is_reported(reenactor, capsys):
     error = reenactor.precision_error(list(reenactor.subject.shots.landmarks), "bf16")
     assert error.frames == 2 and 0 < error.max_abs < 1.0 and error.mean_abs <= error.max_abs

@@ -562,3 +562,12 @@ def test_reenact_mouth_option_reaches_the_reenactor(weights, mouth):
     assert ReenactConfig().mouth is None  # the model's default: drawn with a mouth generator, else nearest
     assert make_reenactor(ReenactConfig(weights=weights)).mouth == "nearest"
     assert make_reenactor(ReenactConfig(weights=weights, mouth=mouth)).mouth == mouth
+
+
+def test_reenact_mouth_interior_option_reaches_the_reenactor(weights):
+    from lsr.config import ReenactConfig
+    from lsr.reenact import make_reenactor
+
+    assert ReenactConfig().mouth_interior == "driver"
+    assert make_reenactor(ReenactConfig(weights=weights)).mouth_interior == "driver"
+    assert make_reenactor(ReenactConfig(weights=weights, mouth_interior="shots")).mouth_interior == "shots"

@@ -85,3 +85,20 @@ def test_drawn_eyes_follow_the_cameras_gaze_from_the_trackers_irises(reenactor, 
         assert session.gazes.reference is None
     finally:
         reenactor.eyes = "blend"
+
+
+def test_an_open_mouth_on_camera_gives_the_synthesis_its_inside(reenactor, tmp_path):
+    from landmarks.expression import mouth_opening
+    from lsr.core.live import LiveSession
+    from lsr.data.synth import render_video
+
+    subject = reenactor.encode_subject(_shots(tmp_path, 41, 2, pad=0), k=2, cache=False)
+    clip = render_video(44, 5, 256)
+    assert mouth_opening(clip.landmarks[4]) > 0.08
+    wide = LiveSession(reenactor, subject).prepare(clip.frames[4])
+    assert wide.driver_mouth is not None and wide.driver_mouth.opening > 0.05  # landmarks.mouth_interior
+    reenactor.mouth_interior = "shots"
+    try:
+        assert LiveSession(reenactor, subject).prepare(clip.frames[4]).driver_mouth is None
+    finally:
+        reenactor.mouth_interior = "driver"

@@ -143,3 +143,27 @@ def test_drawn_eyes_change_the_eyes_only_and_only_with_a_gaze(folders):
     assert not (changed & ~eyes).any()
     with pytest.raises(ValueError, match="eyes"):
         reenactor.eyes = "googly"
+
+
+def test_the_driver_mouth_interior_goes_inside_the_lips_by_default_and_can_be_told_not_to(folders):
+    from landmarks.mouth_interior import cut_driver_mouth
+    from lsr.pipeline import Reenactor
+
+    reenactor = Reenactor(folders, crop_size=SIDE)
+    assert reenactor.mouth_interior == "driver"
+    reenactor.encode_subject(_shots())
+    target = set_mouth_opening(reenactor.subject.shots.landmarks[1], 0.3)
+    driver = np.full((SIDE, SIDE, 3), 12, np.uint8)  # a driver whose open mouth is a dark cavity
+    mouth = cut_driver_mouth(driver, target)
+    plain = reenactor.synthesize_crop(target)[0]  # a landmark driver: no frame, no interior
+    inside = reenactor.synthesize_crop(target, driver_mouth=mouth)[0]
+    changed = np.abs(inside.astype(int) - plain.astype(int)).max(axis=-1) > 0
+    ys, xs = np.nonzero(changed)
+    assert len(ys) and (xs >= target[48:60, 0].min() - 2).all() and (xs <= target[48:60, 0].max() + 2).all()
+    assert (ys >= target[48:60, 1].min() - 2).all() and (ys <= target[48:60, 1].max() + 2).all()
+    y, x = np.round(target[[62, 66]].mean(axis=0)).astype(int)[::-1]
+    assert inside[y, x].max() < plain[y, x].max()  # darker where the driver's cavity is
+    reenactor.mouth_interior = "shots"
+    assert (reenactor.synthesize_crop(target, driver_mouth=mouth)[0] == plain).all()
+    with pytest.raises(ValueError, match="mouth_interior"):
+        reenactor.mouth_interior = "tongue"
