@@ -66,6 +66,11 @@ class EvalConfig:
     """A model's eyes: drawn (one iris per eye, the subject's own, where the target looks: lsr.core.parts) or blend
     (the network's blend of its shots); empty: the model's default; more than one adds a row per extra choice
     ("+blend-eyes")."""
+    mouth_interiors: tuple[Literal["driver", "shots"], ...] = ()
+    """Inside a model's open mouth, cross-identity: driver (the driving frame's cavity, teeth and tongue inside the
+    target's inner lips: landmarks.mouth_interior) or shots (what the mouth choice gives); empty: the model's default
+    (driver); more than one adds a row per extra choice ("+shots-interior"). Self re-enactment drives by landmarks
+    alone (its driving frames are the ground truth), so there it changes nothing."""
     detector_upsample: int = 1
     """dlib only: pyramid upsampling; 1 finds the faces of 224-px crops at 1/4 the cost of 2."""
     bucket_thresholds: tuple[float, ...] = ()

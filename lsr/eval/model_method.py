@@ -69,14 +69,16 @@ class LsrModelMethod:
 
     def __init__(self, weights: str | os.PathLike, *, device: str = "cpu", finetune_steps: int = 0,
                  finetune_lr: float = DEFAULT_FINETUNE_LR, name: str | None = None, reenactor=None,
-                 reference_warp: str = "mesh", mouth: str | None = None, eyes: str | None = None) -> None:
+                 reference_warp: str = "mesh", mouth: str | None = None, eyes: str | None = None,
+                 mouth_interior: str | None = None) -> None:
         """reenactor: a ready ``ReenactorBase`` (e.g. ``deploy.runtime.OnnxReenactor`` over the bundle at
         ``weights``); None = load the torch model from ``weights``. reference_warp: how a warp-guided model's
         references are warped ("mesh": over the face mesh, given the meshes; "tps": the 68-point TPS). mouth: a
         warp-guided model's mouth ("drawn": redrawn by its mouth generator; "nearest": the nearest warped shot's;
         "blend": the network's; None: the model's default, ``lsr.core.engine.ReenactorBase.mouth``). eyes: "drawn"
         (one iris where the target looks: the protocol then passes ``target_gazes``) or "blend" (None: the model's
-        default, ``ReenactorBase.eyes``)."""
+        default, ``ReenactorBase.eyes``). mouth_interior: "driver" (the driver frame's inside an open mouth:
+        cross-identity, the protocol then passes ``driver_mouths``) or "shots" (None: the model's default)."""
         self.weights = Path(weights)
         self.device = device
         self.finetune_steps = finetune_steps
@@ -96,7 +98,10 @@ class LsrModelMethod:
             reenactor.mouth = mouth
         if eyes is not None:
             reenactor.eyes = eyes
+        if mouth_interior is not None:
+            reenactor.mouth_interior = mouth_interior
         self.uses_gazes = reenactor.eyes == "drawn"
+        self.uses_driver_mouths = reenactor.mouth_interior == "driver"
         self.needs_target_segmentation = self.variant == "oracle_seg"
         # the protocol then passes the shots' and targets' meshes where it has them (TPS references where not)
         self.uses_meshes = bool(reenactor.warp_references) and reference_warp == "mesh"
@@ -128,12 +133,15 @@ class LsrModelMethod:
 
     def reenact(self, shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray,
                 target_segmentations: np.ndarray | None = None, shot_meshes: np.ndarray | None = None,
-                target_meshes: np.ndarray | None = None, target_gazes: np.ndarray | None = None) -> np.ndarray:
+                target_meshes: np.ndarray | None = None, target_gazes: np.ndarray | None = None,
+                driver_mouths: list | None = None) -> np.ndarray:
         """shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (T, 68, 2);
         target_segmentations: (T, S, S) uint8 class ids, ground truth of the targets (``oracle_seg`` only);
         shot_meshes (K, 468, 3), target_meshes (T, 468, 3): face meshes for the references' mesh warp (NaN rows:
         none; that target's references are TPS-warped); target_gazes (T, 2, 2): where each target looks
-        (``landmarks.iris.gaze_offsets``; NaN: not found), for drawn eyes -> (T, S, S, 3) uint8."""
+        (``landmarks.iris.gaze_offsets``; NaN: not found), for drawn eyes; driver_mouths: T x
+        ``landmarks.mouth_interior.DriverMouth`` or None, the driving frames' mouths (cross-identity) -> (T, S, S, 3)
+        uint8."""
         check_method_inputs(shots, shot_landmarks, target_landmarks)
         scale = self._encode(shots, shot_landmarks, shot_meshes)
         size = shots[0].shape[0]
@@ -143,9 +151,11 @@ class LsrModelMethod:
             target_meshes = np.full((len(target_landmarks), 468, 3), np.nan, np.float32)
         outputs = []
         gazes = [None] * len(target_landmarks) if target_gazes is None else list(target_gazes)
-        for points, mesh, gaze in zip(target_landmarks, target_meshes, gazes):
+        mouths = [None] * len(target_landmarks) if driver_mouths is None else list(driver_mouths)
+        for points, mesh, gaze, mouth in zip(target_landmarks, target_meshes, gazes, mouths, strict=True):
             crop_mesh = scale_mesh(mesh, scale) if np.isfinite(mesh).all() else None
-            image = self.reenactor.synthesize_crop(scale_points(points, scale), crop_mesh=crop_mesh, gaze=gaze)[0]
+            image = self.reenactor.synthesize_crop(scale_points(points, scale), crop_mesh=crop_mesh, gaze=gaze,
+                                                   driver_mouth=mouth)[0]
             outputs.append(_resize(image, size))
         return np.stack(outputs) if outputs else np.zeros((0, size, size, 3), np.uint8)
 
@@ -181,7 +191,8 @@ class LsrModelMethod:
         """A subject-specific copy fine-tuned on the shots only (fresh weights from disk each time)."""
         check_method_inputs(shots, shot_landmarks, shot_landmarks)
         subject = LsrModelMethod(self.weights, device=self.device, name=self.name,
-                                 reference_warp=self.reenactor.reference_warp, mouth=self.reenactor.mouth)
+                                 reference_warp=self.reenactor.reference_warp, mouth=self.reenactor.mouth,
+                                 eyes=self.reenactor.eyes, mouth_interior=self.reenactor.mouth_interior)
         subject._encode(shots, shot_landmarks)
         from lsr.train.finetune import finetune_reenactor
 

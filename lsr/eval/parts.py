@@ -276,6 +276,43 @@ def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str],
                    for key in ("output_cavity", "driver_cavity", "output_teeth", "driver_teeth")},
                 "judge_no_face": sum(r["judge_no_face"] for r in group),
             })
+    return rows + agreement_rows(records, methods, ks)
+
+
+AGREEMENT = "the drivers: driving detector vs judge"
+"""The row of ``summarise_cross`` that compares the two detectors on the drivers' own frames."""
+
+
+def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks: Sequence[int]
+                   ) -> list[dict[str, Any]]:
+    """Per K, how far the judge and the detector that drove the motion agree on the drivers' own frames: the
+    per-sequence correlation (mean) and pooled gain of the judge's mouth and eye openings on the driving detector's.
+    A method drives its output to the driving detector's reading, so its judged correlation can reach this only
+    where the two detectors agree (the rows' ceiling). Read from the first method's records (the drivers are the
+    same for every method)."""
+    from lsr.eval.cross import opening_correlation, pooled_gain
+
+    rows = []
+    for k in ks:
+        group: list[dict[str, Any]] = []
+        for name in methods:
+            group = group or [r for r in records if r["method"] == name and r["k"] == k and "judge_no_face" in r]
+        if not group:
+            continue
+        sequences: dict[tuple[str, str], list[dict[str, Any]]] = {}
+        for record in group:
+            sequences.setdefault((record["identity"], record["driver"]), []).append(record)
+        pairs = {part: [(np.array([r[f"driver_{part}"] for r in members], np.float64),
+                         np.array([r[f"judge_driver_{part}"] for r in members], np.float64))
+                        for members in sequences.values()] for part in ("mouth", "eye")}
+        rows.append({"method": AGREEMENT, "k": k, "frames": len(group), "sequences": len(sequences),
+                     "judge_mouth_corr": _finite_mean([opening_correlation(*p) for p in pairs["mouth"]]),
+                     "judge_mouth_gain": pooled_gain(pairs["mouth"]),
+                     "judge_eye_corr": _finite_mean([opening_correlation(*p) for p in pairs["eye"]]),
+                     "judge_eye_gain": pooled_gain(pairs["eye"]),
+                     **dict.fromkeys(("gaze_corr", "iris_contrast", "output_cavity", "driver_cavity", "output_teeth",
+                                      "driver_teeth"), math.nan),
+                     "open_frames": 0, "judge_no_face": sum(r["judge_no_face"] for r in group)})
     return rows
 
 
@@ -294,7 +331,10 @@ CONVENTION = (
     "iris contrast = the output eyes' (bright - dark) / bright over the source shots' (median over frames; a "
     f"doubled iris halves it); cavity = median grey inside the inner lips over the face's, teeth = share of "
     f"teeth-like pixels there, on the frames where the judge sees the driver's mouth open (>= {OPEN_MOUTH:g} "
-    "inter-ocular distances; an output mouth it sees closed counts as cavity 1, teeth 0)"
+    "inter-ocular distances; an output mouth it sees closed counts as cavity 1, teeth 0). "
+    f"'{AGREEMENT}': the judge's openings of the drivers' own frames against the driving detector's, correlated "
+    "and pooled as above: a method's output follows the driving detector's reading, so its judged correlation "
+    "reaches this only where the two detectors agree"
 )
 
 
@@ -323,6 +363,11 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
                   "judge no face |",
                   "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for row in cross_rows:
+            if row["method"] == AGREEMENT:
+                lines.append(f"| {AGREEMENT} | {row['k']} | {row['frames']} | {fmt(row['judge_mouth_corr'], 2)} | "
+                             f"{fmt(row['judge_mouth_gain'], 2)} | {fmt(row['judge_eye_corr'], 2)} | "
+                             f"{fmt(row['judge_eye_gain'], 2)} | – | – | – | – | – | {row['judge_no_face']} |")
+                continue
             lines.append(
                 f"| {row['method']} | {row['k']} | {row['frames']} | {fmt(row['judge_mouth_corr'], 2)} | "
                 f"{fmt(row['judge_mouth_gain'], 2)} | {fmt(row['judge_eye_corr'], 2)} | "
@@ -332,6 +377,19 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
                 f"{fmt(row['output_teeth'], 2)} ({fmt(row['driver_teeth'], 2)}) | {row['open_frames']} | "
                 f"{row['judge_no_face']} |")
     return lines
+
+
+def driver_mouth_inputs(sequences: Sequence[Any], methods: Sequence[Any]) -> list[dict[str, list]]:
+    """What a method that takes the driver's mouth interior is given cross-identity (it ``uses_driver_mouths``):
+    one ``{"driver_mouths": T x DriverMouth or None}`` per ``cross.CrossSequence``, cut from the driving frames at
+    the driver's own points (``landmarks.mouth_interior.cut_driver_mouth``, as ``lsr reenact`` cuts them);
+    empty dicts when no method takes them."""
+    from landmarks.mouth_interior import cut_driver_mouth
+
+    if not any(getattr(method, "uses_driver_mouths", False) for method in methods):
+        return [{} for _ in sequences]
+    return [{"driver_mouths": [cut_driver_mouth(frame, points) for frame, points in
+                               zip(sequence.driver_frames, sequence.driver_landmarks)]} for sequence in sequences]
 
 
 def gaze_inputs(targets: np.ndarray, target_landmarks: np.ndarray, sequences: Sequence[Any]

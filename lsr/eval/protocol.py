@@ -508,6 +508,7 @@ def run_protocol(
             # what drawn eyes get, self and cross (per driver)
             gaze_inputs, cross_gazes = parts.gaze_inputs(targets, target_landmarks, [s for s, _ in sequences]) if any(
                 takes_gazes(method) for method in methods) else ({}, [{} for _ in sequences])
+            cross_mouths = parts.driver_mouth_inputs([s for s, _ in sequences], methods)  # the driving frames' mouths
             mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
             cross_meshes: list[dict[str, np.ndarray]] = [{} for _ in sequences]  # per driver, made once
             if any(takes_meshes(method) for method in methods) and identity.has_meshes:
@@ -559,15 +560,15 @@ def run_protocol(
                         **{key: float(values[row]) for key, values in extra.items()},
                         **part_scores[row], **beyond[row],
                     })
-                for (sequence, driver_segmentations), meshes_of, gazes_of, sequence_judge in zip(
-                        sequences, cross_meshes, cross_gazes, judges):
+                for (sequence, driver_segmentations), meshes_of, gazes_of, mouths_of, sequence_judge in zip(
+                        sequences, cross_meshes, cross_gazes, cross_mouths, judges):
                     before = _warp_counts(model)
                     # the oracle sees the driving frames' segmentation, i.e. the driver's own (not retargeted) layout
                     extra_inputs = {"target_segmentations": driver_segmentations} if oracle else {}
                     if takes_meshes(model):
                         extra_inputs.update(meshes_of)
-                    if takes_gazes(model):
-                        extra_inputs.update(gazes_of)
+                    extra_inputs.update({**(gazes_of if takes_gazes(model) else {}),
+                                         **(mouths_of if getattr(model, "uses_driver_mouths", False) else {})})
                     crossed = model.reenact(shots, shot_landmarks, sequence.targets, **extra_inputs)
                     _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))
                     _check_outputs(crossed, len(sequence.targets), targets.shape[1:], name)

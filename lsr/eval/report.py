@@ -473,22 +473,23 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     if cfg.weights:
         from lsr.eval.model_method import LsrModelMethod
 
+        choice = {"reference_warp": cfg.reference_warps[0], "mouth": cfg.mouths[0] if cfg.mouths else None,
+                  "eyes": cfg.eyes[0] if cfg.eyes else None,
+                  "mouth_interior": cfg.mouth_interiors[0] if cfg.mouth_interiors else None}
         models = [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps,
-                                 finetune_lr=cfg.finetune_lr, reference_warp=cfg.reference_warps[0],
-                                 mouth=cfg.mouths[0] if cfg.mouths else None, eyes=cfg.eyes[0] if cfg.eyes else None)
-                  for folder in cfg.weights]
+                                 finetune_lr=cfg.finetune_lr,
+                                 **choice) for folder in cfg.weights]
         methods += label_by_variant(models, cfg.weights)
-        # the same models with their references warped another way, or another mouth, in the same run
-        mouth, eyes = cfg.mouths[0] if cfg.mouths else None, cfg.eyes[0] if cfg.eyes else None
-        extras = [(warp, mouth, eyes, f"+{warp}-refs") for warp in cfg.reference_warps[1:]]
-        extras += [(cfg.reference_warps[0], other, eyes, f"+{other}-mouth") for other in cfg.mouths[1:]]
-        extras += [(cfg.reference_warps[0], mouth, other, f"+{other}-eyes") for other in cfg.eyes[1:]]
-        for warp, mouth, eyes, suffix in extras:
+        # the same models with their references warped another way, another mouth, eyes or interior, in the same run
+        extras = [({**choice, "reference_warp": warp}, f"+{warp}-refs") for warp in cfg.reference_warps[1:]]
+        extras += [({**choice, "mouth": other}, f"+{other}-mouth") for other in cfg.mouths[1:]]
+        extras += [({**choice, "eyes": other}, f"+{other}-eyes") for other in cfg.eyes[1:]]
+        extras += [({**choice, "mouth_interior": other}, f"+{other}-interior") for other in cfg.mouth_interiors[1:]]
+        for options, suffix in extras:
             for model in models:
                 if model.reenactor.warp_references:
                     methods.append(LsrModelMethod(model.weights, device=cfg.device, finetune_steps=cfg.finetune_steps,
-                                                  finetune_lr=cfg.finetune_lr, reference_warp=warp, mouth=mouth,
-                                                  eyes=eyes, name=f"{model.name}{suffix}"))
+                                                  finetune_lr=cfg.finetune_lr, name=f"{model.name}{suffix}", **options))
     retargets_meshes = cfg.cross_identity and cfg.retarget == "3d"  # the drivers' and anchors' meshes move the 68 points
     if gives_meshes(detector) and layout != "fsth" and (retargets_meshes or any(takes_meshes(m) for m in methods)):
         attach_meshes(identities, detector, cache_dir=Path(cfg.out) / "cache", progress=cfg.progress)

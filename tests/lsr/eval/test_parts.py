@@ -72,6 +72,7 @@ def test_the_judge_reads_a_real_face_and_boxes_where_its_detector_finds_none():
 def _cross_record(identity: str, frame: int, driver: float, output: float, cavity: float = math.nan) -> dict:
     opened = not math.isnan(cavity)
     return {"method": "m", "k": 8, "identity": identity, "driver": "d", "frame": frame, "judge_no_face": False,
+            "driver_mouth": 2 * driver + 0.01 * (frame % 2), "driver_eye": 0.1 + 3 * driver,  # the driving detector's
             "judge_driver_mouth": driver, "judge_output_mouth": output, "judge_driver_eye": 0.1 + driver,
             "judge_output_eye": 0.1 + 0.5 * driver, "judge_driver_gaze": driver, "judge_output_gaze": -driver,
             "iris_contrast": 0.5 + frame / 10, "output_cavity": cavity,
@@ -81,13 +82,19 @@ def _cross_record(identity: str, frame: int, driver: float, output: float, cavit
 
 def test_summarise_cross_judges_correlation_gain_gaze_contrast_and_the_inside():
     records = [_cross_record("a", t, 0.02 * t, 0.01 * t + 0.05, cavity=0.7 if t >= 3 else math.nan) for t in range(6)]
-    (row,) = parts.summarise_cross(records, ["m"], [8])
+    row, agreement = parts.summarise_cross(records, ["m"], [8])
     assert row["judge_mouth_corr"] == pytest.approx(1.0) and row["judge_mouth_gain"] == pytest.approx(0.5)
     assert row["judge_eye_gain"] == pytest.approx(0.5) and row["gaze_corr"] == pytest.approx(-1.0)
     assert row["iris_contrast"] == pytest.approx(0.75) and row["open_frames"] == 3
     assert (row["output_cavity"], row["driver_cavity"], row["output_teeth"], row["driver_teeth"]) == \
         pytest.approx((0.7, 0.3, 0.0, 0.2))
+    # the two detectors on the drivers' frames: the judge reads half the driving detector's mouth, with its jitter
+    assert agreement["method"] == parts.AGREEMENT and agreement["frames"] == 6
+    assert 0.9 < agreement["judge_mouth_corr"] < 1.0 and agreement["judge_mouth_gain"] == pytest.approx(0.5, abs=0.05)
+    assert agreement["judge_eye_corr"] == pytest.approx(1.0) and agreement["judge_eye_gain"] == pytest.approx(1 / 3)
     assert parts.summarise_cross(records, ["other"], [8]) == []
+    lines = "\n".join(parts.markdown([], [row, agreement], lambda value, digits=3: f"{value:.{digits}f}"))
+    assert f"| {parts.AGREEMENT} | 8 | 6 | " in lines
 
 
 def test_summarise_self_splits_all_hold_outs_from_those_beyond():
