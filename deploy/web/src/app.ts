@@ -192,8 +192,8 @@ async function main(): Promise<void> {
     grabContext.drawImage(video, 0, 0);
     const pixels = grabContext.getImageData(0, 0, grabCanvas.width, grabCanvas.height);
     // the tracker's worker takes the canvas's RGBA pixels as they are (it drops the alpha)
-    const points = await (workers.tracker ? workers.tracker.updateRgba(pixels) : site.tracker.update(fromImageData(pixels)));
-    return { grabbed, points, track: performance.now() - grabbed };
+    const face = await (workers.tracker ? workers.tracker.updateRgba(pixels) : site.tracker.update(fromImageData(pixels)));
+    return { grabbed, face, track: performance.now() - grabbed };
   };
 
   /** Three frames in flight, each stage on its own thread: the tracker's worker finds the face in the newest camera
@@ -203,10 +203,10 @@ async function main(): Promise<void> {
     let finishing: Promise<void> = Promise.resolve();
     let tracking = grab();
     while (running) {
-      const { grabbed, points, track } = await tracking;
+      const { grabbed, face, track } = await tracking;
       tracking = grab();
       const current = session;  // a person chosen meanwhile takes over from the next frame
-      const prepared = current.fromPoints(points, grabbed / 1000, grabbed, track);
+      const prepared = current.fromFace(face, grabbed / 1000, grabbed, track);
       await finishing;
       if ("image" in prepared) {
         record(prepared, grabbed);

@@ -6,6 +6,7 @@ export * from "./raster.js";
 export * from "./smooth.js";
 export * from "./retarget.js";
 export * from "./mouth.js";
+export * from "./interior.js";
 export * from "./facedetect.js";
 export * from "./facemesh.js";
 export * from "./tracker.js";

@@ -145,7 +145,7 @@ interface PolyEdge { y0: number; y1: number; x: number; dx: number }
 /** cv2.fillPoly(img, [points], color, cv2.LINE_AA, shift) on a 1-channel uint8 image: the anti-aliased outline
  * (CollectPolyEdges' LineAA per edge), then the scan-line fill of the interior (FillEdgeCollection).
  * points: flat (x, y) integers in 1/2^shift pixels. */
-function fillPolyAA(img: Uint8Array, width: number, height: number, points: Int32Array, color: number,
+export function fillPolyAA(img: Uint8Array, width: number, height: number, points: Int32Array, color: number,
                     shift: number): void {
   const count = points.length / 2, delta = (1 << shift) >> 1, up = 2 ** (XY_SHIFT - shift), down = 2 ** shift;
   const edges: PolyEdge[] = [];

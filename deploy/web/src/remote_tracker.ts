@@ -1,20 +1,23 @@
 // The page's side of src/tracker_worker.ts: the tracker's `update` as a message round trip.
 
+import type { DriverMouth } from "./interior.js";
+import type { Face } from "./session.js";
 import { TrackerAssets } from "./tracker.js";
 import { Tensor, tensor } from "./tensor.js";
 
 export class RemoteTracker {
   private next = 0;
-  private readonly waiting = new Map<number, { resolve: (points: Tensor<Float64Array> | null) => void; reject: (error: Error) => void }>();
+  private readonly waiting = new Map<number, { resolve: (face: Face | null) => void; reject: (error: Error) => void }>();
 
   private constructor(private readonly worker: Worker) {
     worker.onmessage = (event: MessageEvent) => {
-      const { id, points, error } = event.data;
+      const { id, points, mouth, error } = event.data;
       const pending = this.waiting.get(id);
       if (!pending) return;
       this.waiting.delete(id);
       if (error !== undefined) pending.reject(new Error(`the tracker failed: ${error}`));
-      else pending.resolve(points === null ? null : tensor(points as Float64Array, [68, 2]));
+      else pending.resolve(points === null ? null : { points: tensor(points as Float64Array, [68, 2]),
+                                                      mouth: mouth as DriverMouth | null });
     };
   }
 
@@ -29,17 +32,17 @@ export class RemoteTracker {
     return new RemoteTracker(worker);
   }
 
-  /** An (H, W, 3) RGB frame (handed over to the worker) -> its (68, 2) points, or null without a face. */
-  update(frame: Tensor<Uint8Array>): Promise<Tensor<Float64Array> | null> {
+  /** An (H, W, 3) RGB frame (handed over to the worker) -> its face (68 points and open mouth), or null. */
+  update(frame: Tensor<Uint8Array>): Promise<Face | null> {
     return this.send({ frame }, frame.data.buffer as ArrayBuffer);
   }
 
   /** `update` of a canvas's RGBA pixels as they are (handed over): the worker drops the alpha, off this thread. */
-  updateRgba(pixels: ImageData): Promise<Tensor<Float64Array> | null> {
+  updateRgba(pixels: ImageData): Promise<Face | null> {
     return this.send({ rgba: pixels.data, width: pixels.width, height: pixels.height }, pixels.data.buffer as ArrayBuffer);
   }
 
-  private send(message: Record<string, unknown>, buffer: ArrayBuffer): Promise<Tensor<Float64Array> | null> {
+  private send(message: Record<string, unknown>, buffer: ArrayBuffer): Promise<Face | null> {
     const id = this.next++;
     return new Promise((resolve, reject) => {
       this.waiting.set(id, { resolve, reject });

@@ -32,11 +32,13 @@ const JAW_DROP: [number, number][] = [[65, 1.0], [66, 1.0], [67, 1.0], [55, 1.0]
 const LIDS_68: [number, number, number[], number[]][] = [[36, 39, [37, 38], [41, 40]], [42, 45, [43, 44], [47, 46]]];
 
 /** A Tensor's values, or the values themselves. */
-function flat(points: Tensor | ArrayLike<number>): ArrayLike<number> {
+/** A tensor's flat values, or the values themselves. */
+export function flat(points: Tensor | ArrayLike<number>): ArrayLike<number> {
   return "shape" in points ? points.data : points;
 }
 
-function finite(values: ArrayLike<number>): boolean {
+/** Whether every value is finite. */
+export function finite(values: ArrayLike<number>): boolean {
   for (let i = 0; i < values.length; i++) if (!Number.isFinite(values[i])) return false;
   return true;
 }

@@ -1,12 +1,14 @@
 // The live path end to end: lsr/core/live.py LiveSession, on the site `lsr export --web` writes (lsr/export_web.py).
 // Per frame: camera frame -> track 68 points -> smooth -> crop -> retarget onto the person's anchor shot -> landmark
-// image -> warp the nearest shots -> frame generator -> the nearest mouth -> composite into the person's scene.
+// image -> warp the nearest shots -> frame generator -> the nearest mouth -> the camera's mouth interior (interior.ts)
+// -> composite into the person's scene.
 // A frame without a face shows the last good output again.
 
 import { compositeFace, SceneLayers } from "./composite.js";
 import { folderReader } from "./files.js";
 import { Affine, Tensor, tensor } from "./tensor.js";
 import { invertAffine, transformPoints } from "./geometry.js";
+import { DriverMouth, cutDriverMouth, pasteInterior } from "./interior.js";
 import { finishMouthNearest } from "./mouth.js";
 import { FrameGenerator, Latents } from "./network.js";
 import { drawLandmarks } from "./raster.js";
@@ -25,6 +27,7 @@ export interface SiteConfig {
   layout_palette: number[][];
   layout_legend: string[] | null;
   mouth: string;
+  mouth_interior: string;
   k: number;
 }
 
@@ -42,8 +45,24 @@ export interface Person {
 
 export type Reader = (path: string) => Promise<Uint8Array>;
 
-/** What finds the 68 points in a camera frame: src/tracker.ts MeshTracker here, or the page's worker of it. */
-export interface Tracker { update(frame: Tensor<Uint8Array>): Promise<Tensor<Float64Array> | null> }
+/** A camera frame's face: its 68 points (frame pixels) and its open mouth (interior.ts cutDriverMouth), cut where
+ * the frame is (a tracker's worker holds it). */
+export interface Face { points: Tensor<Float64Array>; mouth: DriverMouth | null }
+
+/** What finds the face in a camera frame: src/tracker.ts MeshTracker here (`localTracker`), or the page's worker of
+ * it (remote_tracker.ts). */
+export interface Tracker { update(frame: Tensor<Uint8Array>): Promise<Face | null> }
+
+/** A tracker of 68 points as a `Tracker`: the frame's mouth cut beside its points. */
+export function localTracker(tracker: { update(frame: Tensor<Uint8Array>): Promise<Tensor<Float64Array> | null> }
+                             ): Tracker {
+  return {
+    async update(frame) {
+      const points = await tracker.update(frame);
+      return points === null ? null : { points, mouth: cutDriverMouth(frame, points) };
+    },
+  };
+}
 
 export interface Site { config: SiteConfig; person: Person; generator: FrameGenerator; tracker: Tracker }
 
@@ -62,7 +81,7 @@ export async function loadSite(read: Reader,
   const generator = await FrameGenerator.create(await read("models/frame_generator.onnx"), {
     resolution: config.resolution, cropSize: config.crop_size, references: config.references });
   const assets = await loadTrackerAssets((path) => read(`models/${path}`));
-  const tracker = makeTracker ? await makeTracker(assets) : await createTracker(assets);
+  const tracker = makeTracker ? await makeTracker(assets) : localTracker(await createTracker(assets));
   const person: Person = {
     shots: shots as Tensor<Uint8Array>,
     shotLandmarks: tensor(Float64Array.from((subject.shot_landmarks as number[][][]).flat(2)), [subject.k, 68, 2]),
@@ -122,34 +141,37 @@ export class LiveSession {
    * shots. A frame without a face gives its LiveFrame at once. `finish` may run while the next frame is prepared. */
   async prepare(frame: Tensor<Uint8Array>, timestamp: number): Promise<Prepared | LiveFrame> {
     const started = now();
-    const points = await this.site.tracker.update(frame);
-    return this.fromPoints(points, timestamp, started, now() - started);
+    const face = await this.site.tracker.update(frame);
+    return this.fromFace(face, timestamp, started, now() - started);
   }
 
-  /** `prepare` after the tracker: its points (68, 2) or null -> the network's inputs, or the face-less frame. */
-  fromPoints(points: Tensor<Float64Array> | null, timestamp: number, started = now(), track = 0): Prepared | LiveFrame {
+  /** `prepare` after the tracker: its face or null -> the network's inputs, or the face-less frame. */
+  fromFace(face: Face | null, timestamp: number, started = now(), track = 0): Prepared | LiveFrame {
     this.frames += 1;
     const tracked = now();
-    if (points === null) {
+    if (face === null) {
       this.smoother.gap();
       const shown = this.last?.image ?? this.site.person.scene;
       return { image: shown, face: false, layout: null, landmarkImage: null, target: null, ms: now() - started,
                stages: { track } };
     }
+    const { points } = face;
     const target = liveTarget(this.reference, points, this.smoother.step(points, timestamp), this.site.config.crop_size,
                               this.referenceLandmarks);
-    return this.inputs(target, started, { track, retarget: now() - tracked });
+    const mouth = this.site.config.mouth_interior === "driver" ? face.mouth : null;
+    return this.inputs(target, started, { track, retarget: now() - tracked }, mouth);
   }
 
   /** The network's inputs for a target (68, 2) in the anchor's crop pixels: its landmark image and warped shots. */
-  inputs(target: Tensor<Float64Array>, started = now(), stages: Partial<Stages> = {}): Prepared {
+  inputs(target: Tensor<Float64Array>, started = now(), stages: Partial<Stages> = {},
+         mouth: DriverMouth | null = null): Prepared {
     const { config, person } = this.site;
     const warping = now();
     const scale = config.resolution / config.crop_size;
     const small = tensor(Float64Array.from(target.data, (value) => value * scale), [68, 2]);
     const landmarkImage = drawLandmarks(small, config.resolution);
     const references = warpReferences(person.shots, person.shotLandmarks, target, config.references);
-    return { target, landmarkImage, references, started, stages: { ...stages, warps: now() - warping } };
+    return { target, landmarkImage, references, mouth, started, stages: { ...stages, warps: now() - warping } };
   }
 
   /** Target landmarks (68, 2) in the anchor's crop pixels -> the frame (LiveSession.render). */
@@ -157,18 +179,20 @@ export class LiveSession {
     return this.finish(this.inputs(target));
   }
 
-  /** The second half (LiveSession.finish): the network, the nearest mouth, the composite into the scene. */
+  /** The second half (LiveSession.finish): the network, the nearest mouth, the camera's mouth interior, the
+   * composite into the scene. */
   async finish(prepared: Prepared): Promise<LiveFrame> {
     const { config, person, generator } = this.site;
     const { target, landmarkImage, references } = prepared;
     const starting = now();
     const synthesis = await generator.run(landmarkImage, person.latents, references.warped, references.masks, this.withLayout);
     const generated = now();
-    const face = config.mouth === "nearest"
+    const mouthed = config.mouth === "nearest"
       ? finishMouthNearest(synthesis.image, references.warped, references.masks, references.indices, target,
                            person.shotLandmarks, true) as Tensor<Uint8Array>
       : synthesis.image;
-    const mouthed = now();
+    const face = pasteInterior(mouthed, target, prepared.mouth, true) as Tensor<Uint8Array>;
+    const interiored = now();
     const composite = compositeFace(person.scene, person.sceneLandmarks, transformPoints(target, this.cropToScene), face,
                                     person.sceneMatrix, person.layers);
     const done = now();
@@ -176,7 +200,8 @@ export class LiveSession {
     const frame: LiveFrame = {
       image: composite.frame, face: true, layout: synthesis.layout, landmarkImage, target,
       ms: done - starting + Object.values(prepared.stages).reduce((a, b) => a + (b ?? 0), 0),
-      stages: { ...prepared.stages, network: generated - starting, mouth: mouthed - generated, composite: done - mouthed },
+      stages: { ...prepared.stages, network: generated - starting, mouth: interiored - generated,
+               composite: done - interiored },
     };
     this.last = frame;
     return frame;
@@ -188,6 +213,7 @@ export interface Prepared {
   target: Tensor<Float64Array>;
   landmarkImage: Tensor<Uint8Array>;
   references: References;
+  mouth: DriverMouth | null;  // the camera frame's open mouth, whose interior the synthesis takes
   started: number;
   stages: Partial<Stages>;
 }

@@ -1,9 +1,11 @@
 // The face tracker in a worker of its own (the page's): it tracks camera frame n + 1 while the page warps the shots of
 // frame n and onnxruntime's proxy worker runs frame n - 1's network. Messages: {assets} once, then {id, frame} (or
-// {id, rgba, width, height}: a canvas's pixels) -> {id, points (136 float64) | null} or {id, error}.
+// {id, rgba, width, height}: a canvas's pixels) -> {id, points (136 float64) | null, mouth (interior.ts DriverMouth,
+// cut here where the frame is) | null} or {id, error}.
 
 import * as ort from "onnxruntime-web";
 
+import { cutDriverMouth } from "./interior.js";
 import { MeshTracker, TrackerAssets, createTracker } from "./tracker.js";
 import { Tensor, tensor } from "./tensor.js";
 
@@ -31,8 +33,9 @@ self.onmessage = async (event: MessageEvent) => {
     }
     const frame = message.rgba ? fromRgba(message.rgba, message.width, message.height) : message.frame;
     const points = await tracker!.update(frame);
+    const mouth = points === null ? null : cutDriverMouth(frame, points);
     if (message.rgba) spare = frame.data;
-    self.postMessage({ id: message.id, points: points === null ? null : points.data });
+    self.postMessage({ id: message.id, points: points === null ? null : points.data, mouth });
   } catch (error) {
     self.postMessage({ id: message.id, error: error instanceof Error ? error.message : String(error) });
   }

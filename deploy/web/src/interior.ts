@@ -1,0 +1,158 @@
+// The inside of an open mouth from the driver's own frame: landmarks/mouth_interior.py (cut_driver_mouth,
+// interior_strength, lip_affine, paste_interior), as the live session finishes a frame with mouth_interior "driver".
+// The driver's frame around its lips is cut where the frame is (the tracker's worker, or this thread), mapped onto
+// the target by the affine fit of the target's 20 lip points to the driver's (bicubic, as cv2.warpAffine with
+// WARP_INVERSE_MAP), its brightness matched to the skin around the lips, and laid inside the target's inner lips.
+
+import { fillPolyAA } from "./mouth.js";
+import { dilateEllipse, gaussianBlurF32, roundHalfEven, warpAffineCubic } from "./remap.js";
+import { finite, flat, interOcularDistance, mouthOpening } from "./retarget.js";
+import { Affine, Tensor, tensor } from "./tensor.js";
+
+export const OPEN: [number, number] = [0.02, 0.04];
+export const REACH = 0.35;
+export const RING = 0.12;
+export const GAIN: [number, number] = [0.6, 1.6];
+export const FEATHER = 0.012;
+
+const f32 = Math.fround;
+
+/** A driver frame's mouth (landmarks.mouth_interior.DriverMouth). */
+export interface DriverMouth {
+  /** (h, w, 3) uint8 RGB: the driver frame around its lips. */
+  patch: Tensor<Uint8Array>;
+  /** (20, 2) float64: the driver's lip points (48-67) in the patch's pixels. */
+  lips: Tensor<Float64Array>;
+  /** The driver's mouth opening. */
+  opening: number;
+}
+
+function checkLandmarks(landmarks: Tensor): ArrayLike<number> {
+  if (landmarks.shape.length !== 2 || landmarks.shape[0] !== 68 || landmarks.shape[1] !== 2) {
+    throw new Error(`landmarks must be (68, 2), got [${landmarks.shape}]`);
+  }
+  return landmarks.data;
+}
+
+/** The lip points' box [minX, minY, maxX, maxY] (points 48-67). */
+function lipBox(p: ArrayLike<number>): [number, number, number, number] {
+  let minX = Infinity, minY = Infinity, maxX = -Infinity, maxY = -Infinity;
+  for (let i = 48; i < 68; i++) {
+    minX = Math.min(minX, p[2 * i]); maxX = Math.max(maxX, p[2 * i]);
+    minY = Math.min(minY, p[2 * i + 1]); maxY = Math.max(maxY, p[2 * i + 1]);
+  }
+  return [minX, minY, maxX, maxY];
+}
+
+/** The driver's mouth (cut_driver_mouth): frame (H, W, 3) uint8 and its 68 points (frame pixels) -> the patch
+ * around its lips, or null when the points are not finite, the mouth is closed or its box is outside the frame. */
+export function cutDriverMouth(frame: Tensor<Uint8Array>, landmarks: Tensor): DriverMouth | null {
+  if (frame.shape.length !== 3 || frame.shape[2] !== 3) throw new Error(`frame must be (H, W, 3), got [${frame.shape}]`);
+  const p = checkLandmarks(landmarks);
+  if (!finite(p)) return null;
+  const opening = mouthOpening(p);
+  if (!(opening >= OPEN[0])) return null;
+  const reach = REACH * interOcularDistance(p), [minX, minY, maxX, maxY] = lipBox(p);
+  const [height, width] = frame.shape;
+  const x0 = Math.max(Math.floor(minX - reach), 0), y0 = Math.max(Math.floor(minY - reach), 0);
+  const x1 = Math.min(Math.ceil(maxX + reach) + 1, width), y1 = Math.min(Math.ceil(maxY + reach) + 1, height);
+  if (x1 - x0 < 2 || y1 - y0 < 2) return null;
+  const w = x1 - x0, h = y1 - y0, patch = new Uint8Array(w * h * 3);
+  for (let y = 0; y < h; y++) patch.set(frame.data.subarray(((y0 + y) * width + x0) * 3, ((y0 + y) * width + x1) * 3), y * w * 3);
+  const lips = new Float64Array(40);
+  for (let i = 0; i < 20; i++) { lips[2 * i] = p[2 * (48 + i)] - x0; lips[2 * i + 1] = p[2 * (48 + i) + 1] - y0; }
+  return { patch: tensor(patch, [h, w, 3]), lips: tensor(lips, [20, 2]), opening };
+}
+
+/** interior_strength: the lesser opening of the target's (68, 2) points and the driver's, OPEN[0] -> 0, OPEN[1] -> 1. */
+export function interiorStrength(landmarks: Tensor, mouth: DriverMouth): number {
+  const opening = Math.min(mouthOpening(landmarks.data), mouth.opening);
+  return Number.isFinite(opening) ? Math.min(Math.max((opening - OPEN[0]) / (OPEN[1] - OPEN[0]), 0), 1) : 0;
+}
+
+/** lip_affine: the affine map [a, b, c, d, e, f] (x' = a x + b y + c, y' = d x + e y + f) taking the points
+ * `from` onto `to` ((N, 2) or flat (x, y) pairs) in least squares, by the normal equations. */
+export function lipAffine(from: Tensor | ArrayLike<number>, to: Tensor | ArrayLike<number>): Affine {
+  const source = flat(from), target = flat(to), n = source.length / 2, ata = [0, 0, 0, 0, 0, 0, 0, 0, 0], atx = [0, 0, 0], aty = [0, 0, 0];
+  for (let i = 0; i < n; i++) {
+    const row = [source[2 * i], source[2 * i + 1], 1];
+    for (let r = 0; r < 3; r++) {
+      for (let c = 0; c < 3; c++) ata[3 * r + c] += row[r] * row[c];
+      atx[r] += row[r] * target[2 * i];
+      aty[r] += row[r] * target[2 * i + 1];
+    }
+  }
+  const solve = (b: number[]): number[] => {  // Cramer's rule on the 3 x 3 symmetric system
+    const det = (m: number[]) => m[0] * (m[4] * m[8] - m[5] * m[7]) - m[1] * (m[3] * m[8] - m[5] * m[6])
+      + m[2] * (m[3] * m[7] - m[4] * m[6]);
+    const whole = det(ata);
+    return [0, 1, 2].map((column) => det(ata.map((value, k) => (k % 3 === column ? b[Math.floor(k / 3)] : value))) / whole);
+  };
+  return [...solve(atx), ...solve(aty)] as Affine;
+}
+
+/** A polygon's anti-aliased coverage (uint8, 255 inside) over a w x h box: cv2.fillPoly(LINE_AA, shift 2) of the
+ * points `from`..`to` of the flat `local` (x, y) pairs. */
+function polygon(local: Float64Array, from: number, to: number, w: number, h: number): Uint8Array {
+  const mask = new Uint8Array(w * h), points = new Int32Array(2 * (to - from));
+  for (let i = from; i < to; i++) {
+    points[2 * (i - from)] = roundHalfEven(local[2 * i] * 4);
+    points[2 * (i - from) + 1] = roundHalfEven(local[2 * i + 1] * 4);
+  }
+  fillPolyAA(mask, w, h, points, 255, 2);
+  return mask;
+}
+
+/** paste_interior: `image` (S, S, 3) uint8, the synthesis for the target's (68, 2) points, with the driver's mouth
+ * interior inside the target's inner lips; `image` itself when there is nothing to lay in, else a new image (or
+ * `image` written in place when inPlace). */
+export function pasteInterior(image: Tensor, landmarks: Tensor, mouth: DriverMouth | null, inPlace = false): Tensor {
+  if (image.shape.length !== 3 || image.shape[2] !== 3 || !(image.data instanceof Uint8Array)) {
+    throw new Error(`image must be (H, W, 3) uint8, got [${image.shape}]`);
+  }
+  const p = checkLandmarks(landmarks);
+  const strength = mouth === null || !finite(p) ? 0 : interiorStrength(landmarks, mouth);
+  if (!(strength > 0)) return image;
+  const eyes = interOcularDistance(p), ring = Math.max(1, roundHalfEven(RING * eyes));
+  const sigma = Math.max(0.4, FEATHER * eyes), margin = ring + Math.ceil(3 * sigma) + 1;
+  const [height, width] = image.shape, [minX, minY, maxX, maxY] = lipBox(p);
+  const x0 = Math.max(Math.floor(minX) - margin, 0), y0 = Math.max(Math.floor(minY) - margin, 0);
+  const x1 = Math.min(Math.ceil(maxX) + margin + 1, width), y1 = Math.min(Math.ceil(maxY) + margin + 1, height);
+  if (x1 - x0 < 2 || y1 - y0 < 2) return image;
+  const w = x1 - x0, h = y1 - y0, local = new Float64Array(40);
+  for (let i = 0; i < 20; i++) { local[2 * i] = p[2 * (48 + i)] - x0; local[2 * i + 1] = p[2 * (48 + i) + 1] - y0; }
+  const [ph, pw] = mouth!.patch.shape;
+  const warped = warpAffineCubic({ data: mouth!.patch.data, width: pw, height: ph, channels: 3 },
+                                 lipAffine(local, mouth!.lips.data), w, h, "replicate");
+  const source = image.data as Uint8Array;
+  const lipArea = polygon(local, 0, 12, w, h);
+  for (let i = 0; i < lipArea.length; i++) lipArea[i] = lipArea[i] >= 128 ? 1 : 0;  // coverage / 255 > 0.5
+  const grown = dilateEllipse(lipArea, w, h, ring);
+  let synthesised = 0, driven = 0, count = 0;  // grey levels over the skin around the lips, all three channels
+  for (let y = 0; y < h; y++) {
+    for (let x = 0; x < w; x++) {
+      const k = y * w + x;
+      if (!grown[k] || lipArea[k]) continue;
+      const at = 3 * ((y0 + y) * width + x0 + x);
+      for (let c = 0; c < 3; c++) { synthesised += source[at + c]; driven += warped[3 * k + c]; }
+      count += 3;
+    }
+  }
+  const gain = count ? Math.min(Math.max((synthesised / count + 1) / (driven / count + 1), GAIN[0]), GAIN[1]) : 1;
+  const inner = polygon(local, 12, 20, w, h), unit = f32(1.0 / 255.0), coverage = new Float32Array(w * h);
+  for (let i = 0; i < coverage.length; i++) coverage[i] = f32(inner[i] * unit);
+  const weight = gaussianBlurF32(coverage, w, h, 1, sigma), s = f32(strength);
+  const out = inPlace ? image : tensor(new Uint8Array(source), [...image.shape]);
+  const data = out.data as Uint8Array;
+  for (let y = 0; y < h; y++) {
+    for (let x = 0; x < w; x++) {
+      const k = y * w + x, wt = f32(weight[k] * s), rest = f32(1.0 - wt), at = 3 * ((y0 + y) * width + x0 + x);
+      for (let c = 0; c < 3; c++) {
+        const laid = f32(warped[3 * k + c] * gain);
+        const mixed = f32(f32(wt * laid) + f32(rest * source[at + c]));
+        data[at + c] = Math.min(Math.max(roundHalfEven(mixed), 0), 255);
+      }
+    }
+  }
+  return out;
+}

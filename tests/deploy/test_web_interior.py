@@ -1,0 +1,79 @@
+"""The web runtime's mouth interior (deploy/web/src/interior.ts) against landmarks.mouth_interior: the bundled
+driver's frames and tracked points cut into its mouth, laid into the bundled source's anchor shot at targets
+retargeted from the driver (as the live session does, unsmoothed)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+CROP = 256
+FRAMES = (2, 16, 30, 37, 51, 60)  # the driver's mouth: parted, open, open, widest, open, shut
+
+
+def psnr(first: np.ndarray, second: np.ndarray) -> float:
+    error = np.mean((first.astype(np.float64) - second.astype(np.float64)) ** 2)
+    return float("inf") if error == 0 else float(10 * np.log10(255.0**2 / error))
+
+
+@pytest.fixture(scope="module")
+def driven():
+    """(the source's anchor crop, [(driver frame, its points, the target in crop pixels)] at FRAMES)."""
+    from landmarks.align import crop_transform, transform_landmarks
+    from landmarks.detectors import make_tracker
+    from landmarks.mesh_retarget import DriverReference
+    from landmarks.retarget import retarget_driving
+    from landmarks.video import iter_frames
+    from lsr.core.sources import load_subject_shots
+    from lsr.examples import REAL_DRIVER, REAL_SOURCE
+
+    shots = load_subject_shots(REAL_SOURCE, CROP, k=8)
+    anchor = shots.landmarks[shots.anchor]
+    tracker, reference, out = make_tracker("mesh"), DriverReference(), []
+    for index, frame in enumerate(iter_frames(REAL_DRIVER)):
+        if index > max(FRAMES):
+            break
+        points = tracker.update(np.ascontiguousarray(frame))
+        gaps, _ = reference.lids(points)
+        crop = transform_landmarks(points, crop_transform(points, CROP))
+        reference.start(crop)
+        if index in FRAMES:
+            out.append((frame, points, retarget_driving(crop, reference.landmarks, anchor, gaps)))
+    return shots.frames[shots.anchor], out
+
+
+def test_the_driver_mouth_is_cut_as_python_cuts_it(web, driven):
+    from landmarks.mouth_interior import cut_driver_mouth
+
+    _, frames = driven
+    got = web.calls(*[("cutDriverMouth", [frame, points]) for frame, points, _ in frames])
+    for (frame, points, _), mouth in zip(frames, got):
+        expected = cut_driver_mouth(frame, points)
+        if expected is None:
+            assert mouth is None
+            continue
+        assert np.array_equal(mouth["patch"], expected.patch)
+        np.testing.assert_allclose(mouth["lips"], expected.lips, atol=1e-9)
+        assert mouth["opening"] == pytest.approx(expected.opening, abs=1e-12)
+    assert sum(m is not None for m in got) >= 4  # most of FRAMES show an open mouth
+
+
+def test_the_interior_is_laid_in_as_python_lays_it(web, driven):
+    from landmarks.mouth_interior import cut_driver_mouth, lip_affine, paste_interior
+
+    image, frames = driven
+    mouths = [cut_driver_mouth(frame, points) for frame, points, _ in frames]
+    wire = [None if m is None else {"patch": m.patch, "lips": m.lips, "opening": m.opening} for m in mouths]
+    targets = [target for *_, target in frames]
+    got = web.calls(*[("pasteInterior", [image, target, mouth]) for target, mouth in zip(targets, wire)],
+                    *[("lipAffine", [t[48:68].ravel(), m.lips.ravel()]) for t, m in zip(targets, mouths) if m])
+    pasted, affines = got[: len(frames)], got[len(frames):]
+    changed = 0
+    for target, mouth, result in zip(targets, mouths, pasted):
+        expected = paste_interior(image, target, mouth)
+        changed += expected is not image
+        assert psnr(result, expected) >= 50.0
+        assert np.abs(result.astype(int) - expected.astype(int)).max() <= 2
+    assert changed >= 3  # the open mouths were laid in
+    for target, mouth, affine in zip([t for t, m in zip(targets, mouths) if m], [m for m in mouths if m], affines):
+        np.testing.assert_allclose(np.reshape(affine, (2, 3)), lip_affine(target[48:68], mouth.lips), atol=1e-8)
