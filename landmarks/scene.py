@@ -12,7 +12,9 @@ A frame is layers that move as they do in life; only the face is synthesised:
   scene's own cheek and chin sit where the target's are, so none peeks out beside the new face. Given the
   scene's person matte (``SceneLayers``, issue 40's turn matte), only the person moves: the background inside
   the head region stays where it is (no wave at a turn), and what the moved head uncovers is the background
-  filled in from around it (``background_plate``);
+  filled in from around it (``background_plate``); and the head layer reaches further (``PERSON_SCALE``), moving
+  the person rigidly down to the chin and fading only toward the body below it (``NECK_FADE``), so hair beyond
+  the head ellipse moves with the head instead of folding where the motion fades;
 * **face**: the synthesised crop inside the face mask (the hull of the target's landmarks, with the forehead),
   feathered, and colour-matched to the head layer along the seam (a smooth offset field measured just inside
   the face edge).
@@ -54,6 +56,9 @@ PERSON_LEVEL = 0.1  # a matte above this is the person (hair's soft edge include
 PERSON_REACH = 0.03  # ... and this far around it (fraction of the face side), where the matte's edge is unsure
 PLATE_SIDE = 384  # the plate's fill is made at most this many pixels wide and high
 MOVING = 1.0  # pixels: where the head layer moves this far or more, the matte parts person from background
+PERSON_SCALE = 1.6  # with the matte, the head layer reaches this many times the head ellipse (hair beyond it) ...
+PERSON_INNER = 0.8  # ... moving fully inside this fraction of it ...
+NECK_FADE = 0.3  # ... and above the chin, fading to none this far below it (the neck stretches, the body stays)
 
 
 def face_side(landmarks: np.ndarray) -> float:
@@ -122,6 +127,29 @@ def head_weight(landmarks: np.ndarray, shape: tuple[int, int], offset: tuple[int
     return _smooth_weight(_ellipse_radius(_head_ellipse(landmarks), shape, offset))
 
 
+def _person_ellipse(landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The head ellipse grown by ``PERSON_SCALE``: how far the head layer reaches when the matte keeps the
+    background still."""
+    centre, axes = _head_ellipse(landmarks)
+    return centre, axes * PERSON_SCALE
+
+
+def _person_weight(ellipses: list[tuple[np.ndarray, np.ndarray]], xs: np.ndarray, ys: np.ndarray, chin: float,
+                   side: float) -> np.ndarray:
+    """With the matte, how much each point of the grid of frame columns ``xs`` by rows ``ys`` moves with the head:
+    1 inside ``PERSON_INNER`` of the grown ellipses and above the chin row ``chin``, smoothstep to 0 at their edge
+    and ``NECK_FADE`` face sides below the chin. (H, W) float32."""
+    radius = np.minimum.reduce([_radius_at(ellipse, xs, ys) for ellipse in ellipses])
+    ramp = np.clip((1.0 - radius) / (1.0 - PERSON_INNER), 0.0, 1.0) * _neck(ys, chin, side)[:, None]
+    return (ramp * ramp * (3.0 - 2.0 * ramp)).astype(np.float32)
+
+
+def _neck(ys: np.ndarray, chin: float, side: float) -> np.ndarray:
+    """Per frame row ``ys`` (H,): 1 above the chin row, falling to 0 ``NECK_FADE`` face sides below it. float32."""
+    return np.clip((np.float32(chin + NECK_FADE * side) - np.asarray(ys, np.float32)) / np.float32(NECK_FADE * side),
+                   0.0, 1.0).astype(np.float32)
+
+
 def head_box(landmarks_list: list[np.ndarray], frame_hw: tuple[int, int], margin: int = 2) -> tuple[int, int, int, int] | None:
     """(x0, y0, x1, y1) bounding every given face's head region, clipped to the frame; None if outside it."""
     return _box_of([_head_ellipse(points) for points in landmarks_list], frame_hw, margin)
@@ -139,16 +167,26 @@ def _box_of(ellipses: list[tuple[np.ndarray, np.ndarray]], frame_hw: tuple[int, 
     return None if x0 >= x1 or y0 >= y1 else (x0, y0, x1, y1)
 
 
-def head_region(landmarks_list: list[np.ndarray], frame_hw: tuple[int, int]) -> np.ndarray:
+def head_region(landmarks_list: list[np.ndarray], frame_hw: tuple[int, int], person: bool = False) -> np.ndarray:
     """Where any of the given faces' head regions reaches: (H, W) bool. Its complement is the scene a composite
-    leaves as it is (the region ``lsr eval``'s scene PSNR and flicker are measured in)."""
+    leaves as it is (the region ``lsr eval``'s scene PSNR and flicker are measured in). person: the region of a
+    composite with the scene's matte (``composite_face``'s ``layers``), which reaches further."""
     region = np.zeros(frame_hw, bool)
-    box = head_box(landmarks_list, frame_hw)
-    if box is None:
+    if not person:
+        box = head_box(landmarks_list, frame_hw)
+        if box is not None:
+            x0, y0, x1, y1 = box
+            for points in landmarks_list:
+                region[y0:y1, x0:x1] |= head_weight(points, (y1 - y0, x1 - x0), (x0, y0)) > 0
         return region
-    x0, y0, x1, y1 = box
-    for points in landmarks_list:
-        region[y0:y1, x0:x1] |= head_weight(points, (y1 - y0, x1 - x0), (x0, y0)) > 0
+    points_list = [np.asarray(points, np.float64) for points in landmarks_list]
+    ellipses = [_person_ellipse(points) for points in points_list]
+    box = _box_of(ellipses, frame_hw)
+    if box is not None:
+        x0, y0, x1, y1 = box
+        chin, side = max(points[8, 1] for points in points_list), max(face_side(points) for points in points_list)
+        region[y0:y1, x0:x1] = _person_weight(ellipses, np.arange(x0, x1, dtype=np.float32),
+                                              np.arange(y0, y1, dtype=np.float32), chin, side) > 0
     return region
 
 
@@ -261,7 +299,9 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     rigid = list(RIGID_INDEX)
     scale, rotation, translation = similarity_procrustes(scene_points[rigid], target_points[rigid])
     motion = np.concatenate([scale * rotation, translation[:, None]], axis=1)
-    ellipses = [_head_ellipse(scene_points), _head_ellipse(target_points)]  # made once: every layer needs them
+    heads = [_head_ellipse(scene_points), _head_ellipse(target_points)]  # made once: every layer needs them
+    # with the matte the head layer reaches further (hair beyond the head ellipse moves with the head)
+    ellipses = heads if layers is None else [_person_ellipse(scene_points), _person_ellipse(target_points)]
     box = _box_of(ellipses, scene.shape[:2])
     if box is None:
         return Composite(scene.copy(), None)
@@ -286,7 +326,11 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     shift_x = inverse[0, 0] * moved_x + inverse[0, 1] * moved_y + inverse[0, 2] - grid_x[None, :]
     shift_y = inverse[1, 0] * moved_x + inverse[1, 1] * moved_y + inverse[1, 2] - grid_y[:, None]
     if max(np.abs(shift_x).max(), np.abs(shift_y).max()) > STILL:
-        weight = np.maximum(*(_smooth_weight(_radius_at(ellipse, grid_x, grid_y)) for ellipse in ellipses))
+        chin, sides = max(scene_points[8, 1], target_points[8, 1]), max(side, face_side(scene_points))
+        if layers is None:
+            weight = np.maximum(*(_smooth_weight(_radius_at(ellipse, grid_x, grid_y)) for ellipse in ellipses))
+        else:
+            weight = _person_weight(ellipses, grid_x, grid_y, chin, sides)
         source_x = warp.densify(shift_x * weight)
         source_x += np.arange(x0, x1, dtype=np.float32)[None, :]
         source_y = warp.densify(shift_y * weight)
@@ -297,6 +341,8 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
         del source_x, source_y
         # interpolated, the field leaks a sub-pixel shift just past the ellipses: the scene stays there, bit for bit
         outside = _inside_heads(ellipses, roi_hw, (x0, y0)) == 0
+        if layers is not None:  # ... and below the neck's fade
+            outside[_neck(np.arange(y0, y1, dtype=np.float32), chin, sides) <= 0] = True
         cv2.copyTo(scene[y0:y1, x0:x1], outside.view(np.uint8), moved_head)  # in place (numpy's masked copy: 5x slower)
         output[y0:y1, x0:x1] = moved_head
         del moved_head, outside
@@ -323,7 +369,7 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     cv2.fillConvexPoly(hull, cv2.convexHull(np.round(outline - [fx0, fy0]).astype(np.int32)), 1)
     outside = cv2.distanceTransform(1 - hull, cv2.DIST_L2, 3)  # pixels to the hull (0 inside)
     ramp = np.clip((FACE_MARGIN * side + FACE_FEATHER * side / 2 - outside) / (FACE_FEATHER * side), 0.0, 1.0)
-    alpha = ramp * ramp * (3.0 - 2.0 * ramp) * footprint * _within_head(ellipses, face_hw, (fx0, fy0))
+    alpha = ramp * ramp * (3.0 - 2.0 * ramp) * footprint * _within_head(heads, face_hw, (fx0, fy0))
     del outside, ramp
 
     # colour match: a smooth offset that makes the face's edge agree with the head layer around it

@@ -17,7 +17,8 @@ Per frame (``evaluate_method`` -> one record each):
   * ``sharpness_face``: Laplacian variance inside the face region (``metrics.face_mask`` of the target
     landmarks) over that inside the anchor's face region on the anchor shot (1 = as sharp as the real face);
   * ``scene_mse`` / ``scene_psnr``: against the anchor shot over the pixels outside
-    ``landmarks.scene.head_region([anchor, target])``, the region a composite must leave as it was;
+    ``landmarks.scene.head_region([anchor, target], person=True)``, the region a composite with the scene's matte
+    must leave as it was;
   * ``scene_flicker``: mean |frame_t - frame_t-1| (grey levels, RGB mean) over the pixels outside both frames'
     head regions (NaN for the first frame).
 Per sequence (method, K, identity, driver; ``summarise_cross``): Pearson correlation of driver and output openings and
@@ -64,7 +65,8 @@ CONVENTION = (
     "sharpness (face) = Laplacian variance inside the target's face region (68-point hull dilated by "
     f"{metrics.FACE_DILATION:g} x inter-ocular distance) over that inside the anchor's face on the anchor shot; "
     "median over frames. scene PSNR = PSNR against the anchor shot over the pixels outside the head regions "
-    "(landmarks.scene.head_region of the anchor and target faces), which a composite must leave as they were: "
+    "(landmarks.scene.head_region of the anchor and target faces, grown as the person-matte composite grows it: "
+    "hair beyond the head ellipse moves with the head), which a composite must leave as they were: "
     "mean over frames with finite PSNR, '(+N inf)' counts bit-identical scenes, 'inf' = all identical. scene "
     "flicker = mean |difference| of consecutive composited frames (grey levels, RGB mean) outside both frames' "
     "head regions, mean per sequence, then over sequences. no face = composited frames without a detected face"
@@ -242,7 +244,8 @@ def prepare_sequence(k: int, identity: str, driver: str, driver_rows: np.ndarray
         driver_meshes[0] if with_meshes else None, shot_meshes[anchor] if with_meshes else None, retarget,
         running_reference_gaps(driver_landmarks), running_reference_gaps(driver_meshes) if with_meshes else None)
     poses = np.stack([estimate_head_pose(t, size, RIGID_INDEX) for t in targets]).astype(np.float64)  # (T, 3)
-    outside = np.stack([~head_region([anchor_landmarks, t], size) for t in targets])  # (T, S, S)
+    # the composite moves the person with the head (its matte): the region it may change reaches further
+    outside = np.stack([~head_region([anchor_landmarks, t], size, person=True) for t in targets])  # (T, S, S)
     return CrossSequence(int(k), identity, driver, np.asarray(driver_rows), anchor, shots[anchor], anchor_landmarks,
                          driver_frames, driver_landmarks, targets, poses, outside, source_embedding, target_meshes)
 

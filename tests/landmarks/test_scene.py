@@ -144,7 +144,7 @@ def test_with_a_matte_the_wall_stays_the_person_moves_and_what_they_uncover_is_w
     plain = composite_face(scene, points, target, face, matrix).frame
     result = composite_face(scene, points, target, face, matrix, layers)
     matted = result.frame
-    region = head_region([points, target], SIZE)
+    region = head_region([points, target], SIZE, person=True)  # with the matte the head layer reaches further
     x0, y0, x1, y1 = result.box
     face_layer = np.zeros(SIZE, bool)
     face_layer[y0:y1, x0:x1] = result.face_alpha > 0
@@ -162,10 +162,35 @@ def test_with_a_matte_the_wall_stays_the_person_moves_and_what_they_uncover_is_w
     assert uncovered.sum() > 50
     red, blue = matted[uncovered][:, 0].astype(float).mean(), matted[uncovered][:, 2].astype(float).mean()
     assert blue > 2 * red
-    # the hair above the forehead moved with the head as without the matte
+    # the hair above the forehead moved with the head, rigidly (without the matte, the head layer's fading field
+    # bends it there)
     top = int(points[19, 1] - 0.2 * face_side(points))
-    columns = slice(int(points[27, 0]) - 8 + int(shift), int(points[27, 0]) + int(shift))
-    np.testing.assert_array_equal(matted[top - 3 : top + 3, columns], plain[top - 3 : top + 3, columns])
+    source = slice(int(points[27, 0]) - 8, int(points[27, 0]))
+    columns = slice(source.start + int(shift), source.stop + int(shift))
+    np.testing.assert_array_equal(matted[top - 3 : top + 3, columns], scene[top - 3 : top + 3, source])
+    assert not np.array_equal(plain[top - 3 : top + 3, columns], scene[top - 3 : top + 3, source])
+
+
+def test_with_a_matte_hair_beyond_the_head_ellipse_moves_and_the_body_below_the_neck_stays(rng):
+    from landmarks.scene import NECK_FADE, background_plate
+
+    scene, points = _scene(rng)
+    side = face_side(points)
+    matte = np.zeros(SIZE, np.float32)
+    top = int(points[19, 1] - 0.75 * side)  # a tall hairdo, beyond the head ellipse's top (0.54 side above the eyes)
+    columns = slice(int(points[27, 0]) - 6, int(points[27, 0]) + 6)
+    matte[max(top, 0):, columns] = 1.0  # hair from the top down and the body below: one person
+    layers = background_plate(scene, points, matte)
+    target = points + [0.0, -10.0]  # the head rises
+    result = composite_face(scene, points, target, np.full((128, 128, 3), 90, np.uint8), crop_transform(target, 128),
+                            layers).frame
+    plain_region, region = head_region([points, target], SIZE), head_region([points, target], SIZE, person=True)
+    assert (region >= plain_region).all() and region.sum() > plain_region.sum()
+    assert not region[int(max(points[8, 1], target[8, 1]) + NECK_FADE * side) + 1:].any()  # the body: never moved
+    hair = max(top, 0) + 12
+    assert not plain_region[hair, columns].any() and region[hair, columns].all()
+    np.testing.assert_array_equal(result[hair - 10, columns], scene[hair, columns])  # moved up with the head
+    np.testing.assert_array_equal(result[~region], scene[~region])
 
 
 def cv2_dilated(mask: np.ndarray, size: int) -> np.ndarray:

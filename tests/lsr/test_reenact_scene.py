@@ -50,7 +50,7 @@ def _outside_head(landmarks: np.ndarray, shape: tuple[int, int], grow: int) -> n
 
     from landmarks.scene import head_region
 
-    region = head_region([landmarks], shape).astype(np.uint8)
+    region = head_region([landmarks], shape, person=True).astype(np.uint8)  # the matte composite reaches further
     return cv2.dilate(region, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8)) == 0
 
 

@@ -27,6 +27,9 @@ const STILL = 0.25;
 const HEAD_WARP_INDEX = [...Array.from({ length: 36 }, (_, i) => i), 36, 39, 42, 45];
 const HEAD_GRID_CELLS = 48;
 const MOVING = 1.0;
+const PERSON_SCALE = 1.6;
+const PERSON_INNER = 0.8;
+const NECK_FADE = 0.3;
 const f32 = Math.fround;
 
 /** The scene split into what moves with the head and what stays (landmarks.scene.SceneLayers, made in Python by
@@ -65,6 +68,25 @@ function radiusAt(e: Ellipse, x: number, y: number): number {
 
 function smoothWeight(radius: number): number {
   const ramp = Math.min(Math.max(f32(f32(1 - radius) / f32(1 - HEAD_INNER)), 0), 1);
+  return f32(ramp * ramp * (3 - 2 * ramp));
+}
+
+/** The head ellipse grown by PERSON_SCALE: how far the head layer reaches with the matte (_person_ellipse). */
+function personEllipse(points: Tensor): Ellipse {
+  const e = headEllipse(points);
+  return { ...e, ax: e.ax * PERSON_SCALE, ay: e.ay * PERSON_SCALE };
+}
+
+/** 1 above the chin row, falling to 0 NECK_FADE face sides below it (landmarks.scene._neck), at frame row y. */
+function neck(y: number, chin: number, side: number): number {
+  return Math.min(Math.max(f32(f32(f32(chin + NECK_FADE * side) - f32(y)) / f32(NECK_FADE * side)), 0), 1);
+}
+
+/** With the matte, how much the point (x, y) moves with the head (landmarks.scene._person_weight). */
+function personWeight(ellipses: Ellipse[], x: number, y: number, chin: number, side: number): number {
+  let radius = Infinity;
+  for (const e of ellipses) radius = Math.min(radius, radiusAt(e, x, y));
+  const ramp = f32(Math.min(Math.max(f32(f32(1 - radius) / f32(1 - PERSON_INNER)), 0), 1) * neck(y, chin, side));
   return f32(ramp * ramp * (3 - 2 * ramp));
 }
 
@@ -367,7 +389,8 @@ function rows(points: Tensor, indices: number[], dx: number, dy: number): Tensor
 
 /** The head layer, in place in `output` (the box only): the scene moved by the head's rigid motion plus a TPS that
  * lands its outline on the target's, fading to none at the head ellipses' edge; with layers, only the person moves
- * and the background plate fills what it uncovers (landmarks.scene.composite_face's head layer, _keep_background). */
+ * (down to the chin, fading below it, out to the grown ellipses) and the background plate fills what it uncovers
+ * (landmarks.scene.composite_face's head layer, _person_weight, _keep_background). */
 function headLayer(scene: Tensor<Uint8Array>, output: Uint8Array, scenePoints: Tensor, targetPoints: Tensor,
                    motion: Affine, ellipses: Ellipse[], box: Box, side: number, layers: SceneLayers | null): void {
   const [x0, y0, x1, y1] = box, w = x1 - x0, h = y1 - y0, [height, width] = scene.shape;
@@ -387,10 +410,12 @@ function headLayer(scene: Tensor<Uint8Array>, output: Uint8Array, scenePoints: T
     }
   }
   if (!(largest > STILL)) return;
+  const chin = Math.max(scenePoints.data[17], targetPoints.data[17]), sides = Math.max(side, faceSide(scenePoints));
   for (let j = 0, p = 0; j < ys.length; j++) {
     for (let i = 0; i < cols; i++, p++) {
       let weight = 0;
-      for (const e of ellipses) weight = Math.max(weight, smoothWeight(radiusAt(e, xs[i] + x0, ys[j] + y0)));
+      if (layers) weight = personWeight(ellipses, xs[i] + x0, ys[j] + y0, chin, sides);
+      else for (const e of ellipses) weight = Math.max(weight, smoothWeight(radiusAt(e, xs[i] + x0, ys[j] + y0)));
       shiftX[p] *= weight;
       shiftY[p] *= weight;
     }
@@ -404,6 +429,9 @@ function headLayer(scene: Tensor<Uint8Array>, output: Uint8Array, scenePoints: T
   }
   // interpolated, the field leaks a sub-pixel shift just past the ellipses: the scene stays there, bit for bit
   const inside = insideHeads(ellipses, h, w, x0, y0);
+  if (layers) {  // ... and below the neck's fade
+    for (let y = 0; y < h; y++) if (neck(y0 + y, chin, sides) <= 0) inside.fill(0, y * w, (y + 1) * w);
+  }
   const movedHead = remapCubic({ data: scene.data, width, height, channels: 3 }, sourceX, sourceY, "reflect",
                                new Uint8Array(w * h * 3), inside);
   const matte: PixelImage<Float32Array> | null = layers
@@ -444,7 +472,9 @@ export function compositeFace(scene: Tensor<Uint8Array>, sceneLandmarks: Tensor,
     throw new Error(`the layers must be the scene's size [${height}, ${width}]`);
   }
   const motion = similarityAffine(similarityProcrustes(sceneLandmarks, targetLandmarks, RIGID_INDEX));
-  const ellipses = [headEllipse(sceneLandmarks), headEllipse(targetLandmarks)];
+  const heads = [headEllipse(sceneLandmarks), headEllipse(targetLandmarks)];
+  // with the matte the head layer reaches further (hair beyond the head ellipse moves with the head)
+  const ellipses = layers ? [personEllipse(sceneLandmarks), personEllipse(targetLandmarks)] : heads;
   const box = boxOf(ellipses, height, width);
   const output = Uint8Array.from(scene.data);
   if (!box) return { frame: tensor(output, [...scene.shape]), box: null, faceAlpha: null, headMotion: null };
@@ -487,7 +517,7 @@ export function compositeFace(scene: Tensor<Uint8Array>, sceneLandmarks: Tensor,
   const hull = new Uint8Array(pixels);
   fillConvexPoly(hull, fw, fh, convexHull(outline.map((v, i) => rint(v - (i % 2 === 0 ? fx0 : fy0)))), 0);
   const outside = distanceTransform(hull, fw, fh, true);
-  const within = withinHead(ellipses, fw, fh, fx0, fy0);
+  const within = withinHead(heads, fw, fh, fx0, fy0);
   const alpha = new Float32Array(pixels);
   for (let i = 0; i < pixels; i++) {
     const inward = FACE_MARGIN * side + (FACE_FEATHER * side) / 2 - outside[i];
