@@ -238,6 +238,14 @@ def summarise_self(records: Sequence[dict[str, Any]], methods: Sequence[str],
     return rows
 
 
+def _by_sequence(group: Sequence[dict[str, Any]]) -> dict[tuple[str, str], list[dict[str, Any]]]:
+    """Cross records grouped per driven sequence (identity, driver), in order."""
+    sequences: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for record in group:
+        sequences.setdefault((record["identity"], record["driver"]), []).append(record)
+    return sequences
+
+
 def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str],
                     ks: Sequence[int]) -> list[dict[str, Any]]:
     """Per (method, K) over the cross records with the judge's fields: judge_mouth_corr / judge_eye_corr (mean
@@ -252,9 +260,7 @@ def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str],
             group = [r for r in records if r["method"] == name and r["k"] == k and "judge_no_face" in r]
             if not group:
                 continue
-            sequences: dict[tuple[str, str], list[dict[str, Any]]] = {}
-            for record in group:
-                sequences.setdefault((record["identity"], record["driver"]), []).append(record)
+            sequences = _by_sequence(group)
             pairs: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {"mouth": [], "eye": [], "gaze": []}
             for members in sequences.values():
                 for part in pairs:
@@ -299,9 +305,7 @@ def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
             group = group or [r for r in records if r["method"] == name and r["k"] == k and "judge_no_face" in r]
         if not group:
             continue
-        sequences: dict[tuple[str, str], list[dict[str, Any]]] = {}
-        for record in group:
-            sequences.setdefault((record["identity"], record["driver"]), []).append(record)
+        sequences = _by_sequence(group)
         pairs = {part: [(np.array([r[f"driver_{part}"] for r in members], np.float64),
                          np.array([r[f"judge_driver_{part}"] for r in members], np.float64))
                         for members in sequences.values()] for part in ("mouth", "eye")}
