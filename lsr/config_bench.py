@@ -293,6 +293,9 @@ class BenchReenactConfig:
     eyes: tuple[Literal["drawn", "blend"], ...] = ()
     """The eyes (as `lsr reenact --eyes`), one row each; drawn blend prints the drawn eyes' frame-rate ratio. Empty:
     the default (blend)."""
+    mouth_interiors: tuple[Literal["driver", "shots"], ...] = ()
+    """Inside an open mouth (as `lsr reenact --mouth-interior`), one row each; driver shots prints the driver
+    interior's frame-rate ratio. Empty: the default (driver)."""
     paste_back: bool = True
     k: int = 4
     device: Literal["auto", "cpu", "cuda"] = "auto"

@@ -70,9 +70,11 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
         clip = trim_clip(video, temp / "driving.mp4", cfg.frames)
         synthesis_ms: dict[tuple[str, str], dict[str, float]] = {}
         fps: dict[tuple[str, str, str], dict[str, float]] = {}  # end to end, per eyes choice
+        inside_fps: dict[tuple[str, str, str, str], dict[str, float]] = {}  # end to end, per mouth interior
         mouths, eyes_choices = cfg.mouths or (None,), cfg.eyes or (None,)
-        for runtime, detector, mouth, eyes in [(r, d, m, e) for r in cfg.runtimes for d in cfg.detectors for m in mouths
-                                               for e in eyes_choices]:
+        interiors = cfg.mouth_interiors or (None,)
+        for runtime, detector, mouth, eyes, interior in [(r, d, m, e, i) for r in cfg.runtimes for d in cfg.detectors
+                                                         for m in mouths for e in eyes_choices for i in interiors]:
             threads = network_threads(cfg.threads)  # as lsr reenact chooses them
             if runtime == "onnx":
                 from deploy.runtime import OnnxReenactor
@@ -89,35 +91,42 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
                 reenactor.mouth = mouth
             if eyes is not None:
                 reenactor.eyes = eyes
+            if interior is not None:
+                reenactor.mouth_interior = interior
             started = time.perf_counter()
             reenactor.encode_subject(clip, k=cfg.k)
             encode_subject_s = time.perf_counter() - started
             synth_ms = synthesis_only_ms(reenactor)
             started = time.perf_counter()
             synthesis_ms.setdefault((runtime, detector), {})[reenactor.mouth] = synth_ms
-            stats = run_job(reenactor, Job(clip, clip, temp / f"out_{runtime}_{detector}_{reenactor.mouth}_{reenactor.eyes}.mp4"),
-                            _job_options(cfg.paste_back, runtime))
-            fps.setdefault((runtime, detector, reenactor.mouth), {})[reenactor.eyes] = stats.frames / (time.perf_counter() - started)
+            name = f"out_{runtime}_{detector}_{reenactor.mouth}_{reenactor.eyes}_{reenactor.mouth_interior}.mp4"
+            stats = run_job(reenactor, Job(clip, clip, temp / name), _job_options(cfg.paste_back, runtime))
+            rate = stats.frames / (time.perf_counter() - started)
+            fps.setdefault((runtime, detector, reenactor.mouth), {})[reenactor.eyes] = rate
+            inside_fps.setdefault((runtime, detector, reenactor.mouth, reenactor.eyes), {})[reenactor.mouth_interior] = rate
             wall = time.perf_counter() - started
             per_frame = {stage: 1000 * stats.seconds.get(stage, 0.0) / max(1, stats.frames)
                          for stage in ("decode", "landmarks", "warps", "synthesis", "paste_back", "encode")}
             end_to_end = stats.frames / wall
             rows.append(
-                f"| {runtime} | {detector} | {reenactor.mouth} | {reenactor.eyes} | {stats.frames} | {stats.no_face} | {per_frame['decode']:.1f} | {per_frame['landmarks']:.1f} | "
+                f"| {runtime} | {detector} | {reenactor.mouth} | {reenactor.eyes} | {reenactor.mouth_interior} | "
+                f"{stats.frames} | {stats.no_face} | {per_frame['decode']:.1f} | {per_frame['landmarks']:.1f} | "
                 f"{encode_subject_s:.2f} | {per_frame['warps']:.1f} | {per_frame['synthesis']:.1f} | {per_frame['paste_back']:.1f} | "
                 f"{per_frame['encode']:.1f} | {end_to_end:.2f} | {synth_ms:.1f} ({1000 / synth_ms:.2f} fps) | "
                 f"{end_to_end * synth_ms / 1000:.2f} |"
             )
-            if runtime == "torch" and detector == cfg.detectors[0] and mouth == mouths[0] and eyes == eyes_choices[0]:
+            if (runtime == "torch" and detector == cfg.detectors[0] and mouth == mouths[0] and eyes == eyes_choices[0]
+                    and interior == interiors[0]):
                 lm = reenactor.subject.shots.landmarks
                 notes.append(f"bf16 (torch, {device}): {reenactor.precision_error(list(lm), 'bf16')}")
     table = "\n".join([
         f"Model {label}, {cfg.frames} frames of {video.name}, paste-back {cfg.paste_back}, device {device}, "
         f"network threads {network_threads(cfg.threads)}",
         "",
-        "| runtime | detector | mouth | eyes | frames | no face | decode ms | landmarks ms | subject encoding s | warps ms | network ms "
-        "| paste-back ms | encode ms | end-to-end fps | synthesis only ms | end-to-end / synthesis-only |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| runtime | detector | mouth | eyes | mouth interior | frames | no face | decode ms | landmarks ms "
+        "| subject encoding s | warps ms | network ms | paste-back ms | encode ms | end-to-end fps | synthesis only ms "
+        "| end-to-end / synthesis-only |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
         *[f"Synthesis only, {runtime} / {detector}: the drawn mouth costs {times['drawn'] / times['nearest']:.2f}x "
           f"the per-frame path without it ({times['drawn']:.1f} against {times['nearest']:.1f} ms, same run)."
@@ -125,6 +134,10 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
         *[f"End to end, {runtime} / {detector} / {mouth} mouth: drawn eyes run at {rates['drawn'] / rates['blend']:.2f}x the "
           f"frame rate of blended ones ({rates['drawn']:.2f} against {rates['blend']:.2f} fps, same run)."
           for (runtime, detector, mouth), rates in fps.items() if {"drawn", "blend"} <= set(rates)],
+        *[f"End to end, {runtime} / {detector} / {mouth} mouth / {eyes} eyes: the driver's mouth interior runs at "
+          f"{rates['driver'] / rates['shots']:.2f}x the frame rate without it ({rates['driver']:.2f} against "
+          f"{rates['shots']:.2f} fps, same run)."
+          for (runtime, detector, mouth, eyes), rates in inside_fps.items() if {"driver", "shots"} <= set(rates)],
         "",
         "Stages overlap (lsr.core.overlap), each ms its time on its own thread, sharing the cores: decoding and "
         "tracking on one thread, smoothing, retargeting and the warps of the nearest shots on a second (landmarks ms "

@@ -37,7 +37,8 @@ def test_warp_guided_model_is_timed_on_both_runtimes(tmp_path):
     for row in rows:
         cells = [cell.strip() for cell in row.strip("|").split("|")]
         assert cells[2] == "nearest" and cells[3] == "blend"  # the defaults: no mouth generator, blended eyes
-        assert int(cells[4]) == 4 and float(cells[12]) > 0  # frames, end-to-end fps
+        assert cells[4] == "driver"  # and the driver's mouth interior
+        assert int(cells[5]) == 4 and float(cells[13]) > 0  # frames, end-to-end fps
     assert "`" in table.splitlines()[0]  # the model named as given, not a random preset
 
 
@@ -49,12 +50,15 @@ def test_the_drawn_mouth_and_eyes_are_timed_against_the_path_without_them(tmp_pa
     weights, clip = _weights_and_clip(tmp_path)
     PartGenerator().save_pretrained(weights / MOUTH_FOLDER)
     table = run_bench_reenact(BenchReenactConfig(video=clip, weights=weights, frames=3, k=2, threads=1,
-                                                 mouths=("drawn", "nearest"), eyes=("drawn", "blend"), runtimes=("onnx",)))
+                                                 mouths=("drawn", "nearest"), eyes=("drawn", "blend"), runtimes=("onnx",),
+                                                 mouth_interiors=("driver", "shots")))
     rows = [line for line in table.splitlines() if line.startswith(("| torch |", "| onnx |")) and line.count("|") > 10]
-    assert [row.split("|")[3].strip() for row in rows] == ["drawn", "drawn", "nearest", "nearest"]
-    assert [row.split("|")[4].strip() for row in rows] == ["drawn", "blend", "drawn", "blend"]
+    assert [row.split("|")[3].strip() for row in rows] == ["drawn"] * 4 + ["nearest"] * 4
+    assert [row.split("|")[4].strip() for row in rows] == ["drawn", "drawn", "blend", "blend"] * 2
+    assert [row.split("|")[5].strip() for row in rows] == ["driver", "shots"] * 4
     assert table.count("the drawn mouth costs") == 1  # one ratio per runtime, from the same run
     assert table.count("drawn eyes run at") == 2  # one per mouth
+    assert table.count("the driver's mouth interior runs at") == 4  # one per mouth and eyes
 
 
 def test_no_flags_times_the_shipped_default():
