@@ -12,8 +12,8 @@ driver's mouth interior:
 * ``paste_interior``: that patch mapped onto the target by the affine map that best takes the target's 20 lip
   points onto the driver's (least squares; each target pixel reads the patch there, bicubic), its brightness
   scaled so that the skin around the lips matches the synthesis' (another light), and laid inside the target's
-  inner-lip polygon, feathered by ``FEATHER`` eye distances, as far as both mouths are open
-  (``interior_strength``).
+  inner-lip polygon, feathered by ``FEATHER`` eye distances, as far as both mouths are open and the driver faces
+  the camera (``interior_strength``).
 
 The lips stay the synthesis' (the subject's), and so does everything outside them. A closed mouth is left as it is.
 What this gives the subject is the driver's teeth and tongue, not the subject's own (MODEL_CARD.md says so).
@@ -29,6 +29,7 @@ import numpy as np
 
 from landmarks.expression import mouth_opening
 from landmarks.parts import NUM_LANDMARKS
+from landmarks.pose import estimate_head_pose
 from landmarks.smooth import inter_ocular_distance
 
 LIPS = slice(48, 68)
@@ -47,6 +48,10 @@ GAIN = (0.6, 1.6)
 channels: a gain per channel matched the skin's tone too, which turned the driver's teeth orange on a ruddier face."""
 FEATHER = 0.012
 """The inner-lip polygon's edge is feathered by a Gaussian of this fraction of the target's eye distance."""
+TURN = (35.0, 50.0)
+"""Degrees of the driver's head yaw: from the first the interior fades, at the second it is gone. A mouth seen from
+the side shows its teeth edge-on; mapped onto a mouth seen from the front it drew a white blob (on the FSTH sample,
+a driver at 47 degrees)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,6 +64,8 @@ class DriverMouth:
     """(20, 2) float64: the driver's lip points (48-67 of the 68) in the patch's pixels."""
     opening: float
     """The driver's mouth opening (``landmarks.expression.mouth_opening``)."""
+    yaw: float = 0.0
+    """The driver's head yaw in degrees (``landmarks.pose.estimate_head_pose`` of its 68 points; NaN: not found)."""
 
 
 def _check(landmarks: np.ndarray) -> np.ndarray | None:
@@ -86,14 +93,20 @@ def cut_driver_mouth(frame: np.ndarray, landmarks: np.ndarray) -> DriverMouth | 
     x1, y1 = np.minimum(np.ceil(lips.max(axis=0) + reach) + 1, (frame.shape[1], frame.shape[0])).astype(int)
     if x1 - x0 < 2 or y1 - y0 < 2:
         return None
-    return DriverMouth(frame[y0:y1, x0:x1].copy(), lips - (x0, y0), opening)
+    yaw = float(estimate_head_pose(points, frame.shape[:2])[0])
+    return DriverMouth(frame[y0:y1, x0:x1].copy(), lips - (x0, y0), opening, yaw)
 
 
 def interior_strength(landmarks: np.ndarray, mouth: DriverMouth) -> float:
-    """How much of the driver's interior to lay in: the lesser of the target's opening (landmarks (68, 2)) and
-    the driver's, from ``OPEN[0]`` (none) to ``OPEN[1]`` (wholly), in [0, 1]."""
+    """How much of the driver's interior to lay in, in [0, 1]: the lesser of the target's opening (landmarks
+    (68, 2)) and the driver's, from ``OPEN[0]`` (none) to ``OPEN[1]`` (wholly), and less as the driver's head turns
+    from ``TURN[0]`` to ``TURN[1]`` degrees (none where its yaw is unknown)."""
     opening = min(float(mouth_opening(landmarks)), mouth.opening)
-    return float(np.clip((opening - OPEN[0]) / (OPEN[1] - OPEN[0]), 0.0, 1.0)) if np.isfinite(opening) else 0.0
+    if not (np.isfinite(opening) and np.isfinite(mouth.yaw)):
+        return 0.0
+    opened = np.clip((opening - OPEN[0]) / (OPEN[1] - OPEN[0]), 0.0, 1.0)
+    facing = np.clip((TURN[1] - abs(mouth.yaw)) / (TURN[1] - TURN[0]), 0.0, 1.0)
+    return float(opened * facing)
 
 
 def lip_affine(source: np.ndarray, target: np.ndarray) -> np.ndarray:

@@ -55,6 +55,7 @@ def test_the_driver_mouth_is_cut_as_python_cuts_it(web, driven):
         assert np.array_equal(mouth["patch"], expected.patch)
         np.testing.assert_allclose(mouth["lips"], expected.lips, atol=1e-9)
         assert mouth["opening"] == pytest.approx(expected.opening, abs=1e-12)
+        assert mouth["yaw"] == pytest.approx(expected.yaw, abs=0.5)  # the head pose, degrees
     assert sum(m is not None for m in got) >= 4  # most of FRAMES show an open mouth
 
 
@@ -63,7 +64,8 @@ def test_the_interior_is_laid_in_as_python_lays_it(web, driven):
 
     image, frames = driven
     mouths = [cut_driver_mouth(frame, points) for frame, points, _ in frames]
-    wire = [None if m is None else {"patch": m.patch, "lips": m.lips, "opening": m.opening} for m in mouths]
+    wire = [None if m is None else {"patch": m.patch, "lips": m.lips, "opening": m.opening, "yaw": m.yaw}
+            for m in mouths]
     targets = [target for *_, target in frames]
     got = web.calls(*[("pasteInterior", [image, target, mouth]) for target, mouth in zip(targets, wire)],
                     *[("lipAffine", [t[48:68].ravel(), m.lips.ravel()]) for t, m in zip(targets, mouths) if m])

@@ -87,6 +87,10 @@ def test_a_closed_mouth_is_left_as_it_is():
     assert paste_interior(target, _points(0.35), None) is target
     half = DriverMouth(mouth.patch, mouth.lips, 0.03)  # the lesser opening decides: half way
     assert interior_strength(_points(0.35), half) == pytest.approx(0.5)
+    assert abs(mouth.yaw) < 5  # a frontal driver
+    for yaw, strength in ((-42.5, 0.5), (60.0, 0.0), (float("nan"), 0.0)):  # a mouth seen from the side: none
+        assert interior_strength(_points(0.35), DriverMouth(mouth.patch, mouth.lips, 0.35, yaw)) == \
+            pytest.approx(strength)
 
 
 def test_points_that_are_not_finite_or_not_68_are_handled():

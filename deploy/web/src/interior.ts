@@ -5,6 +5,7 @@
 // WARP_INVERSE_MAP), its brightness matched to the skin around the lips, and laid inside the target's inner lips.
 
 import { fillPolyAA } from "./mouth.js";
+import { estimateHeadPose } from "./pose.js";
 import { dilateEllipse, gaussianBlurF32, roundHalfEven, warpAffineCubic } from "./remap.js";
 import { finite, flat, interOcularDistance, mouthOpening } from "./retarget.js";
 import { Affine, Tensor, tensor } from "./tensor.js";
@@ -14,6 +15,7 @@ export const REACH = 0.35;
 export const RING = 0.12;
 export const GAIN: [number, number] = [0.6, 1.6];
 export const FEATHER = 0.012;
+export const TURN: [number, number] = [35.0, 50.0];
 
 const f32 = Math.fround;
 
@@ -25,6 +27,8 @@ export interface DriverMouth {
   lips: Tensor<Float64Array>;
   /** The driver's mouth opening. */
   opening: number;
+  /** The driver's head yaw in degrees (NaN: not found). */
+  yaw: number;
 }
 
 function checkLandmarks(landmarks: Tensor): ArrayLike<number> {
@@ -61,13 +65,17 @@ export function cutDriverMouth(frame: Tensor<Uint8Array>, landmarks: Tensor): Dr
   for (let y = 0; y < h; y++) patch.set(frame.data.subarray(((y0 + y) * width + x0) * 3, ((y0 + y) * width + x1) * 3), y * w * 3);
   const lips = new Float64Array(40);
   for (let i = 0; i < 20; i++) { lips[2 * i] = p[2 * (48 + i)] - x0; lips[2 * i + 1] = p[2 * (48 + i) + 1] - y0; }
-  return { patch: tensor(patch, [h, w, 3]), lips: tensor(lips, [20, 2]), opening };
+  const yaw = estimateHeadPose(landmarks, height, width)[0];
+  return { patch: tensor(patch, [h, w, 3]), lips: tensor(lips, [20, 2]), opening, yaw };
 }
 
-/** interior_strength: the lesser opening of the target's (68, 2) points and the driver's, OPEN[0] -> 0, OPEN[1] -> 1. */
+/** interior_strength: the lesser opening of the target's (68, 2) points and the driver's, OPEN[0] -> 0, OPEN[1] -> 1,
+ * less as the driver's head turns from TURN[0] to TURN[1] degrees (none where its yaw is unknown). */
 export function interiorStrength(landmarks: Tensor, mouth: DriverMouth): number {
   const opening = Math.min(mouthOpening(landmarks.data), mouth.opening);
-  return Number.isFinite(opening) ? Math.min(Math.max((opening - OPEN[0]) / (OPEN[1] - OPEN[0]), 0), 1) : 0;
+  if (!Number.isFinite(opening) || !Number.isFinite(mouth.yaw)) return 0;
+  const opened = Math.min(Math.max((opening - OPEN[0]) / (OPEN[1] - OPEN[0]), 0), 1);
+  return opened * Math.min(Math.max((TURN[1] - Math.abs(mouth.yaw)) / (TURN[1] - TURN[0]), 0), 1);
 }
 
 /** lip_affine: the affine map [a, b, c, d, e, f] (x' = a x + b y + c, y' = d x + e y + f) taking the points
