@@ -256,7 +256,7 @@ class ReenactConfig:
     a mouth generator, else nearest. Compared by `lsr eval --mouths`."""
     mouth_interior: Literal["driver", "shots"] = "driver"
     """Inside an open mouth: driver = the driver frame's own cavity, teeth and tongue, laid inside the target's inner
-    lips and matched to the skin's colour (a video or image driver; the teeth are the driver's, not the source's);
+    lips, its brightness matched to the skin around them (a video or image driver; the teeth are the driver's, not the source's);
     shots = what --mouth gives (the shots' insides, stretched where none is as open). Compared by `lsr eval
     --mouth-interiors`."""
     eyes: Literal["drawn", "blend"] = "blend"

@@ -276,4 +276,3 @@ def run_export(cfg: ExportConfig) -> ExportResult:
         print(f"int8 frame generator vs fp32 over {len(feeds)} calibration frame(s): max abs error "
               f"{result.int8_error[0]:.4g}, mean abs error {result.int8_error[1]:.4g} (images in [-1, 1])")
     return result
-

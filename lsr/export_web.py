@@ -23,9 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import shutil
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -99,6 +97,7 @@ def write_person(folder: Path, reenactor, subject, scene) -> dict:
 def write_site(weights: Path, out: Path, k: int | None = None) -> WebSite:
     """Build the web runtime and write the site for the model folder ``weights`` into ``out`` (module docstring)."""
     from deploy.web_build import ensure_built, onnxruntime_files
+    from landmarks.imageio import atomic_folder
     from lsr.export_bundle import cached_bundle
     from lsr.layout_view import LAYOUT_PALETTE, load_layout_legend
 
@@ -107,9 +106,7 @@ def write_site(weights: Path, out: Path, k: int | None = None) -> WebSite:
     reenactor, subject, scene = example_subject(bundle, k)
     backend = reenactor.backend
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    temp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp"))
-    try:
+    with atomic_folder(out) as temp:
         for path in [*PAGE.iterdir(), *(dist / name for name in ("app.js", "app.js.map", "tracker.worker.js",
                                                                    "tracker.worker.js.map")), *onnxruntime_files()]:
             shutil.copy2(path, temp / path.name)
@@ -129,20 +126,8 @@ def write_site(weights: Path, out: Path, k: int | None = None) -> WebSite:
             "mouth": reenactor.mouth, "mouth_interior": reenactor.mouth_interior, "k": person["k"],
         })
         (temp / "NOTICE.md").write_text(_notice())
-        for path in temp.rglob("*"):
+        for path in temp.rglob("*"):  # readable by any static server
             path.chmod(0o755 if path.is_dir() else 0o644)
-        temp.chmod(0o755)
-        if out.exists():
-            old = out.with_name(f".{out.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(out, old)
-            os.replace(temp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(temp, out)
-    except BaseException:
-        shutil.rmtree(temp, ignore_errors=True)
-        raise
     return WebSite(out, sorted(path for path in out.rglob("*") if path.is_file()), person["k"])
 
 

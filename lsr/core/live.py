@@ -7,7 +7,8 @@ One-Euro smoothing at the frames' real rate, the driver's first face (relative m
 last good output. Per frame:
 
     camera frame -> track 68 points -> smooth -> crop -> retarget onto the subject's anchor shot
-      -> synthesise (backend; inside an open mouth, the camera frame's) -> composite into the anchor's scene (or the face crop) -> mark as synthetic
+      -> synthesise (backend; inside an open mouth, the camera frame's) -> composite into the anchor's scene (or
+      the face crop) -> mark as synthetic
 
 A frame without a face gives the last good output again with a note, never an error, so a stream survives a
 hand in front of the camera. ``recentre()`` makes the next face the neutral one (the driver sat down again).

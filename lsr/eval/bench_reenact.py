@@ -99,7 +99,8 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
             encode_subject_s = time.perf_counter() - started
             if (runtime, detector) not in warmed:  # a runtime's first job (imports, allocations, caches): untimed,
                 warmed.add((runtime, detector))  # or the first of rows compared in one run starts slower
-                run_job(reenactor, Job(clip, clip, temp / f"warm_{runtime}_{detector}.mp4"), _job_options(cfg.paste_back, runtime))
+                run_job(reenactor, Job(clip, clip, temp / f"warm_{runtime}_{detector}.mp4"),
+                        _job_options(cfg.paste_back, runtime))
             synth_ms = synthesis_only_ms(reenactor)
             started = time.perf_counter()
             synthesis_ms.setdefault((runtime, detector), {})[reenactor.mouth] = synth_ms

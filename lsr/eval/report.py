@@ -477,8 +477,7 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
                   "eyes": cfg.eyes[0] if cfg.eyes else None,
                   "mouth_interior": cfg.mouth_interiors[0] if cfg.mouth_interiors else None}
         models = [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps,
-                                 finetune_lr=cfg.finetune_lr,
-                                 **choice) for folder in cfg.weights]
+                                 finetune_lr=cfg.finetune_lr, **choice) for folder in cfg.weights]
         methods += label_by_variant(models, cfg.weights)
         # the same models with their references warped another way, another mouth, eyes or interior, in the same run
         extras = [({**choice, "reference_warp": warp}, f"+{warp}-refs") for warp in cfg.reference_warps[1:]]

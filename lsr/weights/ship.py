@@ -13,10 +13,10 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from landmarks.imageio import atomic_folder
 from lsr.weights import DEFAULT_WEIGHTS, MissingWeightsError, is_model_folder
 
 if TYPE_CHECKING:
@@ -39,22 +39,12 @@ def ship(run_weights: str | os.PathLike, target: str | os.PathLike = DEFAULT_WEI
     total_mb = sum((source / name).stat().st_size for name in names) / 2**20
     if total_mb > MAX_MB:
         raise MissingWeightsError(f"{source} holds {total_mb:.1f} MB of weights; the package ships at most {MAX_MB} MB")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    temp = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp"))
-    try:
+    with atomic_folder(target) as temp:
         for name in names:
             (temp / name).parent.mkdir(exist_ok=True)
             shutil.copyfile(source / name, temp / name)
         LSRModel.from_pretrained(temp)  # refuse to ship what does not load
         load_mouth_generator(temp)
-        old = target.with_name(f".{target.name}.old")
-        shutil.rmtree(old, ignore_errors=True)
-        if target.exists():
-            os.replace(target, old)
-        os.replace(temp, target)
-        shutil.rmtree(old, ignore_errors=True)
-    finally:
-        shutil.rmtree(temp, ignore_errors=True)
     return [(name, (target / name).stat().st_size, hashlib.sha256((target / name).read_bytes()).hexdigest())
             for name in names]
 

@@ -166,3 +166,20 @@ class TestVideo:
         (tmp_path / "zero.mp4").write_bytes(b"")
         with pytest.raises(InputFileError, match="empty"):
             probe_video(tmp_path / "zero.mp4")
+
+
+def test_atomic_folder_replaces_a_folder_whole_or_not_at_all(tmp_path):
+    from landmarks.imageio import atomic_folder
+
+    target = tmp_path / "site"
+    with atomic_folder(target) as temp:
+        (temp / "a.txt").write_text("one")
+    assert (target / "a.txt").read_text() == "one"
+    with pytest.raises(RuntimeError), atomic_folder(target) as temp:
+        (temp / "b.txt").write_text("half")
+        raise RuntimeError("interrupted")
+    assert sorted(p.name for p in target.iterdir()) == ["a.txt"]  # the old folder, untouched
+    with atomic_folder(target) as temp:
+        (temp / "b.txt").write_text("two")
+    assert sorted(p.name for p in target.iterdir()) == ["b.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["site"]  # no temp or old folder left

@@ -4,7 +4,7 @@
 // the target by the affine fit of the target's 20 lip points to the driver's (bicubic, as cv2.warpAffine with
 // WARP_INVERSE_MAP), its brightness matched to the skin around the lips, and laid inside the target's inner lips.
 
-import { fillPolyAA } from "./mouth.js";
+import { pointBox, polygonMask } from "./mouth.js";
 import { estimateHeadPose } from "./pose.js";
 import { dilateEllipse, gaussianBlurF32, roundHalfEven, warpAffineCubic } from "./remap.js";
 import { finite, flat, interOcularDistance, mouthOpening } from "./retarget.js";
@@ -38,16 +38,6 @@ function checkLandmarks(landmarks: Tensor): ArrayLike<number> {
   return landmarks.data;
 }
 
-/** The lip points' box [minX, minY, maxX, maxY] (points 48-67). */
-function lipBox(p: ArrayLike<number>): [number, number, number, number] {
-  let minX = Infinity, minY = Infinity, maxX = -Infinity, maxY = -Infinity;
-  for (let i = 48; i < 68; i++) {
-    minX = Math.min(minX, p[2 * i]); maxX = Math.max(maxX, p[2 * i]);
-    minY = Math.min(minY, p[2 * i + 1]); maxY = Math.max(maxY, p[2 * i + 1]);
-  }
-  return [minX, minY, maxX, maxY];
-}
-
 /** The driver's mouth (cut_driver_mouth): frame (H, W, 3) uint8 and its 68 points (frame pixels) -> the patch
  * around its lips, or null when the points are not finite, the mouth is closed or its box is outside the frame. */
 export function cutDriverMouth(frame: Tensor<Uint8Array>, landmarks: Tensor): DriverMouth | null {
@@ -56,7 +46,7 @@ export function cutDriverMouth(frame: Tensor<Uint8Array>, landmarks: Tensor): Dr
   if (!finite(p)) return null;
   const opening = mouthOpening(p);
   if (!(opening >= OPEN[0])) return null;
-  const reach = REACH * interOcularDistance(p), [minX, minY, maxX, maxY] = lipBox(p);
+  const reach = REACH * interOcularDistance(p), [minX, minY, maxX, maxY] = pointBox(p, 48, 68);
   const [height, width] = frame.shape;
   const x0 = Math.max(Math.floor(minX - reach), 0), y0 = Math.max(Math.floor(minY - reach), 0);
   const x1 = Math.min(Math.ceil(maxX + reach) + 1, width), y1 = Math.min(Math.ceil(maxY + reach) + 1, height);
@@ -99,18 +89,6 @@ export function lipAffine(from: Tensor | ArrayLike<number>, to: Tensor | ArrayLi
   return [...solve(atx), ...solve(aty)] as Affine;
 }
 
-/** A polygon's anti-aliased coverage (uint8, 255 inside) over a w x h box: cv2.fillPoly(LINE_AA, shift 2) of the
- * points `from`..`to` of the flat `local` (x, y) pairs. */
-function polygon(local: Float64Array, from: number, to: number, w: number, h: number): Uint8Array {
-  const mask = new Uint8Array(w * h), points = new Int32Array(2 * (to - from));
-  for (let i = from; i < to; i++) {
-    points[2 * (i - from)] = roundHalfEven(local[2 * i] * 4);
-    points[2 * (i - from) + 1] = roundHalfEven(local[2 * i + 1] * 4);
-  }
-  fillPolyAA(mask, w, h, points, 255, 2);
-  return mask;
-}
-
 /** paste_interior: `image` (S, S, 3) uint8, the synthesis for the target's (68, 2) points, with the driver's mouth
  * interior inside the target's inner lips; `image` itself when there is nothing to lay in, else a new image (or
  * `image` written in place when inPlace). */
@@ -123,7 +101,7 @@ export function pasteInterior(image: Tensor, landmarks: Tensor, mouth: DriverMou
   if (!(strength > 0)) return image;
   const eyes = interOcularDistance(p), ring = Math.max(1, roundHalfEven(RING * eyes));
   const sigma = Math.max(0.4, FEATHER * eyes), margin = ring + Math.ceil(3 * sigma) + 1;
-  const [height, width] = image.shape, [minX, minY, maxX, maxY] = lipBox(p);
+  const [height, width] = image.shape, [minX, minY, maxX, maxY] = pointBox(p, 48, 68);
   const x0 = Math.max(Math.floor(minX) - margin, 0), y0 = Math.max(Math.floor(minY) - margin, 0);
   const x1 = Math.min(Math.ceil(maxX) + margin + 1, width), y1 = Math.min(Math.ceil(maxY) + margin + 1, height);
   if (x1 - x0 < 2 || y1 - y0 < 2) return image;
@@ -133,7 +111,7 @@ export function pasteInterior(image: Tensor, landmarks: Tensor, mouth: DriverMou
   const warped = warpAffineCubic({ data: mouth!.patch.data, width: pw, height: ph, channels: 3 },
                                  lipAffine(local, mouth!.lips.data), w, h, "replicate");
   const source = image.data as Uint8Array;
-  const lipArea = polygon(local, 0, 12, w, h);
+  const lipArea = polygonMask(local, 0, 12, 0, 0, w, h);
   for (let i = 0; i < lipArea.length; i++) lipArea[i] = lipArea[i] >= 128 ? 1 : 0;  // coverage / 255 > 0.5
   const grown = dilateEllipse(lipArea, w, h, ring);
   let synthesised = 0, driven = 0, count = 0;  // grey levels over the skin around the lips, all three channels
@@ -147,7 +125,7 @@ export function pasteInterior(image: Tensor, landmarks: Tensor, mouth: DriverMou
     }
   }
   const gain = count ? Math.min(Math.max((synthesised / count + 1) / (driven / count + 1), GAIN[0]), GAIN[1]) : 1;
-  const inner = polygon(local, 12, 20, w, h), unit = f32(1.0 / 255.0), coverage = new Float32Array(w * h);
+  const inner = polygonMask(local, 12, 20, 0, 0, w, h), unit = f32(1.0 / 255.0), coverage = new Float32Array(w * h);
   for (let i = 0; i < coverage.length; i++) coverage[i] = f32(inner[i] * unit);
   const weight = gaussianBlurF32(coverage, w, h, 1, sigma), s = f32(strength);
   const out = inPlace ? image : tensor(new Uint8Array(source), [...image.shape]);

@@ -145,7 +145,7 @@ interface PolyEdge { y0: number; y1: number; x: number; dx: number }
 /** cv2.fillPoly(img, [points], color, cv2.LINE_AA, shift) on a 1-channel uint8 image: the anti-aliased outline
  * (CollectPolyEdges' LineAA per edge), then the scan-line fill of the interior (FillEdgeCollection).
  * points: flat (x, y) integers in 1/2^shift pixels. */
-export function fillPolyAA(img: Uint8Array, width: number, height: number, points: Int32Array, color: number,
+function fillPolyAA(img: Uint8Array, width: number, height: number, points: Int32Array, color: number,
                     shift: number): void {
   const count = points.length / 2, delta = (1 << shift) >> 1, up = 2 ** (XY_SHIFT - shift), down = 2 ** shift;
   const edges: PolyEdge[] = [];
@@ -188,6 +188,29 @@ export function fillPolyAA(img: Uint8Array, width: number, height: number, point
   }
 }
 
+/** The box [minX, minY, maxX, maxY] of the points from..to (exclusive) of flat (x, y) pairs. */
+export function pointBox(p: ArrayLike<number>, from: number, to: number): [number, number, number, number] {
+  let minX = Infinity, minY = Infinity, maxX = -Infinity, maxY = -Infinity;
+  for (let i = from; i < to; i++) {
+    minX = Math.min(minX, p[2 * i]); maxX = Math.max(maxX, p[2 * i]);
+    minY = Math.min(minY, p[2 * i + 1]); maxY = Math.max(maxY, p[2 * i + 1]);
+  }
+  return [minX, minY, maxX, maxY];
+}
+
+/** The polygon of the points from..to (exclusive) of flat (x, y) pairs, less (x0, y0), filled into a w x h uint8
+ * mask (255 inside) as cv2.fillPoly(mask, [np.round(points * 4)], 255, cv2.LINE_AA, shift=2) fills it. */
+export function polygonMask(p: ArrayLike<number>, from: number, to: number, x0: number, y0: number, w: number,
+                            h: number): Uint8Array {
+  const mask = new Uint8Array(w * h), polygon = new Int32Array(2 * (to - from));
+  for (let i = from; i < to; i++) {
+    polygon[2 * (i - from)] = roundHalfEven((p[2 * i] - x0) * 4);
+    polygon[2 * (i - from) + 1] = roundHalfEven((p[2 * i + 1] - y0) * 4);
+  }
+  fillPolyAA(mask, w, h, polygon, 255, 2);
+  return mask;
+}
+
 // ------------------------------------------------------------------------ cv2.dilate (ellipse), cv2.GaussianBlur
 
 
@@ -216,20 +239,11 @@ export function mouthWeight(landmarks: Tensor, height: number, width: number): M
   const eyes = interOcularDistance(p);
   const grow = Math.max(1, roundHalfEven(MOUTH_MARGIN * eyes)), sigma = Math.max(0.5, MOUTH_FEATHER * eyes);
   const reach = grow + Math.ceil(3 * sigma) + 1;
-  let minX = Infinity, minY = Infinity, maxX = -Infinity, maxY = -Infinity;
-  for (let i = 48; i < 60; i++) {
-    minX = Math.min(minX, p[2 * i]); maxX = Math.max(maxX, p[2 * i]);
-    minY = Math.min(minY, p[2 * i + 1]); maxY = Math.max(maxY, p[2 * i + 1]);
-  }
+  const [minX, minY, maxX, maxY] = pointBox(p, 48, 60);
   const x0 = Math.max(Math.floor(minX) - reach, 0), y0 = Math.max(Math.floor(minY) - reach, 0);
   const x1 = Math.min(Math.ceil(maxX) + reach + 1, width), y1 = Math.min(Math.ceil(maxY) + reach + 1, height);
   if (x1 <= x0 || y1 <= y0) return null;
-  const w = x1 - x0, h = y1 - y0, mask = new Uint8Array(w * h), polygon = new Int32Array(24);
-  for (let i = 0; i < 12; i++) {
-    polygon[2 * i] = roundHalfEven((p[2 * (48 + i)] - x0) * 4);
-    polygon[2 * i + 1] = roundHalfEven((p[2 * (48 + i) + 1] - y0) * 4);
-  }
-  fillPolyAA(mask, w, h, polygon, 255, 2);
+  const w = x1 - x0, h = y1 - y0, mask = polygonMask(p, 48, 60, x0, y0, w, h);
   const grown = dilateEllipse(mask, w, h, grow), scaled = new Float32Array(w * h), unit = f32(1.0 / 255.0);
   for (let i = 0; i < scaled.length; i++) scaled[i] = grown[i] * unit;
   return { weight: tensor(gaussianBlurF32(scaled, w, h, 1, sigma), [h, w]), box: [x0, y0, x1, y1] };
