@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from landmarks.expression import set_mouth_opening
-from landmarks.mouth_interior import (GAIN, DriverMouth, cut_driver_mouth, interior_strength, lip_affine,
-                                      paste_interior)
+from landmarks.mouth_interior import (CAST, GAIN, KNEE, DriverMouth, cut_driver_mouth, interior_strength,
+                                      lip_affine, match_camera, paste_interior)
 from landmarks.pose import project_canonical
 
 SIDE = 256
@@ -67,13 +67,18 @@ def test_the_interior_takes_the_target_light_from_the_skin_around_the_lips():
     y, x = _centre(target_points)
     expected = 100 * (np.mean(SKIN) + 1) / (np.mean([int(0.7 * c) for c in SKIN]) + 1)  # one gain, brightness
     assert np.abs(result[y, x] - expected).max() <= 2
-    warm = _face(target_points, (190, 90, 100), skin=(235, 175, 120))  # a ruddier face: white teeth stay white
+    ruddy = (235, 175, 120)  # a ruddier face: white teeth stay about white (the whole cast turned them orange) ...
+    warm = _face(target_points, (190, 90, 100), skin=ruddy)
     teeth = _face(driver_points, (220, 220, 220), skin=(180, 180, 180))
     laid = paste_interior(warm, target_points, cut_driver_mouth(teeth, driver_points))[y, x].astype(int)
-    assert np.ptp(laid) <= 2 and laid.min() > 200
+    assert np.ptp(laid) <= 0.1 * np.ptp(ruddy) and laid.min() > 200
+    grey = _face(driver_points, (60, 60, 60), skin=(180, 180, 180))  # ... while a dark inside takes CAST of it
+    dark = paste_interior(warm, target_points, cut_driver_mouth(grey, driver_points))[y, x].astype(float)
+    cast = np.subtract(ruddy, np.mean(ruddy))
+    np.testing.assert_allclose(dark - dark.mean(), CAST * cast, atol=1.5)
     bright = _face(driver_points, (100, 100, 100), skin=(255, 255, 255))  # a gain below GAIN[0] is clipped
     clipped = paste_interior(target, target_points, cut_driver_mouth(bright, driver_points))
-    assert clipped[y, x].min() >= int(100 * GAIN[0]) - 1
+    assert clipped[y, x].mean() >= 100 * GAIN[0] - 1  # in grey: the cast adds nothing to it
 
 
 def test_a_closed_mouth_is_left_as_it_is():
@@ -113,3 +118,36 @@ def test_lip_affine_recovers_an_affine_map():
     matrix = np.array([[1.2, 0.1, 5.0], [-0.2, 0.9, -3.0]])
     target = source @ matrix[:, :2].T + matrix[:, 2]
     np.testing.assert_allclose(lip_affine(source, target), matrix, atol=1e-9)
+
+
+def _ring_sample(size: int = 48) -> tuple[np.ndarray, np.ndarray]:
+    """Outer lips (size, size) bool: a disc in the middle, with a skin ring around it."""
+    lips = np.zeros((size, size), np.uint8)
+    cv2.circle(lips, (size // 2, size // 2), size // 4, 1, -1)
+    return lips.astype(bool), np.zeros((size, size, 3), np.float32)
+
+
+def test_a_crisp_driver_is_softened_to_the_target_sharpness():
+    lips, region = _ring_sample()
+    rng = np.random.default_rng(0)
+    texture = rng.uniform(0, 255, lips.shape).astype(np.float32)  # fine detail
+    region[:] = cv2.GaussianBlur(texture, (0, 0), 2.0)[..., None] * 0.5 + 60  # a soft video
+    crisp = np.repeat(texture[..., None] * 0.5 + 60, 3, axis=-1)
+    laplacian = lambda image: float(cv2.Laplacian(image.mean(axis=-1), cv2.CV_32F, ksize=1).std())
+    matched = match_camera(crisp, region, lips, 4)
+    assert laplacian(matched) <= 1.2 * laplacian(region) < 0.5 * laplacian(crisp)
+    as_sharp = match_camera(region.copy(), region, lips, 4)  # as sharp already: not blurred
+    assert laplacian(as_sharp) == pytest.approx(laplacian(region), rel=0.02)
+
+
+def test_highlights_brighter_than_the_target_are_softened():
+    lips, region = _ring_sample()
+    rng = np.random.default_rng(1)
+    region[:] = rng.uniform(80, 100, lips.shape)[..., None]  # a dim face, with fine grain (sharper than the teeth)
+    glare = np.full(region.shape, 90, np.float32)
+    glare[20:28, 16:32] = 250  # the driver's white teeth, in a room as bright as the target's
+    matched = match_camera(glare, region, lips, 4)
+    top = float(np.percentile(region[..., 0], 99)), float(region.max())  # the target's brightest, about
+    teeth = matched[24, 24]
+    assert np.ptp(teeth) == 0 and top[0] + KNEE * (250 - top[0]) - 1 <= teeth[0] <= top[1] + KNEE * (250 - top[1]) + 1
+    assert np.abs(matched[2, 2] - glare[2, 2]).max() < 1  # the rest as it was
