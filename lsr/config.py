@@ -256,8 +256,7 @@ class ReenactConfig:
     a mouth generator, else nearest. Compared by `lsr eval --mouths`."""
     mouth_interior: Literal["driver", "shots"] = "driver"
     """Inside an open mouth: driver = the driver frame's own cavity, teeth and tongue, laid inside the target's inner
-    lips, as if the source's camera had filmed it (no sharper than the synthesis, its light and half its colour cast
-    from the skin around the lips, its highlights softened; a video or image driver; the teeth are the driver's);
+    lips, lit and tinted as the skin around them (a video or image driver; the teeth are the driver's);
     shots = what --mouth gives (the shots' insides, stretched where none is as open). Compared by `lsr eval
     --mouth-interiors`."""
     eyes: Literal["drawn", "blend"] = "blend"

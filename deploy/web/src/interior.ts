@@ -2,13 +2,12 @@
 // interior_strength, lip_affine, paste_interior), as the live session finishes a frame with mouth_interior "driver".
 // The driver's frame around its lips is cut where the frame is (the tracker's worker, or this thread), mapped onto
 // the target by the affine fit of the target's 20 lip points to the driver's (bicubic, as cv2.warpAffine with
-// WARP_INVERSE_MAP), made to look as if the target's camera had filmed it (matchCamera: no sharper than the
-// synthesis, its brightness and half its colour cast from the skin around the lips, its highlights softened above
-// the target's own), and laid inside the target's inner lips.
+// WARP_INVERSE_MAP), lit as the target is (matchLight: its brightness and, away from its highlights, half its
+// colour cast from the skin around the lips), and laid inside the target's inner lips.
 
 import { pointBox, polygonMask } from "./mouth.js";
 import { estimateHeadPose } from "./pose.js";
-import { dilateEllipse, gaussianBlurF32, reflect101, roundHalfEven, warpAffineCubic } from "./remap.js";
+import { dilateEllipse, gaussianBlurF32, roundHalfEven, warpAffineCubic } from "./remap.js";
 import { finite, flat, interOcularDistance, mouthOpening } from "./retarget.js";
 import { Affine, Tensor, tensor } from "./tensor.js";
 
@@ -18,11 +17,8 @@ export const RING = 0.12;
 export const GAIN: [number, number] = [0.6, 1.6];
 export const FEATHER = 0.012;
 export const TURN: [number, number] = [35.0, 50.0];
-export const BLURS = [0.5, 0.75, 1.0, 1.5, 2.0, 3.0];
 export const CAST = 0.5;
 export const FADE = 2.0;
-export const TOP = 99.0;
-export const KNEE = 0.3;
 
 const f32 = Math.fround;
 
@@ -96,76 +92,39 @@ export function lipAffine(from: Tensor | ArrayLike<number>, to: Tensor | ArrayLi
   return [...solve(atx), ...solve(aty)] as Affine;
 }
 
-/** _detail: the spread (float64) of the 3 x 3 Laplacian (reflect-101 border, as cv2.Laplacian ksize 1) of the
- * grey of `image` ((h, w, 3) float32, grey = the float32 mean of its channels) over `mask`. */
-function detail(image: Float32Array, w: number, h: number, mask: Uint8Array): number {
-  const grey = new Float32Array(w * h);
-  for (let k = 0; k < grey.length; k++) grey[k] = f32(f32(f32(image[3 * k] + image[3 * k + 1]) + image[3 * k + 2]) / 3);
-  let sum = 0, squares = 0, count = 0;
-  for (let y = 0; y < h; y++) {
-    const up = reflect101(y - 1, h) * w, down = reflect101(y + 1, h) * w;
-    for (let x = 0; x < w; x++) {
-      if (!mask[y * w + x]) continue;
-      const left = reflect101(x - 1, w), right = reflect101(x + 1, w);
-      const value = f32(grey[up + x] + grey[y * w + left] + grey[y * w + right] + grey[down + x] - 4 * grey[y * w + x]);
-      sum += value; squares += value * value; count++;
-    }
-  }
-  if (!count) return NaN;
-  const mean = sum / count;
-  return Math.sqrt(Math.max(squares / count - mean * mean, 0));
-}
-
 /** np.percentile (linear) of `values`. */
 function percentile(values: Float32Array, q: number): number {
   const sorted = Float64Array.from(values).sort(), at = (q / 100) * (sorted.length - 1), low = Math.floor(at);
   return low + 1 < sorted.length ? sorted[low] + (sorted[low + 1] - sorted[low]) * (at - low) : sorted[low];
 }
 
-/** match_camera: the driver's mapped patch `warped` ((h, w, 3) float32) as if the target's camera had filmed it,
- * against `region`, the synthesis there, whose outer lips cover `lips` ((h, w) 0/1) with a skin ring `ring` pixels
- * wide around them: blurred by the first of BLURS that leaves it no sharper than the synthesis over the lips and
- * ring, one gain for the ring's brightness (clipped to GAIN), CAST of the rings' colour-cast difference fading out
- * toward the highlights (FADE), and its highlights above the synthesis' TOP percentile softened by KNEE. */
-export function matchCamera(warped: Float32Array, region: Float32Array, lips: Uint8Array, w: number, h: number,
-                            ring: number): Float32Array {
+/** match_light: the driver's mapped patch `warped` ((h, w, 3) float32) lit as the target is, against `region`, the
+ * synthesis there, whose outer lips cover `lips` ((h, w) 0/1) with a skin ring `ring` pixels wide around them: one
+ * gain for the ring's brightness (clipped to GAIN), then CAST of the rings' colour-cast difference, fading out
+ * toward the synthesis' brightest there (FADE); the patch as it is where there is no ring. */
+export function matchLight(warped: Float32Array, region: Float32Array, lips: Uint8Array, w: number, h: number,
+                           ring: number): Float32Array {
   const grown = dilateEllipse(lips, w, h, ring);
-  const wanted = detail(region, w, h, grown);
-  let result = warped;
-  for (const sigma of BLURS) {
-    if (detail(result, w, h, grown) <= wanted) break;
-    result = gaussianBlurF32(warped, w, h, 3, sigma);
-  }
-  result = Float32Array.from(result);
-  const brightest: number[] = [];
-  for (let k = 0; k < w * h; k++) {
-    if (grown[k]) brightest.push(Math.max(region[3 * k], region[3 * k + 1], region[3 * k + 2]));
-  }
-  const top = f32(percentile(Float32Array.from(brightest), TOP)), knee = f32(KNEE), over = f32(Math.max(top, 1));
-  const means = [[0, 0, 0], [0, 0, 0]];
+  const means = [[0, 0, 0], [0, 0, 0]], brightest: number[] = [];
   let skin = 0;
   for (let k = 0; k < w * h; k++) {
-    if (!grown[k] || lips[k]) continue;
-    for (let c = 0; c < 3; c++) { means[0][c] += region[3 * k + c]; means[1][c] += result[3 * k + c]; }
+    if (!grown[k]) continue;
+    brightest.push(Math.max(region[3 * k], region[3 * k + 1], region[3 * k + 2]));
+    if (lips[k]) continue;
+    for (let c = 0; c < 3; c++) { means[0][c] += region[3 * k + c]; means[1][c] += warped[3 * k + c]; }
     skin++;
   }
-  if (skin) {
-    const [target, driven] = means.map((m) => m.map((v) => v / skin));
-    const grey = [target, driven].map((m) => (m[0] + m[1] + m[2]) / 3);
-    const gain = Math.min(Math.max((grey[0] + 1) / (grey[1] + 1), GAIN[0]), GAIN[1]), g = f32(gain);
-    const cast = [0, 1, 2].map((c) => f32(CAST * ((target[c] - grey[0]) - gain * (driven[c] - grey[1]))));
-    for (let k = 0; k < w * h; k++) {
-      for (let c = 0; c < 3; c++) result[3 * k + c] = f32(result[3 * k + c] * g);
-      const mean = f32(f32(f32(result[3 * k] + result[3 * k + 1]) + result[3 * k + 2]) / 3);
-      const fade = Math.min(Math.max(f32(FADE * f32(1 - f32(mean / over))), 0), 1);
-      for (let c = 0; c < 3; c++) result[3 * k + c] = f32(result[3 * k + c] + f32(fade * cast[c]));
-    }
-  }
+  if (!skin) return warped;
+  const [target, driven] = means.map((m) => m.map((v) => v / skin));
+  const grey = [target, driven].map((m) => (m[0] + m[1] + m[2]) / 3);
+  const gain = Math.min(Math.max((grey[0] + 1) / (grey[1] + 1), GAIN[0]), GAIN[1]), g = f32(gain);
+  const cast = [0, 1, 2].map((c) => f32(CAST * ((target[c] - grey[0]) - gain * (driven[c] - grey[1]))));
+  const top = f32(Math.max(percentile(Float32Array.from(brightest), 99.0), 1)), result = new Float32Array(warped.length);
   for (let k = 0; k < w * h; k++) {
-    const peak = Math.max(result[3 * k], result[3 * k + 1], result[3 * k + 2]);
-    if (!(peak > top)) continue;
-    const scale = f32(f32(top + f32(f32(peak - top) * knee)) / Math.max(peak, f32(1e-3)));
-    for (let c = 0; c < 3; c++) result[3 * k + c] = f32(result[3 * k + c] * scale);
+    for (let c = 0; c < 3; c++) result[3 * k + c] = f32(warped[3 * k + c] * g);
+    const mean = f32(f32(f32(result[3 * k] + result[3 * k + 1]) + result[3 * k + 2]) / 3);
+    const fade = Math.min(Math.max(f32(FADE * f32(1 - f32(mean / top))), 0), 1);
+    for (let c = 0; c < 3; c++) result[3 * k + c] = f32(result[3 * k + c] + f32(fade * cast[c]));
   }
   return result;
 }
@@ -199,7 +158,7 @@ export function pasteInterior(image: Tensor, landmarks: Tensor, mouth: DriverMou
     region.set(source.subarray(3 * ((y0 + y) * width + x0), 3 * ((y0 + y) * width + x1)), 3 * y * w);
   }
   for (let i = 0; i < mapped.length; i++) mapped[i] = warped[i];
-  const laid = matchCamera(mapped, region, lipArea, w, h, ring);
+  const laid = matchLight(mapped, region, lipArea, w, h, ring);
   const inner = polygonMask(local, 12, 20, 0, 0, w, h), unit = f32(1.0 / 255.0), coverage = new Float32Array(w * h);
   for (let i = 0; i < coverage.length; i++) coverage[i] = f32(inner[i] * unit);
   const weight = gaussianBlurF32(coverage, w, h, 1, sigma), s = f32(strength);
