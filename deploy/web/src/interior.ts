@@ -119,7 +119,8 @@ export function matchLight(warped: Float32Array, region: Float32Array, lips: Uin
   const grey = [target, driven].map((m) => (m[0] + m[1] + m[2]) / 3);
   const gain = Math.min(Math.max((grey[0] + 1) / (grey[1] + 1), GAIN[0]), GAIN[1]), g = f32(gain);
   const cast = [0, 1, 2].map((c) => f32(CAST * ((target[c] - grey[0]) - gain * (driven[c] - grey[1]))));
-  const top = f32(Math.max(percentile(Float32Array.from(brightest), 99.0), 1)), result = new Float32Array(warped.length);
+  const top = f32(Math.max(percentile(Float32Array.from(brightest), 99.0), 1));
+  const result = new Float32Array(warped.length);
   for (let k = 0; k < w * h; k++) {
     for (let c = 0; c < 3; c++) result[3 * k + c] = f32(warped[3 * k + c] * g);
     const mean = f32(f32(f32(result[3 * k] + result[3 * k + 1]) + result[3 * k + 2]) / 3);
