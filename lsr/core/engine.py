@@ -48,13 +48,13 @@ from lsr.core.sources import (
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.eyelids import LOOK_AHEAD
 from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
+from landmarks.mouth_interior import DriverMouth, cut_driver_mouth, paste_interior
+from lsr.core.backend import SynthesisBackend
 from lsr.core.overlap import finish_behind, prefetch
 from lsr.core.scene_source import paste_into_driver, paste_into_scene
-from lsr.core.backend import SynthesisBackend
 from lsr.core.images import from_network, square_resize, to_network
 from lsr.core.parts import (EYES, MOUTH_INTERIORS, MOUTHS, DriverGaze, draws_mouth, finish_eyes, finish_mouth,
                              subject_irises)
-from landmarks.mouth_interior import DriverMouth, cut_driver_mouth, paste_interior
 
 Mode = Literal["auto", "relative", "absolute"]
 Scene = Literal["source", "driver"]

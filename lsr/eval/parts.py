@@ -383,15 +383,12 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
     return lines
 
 
-def driver_mouth_inputs(sequences: Sequence[Any], methods: Sequence[Any]) -> list[dict[str, list]]:
-    """What a method that takes the driver's mouth interior is given cross-identity (it ``uses_driver_mouths``):
-    one ``{"driver_mouths": T x DriverMouth or None}`` per ``cross.CrossSequence``, cut from the driving frames at
-    the driver's own points (``landmarks.mouth_interior.cut_driver_mouth``, as ``lsr reenact`` cuts them);
-    empty dicts when no method takes them."""
+def driver_mouth_inputs(sequences: Sequence[Any]) -> list[dict[str, list]]:
+    """What a method that takes the driver's mouth interior is given cross-identity
+    (``protocol.takes_driver_mouths``): one ``{"driver_mouths": T x DriverMouth or None}`` per ``cross.CrossSequence``, cut from the driving frames at
+    the driver's own points (``landmarks.mouth_interior.cut_driver_mouth``, as ``lsr reenact`` cuts them)."""
     from landmarks.mouth_interior import cut_driver_mouth
 
-    if not any(getattr(method, "uses_driver_mouths", False) for method in methods):
-        return [{} for _ in sequences]
     return [{"driver_mouths": [cut_driver_mouth(frame, points) for frame, points in
                                zip(sequence.driver_frames, sequence.driver_landmarks)]} for sequence in sequences]
 

@@ -112,6 +112,12 @@ def takes_gazes(method: Any) -> bool:
     return bool(getattr(method, "uses_gazes", False))
 
 
+def takes_driver_mouths(method: Any) -> bool:
+    """The method is passed ``driver_mouths=`` cross-identity, the driving frames' open mouths
+    (``landmarks.mouth_interior.DriverMouth``): it ``uses_driver_mouths`` (the driver's mouth interior)."""
+    return bool(getattr(method, "uses_driver_mouths", False))
+
+
 def gives_meshes(detector: Any) -> bool:
     """Whether ``detector`` finds face meshes (``landmarks.mesh_track.MeshDetector`` has ``meshes``)."""
     return callable(getattr(detector, "meshes", None))
@@ -508,7 +514,8 @@ def run_protocol(
             # what drawn eyes get, self and cross (per driver)
             gaze_inputs, cross_gazes = parts.gaze_inputs(targets, target_landmarks, [s for s, _ in sequences]) if any(
                 takes_gazes(method) for method in methods) else ({}, [{} for _ in sequences])
-            cross_mouths = parts.driver_mouth_inputs([s for s, _ in sequences], methods)  # the driving frames' mouths
+            cross_mouths = parts.driver_mouth_inputs([s for s, _ in sequences]) if any(
+                takes_driver_mouths(method) for method in methods) else [{} for _ in sequences]  # the drivers' mouths
             mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
             cross_meshes: list[dict[str, np.ndarray]] = [{} for _ in sequences]  # per driver, made once
             if any(takes_meshes(method) for method in methods) and identity.has_meshes:
@@ -568,7 +575,7 @@ def run_protocol(
                     if takes_meshes(model):
                         extra_inputs.update(meshes_of)
                     extra_inputs.update({**(gazes_of if takes_gazes(model) else {}),
-                                         **(mouths_of if getattr(model, "uses_driver_mouths", False) else {})})
+                                         **(mouths_of if takes_driver_mouths(model) else {})})
                     crossed = model.reenact(shots, shot_landmarks, sequence.targets, **extra_inputs)
                     _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))
                     _check_outputs(crossed, len(sequence.targets), targets.shape[1:], name)

@@ -31,7 +31,6 @@ const JAW_DROP: [number, number][] = [[65, 1.0], [66, 1.0], [67, 1.0], [55, 1.0]
 // points (0, 1) measure the gap
 const LIDS_68: [number, number, number[], number[]][] = [[36, 39, [37, 38], [41, 40]], [42, 45, [43, 44], [47, 46]]];
 
-/** A Tensor's values, or the values themselves. */
 /** A tensor's flat values, or the values themselves. */
 export function flat(points: Tensor | ArrayLike<number>): ArrayLike<number> {
   return "shape" in points ? points.data : points;
