@@ -123,7 +123,8 @@ def write_site(weights: Path, out: Path, k: int | None = None) -> WebSite:
             "resolution": int(backend.resolution), "crop_size": int(reenactor.crop_size),
             "references": int(reenactor.warp_references), "latent_dim": len(person["layout_latent"]),
             "layout": backend.layout_kind, "layout_palette": LAYOUT_PALETTE.tolist(), "layout_legend": legend,
-            "mouth": reenactor.mouth, "mouth_interior": reenactor.mouth_interior, "k": person["k"],
+            "mouth": reenactor.mouth, "mouth_interior": reenactor.mouth_interior, "lids": reenactor.lids,
+            "k": person["k"],
         })
         (temp / "NOTICE.md").write_text(_notice())
         for path in temp.rglob("*"):  # readable by any static server

@@ -193,6 +193,7 @@ def make_reenactor(cfg: ReenactConfig) -> ReenactorBase:
         reenactor.mouth = cfg.mouth
     reenactor.eyes = cfg.eyes
     reenactor.mouth_interior = cfg.mouth_interior
+    reenactor.lids = cfg.lids
     return reenactor
 
 

@@ -48,12 +48,13 @@ from lsr.core.sources import (
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.eyelids import LOOK_AHEAD
 from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
+from landmarks.driver_eyes import DriverEyes, cut_driver_eyes, paste_eyes
 from landmarks.mouth_interior import DriverMouth, cut_driver_mouth, paste_interior
 from lsr.core.backend import SynthesisBackend
 from lsr.core.overlap import finish_behind, prefetch
 from lsr.core.scene_source import paste_into_driver, paste_into_scene
 from lsr.core.images import from_network, square_resize, to_network
-from lsr.core.parts import (EYES, MOUTH_INTERIORS, MOUTHS, DriverGaze, draws_mouth, finish_eyes, finish_mouth,
+from lsr.core.parts import (EYES, LIDS, MOUTH_INTERIORS, MOUTHS, DriverGaze, draws_mouth, finish_eyes, finish_mouth,
                              subject_irises)
 
 Mode = Literal["auto", "relative", "absolute"]
@@ -120,6 +121,8 @@ class ReenactedFrame:
     """(2, 2) float64: the target's gaze (``landmarks.iris.gaze_offsets``), when the eyes are drawn."""
     driver_mouth: DriverMouth | None = None
     """The driver frame's open mouth, whose interior the synthesis takes (``mouth_interior`` "driver")."""
+    driver_eyes: DriverEyes | None = None
+    """The driver frame's shut eyes, which the synthesis takes (``lids`` "driver")."""
 
 
 @dataclasses.dataclass
@@ -166,6 +169,7 @@ class ReenactorBase:
         self._mouth: str = "drawn" if draws_mouth(backend) else "nearest"
         self._eyes: str = "blend"
         self._mouth_interior: str = "driver"
+        self._lids: str = "driver"
         self.subject: Subject | None = None
         self.last_stats = ReenactStats()
 
@@ -198,6 +202,19 @@ class ReenactorBase:
         if interior not in MOUTH_INTERIORS:
             raise ValueError(f"mouth_interior must be one of {MOUTH_INTERIORS}, got {interior!r}")
         self._mouth_interior = interior
+
+    @property
+    def lids(self) -> str:
+        """Where the driver shuts its eyes: "driver", its shut lids laid over the synthesis' eyes
+        (``landmarks.driver_eyes``; where the driver is a video or a camera), or "shots", the warped shots' lids
+        lowered alone (``landmarks.eyelids``)."""
+        return self._lids
+
+    @lids.setter
+    def lids(self, lids: str) -> None:
+        if lids not in LIDS:
+            raise ValueError(f"lids must be one of {LIDS}, got {lids!r}")
+        self._lids = lids
 
     @property
     def eyes(self) -> str:
@@ -283,7 +300,7 @@ class ReenactorBase:
     def synthesize_crop(
         self, crop_landmarks: np.ndarray, with_layout: bool = False, latents: tuple[np.ndarray, np.ndarray] | None = None,
         subject: Subject | None = None, crop_mesh: np.ndarray | None = None, gaze: np.ndarray | None = None,
-        driver_mouth: DriverMouth | None = None,
+        driver_mouth: DriverMouth | None = None, driver_eyes: DriverEyes | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Target landmarks (68, 2) in crop pixels -> (synthesis (C, C, 3) uint8, landmark image (S, S, 3) uint8, layout).
 
@@ -295,20 +312,23 @@ class ReenactorBase:
         subject: an encoded subject other than the cached one (a live stream's own, ``lsr.core.live``).
         gaze: the target's (2, 2) ``landmarks.iris.gaze_offsets``, for ``eyes`` "drawn".
         driver_mouth: the driver frame's mouth (``landmarks.mouth_interior.cut_driver_mouth``), for
-        ``mouth_interior`` "driver".
+        ``mouth_interior`` "driver". driver_eyes: the driver frame's shut eyes (``landmarks.driver_eyes.cut_driver_eyes``),
+        for ``lids`` "driver".
         """
         landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject, crop_mesh)
-        image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks, subject, gaze, driver_mouth)
+        image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks, subject, gaze, driver_mouth,
+                                               driver_eyes)
         return image, landmark_image, layout
 
     def synthesize_inputs(self, inputs: dict[str, np.ndarray], with_layout: bool = False,
                           crop_landmarks: np.ndarray | None = None, subject: Subject | None = None,
-                          gaze: np.ndarray | None = None, driver_mouth: DriverMouth | None = None
-                          ) -> tuple[np.ndarray, np.ndarray | None]:
+                          gaze: np.ndarray | None = None, driver_mouth: DriverMouth | None = None,
+                          driver_eyes: DriverEyes | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """``network_inputs``' dict -> (synthesis (C, C, 3) uint8, layout (C_l, S, S) float32 or None). ``crop_landmarks``
         given, ``mouth`` "nearest" or "drawn": the mouth of ``subject``'s nearest warped shot as
         ``landmarks.nearest_mouth`` says; "drawn": then redrawn by the mouth generator (``lsr.core.parts``); and with
-        a ``gaze``, the eyes as ``eyes`` says; with a ``driver_mouth``, the interior as ``mouth_interior`` says."""
+        a ``gaze``, the eyes as ``eyes`` says; with a ``driver_mouth``, the interior as ``mouth_interior`` says; with
+        ``driver_eyes``, the shut lids as ``lids`` says."""
         image, layout = self.backend.synthesize(
             inputs["landmark_image"], inputs["layout_latent"], inputs["style_latent"], with_layout,
             *((inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()),
@@ -320,6 +340,8 @@ class ReenactorBase:
                                  self.backend)
         if crop_landmarks is not None and driver_mouth is not None and self.mouth_interior == "driver":
             image = paste_interior(image, crop_landmarks, driver_mouth)
+        if crop_landmarks is not None and driver_eyes is not None and self.lids == "driver":
+            image = paste_eyes(image, crop_landmarks, driver_eyes)
         if crop_landmarks is not None and gaze is not None and self.eyes == "drawn":
             image = finish_eyes(image, self.eyes, crop_landmarks, gaze, (subject or self._require_subject()).irises[0])
         return image, None if layout is None else np.asarray(layout[0], np.float32)
@@ -453,7 +475,8 @@ class ReenactorBase:
 
     def _prepare(self, index: int, driver_frame: np.ndarray | None, target: np.ndarray, stats: ReenactStats,
                  target_mesh: np.ndarray | None = None, finish: Callable | None = None, image: np.ndarray | None = None,
-                 gaze: np.ndarray | None = None, driver_mouth: DriverMouth | None = None) -> _Prepared:
+                 gaze: np.ndarray | None = None, driver_mouth: DriverMouth | None = None,
+                 driver_eyes: DriverEyes | None = None) -> _Prepared:
         """A face frame made ready for the network (on the preparing thread): the target's landmark image and, for a
         warp-guided model, its nearest shots warped onto it. finish: the frame's paste-back (run behind the loop);
         image: the frame's picture until then (None: the synthesis)."""
@@ -461,7 +484,7 @@ class ReenactorBase:
         landmark_image, inputs = self.network_inputs(target, crop_mesh=target_mesh)
         stats.add("warps", time.perf_counter() - started)
         return _Prepared(ReenactedFrame(index, image, True, driver_frame, landmark_image, None, None, target, gaze,
-                                        driver_mouth), inputs, finish)
+                                        driver_mouth, driver_eyes), inputs, finish)
 
     def _synthesized(self, items, with_layout: bool, stats: ReenactStats) -> Iterator[ReenactedFrame | Callable]:
         """The network on each prepared frame, here (the items come from the preparing thread); the frames, or their
@@ -477,7 +500,8 @@ class ReenactorBase:
                     started, frame = time.perf_counter(), item.frame
                     frame.synthesis, frame.layout = self.synthesize_inputs(item.inputs, with_layout, frame.landmarks,
                                                                            gaze=frame.gaze,
-                                                                           driver_mouth=frame.driver_mouth)
+                                                                           driver_mouth=frame.driver_mouth,
+                                                                           driver_eyes=frame.driver_eyes)
                     stats.add("synthesis", time.perf_counter() - started)
                     frame.image = frame.synthesis if frame.image is None else frame.image
                     item = frame if item.finish is None else functools.partial(item.finish, frame)
@@ -485,7 +509,7 @@ class ReenactorBase:
 
     def _into_scene(self, scenes, index: int, driver_frame: np.ndarray | None, target: np.ndarray,
                     stats: ReenactStats, target_mesh: np.ndarray | None = None, gaze: np.ndarray | None = None,
-                    driver_mouth: DriverMouth | None = None) -> _Prepared:
+                    driver_mouth: DriverMouth | None = None, driver_eyes: DriverEyes | None = None) -> _Prepared:
         """The target (anchor crop pixels; its mesh, when there is one) prepared at the next scene frame's head pose,
         its finisher compositing the synthesis into that scene frame."""
         scene = next(scenes)
@@ -494,7 +518,7 @@ class ReenactorBase:
             target_mesh = scene.place_mesh(target_mesh)
         return self._prepare(index, driver_frame, target, stats, target_mesh,
                              functools.partial(paste_into_scene, scene=scene, stats=stats), scene.image, gaze,
-                             driver_mouth)
+                             driver_mouth, driver_eyes)
 
     def _landmark_driver(self, driver, info: DriverInfo, relative: bool, smooth: bool, landmark_space, landmark_size,
                          stats: ReenactStats, scenes=None) -> Iterator[ReenactedFrame | _Prepared]:
@@ -543,7 +567,7 @@ class ReenactorBase:
             raw_points = points
             if points is not None and one_euro is not None:
                 points = one_euro(points)
-            matrix = crop_landmarks = crop_mesh = None
+            matrix = crop_landmarks = crop_mesh = lids = None
             if points is not None and np.isfinite(points).all():
                 matrix = crop_transform(points, size)
                 crop_landmarks = transform_landmarks(points, matrix)
@@ -557,6 +581,8 @@ class ReenactorBase:
             gaze = None if gazes is None or crop_landmarks is None else gazes(frame, raw_points, irises)
             mouth = (cut_driver_mouth(frame, raw_points) if crop_landmarks is not None
                      and self.mouth_interior == "driver" else None)  # the points as detected: the pixels' own
+            eyes = (cut_driver_eyes(frame, raw_points, lids[0]) if crop_landmarks is not None and lids is not None
+                    and self.lids == "driver" else None)  # against the driver's lids at rest (relative motion only)
             stats.add("landmarks", time.perf_counter() - started)
             if crop_landmarks is None:
                 stats.no_face += 1
@@ -570,11 +596,11 @@ class ReenactorBase:
                 continue
             stats.frames += 1
             if scenes is not None:
-                yield self._into_scene(scenes, index, frame, crop_landmarks, stats, crop_mesh, gaze, mouth)
+                yield self._into_scene(scenes, index, frame, crop_landmarks, stats, crop_mesh, gaze, mouth, eyes)
             else:  # paste_back: into the driver's own frame (its head and scene around the face), behind the loop
                 yield self._prepare(index, frame, crop_landmarks, stats, crop_mesh, functools.partial(
                     paste_into_driver, points=points, matrix=matrix, stats=stats) if paste_back else None, gaze=gaze,
-                    driver_mouth=mouth)
+                    driver_mouth=mouth, driver_eyes=eyes)
             index += 1
         if stats.frames and stats.no_face == stats.frames:  # a writer that is still open discards its file
             raise NoFaceError(f"no face found in any of the {stats.frames} frame(s) of the driver {info.path}; "

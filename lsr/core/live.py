@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from landmarks.mesh_retarget import DriverReference
+from landmarks.driver_eyes import DriverEyes, cut_driver_eyes
 from landmarks.mouth_interior import DriverMouth, cut_driver_mouth
 from lsr.core.engine import ReenactorBase, Subject
 from lsr.core.parts import DriverGaze
@@ -122,6 +123,7 @@ class LiveSession:
         gaps, _ = self.reference.lids(points)  # as detected; a camera has nothing ahead
         gaze = None if self.gazes is None else self.gazes(frame, points, getattr(self.tracker, "irises", None))
         mouth = cut_driver_mouth(frame, points) if self.reenactor.mouth_interior == "driver" else None
+        eyes = cut_driver_eyes(frame, points, gaps) if self.reenactor.lids == "driver" else None
         if self.one_euro is not None:
             if self._last_time is not None and now > self._last_time:
                 self.one_euro.fps = float(np.clip(1.0 / (now - self._last_time), MIN_FPS, MAX_FPS))
@@ -130,13 +132,13 @@ class LiveSession:
         crop_landmarks = transform_landmarks(points, crop_transform(points, self.reenactor.crop_size))
         self.reference.start(crop_landmarks)
         return self._inputs(retarget_driving(crop_landmarks, self.reference.landmarks,
-                                             self.subject.reference_landmarks, gaps), started, gaze, mouth)
+                                             self.subject.reference_landmarks, gaps), started, gaze, mouth, eyes)
 
     def _inputs(self, target: np.ndarray, started: float, gaze: np.ndarray | None = None,
-                driver_mouth: DriverMouth | None = None) -> Prepared:
+                driver_mouth: DriverMouth | None = None, driver_eyes: DriverEyes | None = None) -> Prepared:
         landmark_image, inputs = self.reenactor.network_inputs(target, subject=self.subject)
         return Prepared(np.asarray(target, np.float64), landmark_image, inputs, time.perf_counter() - started,
-                        self.frames, gaze, driver_mouth)
+                        self.frames, gaze, driver_mouth, driver_eyes)
 
     def render(self, target: np.ndarray) -> LiveFrame:
         """Target landmarks (68, 2) in the anchor's crop pixels (e.g. the anchor's own, edited by
@@ -155,7 +157,8 @@ class LiveSession:
         """The second half: the network, then the composite into the scene and the synthetic mark."""
         started = time.perf_counter()
         synthesis, layout = self.reenactor.synthesize_inputs(prepared.inputs, self.with_layout, prepared.target,
-                                                             self.subject, prepared.gaze, prepared.driver_mouth)
+                                                             self.subject, prepared.gaze, prepared.driver_mouth,
+                                                             prepared.driver_eyes)
         image = synthesis if self.scene is None else self.scene.composite(prepared.target, synthesis)
         self.faces += 1
         self.last = LiveFrame(self._mark(image), True, layout, prepared.landmark_image,
@@ -178,3 +181,5 @@ class Prepared:
     """(2, 2) where the target looks (drawn eyes, ``lsr.core.parts.DriverGaze``), or None."""
     driver_mouth: DriverMouth | None = None
     """The camera frame's open mouth (``landmarks.mouth_interior``), or None."""
+    driver_eyes: DriverEyes | None = None
+    """The camera frame's shut eyes (``landmarks.driver_eyes``), or None."""

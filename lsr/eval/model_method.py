@@ -70,7 +70,7 @@ class LsrModelMethod:
     def __init__(self, weights: str | os.PathLike, *, device: str = "cpu", finetune_steps: int = 0,
                  finetune_lr: float = DEFAULT_FINETUNE_LR, name: str | None = None, reenactor=None,
                  reference_warp: str = "mesh", mouth: str | None = None, eyes: str | None = None,
-                 mouth_interior: str | None = None) -> None:
+                 mouth_interior: str | None = None, lids: str | None = None) -> None:
         """reenactor: a ready ``ReenactorBase`` (e.g. ``deploy.runtime.OnnxReenactor`` over the bundle at
         ``weights``); None = load the torch model from ``weights``. reference_warp: how a warp-guided model's
         references are warped ("mesh": over the face mesh, given the meshes; "tps": the 68-point TPS). mouth: a
@@ -78,7 +78,9 @@ class LsrModelMethod:
         "blend": the network's; None: the model's default, ``lsr.core.engine.ReenactorBase.mouth``). eyes: "drawn"
         (one iris where the target looks: the protocol then passes ``target_gazes``) or "blend" (None: the model's
         default, ``ReenactorBase.eyes``). mouth_interior: "driver" (the driver frame's inside an open mouth:
-        cross-identity, the protocol then passes ``driver_mouths``) or "shots" (None: the model's default)."""
+        cross-identity, the protocol then passes ``driver_mouths``) or "shots" (None: the model's default). lids:
+        "driver" (the driver frame's shut eyes: cross-identity, the protocol then passes ``driver_eyes``) or "shots"
+        (None: the model's default)."""
         self.weights = Path(weights)
         self.device = device
         self.finetune_steps = finetune_steps
@@ -100,8 +102,11 @@ class LsrModelMethod:
             reenactor.eyes = eyes
         if mouth_interior is not None:
             reenactor.mouth_interior = mouth_interior
+        if lids is not None:
+            reenactor.lids = lids
         self.uses_gazes = reenactor.eyes == "drawn"
         self.uses_driver_mouths = reenactor.mouth_interior == "driver"
+        self.uses_driver_eyes = reenactor.lids == "driver"
         self.needs_target_segmentation = self.variant == "oracle_seg"
         # the protocol then passes the shots' and targets' meshes where it has them (TPS references where not)
         self.uses_meshes = bool(reenactor.warp_references) and reference_warp == "mesh"
@@ -134,13 +139,14 @@ class LsrModelMethod:
     def reenact(self, shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray,
                 target_segmentations: np.ndarray | None = None, shot_meshes: np.ndarray | None = None,
                 target_meshes: np.ndarray | None = None, target_gazes: np.ndarray | None = None,
-                driver_mouths: list | None = None) -> np.ndarray:
+                driver_mouths: list | None = None, driver_eyes: list | None = None) -> np.ndarray:
         """shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (T, 68, 2);
         target_segmentations: (T, S, S) uint8 class ids, ground truth of the targets (``oracle_seg`` only);
         shot_meshes (K, 468, 3), target_meshes (T, 468, 3): face meshes for the references' mesh warp (NaN rows:
         none; that target's references are TPS-warped); target_gazes (T, 2, 2): where each target looks
         (``landmarks.iris.gaze_offsets``; NaN: not found), for drawn eyes; driver_mouths: T x
-        ``landmarks.mouth_interior.DriverMouth`` or None, the driving frames' mouths (cross-identity) -> (T, S, S, 3)
+        ``landmarks.mouth_interior.DriverMouth`` or None, the driving frames' mouths (cross-identity); driver_eyes: T x
+        ``landmarks.driver_eyes.DriverEyes`` or None, the driving frames' shut eyes (cross-identity) -> (T, S, S, 3)
         uint8."""
         check_method_inputs(shots, shot_landmarks, target_landmarks)
         scale = self._encode(shots, shot_landmarks, shot_meshes)
@@ -152,10 +158,11 @@ class LsrModelMethod:
         outputs = []
         gazes = [None] * len(target_landmarks) if target_gazes is None else list(target_gazes)
         mouths = [None] * len(target_landmarks) if driver_mouths is None else list(driver_mouths)
-        for points, mesh, gaze, mouth in zip(target_landmarks, target_meshes, gazes, mouths, strict=True):
+        shut = [None] * len(target_landmarks) if driver_eyes is None else list(driver_eyes)
+        for points, mesh, gaze, mouth, eyes in zip(target_landmarks, target_meshes, gazes, mouths, shut, strict=True):
             crop_mesh = scale_mesh(mesh, scale) if np.isfinite(mesh).all() else None
             image = self.reenactor.synthesize_crop(scale_points(points, scale), crop_mesh=crop_mesh, gaze=gaze,
-                                                   driver_mouth=mouth)[0]
+                                                   driver_mouth=mouth, driver_eyes=eyes)[0]
             outputs.append(_resize(image, size))
         return np.stack(outputs) if outputs else np.zeros((0, size, size, 3), np.uint8)
 
@@ -192,7 +199,8 @@ class LsrModelMethod:
         check_method_inputs(shots, shot_landmarks, shot_landmarks)
         subject = LsrModelMethod(self.weights, device=self.device, name=self.name,
                                  reference_warp=self.reenactor.reference_warp, mouth=self.reenactor.mouth,
-                                 eyes=self.reenactor.eyes, mouth_interior=self.reenactor.mouth_interior)
+                                 eyes=self.reenactor.eyes, mouth_interior=self.reenactor.mouth_interior,
+                                 lids=self.reenactor.lids)
         subject._encode(shots, shot_landmarks)
         from lsr.train.finetune import finetune_reenactor
 

@@ -393,6 +393,19 @@ def driver_mouth_inputs(sequences: Sequence[Any]) -> list[dict[str, list]]:
                                zip(sequence.driver_frames, sequence.driver_landmarks)]} for sequence in sequences]
 
 
+def driver_eye_inputs(sequences: Sequence[Any]) -> list[dict[str, list]]:
+    """What a method that takes the driver's shut eyes is given cross-identity (``protocol.takes_driver_eyes``): one
+    ``{"driver_eyes": T x DriverEyes or None}`` per ``cross.CrossSequence``, cut from the driving frames at the
+    driver's own points against its lids at rest as ``lsr reenact`` keeps them (``landmarks.driver_eyes``,
+    ``landmarks.eyelids.running_reference_gaps``)."""
+    from landmarks.driver_eyes import cut_driver_eyes
+    from landmarks.eyelids import running_reference_gaps
+
+    return [{"driver_eyes": [cut_driver_eyes(frame, points, gaps) for frame, points, gaps in
+                             zip(sequence.driver_frames, sequence.driver_landmarks,
+                                 running_reference_gaps(sequence.driver_landmarks))]} for sequence in sequences]
+
+
 def gaze_inputs(targets: np.ndarray, target_landmarks: np.ndarray, sequences: Sequence[Any]
                 ) -> tuple[dict[str, np.ndarray], list[dict[str, np.ndarray]]]:
     """What a method with drawn eyes is given (``protocol.takes_gazes``): self re-enactment, the hold-outs' own gaze

@@ -118,6 +118,12 @@ def takes_driver_mouths(method: Any) -> bool:
     return bool(getattr(method, "uses_driver_mouths", False))
 
 
+def takes_driver_eyes(method: Any) -> bool:
+    """The method is passed ``driver_eyes=`` cross-identity, the driving frames' shut eyes
+    (``landmarks.driver_eyes.DriverEyes``): it ``uses_driver_eyes`` (the driver's shut lids)."""
+    return bool(getattr(method, "uses_driver_eyes", False))
+
+
 def gives_meshes(detector: Any) -> bool:
     """Whether ``detector`` finds face meshes (``landmarks.mesh_track.MeshDetector`` has ``meshes``)."""
     return callable(getattr(detector, "meshes", None))
@@ -516,6 +522,8 @@ def run_protocol(
                 takes_gazes(method) for method in methods) else ({}, [{} for _ in sequences])
             cross_mouths = parts.driver_mouth_inputs([s for s, _ in sequences]) if any(
                 takes_driver_mouths(method) for method in methods) else [{} for _ in sequences]  # the drivers' mouths
+            cross_eyes = parts.driver_eye_inputs([s for s, _ in sequences]) if any(
+                takes_driver_eyes(method) for method in methods) else [{} for _ in sequences]  # and shut eyes
             mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
             cross_meshes: list[dict[str, np.ndarray]] = [{} for _ in sequences]  # per driver, made once
             if any(takes_meshes(method) for method in methods) and identity.has_meshes:
@@ -567,15 +575,16 @@ def run_protocol(
                         **{key: float(values[row]) for key, values in extra.items()},
                         **part_scores[row], **beyond[row],
                     })
-                for (sequence, driver_segmentations), meshes_of, gazes_of, mouths_of, sequence_judge in zip(
-                        sequences, cross_meshes, cross_gazes, cross_mouths, judges):
+                for (sequence, driver_segmentations), meshes_of, gazes_of, mouths_of, eyes_of, sequence_judge in zip(
+                        sequences, cross_meshes, cross_gazes, cross_mouths, cross_eyes, judges):
                     before = _warp_counts(model)
                     # the oracle sees the driving frames' segmentation, i.e. the driver's own (not retargeted) layout
                     extra_inputs = {"target_segmentations": driver_segmentations} if oracle else {}
                     if takes_meshes(model):
                         extra_inputs.update(meshes_of)
                     extra_inputs.update({**(gazes_of if takes_gazes(model) else {}),
-                                         **(mouths_of if takes_driver_mouths(model) else {})})
+                                         **(mouths_of if takes_driver_mouths(model) else {}),
+                                         **(eyes_of if takes_driver_eyes(model) else {})})
                     crossed = model.reenact(shots, shot_landmarks, sequence.targets, **extra_inputs)
                     _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))
                     _check_outputs(crossed, len(sequence.targets), targets.shape[1:], name)

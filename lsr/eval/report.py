@@ -475,7 +475,8 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
 
         choice = {"reference_warp": cfg.reference_warps[0], "mouth": cfg.mouths[0] if cfg.mouths else None,
                   "eyes": cfg.eyes[0] if cfg.eyes else None,
-                  "mouth_interior": cfg.mouth_interiors[0] if cfg.mouth_interiors else None}
+                  "mouth_interior": cfg.mouth_interiors[0] if cfg.mouth_interiors else None,
+                  "lids": cfg.lids[0] if cfg.lids else None}
         models = [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps,
                                  finetune_lr=cfg.finetune_lr, **choice) for folder in cfg.weights]
         methods += label_by_variant(models, cfg.weights)
@@ -484,6 +485,7 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
         extras += [({**choice, "mouth": other}, f"+{other}-mouth") for other in cfg.mouths[1:]]
         extras += [({**choice, "eyes": other}, f"+{other}-eyes") for other in cfg.eyes[1:]]
         extras += [({**choice, "mouth_interior": other}, f"+{other}-interior") for other in cfg.mouth_interiors[1:]]
+        extras += [({**choice, "lids": other}, f"+{other}-lids") for other in cfg.lids[1:]]
         for options, suffix in extras:
             for model in models:
                 if model.reenactor.warp_references:

@@ -154,6 +154,20 @@ def test_a_video_driver_gives_each_open_mouth_frame_its_interior(reenactor, tmp_
         reenactor.mouth_interior = "driver"
 
 
+def test_a_video_driver_gives_its_blink_its_shut_lids(reenactor, tmp_path):
+    from lsr.data.synth import render_video
+
+    clip = write_clip(tmp_path / "blink.mp4", list(render_video(44, 8, 256).frames), audio=False)  # shut at 2-3
+    out = list(reenactor(clip))
+    assert out[0].driver_eyes is None and out[7].driver_eyes is None  # open: nothing cut
+    assert out[2].driver_eyes is not None and out[2].driver_eyes.patch.ndim == 3  # landmarks.driver_eyes
+    reenactor.lids = "shots"
+    try:
+        assert all(frame.driver_eyes is None for frame in reenactor(clip))
+    finally:
+        reenactor.lids = "driver"
+
+
 def test_bf16_error_is_reported(reenactor, capsys):
     error = reenactor.precision_error(list(reenactor.subject.shots.landmarks), "bf16")
     assert error.frames == 2 and 0 < error.max_abs < 1.0 and error.mean_abs <= error.max_abs

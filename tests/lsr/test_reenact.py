@@ -571,3 +571,12 @@ def test_reenact_mouth_interior_option_reaches_the_reenactor(weights):
     assert ReenactConfig().mouth_interior == "driver"
     assert make_reenactor(ReenactConfig(weights=weights)).mouth_interior == "driver"
     assert make_reenactor(ReenactConfig(weights=weights, mouth_interior="shots")).mouth_interior == "shots"
+
+
+def test_reenact_lids_option_reaches_the_reenactor(weights):
+    from lsr.config import ReenactConfig
+    from lsr.reenact import make_reenactor
+
+    assert ReenactConfig().lids == "driver"
+    assert make_reenactor(ReenactConfig(weights=weights)).lids == "driver"
+    assert make_reenactor(ReenactConfig(weights=weights, lids="shots")).lids == "shots"

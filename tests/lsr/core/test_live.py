@@ -102,3 +102,22 @@ def test_an_open_mouth_on_camera_gives_the_synthesis_its_inside(reenactor, tmp_p
         assert LiveSession(reenactor, subject).prepare(clip.frames[4]).driver_mouth is None
     finally:
         reenactor.mouth_interior = "driver"
+
+
+def test_a_blink_on_camera_gives_the_synthesis_the_shut_lids(reenactor, tmp_path):
+    from lsr.core.live import LiveSession
+    from lsr.data.synth import render_video
+
+    subject = reenactor.encode_subject(_shots(tmp_path, 41, 2, pad=0), k=2, cache=False)
+    clip = render_video(44, 4, 256)  # open, closing, shut, shut
+    session = LiveSession(reenactor, subject)
+    prepared = [session.prepare(frame) for frame in clip.frames]
+    assert prepared[0].driver_eyes is None  # open: nothing cut
+    # landmarks.driver_eyes, against the lids at rest so far (a camera has nothing ahead: two of three are closing)
+    assert prepared[2].driver_eyes is not None and prepared[2].driver_eyes.strength > 0
+    reenactor.lids = "shots"
+    try:
+        session = LiveSession(reenactor, subject)
+        assert all(session.prepare(frame).driver_eyes is None for frame in clip.frames)
+    finally:
+        reenactor.lids = "driver"

@@ -167,3 +167,30 @@ def test_the_driver_mouth_interior_goes_inside_the_lips_by_default_and_can_be_to
     assert (reenactor.synthesize_crop(target, driver_mouth=mouth)[0] == plain).all()
     with pytest.raises(ValueError, match="mouth_interior"):
         reenactor.mouth_interior = "tongue"
+
+
+def test_the_driver_shut_eyes_go_over_the_eyes_by_default_and_can_be_told_not_to(folders):
+    from landmarks.driver_eyes import cut_driver_eyes
+    from landmarks.eyelids import closed_gaps, lid_gaps, set_lid_gaps
+    from lsr.pipeline import Reenactor
+
+    reenactor = Reenactor(folders, crop_size=SIDE)
+    assert reenactor.lids == "driver"
+    reenactor.encode_subject(_shots())
+    target = reenactor.subject.shots.landmarks[1]
+    rest = lid_gaps(target)
+    shut = set_lid_gaps(target, closed_gaps(rest))
+    driver = np.full((SIDE, SIDE, 3), 150, np.uint8)  # a driver whose shut eyes are plain skin
+    eyes = cut_driver_eyes(driver, shut, rest)
+    assert eyes is not None and eyes.strength == pytest.approx(1.0)
+    plain = reenactor.synthesize_crop(target)[0]  # a landmark driver: no frame, no lids laid in
+    laid = reenactor.synthesize_crop(target, driver_eyes=eyes)[0]
+    changed = np.abs(laid.astype(int) - plain.astype(int)).max(axis=-1) > 0
+    ys, xs = np.nonzero(changed)
+    reach = 0.7 * np.ptp(target[36:48, 0])  # the eyes' ellipses and their feather, no further
+    assert len(ys) and (xs >= target[36:48, 0].min() - reach).all() and (xs <= target[36:48, 0].max() + reach).all()
+    assert (ys <= target[48:68, 1].min()).all()  # nothing from the mouth down
+    reenactor.lids = "shots"
+    assert (reenactor.synthesize_crop(target, driver_eyes=eyes)[0] == plain).all()
+    with pytest.raises(ValueError, match="lids"):
+        reenactor.lids = "wink"

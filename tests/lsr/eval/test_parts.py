@@ -110,3 +110,17 @@ def test_summarise_self_splits_all_hold_outs_from_those_beyond():
     assert row["eyes_beyond"] == {}
     text = "\n".join(parts.markdown([row], [], lambda v, digits=3: "–" if v is None else f"{v:.{digits}f}"))
     assert "| m | 8 | beyond: 1 (mouth 1, eyes 0, pose 0, gaze 0) | 20.00 | 0.500 | 0.50 | – | – | – |" in text
+
+
+def test_the_drivers_shut_eyes_are_cut_against_their_lids_at_rest():
+    import types
+
+    from lsr.data.synth import render_video
+    from lsr.eval.parts import driver_eye_inputs
+
+    clip = render_video(44, 8, 256)  # open, closing, shut, shut, opening, open ...
+    sequence = types.SimpleNamespace(driver_frames=clip.frames, driver_landmarks=clip.landmarks)
+    (inputs,) = driver_eye_inputs([sequence])
+    eyes = inputs["driver_eyes"]
+    assert len(eyes) == 8 and eyes[0] is None and eyes[7] is None
+    assert eyes[2] is not None and eyes[2].strength == pytest.approx(1.0)  # the lids at rest: the faces ahead's
