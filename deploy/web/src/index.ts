@@ -7,6 +7,7 @@ export * from "./smooth.js";
 export * from "./retarget.js";
 export * from "./mouth.js";
 export * from "./interior.js";
+export * from "./eyes.js";
 export * from "./facedetect.js";
 export * from "./facemesh.js";
 export * from "./tracker.js";

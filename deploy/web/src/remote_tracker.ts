@@ -1,5 +1,6 @@
 // The page's side of src/tracker_worker.ts: the tracker's `update` as a message round trip.
 
+import type { EyePatch } from "./eyes.js";
 import type { DriverMouth } from "./interior.js";
 import type { Face } from "./session.js";
 import { TrackerAssets } from "./tracker.js";
@@ -11,13 +12,14 @@ export class RemoteTracker {
 
   private constructor(private readonly worker: Worker) {
     worker.onmessage = (event: MessageEvent) => {
-      const { id, points, mouth, error } = event.data;
+      const { id, points, mouth, eyes, error } = event.data;
       const pending = this.waiting.get(id);
       if (!pending) return;
       this.waiting.delete(id);
       if (error !== undefined) pending.reject(new Error(`the tracker failed: ${error}`));
       else pending.resolve(points === null ? null : { points: tensor(points as Float64Array, [68, 2]),
-                                                      mouth: mouth as DriverMouth | null });
+                                                      mouth: mouth as DriverMouth | null,
+                                                      eyes: eyes as EyePatch | null });
     };
   }
 
@@ -32,7 +34,7 @@ export class RemoteTracker {
     return new RemoteTracker(worker);
   }
 
-  /** An (H, W, 3) RGB frame (handed over to the worker) -> its face (68 points and open mouth), or null. */
+  /** An (H, W, 3) RGB frame (handed over to the worker) -> its face (68 points, open mouth, eyes), or null. */
   update(frame: Tensor<Uint8Array>): Promise<Face | null> {
     return this.send({ frame }, frame.data.buffer as ArrayBuffer);
   }

@@ -352,12 +352,11 @@ export function retargetDriving(driver: Tensor, driverReference: Tensor, source:
 }
 
 /** LiveSession.prepare's steps after the tracker, one frame: the reference lid gaps of the face as detected
- * (`points`, frame pixels), the crop of the smoothed face (`smoothed`: LiveSmoother.step's, or `points` unsmoothed),
+ * (`points`, frame pixels; `gaps`, when the caller read them already), the crop of the smoothed face (`smoothed`: LiveSmoother.step's, or `points` unsmoothed),
  * the reference face started, then retargetDriving onto the subject's anchor (`subjectReference`, crop pixels)
  * -> the target (68, 2) in crop pixels. */
 export function liveTarget(reference: DriverReference, points: Tensor, smoothed: Tensor, cropSize: number,
-                           subjectReference: Tensor): Tensor<Float64Array> {
-  const gaps = reference.lids(points);
+                           subjectReference: Tensor, gaps = reference.lids(points)): Tensor<Float64Array> {
   const crop = transformPoints(smoothed, cropTransform(smoothed, cropSize));
   reference.start(crop);
   return retargetDriving(crop, reference.landmarks as Tensor<Float64Array>, subjectReference, gaps);

@@ -1,13 +1,14 @@
 // The live path end to end: lsr/core/live.py LiveSession, on the site `lsr export --web` writes (lsr/export_web.py).
 // Per frame: camera frame -> track 68 points -> smooth -> crop -> retarget onto the person's anchor shot -> landmark
 // image -> warp the nearest shots -> frame generator -> the nearest mouth -> the camera's mouth interior (interior.ts)
-// -> composite into the person's scene.
+// -> the camera's shut eyes (eyes.ts) -> composite into the person's scene.
 // A frame without a face shows the last good output again.
 
 import { compositeFace, SceneLayers } from "./composite.js";
 import { folderReader } from "./files.js";
 import { Affine, Tensor, tensor } from "./tensor.js";
 import { invertAffine, transformPoints } from "./geometry.js";
+import { DriverEyes, EyePatch, cutEyePatch, pasteEyes, shutEyes } from "./eyes.js";
 import { DriverMouth, cutDriverMouth, pasteInterior } from "./interior.js";
 import { finishMouthNearest } from "./mouth.js";
 import { FrameGenerator, Latents } from "./network.js";
@@ -28,6 +29,7 @@ export interface SiteConfig {
   layout_legend: string[] | null;
   mouth: string;
   mouth_interior: string;
+  lids: string;
   k: number;
 }
 
@@ -45,21 +47,21 @@ export interface Person {
 
 export type Reader = (path: string) => Promise<Uint8Array>;
 
-/** A camera frame's face: its 68 points (frame pixels) and its open mouth (interior.ts cutDriverMouth), cut where
- * the frame is (a tracker's worker holds it). */
-export interface Face { points: Tensor<Float64Array>; mouth: DriverMouth | null }
+/** A camera frame's face: its 68 points (frame pixels), its open mouth (interior.ts cutDriverMouth) and the frame
+ * around its eyes (eyes.ts cutEyePatch), cut where the frame is (a tracker's worker holds it). */
+export interface Face { points: Tensor<Float64Array>; mouth: DriverMouth | null; eyes: EyePatch | null }
 
 /** What finds the face in a camera frame: src/tracker.ts MeshTracker here (`localTracker`), or the page's worker of
  * it (remote_tracker.ts). */
 export interface Tracker { update(frame: Tensor<Uint8Array>): Promise<Face | null> }
 
-/** A tracker of 68 points as a `Tracker`: the frame's mouth cut beside its points. */
+/** A tracker of 68 points as a `Tracker`: the frame's mouth and eyes cut beside its points. */
 export function localTracker(tracker: { update(frame: Tensor<Uint8Array>): Promise<Tensor<Float64Array> | null> }
                              ): Tracker {
   return {
     async update(frame) {
       const points = await tracker.update(frame);
-      return points === null ? null : { points, mouth: cutDriverMouth(frame, points) };
+      return points === null ? null : { points, mouth: cutDriverMouth(frame, points), eyes: cutEyePatch(frame, points) };
     },
   };
 }
@@ -156,22 +158,24 @@ export class LiveSession {
                stages: { track } };
     }
     const { points } = face;
+    const gaps = this.reference.lids(points);  // the driver's lids at rest: its shut eyes are read against them
     const target = liveTarget(this.reference, points, this.smoother.step(points, timestamp), this.site.config.crop_size,
-                              this.referenceLandmarks);
+                              this.referenceLandmarks, gaps);
     const mouth = this.site.config.mouth_interior === "driver" ? face.mouth : null;
-    return this.inputs(target, started, { track, retarget: now() - tracked }, mouth);
+    const eyes = this.site.config.lids === "driver" ? shutEyes(face.eyes, points, gaps) : null;
+    return this.inputs(target, started, { track, retarget: now() - tracked }, mouth, eyes);
   }
 
   /** The network's inputs for a target (68, 2) in the anchor's crop pixels: its landmark image and warped shots. */
   inputs(target: Tensor<Float64Array>, started = now(), stages: Partial<Stages> = {},
-         mouth: DriverMouth | null = null): Prepared {
+         mouth: DriverMouth | null = null, eyes: DriverEyes | null = null): Prepared {
     const { config, person } = this.site;
     const warping = now();
     const scale = config.resolution / config.crop_size;
     const small = tensor(Float64Array.from(target.data, (value) => value * scale), [68, 2]);
     const landmarkImage = drawLandmarks(small, config.resolution);
     const references = warpReferences(person.shots, person.shotLandmarks, target, config.references);
-    return { target, landmarkImage, references, mouth, started, stages: { ...stages, warps: now() - warping } };
+    return { target, landmarkImage, references, mouth, eyes, started, stages: { ...stages, warps: now() - warping } };
   }
 
   /** Target landmarks (68, 2) in the anchor's crop pixels -> the frame (LiveSession.render). */
@@ -179,8 +183,8 @@ export class LiveSession {
     return this.finish(this.inputs(target));
   }
 
-  /** The second half (LiveSession.finish): the network, the nearest mouth, the camera's mouth interior, the
-   * composite into the scene. */
+  /** The second half (LiveSession.finish): the network, the nearest mouth, the camera's mouth interior and shut
+   * eyes, the composite into the scene. */
   async finish(prepared: Prepared): Promise<LiveFrame> {
     const { config, person, generator } = this.site;
     const { target, landmarkImage, references } = prepared;
@@ -191,7 +195,8 @@ export class LiveSession {
       ? finishMouthNearest(synthesis.image, references.warped, references.masks, references.indices, target,
                            person.shotLandmarks, true) as Tensor<Uint8Array>
       : synthesis.image;
-    const face = pasteInterior(mouthed, target, prepared.mouth, true) as Tensor<Uint8Array>;
+    const face = pasteEyes(pasteInterior(mouthed, target, prepared.mouth, true), target, prepared.eyes,
+                           true) as Tensor<Uint8Array>;
     const interiored = now();
     const composite = compositeFace(person.scene, person.sceneLandmarks, transformPoints(target, this.cropToScene), face,
                                     person.sceneMatrix, person.layers);
@@ -214,6 +219,7 @@ export interface Prepared {
   landmarkImage: Tensor<Uint8Array>;
   references: References;
   mouth: DriverMouth | null;  // the camera frame's open mouth, whose interior the synthesis takes
+  eyes: DriverEyes | null;  // the camera frame's shut eyes, which the synthesis takes
   started: number;
   stages: Partial<Stages>;
 }

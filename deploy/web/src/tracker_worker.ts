@@ -1,10 +1,11 @@
 // The face tracker in a worker of its own (the page's): it tracks camera frame n + 1 while the page warps the shots of
 // frame n and onnxruntime's proxy worker runs frame n - 1's network. Messages: {assets} once, then {id, frame} (or
 // {id, rgba, width, height}: a canvas's pixels) -> {id, points (136 float64) | null, mouth (interior.ts DriverMouth,
-// cut here where the frame is) | null} or {id, error}.
+// cut here where the frame is) | null, eyes (eyes.ts EyePatch, likewise) | null} or {id, error}.
 
 import * as ort from "onnxruntime-web";
 
+import { cutEyePatch } from "./eyes.js";
 import { cutDriverMouth } from "./interior.js";
 import { MeshTracker, TrackerAssets, createTracker } from "./tracker.js";
 import { Tensor, tensor } from "./tensor.js";
@@ -34,8 +35,9 @@ self.onmessage = async (event: MessageEvent) => {
     const frame = message.rgba ? fromRgba(message.rgba, message.width, message.height) : message.frame;
     const points = await tracker!.update(frame);
     const mouth = points === null ? null : cutDriverMouth(frame, points);
+    const eyes = points === null ? null : cutEyePatch(frame, points);
     if (message.rgba) spare = frame.data;
-    self.postMessage({ id: message.id, points: points === null ? null : points.data, mouth });
+    self.postMessage({ id: message.id, points: points === null ? null : points.data, mouth, eyes });
   } catch (error) {
     self.postMessage({ id: message.id, error: error instanceof Error ? error.message : String(error) });
   }
