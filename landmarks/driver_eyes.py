@@ -12,8 +12,9 @@ lash line at this very moment. So where the driver's eyes shut, its eye region i
   its reference gap, ``eyelids.LidReference``), and less as the driver's head turns (``TURN``);
 * ``paste_eyes``: per eye, the patch mapped onto the target by the similarity that takes the driver's eye corners
   onto the target's (each target pixel reads the patch there, bicubic), lit as the target is
-  (``mouth_interior.match_light``, against a skin ring around the region), and laid inside an ellipse over the
-  eye (``REGION``), feathered by ``FEATHER`` eye widths.
+  (``mouth_interior.match_light``, against a skin ring around the region, with the whole colour cast and no fading:
+  skin laid on skin; the interior's half cast, fading toward the highlights, left real036's shut lids lavender
+  under real046's), and laid inside an ellipse over the eye (``REGION``), feathered by ``FEATHER`` eye widths.
 
 An open eye is left as it is: the subject keeps its own eyes, irises and gaze, and takes the driver's lids only
 where they shut, as a blink passes in a few frames. What this gives the subject is the driver's shut lids, lit as
@@ -165,7 +166,7 @@ def paste_eyes(image: np.ndarray, landmarks: np.ndarray, eyes: DriverEyes | None
                                 ).astype(np.float32)
         region = result[y0:y1, x0:x1].astype(np.float32)
         inside = ellipse_mask(centre - (x0, y0), axes, along / eye_width, box)
-        warped = match_light(warped, region, inside > 0.5, ring)
+        warped = match_light(warped, region, inside > 0.5, ring, cast=1.0, fade=None)
         weight = (cv2.GaussianBlur(inside, (0, 0), sigma) * eyes.strength)[..., None]
         result[y0:y1, x0:x1] = np.clip(np.rint(weight * warped + (1.0 - weight) * region), 0, 255).astype(np.uint8)
     return result

@@ -131,12 +131,14 @@ def _polygon(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return mask.astype(np.float32) * (1.0 / 255.0)
 
 
-def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: int) -> np.ndarray:
+def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: int, cast: float = CAST,
+                fade: float | None = FADE) -> np.ndarray:
     """The driver's mapped patch ``warped`` (h, w, 3) float32 lit as the target is, against ``region`` (h, w, 3)
     float32, the synthesis there, whose outer lips cover ``lips`` (h, w) bool with a skin ring ``ring`` pixels wide
     around them -> a new (h, w, 3) float32: scaled by one gain so that the ring's brightness matches (clipped to
-    ``GAIN``), then shifted by ``CAST`` of the difference of the rings' colour casts (mean colour less mean grey),
-    fading out toward the synthesis' brightest there (``FADE``). The patch as it is where there is no ring.
+    ``GAIN``), then shifted by ``cast`` of the difference of the rings' colour casts (mean colour less mean grey),
+    fading out toward the synthesis' brightest there (``fade``; None: no fading, skin laid on skin). The patch as it
+    is where there is no ring.
 
     Tried and dropped: blurring the patch until no sharper than the synthesis, and softening its highlights above
     the synthesis' brightest. On a crisp driver's teeth in a dim, soft video (the FSTH sample's id00017) they looked
@@ -149,11 +151,13 @@ def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: 
         return warped
     means = [values[skin].mean(axis=0, dtype=np.float64) for values in (region, warped)]  # (3,) each
     gain = float(np.clip((means[0].mean() + 1.0) / (means[1].mean() + 1.0), *GAIN))
-    cast = (means[0] - means[0].mean()) - gain * (means[1] - means[1].mean())
-    top = float(np.percentile(region.max(axis=-1)[grown], 99.0))
+    shift = ((means[0] - means[0].mean()) - gain * (means[1] - means[1].mean())) * cast
     result = warped * np.float32(gain)
-    fade = np.clip(FADE * (1.0 - result.mean(axis=-1, keepdims=True) / np.float32(max(top, 1.0))), 0.0, 1.0)
-    return (result + fade * (CAST * cast).astype(np.float32)).astype(np.float32)
+    if fade is None:
+        return (result + shift.astype(np.float32)).astype(np.float32)
+    top = float(np.percentile(region.max(axis=-1)[grown], 99.0))
+    fading = np.clip(fade * (1.0 - result.mean(axis=-1, keepdims=True) / np.float32(max(top, 1.0))), 0.0, 1.0)
+    return (result + fading * shift.astype(np.float32)).astype(np.float32)
 
 
 def paste_interior(image: np.ndarray, landmarks: np.ndarray, mouth: DriverMouth | None) -> np.ndarray:

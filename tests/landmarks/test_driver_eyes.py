@@ -97,13 +97,13 @@ def test_shut_lids_cover_the_target_eyes_and_nothing_else_moves():
     assert paste_eyes(target, target_points, None) is target
 
 
-def test_the_lids_take_the_target_light():
+@pytest.mark.parametrize("skin", [tuple(int(0.7 * c) for c in SKIN), (150, 150, 175)])  # darker; bluish grey
+def test_the_lids_take_the_target_light_and_colour(skin):
     driver_points = _shut(_points(), 0.0)
-    darker = tuple(int(0.7 * c) for c in SKIN)  # the driver in a darker room
-    eyes = cut_driver_eyes(_face(driver_points, skin=darker, shut=True), driver_points, lid_gaps(_points()))
+    eyes = cut_driver_eyes(_face(driver_points, skin=skin, shut=True), driver_points, lid_gaps(_points()))
     target_points = _points()
     result = paste_eyes(_face(target_points), target_points, eyes)
     for eye in EYES:
         corners = target_points[eye][[0, 3]]
         x, y = np.round(corners.mean(axis=0) - (0, 0.4 * np.ptp(corners[:, 0]))).astype(int)  # the upper lid's skin
-        assert np.abs(result[y, x].astype(int) - SKIN).max() <= 6
+        assert np.abs(result[y, x].astype(int) - SKIN).max() <= 6  # skin laid on skin: the whole colour cast

@@ -3,8 +3,9 @@
 // around its eyes is cut where the frame is (cutEyePatch: the tracker's worker, or this thread); how shut they are is
 // read here, against the driver's lids at rest (shutEyes: the session keeps that reference). Each eye is mapped onto
 // the target by the similarity of the eye corners (bicubic, as cv2.warpAffine with WARP_INVERSE_MAP), lit as the
-// target is (interior.ts matchLight) and laid inside a feathered ellipse over the target's eye. The module's REACH,
-// REGION, FEATHER and RING are EYE_REACH, EYE_REGION, EYE_FEATHER and EYE_RING here (interior.ts has its own).
+// target is (interior.ts matchLight with the whole colour cast: skin laid on skin) and laid inside a feathered
+// ellipse over the target's eye. The module's REACH, REGION, FEATHER and RING are EYE_REACH, EYE_REGION,
+// EYE_FEATHER and EYE_RING here (interior.ts has its own).
 
 import { TURN, matchLight } from "./interior.js";
 import { pointBox } from "./mouth.js";
@@ -41,7 +42,8 @@ export interface DriverEyes extends EyePatch {
 
 /** aperture_share: the mean over both eyes of (lid gap - closed gap) / (reference gap - closed gap) of (68, 2) points
  * against the driver's lids at rest (2,) (NaN when either is not finite or a reference is no wider than closed). */
-export function apertureShare(landmarks: Tensor | ArrayLike<number>, referenceGaps: Tensor | ArrayLike<number>): number {
+export function apertureShare(landmarks: Tensor | ArrayLike<number>,
+                              referenceGaps: Tensor | ArrayLike<number>): number {
   const gaps = lidGaps(landmarks), reference = flat(referenceGaps);
   let sum = 0;
   for (let e = 0; e < 2; e++) {
@@ -152,14 +154,15 @@ export function pasteEyes(image: Tensor, landmarks: Tensor, eyes: DriverEyes | n
     if (x1 - x0 < 2 || y1 - y0 < 2) return;
     const w = x1 - x0, h = y1 - y0;
     const warped = warpAffineCubic({ data: eyes.patch.data, width: pw, height: ph, channels: 3 },
-                                   similarity([ax - x0, ay - y0, bx - x0, by - y0], eyes.corners.data.subarray(4 * e, 4 * e + 4)),
+                                   similarity([ax - x0, ay - y0, bx - x0, by - y0],
+                                              eyes.corners.data.subarray(4 * e, 4 * e + 4)),
                                    w, h, "replicate");
     const region = new Float32Array(w * h * 3), mapped = Float32Array.from(warped);
     for (let y = 0; y < h; y++) {
       for (let x = 0; x < w * 3; x++) region[3 * y * w + x] = data[3 * ((y0 + y) * width + x0) + x];
     }
     const inside = ellipseMask(cx - x0, cy - y0, axes, (bx - ax) / eyeWidth, (by - ay) / eyeWidth, w, h);
-    const laid = matchLight(mapped, region, Uint8Array.from(inside), w, h, ring);
+    const laid = matchLight(mapped, region, Uint8Array.from(inside), w, h, ring, 1.0, null);  // skin on skin
     const weight = gaussianBlurF32(inside, w, h, 1, sigma);
     for (let y = 0; y < h; y++) {
       for (let x = 0; x < w; x++) {

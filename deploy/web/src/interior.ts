@@ -100,10 +100,11 @@ function percentile(values: Float32Array, q: number): number {
 
 /** match_light: the driver's mapped patch `warped` ((h, w, 3) float32) lit as the target is, against `region`, the
  * synthesis there, whose outer lips cover `lips` ((h, w) 0/1) with a skin ring `ring` pixels wide around them: one
- * gain for the ring's brightness (clipped to GAIN), then CAST of the rings' colour-cast difference, fading out
- * toward the synthesis' brightest there (FADE); the patch as it is where there is no ring. */
+ * gain for the ring's brightness (clipped to GAIN), then `cast` of the rings' colour-cast difference, fading out
+ * toward the synthesis' brightest there (`fade`; null: no fading, skin laid on skin); the patch as it is where
+ * there is no ring. */
 export function matchLight(warped: Float32Array, region: Float32Array, lips: Uint8Array, w: number, h: number,
-                           ring: number): Float32Array {
+                           ring: number, cast = CAST, fade: number | null = FADE): Float32Array {
   const grown = dilateEllipse(lips, w, h, ring);
   const means = [[0, 0, 0], [0, 0, 0]], brightest: number[] = [];
   let skin = 0;
@@ -118,14 +119,14 @@ export function matchLight(warped: Float32Array, region: Float32Array, lips: Uin
   const [target, driven] = means.map((m) => m.map((v) => v / skin));
   const grey = [target, driven].map((m) => (m[0] + m[1] + m[2]) / 3);
   const gain = Math.min(Math.max((grey[0] + 1) / (grey[1] + 1), GAIN[0]), GAIN[1]), g = f32(gain);
-  const cast = [0, 1, 2].map((c) => f32(CAST * ((target[c] - grey[0]) - gain * (driven[c] - grey[1]))));
+  const shift = [0, 1, 2].map((c) => f32(((target[c] - grey[0]) - gain * (driven[c] - grey[1])) * cast));
   const top = f32(Math.max(percentile(Float32Array.from(brightest), 99.0), 1));
   const result = new Float32Array(warped.length);
   for (let k = 0; k < w * h; k++) {
     for (let c = 0; c < 3; c++) result[3 * k + c] = f32(warped[3 * k + c] * g);
     const mean = f32(f32(f32(result[3 * k] + result[3 * k + 1]) + result[3 * k + 2]) / 3);
-    const fade = Math.min(Math.max(f32(FADE * f32(1 - f32(mean / top))), 0), 1);
-    for (let c = 0; c < 3; c++) result[3 * k + c] = f32(result[3 * k + c] + f32(fade * cast[c]));
+    const fading = fade === null ? 1 : Math.min(Math.max(f32(fade * f32(1 - f32(mean / top))), 0), 1);
+    for (let c = 0; c < 3; c++) result[3 * k + c] = f32(result[3 * k + c] + f32(fading * shift[c]));
   }
   return result;
 }

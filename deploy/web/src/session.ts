@@ -61,7 +61,8 @@ export function localTracker(tracker: { update(frame: Tensor<Uint8Array>): Promi
   return {
     async update(frame) {
       const points = await tracker.update(frame);
-      return points === null ? null : { points, mouth: cutDriverMouth(frame, points), eyes: cutEyePatch(frame, points) };
+      if (points === null) return null;
+      return { points, mouth: cutDriverMouth(frame, points), eyes: cutEyePatch(frame, points) };
     },
   };
 }
