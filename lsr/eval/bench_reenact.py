@@ -71,11 +71,13 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
         synthesis_ms: dict[tuple[str, str], dict[str, float]] = {}
         fps: dict[tuple[str, str, str], dict[str, float]] = {}  # end to end, per eyes choice
         inside_fps: dict[tuple[str, str, str, str], dict[str, float]] = {}  # end to end, per mouth interior
+        lids_fps: dict[tuple[str, str, str, str, str], dict[str, float]] = {}  # end to end, per lids choice
         mouths, eyes_choices = cfg.mouths or (None,), cfg.eyes or (None,)
-        interiors = cfg.mouth_interiors or (None,)
+        interiors, lids_choices = cfg.mouth_interiors or (None,), cfg.lids or (None,)
         warmed: set[tuple[str, str]] = set()
-        for runtime, detector, mouth, eyes, interior in [(r, d, m, e, i) for r in cfg.runtimes for d in cfg.detectors
-                                                         for m in mouths for e in eyes_choices for i in interiors]:
+        for runtime, detector, mouth, eyes, interior, lids in [
+                (r, d, m, e, i, s) for r in cfg.runtimes for d in cfg.detectors for m in mouths
+                for e in eyes_choices for i in interiors for s in lids_choices]:
             threads = network_threads(cfg.threads)  # as lsr reenact chooses them
             if runtime == "onnx":
                 from deploy.runtime import OnnxReenactor
@@ -94,6 +96,8 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
                 reenactor.eyes = eyes
             if interior is not None:
                 reenactor.mouth_interior = interior
+            if lids is not None:
+                reenactor.lids = lids
             started = time.perf_counter()
             reenactor.encode_subject(clip, k=cfg.k)
             encode_subject_s = time.perf_counter() - started
@@ -104,34 +108,38 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
             synth_ms = synthesis_only_ms(reenactor)
             started = time.perf_counter()
             synthesis_ms.setdefault((runtime, detector), {})[reenactor.mouth] = synth_ms
-            name = f"out_{runtime}_{detector}_{reenactor.mouth}_{reenactor.eyes}_{reenactor.mouth_interior}.mp4"
+            name = (f"out_{runtime}_{detector}_{reenactor.mouth}_{reenactor.eyes}_{reenactor.mouth_interior}_"
+                    f"{reenactor.lids}.mp4")
             stats = run_job(reenactor, Job(clip, clip, temp / name), _job_options(cfg.paste_back, runtime))
             rate = stats.frames / (time.perf_counter() - started)
             fps.setdefault((runtime, detector, reenactor.mouth), {})[reenactor.eyes] = rate
             inside_fps.setdefault((runtime, detector, reenactor.mouth, reenactor.eyes), {})[reenactor.mouth_interior] = rate
+            lids_fps.setdefault((runtime, detector, reenactor.mouth, reenactor.eyes, reenactor.mouth_interior),
+                                {})[reenactor.lids] = rate
             wall = time.perf_counter() - started
             per_frame = {stage: 1000 * stats.seconds.get(stage, 0.0) / max(1, stats.frames)
                          for stage in ("decode", "landmarks", "warps", "synthesis", "paste_back", "encode")}
             end_to_end = stats.frames / wall
             rows.append(
                 f"| {runtime} | {detector} | {reenactor.mouth} | {reenactor.eyes} | {reenactor.mouth_interior} | "
+                f"{reenactor.lids} | "
                 f"{stats.frames} | {stats.no_face} | {per_frame['decode']:.1f} | {per_frame['landmarks']:.1f} | "
                 f"{encode_subject_s:.2f} | {per_frame['warps']:.1f} | {per_frame['synthesis']:.1f} | {per_frame['paste_back']:.1f} | "
                 f"{per_frame['encode']:.1f} | {end_to_end:.2f} | {synth_ms:.1f} ({1000 / synth_ms:.2f} fps) | "
                 f"{end_to_end * synth_ms / 1000:.2f} |"
             )
             if (runtime == "torch" and detector == cfg.detectors[0] and mouth == mouths[0] and eyes == eyes_choices[0]
-                    and interior == interiors[0]):
+                    and interior == interiors[0] and lids == lids_choices[0]):
                 lm = reenactor.subject.shots.landmarks
                 notes.append(f"bf16 (torch, {device}): {reenactor.precision_error(list(lm), 'bf16')}")
     table = "\n".join([
         f"Model {label}, {cfg.frames} frames of {video.name}, paste-back {cfg.paste_back}, device {device}, "
         f"network threads {network_threads(cfg.threads)}",
         "",
-        "| runtime | detector | mouth | eyes | mouth interior | frames | no face | decode ms | landmarks ms "
+        "| runtime | detector | mouth | eyes | mouth interior | lids | frames | no face | decode ms | landmarks ms "
         "| subject encoding s | warps ms | network ms | paste-back ms | encode ms | end-to-end fps | synthesis only ms "
         "| end-to-end / synthesis-only |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
         *[f"Synthesis only, {runtime} / {detector}: the drawn mouth costs {times['drawn'] / times['nearest']:.2f}x "
           f"the per-frame path without it ({times['drawn']:.1f} against {times['nearest']:.1f} ms, same run)."
@@ -143,6 +151,10 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
           f"{rates['driver'] / rates['shots']:.2f}x the frame rate without it ({rates['driver']:.2f} against "
           f"{rates['shots']:.2f} fps, same run)."
           for (runtime, detector, mouth, eyes), rates in inside_fps.items() if {"driver", "shots"} <= set(rates)],
+        *[f"End to end, {runtime} / {detector} / {mouth} mouth / {eyes} eyes / {interior} interior: the driver's shut "
+          f"lids run at {rates['driver'] / rates['shots']:.2f}x the frame rate without them ({rates['driver']:.2f} "
+          f"against {rates['shots']:.2f} fps, same run)."
+          for (runtime, detector, mouth, eyes, interior), rates in lids_fps.items() if {"driver", "shots"} <= set(rates)],
         "",
         "Stages overlap (lsr.core.overlap), each ms its time on its own thread, sharing the cores: decoding and "
         "tracking on one thread, smoothing, retargeting and the warps of the nearest shots on a second (landmarks ms "
