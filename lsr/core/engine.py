@@ -45,10 +45,10 @@ from lsr.core.sources import (
     source_key,
     track_driver,
 )
+from landmarks.driver_eyes import DriverEyes, cut_driver_eyes, paste_eyes
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.eyelids import LOOK_AHEAD
 from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
-from landmarks.driver_eyes import DriverEyes, cut_driver_eyes, paste_eyes
 from landmarks.mouth_interior import DriverMouth, cut_driver_mouth, paste_interior
 from lsr.core.backend import SynthesisBackend
 from lsr.core.overlap import finish_behind, prefetch

@@ -23,8 +23,8 @@ import time
 
 import numpy as np
 
-from landmarks.mesh_retarget import DriverReference
 from landmarks.driver_eyes import DriverEyes, cut_driver_eyes
+from landmarks.mesh_retarget import DriverReference
 from landmarks.mouth_interior import DriverMouth, cut_driver_mouth
 from lsr.core.engine import ReenactorBase, Subject
 from lsr.core.parts import DriverGaze
