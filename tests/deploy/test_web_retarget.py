@@ -66,7 +66,7 @@ class _Replay:
 class _Reenactor:
     """What LiveSession uses of a reenactor up to its network inputs."""
 
-    crop_size, eyes, mouth_interior, detector = CROP, "blend", "shots", "mesh"  # the retargeting alone
+    crop_size, eyes, mouth_interior, lids, detector = CROP, "blend", "shots", "shots", "mesh"  # the retargeting alone
 
     def network_inputs(self, target, subject=None):
         return None, {}
