@@ -572,7 +572,8 @@ class ReenactorBase:
                 matrix = crop_transform(points, size)
                 crop_landmarks = transform_landmarks(points, matrix)
                 crop_mesh = self._crop_mesh(mesh, raw_points, points, matrix, retarget if relative else "2d")
-                lids = reference.lids(raw_points, mesh) if relative else None  # as detected, as lsr eval reads them
+                lids = reference.lids(raw_points, mesh)  # as detected, as lsr eval reads them; relative motion and
+                # the driver's shut eyes are read against them (an absolute driver has its own lids, so only the eyes)
                 reference.start(crop_landmarks, crop_mesh)  # the driver's first face: its motion moves the source's
                 crop_landmarks, crop_mesh = self._drive(crop_landmarks, crop_mesh, reference, lids, relative,
                                                         retarget)
@@ -582,7 +583,7 @@ class ReenactorBase:
             mouth = (cut_driver_mouth(frame, raw_points) if crop_landmarks is not None
                      and self.mouth_interior == "driver" else None)  # the points as detected: the pixels' own
             eyes = (cut_driver_eyes(frame, raw_points, lids[0]) if crop_landmarks is not None and lids is not None
-                    and self.lids == "driver" else None)  # against the driver's lids at rest (relative motion only)
+                    and self.lids == "driver" else None)  # against the driver's lids at rest
             stats.add("landmarks", time.perf_counter() - started)
             if crop_landmarks is None:
                 stats.no_face += 1

@@ -161,6 +161,8 @@ def test_a_video_driver_gives_its_blink_its_shut_lids(reenactor, tmp_path):
     out = list(reenactor(clip))
     assert out[0].driver_eyes is None and out[7].driver_eyes is None  # open: nothing cut
     assert out[2].driver_eyes is not None and out[2].driver_eyes.patch.ndim == 3  # landmarks.driver_eyes
+    absolute = list(reenactor(clip, mode="absolute"))  # the driver's own lids, and still its shut eyes
+    assert absolute[2].driver_eyes is not None and absolute[0].driver_eyes is None
     reenactor.lids = "shots"
     try:
         assert all(frame.driver_eyes is None for frame in reenactor(clip))
