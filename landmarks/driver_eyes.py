@@ -29,8 +29,7 @@ import cv2
 import numpy as np
 
 from landmarks.eyelids import closed_gaps, lid_gaps
-from landmarks.mouth_interior import TURN, match_light
-from landmarks.parts import NUM_LANDMARKS
+from landmarks.mouth_interior import TURN, cut_around, finite_points, match_light
 from landmarks.pose import estimate_head_pose
 from landmarks.smooth import inter_ocular_distance
 
@@ -63,13 +62,6 @@ class DriverEyes:
     """How much of them to lay in, in (0, 1] (``shut_strength``)."""
 
 
-def _check(landmarks: np.ndarray) -> np.ndarray | None:
-    points = np.asarray(landmarks, np.float64)
-    if points.shape != (NUM_LANDMARKS, 2):
-        raise ValueError(f"landmarks must be ({NUM_LANDMARKS}, 2), got {points.shape}")
-    return points if np.isfinite(points).all() else None
-
-
 def aperture_share(landmarks: np.ndarray, reference_gaps: np.ndarray) -> float:
     """How open the driver's eyes are against its own (``SHUT``): the mean over both eyes of (lid gap - closed gap)
     / (reference gap - closed gap). landmarks: (68, 2); reference_gaps: (2,) ``eyelids.lid_gaps`` at rest -> float
@@ -99,20 +91,18 @@ def cut_driver_eyes(frame: np.ndarray, landmarks: np.ndarray, reference_gaps: np
     (``shut_strength`` 0, most frames: nothing is cut), the points are not finite or the box lies outside the frame."""
     if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
         raise ValueError(f"frame must be (H, W, 3) uint8, got {frame.shape} {frame.dtype}")
-    points = _check(landmarks)
+    points = finite_points(landmarks)
     if points is None:
+        return None
+    if not aperture_share(points, reference_gaps) < SHUT[1]:  # open (most frames): not even the head pose
         return None
     strength = shut_strength(points, reference_gaps, float(estimate_head_pose(points, frame.shape[:2])[0]))
     if strength <= 0:
         return None
-    reach = REACH * float(inter_ocular_distance(points))
-    eyes = points[36:48]
-    x0, y0 = np.maximum(np.floor(eyes.min(axis=0) - reach), 0).astype(int)
-    x1, y1 = np.minimum(np.ceil(eyes.max(axis=0) + reach) + 1, (frame.shape[1], frame.shape[0])).astype(int)
-    if x1 - x0 < 2 or y1 - y0 < 2:
+    cut = cut_around(frame, points[36:48], REACH * float(inter_ocular_distance(points)))
+    if cut is None:
         return None
-    corners = np.stack([points[eye][[0, 3]] for eye in EYES]) - (x0, y0)
-    return DriverEyes(frame[y0:y1, x0:x1].copy(), corners, strength)
+    return DriverEyes(cut[0], np.stack([points[eye][[0, 3]] for eye in EYES]) - cut[1], strength)
 
 
 def similarity(source: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -139,7 +129,7 @@ def paste_eyes(image: np.ndarray, landmarks: np.ndarray, eyes: DriverEyes | None
     ``eyes`` or the target's points are not finite."""
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise ValueError(f"image must be (H, W, 3) uint8, got {image.shape} {image.dtype}")
-    points = _check(landmarks)
+    points = finite_points(landmarks)
     if eyes is None or points is None or eyes.strength <= 0:
         return image
     ring = max(1, round(RING * float(inter_ocular_distance(points))))

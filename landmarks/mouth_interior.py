@@ -76,11 +76,23 @@ class DriverMouth:
     """The driver's head yaw in degrees (``landmarks.pose.estimate_head_pose`` of its 68 points; NaN: not found)."""
 
 
-def _check(landmarks: np.ndarray) -> np.ndarray | None:
+def finite_points(landmarks: np.ndarray) -> np.ndarray | None:
+    """One face's 68 points as (68, 2) float64, or None where any is not finite (a ValueError for another shape)."""
     points = np.asarray(landmarks, np.float64)
     if points.shape != (NUM_LANDMARKS, 2):
         raise ValueError(f"landmarks must be ({NUM_LANDMARKS}, 2), got {points.shape}")
     return points if np.isfinite(points).all() else None
+
+
+def cut_around(frame: np.ndarray, points: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The frame (H, W, 3) uint8 RGB around ``points`` (N, 2): their box grown by ``reach`` pixels, clipped to the
+    frame -> (patch (h, w, 3) uint8, a copy; its top-left corner (2,) in the frame's pixels), or None when under 2
+    pixels of the box lie in the frame. The callers check the frame."""
+    x0, y0 = np.maximum(np.floor(points.min(axis=0) - reach), 0).astype(int)
+    x1, y1 = np.minimum(np.ceil(points.max(axis=0) + reach) + 1, (frame.shape[1], frame.shape[0])).astype(int)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    return frame[y0:y1, x0:x1].copy(), np.array([x0, y0])
 
 
 def cut_driver_mouth(frame: np.ndarray, landmarks: np.ndarray) -> DriverMouth | None:
@@ -89,20 +101,17 @@ def cut_driver_mouth(frame: np.ndarray, landmarks: np.ndarray) -> DriverMouth | 
     lies outside the frame."""
     if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
         raise ValueError(f"frame must be (H, W, 3) uint8, got {frame.shape} {frame.dtype}")
-    points = _check(landmarks)
+    points = finite_points(landmarks)
     if points is None:
         return None
     opening = float(mouth_opening(points))
     if not opening >= OPEN[0]:
         return None
-    reach = REACH * float(inter_ocular_distance(points))
-    lips = points[LIPS]
-    x0, y0 = np.maximum(np.floor(lips.min(axis=0) - reach), 0).astype(int)
-    x1, y1 = np.minimum(np.ceil(lips.max(axis=0) + reach) + 1, (frame.shape[1], frame.shape[0])).astype(int)
-    if x1 - x0 < 2 or y1 - y0 < 2:
+    cut = cut_around(frame, points[LIPS], REACH * float(inter_ocular_distance(points)))
+    if cut is None:
         return None
     yaw = float(estimate_head_pose(points, frame.shape[:2])[0])
-    return DriverMouth(frame[y0:y1, x0:x1].copy(), lips - (x0, y0), opening, yaw)
+    return DriverMouth(cut[0], points[LIPS] - cut[1], opening, yaw)
 
 
 def interior_strength(landmarks: np.ndarray, mouth: DriverMouth) -> float:
@@ -166,7 +175,7 @@ def paste_interior(image: np.ndarray, landmarks: np.ndarray, mouth: DriverMouth 
     when there is no ``mouth``, the target's points are not finite or either mouth is closed."""
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise ValueError(f"image must be (H, W, 3) uint8, got {image.shape} {image.dtype}")
-    points = _check(landmarks)
+    points = finite_points(landmarks)
     strength = 0.0 if mouth is None or points is None else interior_strength(points, mouth)
     if strength <= 0:
         return image

@@ -7,8 +7,7 @@
 // ellipse over the target's eye. The module's REACH, REGION, FEATHER and RING are EYE_REACH, EYE_REGION,
 // EYE_FEATHER and EYE_RING here (interior.ts has its own).
 
-import { TURN, matchLight } from "./interior.js";
-import { pointBox } from "./mouth.js";
+import { TURN, checkLandmarks, cutAround, matchLight } from "./interior.js";
 import { estimateHeadPose } from "./pose.js";
 import { gaussianBlurF32, roundHalfEven, warpAffineCubic } from "./remap.js";
 import { closedGap, finite, flat, interOcularDistance, lidGaps } from "./retarget.js";
@@ -30,8 +29,8 @@ export interface EyePatch {
   patch: Tensor<Uint8Array>;
   /** (2, 2, 2) float64: each eye's outer and inner corner in the patch's pixels. */
   corners: Tensor<Float64Array>;
-  /** The driver's head yaw in degrees (NaN: not found). */
-  yaw: number;
+  /** The driver frame's (height, width), for its head pose where the eyes shut. */
+  frameSize: [number, number];
 }
 
 /** A driver frame's shut eyes (landmarks.driver_eyes.DriverEyes): the patch and how much of it to lay in. */
@@ -63,32 +62,19 @@ export function shutStrength(landmarks: Tensor | ArrayLike<number>, referenceGap
   return shut * Math.min(Math.max((TURN[1] - Math.abs(yaw)) / (TURN[1] - TURN[0]), 0), 1);
 }
 
-function checkLandmarks(landmarks: Tensor): ArrayLike<number> {
-  if (landmarks.shape.length !== 2 || landmarks.shape[0] !== 68 || landmarks.shape[1] !== 2) {
-    throw new Error(`landmarks must be (68, 2), got [${landmarks.shape}]`);
-  }
-  return landmarks.data;
-}
-
 /** The driver frame (H, W, 3) uint8 around the eyes of its 68 points (frame pixels), or null when the points are not
  * finite or the box lies outside the frame: cut_driver_eyes' patch, before its strength. */
 export function cutEyePatch(frame: Tensor<Uint8Array>, landmarks: Tensor): EyePatch | null {
   if (frame.shape.length !== 3 || frame.shape[2] !== 3) throw new Error(`frame must be (H, W, 3), got [${frame.shape}]`);
   const p = checkLandmarks(landmarks);
   if (!finite(p)) return null;
-  const reach = EYE_REACH * interOcularDistance(p), [minX, minY, maxX, maxY] = pointBox(p, 36, 48);
-  const [height, width] = frame.shape;
-  const x0 = Math.max(Math.floor(minX - reach), 0), y0 = Math.max(Math.floor(minY - reach), 0);
-  const x1 = Math.min(Math.ceil(maxX + reach) + 1, width), y1 = Math.min(Math.ceil(maxY + reach) + 1, height);
-  if (x1 - x0 < 2 || y1 - y0 < 2) return null;
-  const w = x1 - x0, h = y1 - y0, patch = new Uint8Array(w * h * 3);
-  for (let y = 0; y < h; y++) patch.set(frame.data.subarray(((y0 + y) * width + x0) * 3, ((y0 + y) * width + x1) * 3), y * w * 3);
-  const corners = new Float64Array(8);
+  const cut = cutAround(frame, p, 36, 48, EYE_REACH * interOcularDistance(p));
+  if (cut === null) return null;
+  const { x0, y0 } = cut, corners = new Float64Array(8);
   CORNERS.forEach(([outer, inner], e) => {
     corners.set([p[2 * outer] - x0, p[2 * outer + 1] - y0, p[2 * inner] - x0, p[2 * inner + 1] - y0], 4 * e);
   });
-  return { patch: tensor(patch, [h, w, 3]), corners: tensor(corners, [2, 2, 2]),
-           yaw: estimateHeadPose(landmarks, height, width)[0] };
+  return { patch: cut.patch, corners: tensor(corners, [2, 2, 2]), frameSize: [frame.shape[0], frame.shape[1]] };
 }
 
 /** The cut patch with how shut its eyes are against the driver's lids at rest (2,) (DriverReference.lids), or null
@@ -96,7 +82,8 @@ export function cutEyePatch(frame: Tensor<Uint8Array>, landmarks: Tensor): EyePa
 export function shutEyes(cut: EyePatch | null, landmarks: Tensor, referenceGaps: Tensor | ArrayLike<number>
                          ): DriverEyes | null {
   if (cut === null || !finite(checkLandmarks(landmarks))) return null;
-  const strength = shutStrength(landmarks, referenceGaps, cut.yaw);
+  if (!(apertureShare(landmarks, referenceGaps) < SHUT[1])) return null;  // open (most frames): no head pose
+  const strength = shutStrength(landmarks, referenceGaps, estimateHeadPose(landmarks, ...cut.frameSize)[0]);
   return strength > 0 ? { ...cut, strength } : null;
 }
 

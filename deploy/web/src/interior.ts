@@ -34,11 +34,26 @@ export interface DriverMouth {
   yaw: number;
 }
 
-function checkLandmarks(landmarks: Tensor): ArrayLike<number> {
+/** One face's (68, 2) points, flat (an Error for another shape). */
+export function checkLandmarks(landmarks: Tensor): ArrayLike<number> {
   if (landmarks.shape.length !== 2 || landmarks.shape[0] !== 68 || landmarks.shape[1] !== 2) {
     throw new Error(`landmarks must be (68, 2), got [${landmarks.shape}]`);
   }
   return landmarks.data;
+}
+
+/** cut_around: the frame (H, W, 3) uint8 around the points from..to (exclusive) of flat (x, y) pairs `p`, their box
+ * grown by `reach` pixels and clipped to the frame -> the patch (a copy) and its top-left corner, or null when under
+ * 2 pixels of the box lie in the frame. */
+export function cutAround(frame: Tensor<Uint8Array>, p: ArrayLike<number>, from: number, to: number, reach: number
+                          ): { patch: Tensor<Uint8Array>; x0: number; y0: number } | null {
+  const [minX, minY, maxX, maxY] = pointBox(p, from, to), [height, width] = frame.shape;
+  const x0 = Math.max(Math.floor(minX - reach), 0), y0 = Math.max(Math.floor(minY - reach), 0);
+  const x1 = Math.min(Math.ceil(maxX + reach) + 1, width), y1 = Math.min(Math.ceil(maxY + reach) + 1, height);
+  if (x1 - x0 < 2 || y1 - y0 < 2) return null;
+  const w = x1 - x0, h = y1 - y0, patch = new Uint8Array(w * h * 3);
+  for (let y = 0; y < h; y++) patch.set(frame.data.subarray(((y0 + y) * width + x0) * 3, ((y0 + y) * width + x1) * 3), y * w * 3);
+  return { patch: tensor(patch, [h, w, 3]), x0, y0 };
 }
 
 /** The driver's mouth (cut_driver_mouth): frame (H, W, 3) uint8 and its 68 points (frame pixels) -> the patch
@@ -49,17 +64,12 @@ export function cutDriverMouth(frame: Tensor<Uint8Array>, landmarks: Tensor): Dr
   if (!finite(p)) return null;
   const opening = mouthOpening(p);
   if (!(opening >= OPEN[0])) return null;
-  const reach = REACH * interOcularDistance(p), [minX, minY, maxX, maxY] = pointBox(p, 48, 68);
-  const [height, width] = frame.shape;
-  const x0 = Math.max(Math.floor(minX - reach), 0), y0 = Math.max(Math.floor(minY - reach), 0);
-  const x1 = Math.min(Math.ceil(maxX + reach) + 1, width), y1 = Math.min(Math.ceil(maxY + reach) + 1, height);
-  if (x1 - x0 < 2 || y1 - y0 < 2) return null;
-  const w = x1 - x0, h = y1 - y0, patch = new Uint8Array(w * h * 3);
-  for (let y = 0; y < h; y++) patch.set(frame.data.subarray(((y0 + y) * width + x0) * 3, ((y0 + y) * width + x1) * 3), y * w * 3);
+  const cut = cutAround(frame, p, 48, 68, REACH * interOcularDistance(p));
+  if (cut === null) return null;
   const lips = new Float64Array(40);
-  for (let i = 0; i < 20; i++) { lips[2 * i] = p[2 * (48 + i)] - x0; lips[2 * i + 1] = p[2 * (48 + i) + 1] - y0; }
-  const yaw = estimateHeadPose(landmarks, height, width)[0];
-  return { patch: tensor(patch, [h, w, 3]), lips: tensor(lips, [20, 2]), opening, yaw };
+  for (let i = 0; i < 20; i++) { lips[2 * i] = p[2 * (48 + i)] - cut.x0; lips[2 * i + 1] = p[2 * (48 + i) + 1] - cut.y0; }
+  const yaw = estimateHeadPose(landmarks, frame.shape[0], frame.shape[1])[0];
+  return { patch: cut.patch, lips: tensor(lips, [20, 2]), opening, yaw };
 }
 
 /** interior_strength: the lesser opening of the target's (68, 2) points and the driver's, OPEN[0] -> 0, OPEN[1] -> 1,
