@@ -54,8 +54,8 @@ from lsr.core.backend import SynthesisBackend
 from lsr.core.overlap import finish_behind, prefetch
 from lsr.core.scene_source import paste_into_driver, paste_into_scene
 from lsr.core.images import from_network, square_resize, to_network
-from lsr.core.parts import (EYES, LIDS, MOUTH_INTERIORS, MOUTHS, DriverGaze, draws_mouth, finish_eyes, finish_mouth,
-                             subject_irises)
+from lsr.core.parts import (EYES, LIDS, MOUTH_INTERIORS, MOUTHS, Choice, DriverGaze, draws_mouth, finish_eyes,
+                             finish_mouth, subject_irises)
 
 Mode = Literal["auto", "relative", "absolute"]
 Scene = Literal["source", "driver"]
@@ -167,9 +167,6 @@ class ReenactorBase:
         """How a warp-guided model's references are warped when meshes are at hand: "mesh" (piecewise affine over
         the face mesh, TPS outside) or "tps" (the 68-point TPS everywhere)."""
         self._mouth: str = "drawn" if draws_mouth(backend) else "nearest"
-        self._eyes: str = "blend"
-        self._mouth_interior: str = "driver"
-        self._lids: str = "driver"
         self.subject: Subject | None = None
         self.last_stats = ReenactStats()
 
@@ -190,43 +187,15 @@ class ReenactorBase:
                               "ONNX bundle with mouth_generator.onnx); use --mouth nearest")
         self._mouth = mouth
 
-    @property
-    def mouth_interior(self) -> str:
-        """Inside an open mouth: "driver", the driver frame's cavity, teeth and tongue inside the target's inner lips
-        (``landmarks.mouth_interior``; where the driver is a video or a camera), or "shots", what the mouth
-        choice gives (``mouth``)."""
-        return self._mouth_interior
-
-    @mouth_interior.setter
-    def mouth_interior(self, interior: str) -> None:
-        if interior not in MOUTH_INTERIORS:
-            raise ValueError(f"mouth_interior must be one of {MOUTH_INTERIORS}, got {interior!r}")
-        self._mouth_interior = interior
-
-    @property
-    def lids(self) -> str:
-        """Where the driver shuts its eyes: "driver", its shut lids laid over the synthesis' eyes
-        (``landmarks.driver_eyes``; where the driver is a video or a camera), or "shots", the warped shots' lids
-        lowered alone (``landmarks.eyelids``)."""
-        return self._lids
-
-    @lids.setter
-    def lids(self, lids: str) -> None:
-        if lids not in LIDS:
-            raise ValueError(f"lids must be one of {LIDS}, got {lids!r}")
-        self._lids = lids
-
-    @property
-    def eyes(self) -> str:
-        """"drawn": one iris per eye, the subject's own, where the driver looks (``lsr.core.parts.finish_eyes``;
-        frame drivers only: a landmark driver has no irises); "blend": the network's blend of its shots."""
-        return self._eyes
-
-    @eyes.setter
-    def eyes(self, eyes: str) -> None:
-        if eyes not in EYES:
-            raise ValueError(f"eyes must be one of {EYES}, got {eyes!r}")
-        self._eyes = eyes
+    mouth_interior = Choice(MOUTH_INTERIORS, "driver", """Inside an open mouth: "driver", the driver frame's cavity,
+        teeth and tongue inside the target's inner lips (``landmarks.mouth_interior``; where the driver is a video or a
+        camera), or "shots", what the mouth choice gives (``mouth``).""")
+    lids = Choice(LIDS, "driver", """Where the driver shuts its eyes: "driver", its shut lids laid over the synthesis'
+        eyes (``landmarks.driver_eyes``; where the driver is a video or a camera), or "shots", the warped shots' lids
+        lowered alone (``landmarks.eyelids``).""")
+    eyes = Choice(EYES, "blend", """"drawn": one iris per eye, the subject's own, where the driver looks
+        (``lsr.core.parts.finish_eyes``; frame drivers only: a landmark driver has no irises); "blend": the network's
+        blend of its shots.""")
 
     @property
     def resolution(self) -> int:

@@ -36,6 +36,26 @@ MOUTHS = ("drawn", "nearest", "blend")
 redrawn by the mouth generator ("drawn"); without the redrawing ("nearest"); the network's blend alone ("blend")."""
 
 
+class Choice:
+    """A reenactor setting that is one of ``choices`` (``default`` until set): setting anything else is a ValueError
+    that names the setting. Used as a class attribute (``ReenactorBase.eyes``, ``mouth_interior``, ``lids``)."""
+
+    def __init__(self, choices: tuple[str, ...], default: str, doc: str) -> None:
+        self.choices, self.default, self.__doc__ = choices, default, doc
+        self.name = ""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, instance: object, owner: type | None = None):
+        return self if instance is None else instance.__dict__.get(self.name, self.default)
+
+    def __set__(self, instance: object, value: str) -> None:
+        if value not in self.choices:
+            raise ValueError(f"{self.name} must be one of {self.choices}, got {value!r}")
+        instance.__dict__[self.name] = value
+
+
 def draws_mouth(backend: object) -> bool:
     """Whether ``backend`` has a mouth generator (``SynthesisBackend.draw_mouth``, ``mouth_generator_size`` > 0)."""
     return getattr(backend, "mouth_generator_size", 0) > 0
