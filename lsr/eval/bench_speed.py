@@ -270,7 +270,8 @@ def identity_calibration(method: LsrModelMethod, identities, frames: int = 32, k
 
 def protocol_errors(methods: list, identities, ks: tuple[int, ...], detector, max_holdouts: int, progress: bool) -> dict[str, dict]:
     """{method name: {K: {psnr, ssim, nmke, idsim, no_face, frames}}} through ``run_protocol`` (meta-learned only)."""
-    from lsr.eval.protocol import FaceAnalysis, run_protocol
+    from lsr.eval.analysis import FaceAnalysis
+    from lsr.eval.protocol import run_protocol
     from lsr.eval.report import summarise
 
     run = run_protocol(methods, identities, ks, FaceAnalysis(detector), max_holdouts=max_holdouts,

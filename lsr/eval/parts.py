@@ -385,7 +385,7 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
 
 def driver_mouth_inputs(sequences: Sequence[Any]) -> list[dict[str, list]]:
     """What a method that takes the driver's mouth interior is given cross-identity
-    (``protocol.takes_driver_mouths``): one ``{"driver_mouths": T x DriverMouth or None}`` per ``cross.CrossSequence``, cut from the driving frames at
+    (``protocol.DRIVER_FRAME_INPUTS``): one ``{"driver_mouths": T x DriverMouth or None}`` per ``cross.CrossSequence``, cut from the driving frames at
     the driver's own points (``landmarks.mouth_interior.cut_driver_mouth``, as ``lsr reenact`` cuts them)."""
     from landmarks.mouth_interior import cut_driver_mouth
 
@@ -394,7 +394,7 @@ def driver_mouth_inputs(sequences: Sequence[Any]) -> list[dict[str, list]]:
 
 
 def driver_eye_inputs(sequences: Sequence[Any]) -> list[dict[str, list]]:
-    """What a method that takes the driver's shut eyes is given cross-identity (``protocol.takes_driver_eyes``): one
+    """What a method that takes the driver's shut eyes is given cross-identity (``protocol.DRIVER_FRAME_INPUTS``): one
     ``{"driver_eyes": T x DriverEyes or None}`` per ``cross.CrossSequence``, cut from the driving frames at the
     driver's own points against its lids at rest as ``lsr reenact`` keeps them (``landmarks.driver_eyes``,
     ``landmarks.eyelids.running_reference_gaps``)."""

@@ -48,8 +48,8 @@ import numpy as np
 
 from landmarks.coverage import spread
 from landmarks.expression import eye_opening, mouth_opening
-from landmarks.identity import DESCRIPTOR_SIZE, judged, same_person
 from lsr.errors import ConfigError, DatasetError
+from lsr.eval.analysis import FaceAnalysis
 from lsr.eval import cross, idsim, parts
 from lsr.eval.baselines import check_method_inputs, nearest_shot_indices
 from lsr.eval.metrics import face_mask, mse, nmke, psnr_from_mse, sharpness, ssim
@@ -112,16 +112,10 @@ def takes_gazes(method: Any) -> bool:
     return bool(getattr(method, "uses_gazes", False))
 
 
-def takes_driver_mouths(method: Any) -> bool:
-    """The method is passed ``driver_mouths=`` cross-identity, the driving frames' open mouths
-    (``landmarks.mouth_interior.DriverMouth``): it ``uses_driver_mouths`` (the driver's mouth interior)."""
-    return bool(getattr(method, "uses_driver_mouths", False))
-
-
-def takes_driver_eyes(method: Any) -> bool:
-    """The method is passed ``driver_eyes=`` cross-identity, the driving frames' shut eyes
-    (``landmarks.driver_eyes.DriverEyes``): it ``uses_driver_eyes`` (the driver's shut lids)."""
-    return bool(getattr(method, "uses_driver_eyes", False))
+DRIVER_FRAME_INPUTS = {"uses_driver_mouths": parts.driver_mouth_inputs, "uses_driver_eyes": parts.driver_eye_inputs}
+"""What a method is passed cross-identity from the driving frames, by the attribute that asks for it: ``driver_mouths=``,
+the open mouths (``landmarks.mouth_interior.DriverMouth``: the driver's mouth interior), and ``driver_eyes=``, the
+shut eyes (``landmarks.driver_eyes.DriverEyes``: the driver's shut lids); each cut once per driver."""
 
 
 def gives_meshes(detector: Any) -> bool:
@@ -318,53 +312,6 @@ def assign_buckets(pose_distances: np.ndarray, thresholds: tuple[float, float]) 
 # ---- runner ---------------------------------------------------------------------------------------
 
 
-class FaceAnalysis:
-    """Landmarks and embeddings of images, memoised by content hash (copies of input frames,
-    as the nearest-shot baseline outputs, are analysed once)."""
-
-    def __init__(self, detector: Any) -> None:
-        self.detector = detector
-        self._landmarks: dict[bytes, np.ndarray | None] = {}
-        self._embeddings: dict[bytes, np.ndarray] = {}
-
-    @staticmethod
-    def key(image: np.ndarray, extra: bytes = b"") -> bytes:
-        return hashlib.blake2b(image.tobytes() + extra, digest_size=16).digest()
-
-    def seed(self, images: np.ndarray, landmarks: np.ndarray) -> None:
-        """Register already-detected landmarks (N, 68, 2) for images (N, S, S, 3)."""
-        for image, points in zip(images, landmarks):
-            self._landmarks[self.key(image)] = points if np.all(np.isfinite(points)) else None
-
-    def landmarks(self, image: np.ndarray) -> np.ndarray | None:
-        key = self.key(image)
-        if key not in self._landmarks:
-            faces = self.detector.detect(image)
-            self._landmarks[key] = faces[0].landmarks.astype(np.float32) if faces else None
-        return self._landmarks[key]
-
-    def descriptor(self, image: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """dlib's raw 128-D descriptor (``landmarks.identity``), memoised."""
-        key = self.key(image, np.asarray(points, np.float32).tobytes())
-        if key not in self._embeddings:
-            self._embeddings[key] = idsim.face_descriptor(image, points)
-        return self._embeddings[key]
-
-    def embedding(self, image: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """The unit-norm embedding ID-SIM compares (``lsr.eval.idsim.face_embedding``'s)."""
-        return idsim.unit(self.descriptor(image, points))
-
-    def same_person(self, images: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
-        """Which frames (N, S, S, 3) show the majority's person (``landmarks.identity.same_person``; faces turned
-        too far to judge count as the person's, NaN landmark rows as not) -> (N,) bool."""
-        found = np.isfinite(landmarks).all(axis=(1, 2))
-        descriptors = np.full((len(images), DESCRIPTOR_SIZE), np.nan)
-        for index in np.flatnonzero(found):
-            if judged(landmarks[index], images[index].shape):
-                descriptors[index] = self.descriptor(images[index], landmarks[index])
-        return same_person(descriptors) & found
-
-
 @dataclasses.dataclass
 class EvalRun:
     """Everything a report needs. records: one dict per (method, K, identity, hold-out frame) with
@@ -520,10 +467,8 @@ def run_protocol(
             # what drawn eyes get, self and cross (per driver)
             gaze_inputs, cross_gazes = parts.gaze_inputs(targets, target_landmarks, [s for s, _ in sequences]) if any(
                 takes_gazes(method) for method in methods) else ({}, [{} for _ in sequences])
-            cross_mouths = parts.driver_mouth_inputs([s for s, _ in sequences]) if any(
-                takes_driver_mouths(method) for method in methods) else [{} for _ in sequences]  # the drivers' mouths
-            cross_eyes = parts.driver_eye_inputs([s for s, _ in sequences]) if any(
-                takes_driver_eyes(method) for method in methods) else [{} for _ in sequences]  # and shut eyes
+            from_drivers = {attribute: cut([s for s, _ in sequences]) for attribute, cut in DRIVER_FRAME_INPUTS.items()
+                            if any(getattr(method, attribute, False) for method in methods)}  # mouths, shut eyes
             mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
             cross_meshes: list[dict[str, np.ndarray]] = [{} for _ in sequences]  # per driver, made once
             if any(takes_meshes(method) for method in methods) and identity.has_meshes:
@@ -575,16 +520,16 @@ def run_protocol(
                         **{key: float(values[row]) for key, values in extra.items()},
                         **part_scores[row], **beyond[row],
                     })
-                for (sequence, driver_segmentations), meshes_of, gazes_of, mouths_of, eyes_of, sequence_judge in zip(
-                        sequences, cross_meshes, cross_gazes, cross_mouths, cross_eyes, judges):
+                for position, ((sequence, driver_segmentations), meshes_of, gazes_of, sequence_judge) in enumerate(zip(
+                        sequences, cross_meshes, cross_gazes, judges)):
                     before = _warp_counts(model)
                     # the oracle sees the driving frames' segmentation, i.e. the driver's own (not retargeted) layout
                     extra_inputs = {"target_segmentations": driver_segmentations} if oracle else {}
                     if takes_meshes(model):
                         extra_inputs.update(meshes_of)
-                    extra_inputs.update({**(gazes_of if takes_gazes(model) else {}),
-                                         **(mouths_of if takes_driver_mouths(model) else {}),
-                                         **(eyes_of if takes_driver_eyes(model) else {})})
+                    extra_inputs.update(gazes_of if takes_gazes(model) else {})
+                    for attribute, per_sequence in from_drivers.items():
+                        extra_inputs.update(per_sequence[position] if getattr(model, attribute, False) else {})
                     crossed = model.reenact(shots, shot_landmarks, sequence.targets, **extra_inputs)
                     _add_warp_counts(counts, name, k, "cross", before, _warp_counts(model))
                     _check_outputs(crossed, len(sequence.targets), targets.shape[1:], name)

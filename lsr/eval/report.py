@@ -414,7 +414,7 @@ def _fid_collector(weights: Path, device: str, then: Any) -> tuple[dict[tuple[st
     """An ``on_outputs`` callback that stores FID features of outputs and targets per (method, K), then calls ``then``.
     Ground-truth features are computed once per distinct target set (they repeat for every method and K)."""
     from lsr.eval.fid import image_features, load_feature_extractor
-    from lsr.eval.protocol import FaceAnalysis
+    from lsr.eval.analysis import FaceAnalysis
 
     extractor = load_feature_extractor(weights, device=device)
     collected: dict[tuple[str, int], tuple[list, list]] = {}
@@ -445,7 +445,8 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     """Run ``lsr eval`` (cfg: lsr.config.EvalConfig): load, evaluate the baselines, write and print the report."""
     from landmarks.detectors import make_detector
     from lsr.eval.baselines import MeshMean3, MeshWarp, NearestShot, TpsMean3, TpsWarp
-    from lsr.eval.protocol import (FaceAnalysis, takes_meshes, attach_meshes, detect_layout, gives_meshes,
+    from lsr.eval.analysis import FaceAnalysis
+    from lsr.eval.protocol import (takes_meshes, attach_meshes, detect_layout, gives_meshes,
                                    load_fsth_sample, load_lsr_split, run_protocol)
     from lsr.machine import machine_markdown
 

@@ -112,7 +112,9 @@ def test_inputs_of_another_person_are_never_drawn(rng, no_face_detector, monkeyp
     identity = _identity(rng, "a", inputs=6, holdouts=2)
     others = {identity.input_frames[i].tobytes() for i in (1, 4)}
     # descriptors 1.0 apart for the two frames of "another person", identical for the rest
-    monkeypatch.setattr(protocol, "judged", lambda points, shape: True)
+    from lsr.eval import analysis
+
+    monkeypatch.setattr(analysis, "judged", lambda points, shape: True)  # FaceAnalysis.same_person's
     monkeypatch.setattr(protocol.idsim, "face_descriptor",
                         lambda image, points: np.full(128, 0.1 if image.tobytes() in others else 0.0))
     spy = _SpyMethod()
