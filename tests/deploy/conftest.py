@@ -115,3 +115,34 @@ def driver_frames():
     from lsr.examples import REAL_DRIVER
 
     return lambda count: np.stack([frame for _, frame in zip(range(count), iter_frames(REAL_DRIVER))])
+
+
+@pytest.fixture(scope="module")
+def bundled_drive():
+    """indices -> (the bundled source's anchor crop (256, 256, 3), [(driver frame, its 68 points as tracked, the
+    target retargeted onto the anchor in crop pixels)] at those frames of the bundled driver), as the live session
+    drives it, unsmoothed."""
+    from landmarks.align import crop_transform, transform_landmarks
+    from landmarks.detectors import make_tracker
+    from landmarks.mesh_retarget import DriverReference
+    from landmarks.retarget import retarget_driving
+    from landmarks.video import iter_frames
+    from lsr.core.sources import load_subject_shots
+    from lsr.examples import REAL_DRIVER, REAL_SOURCE
+
+    def drive(indices: tuple[int, ...], crop: int = 256):
+        shots = load_subject_shots(REAL_SOURCE, crop, k=8)
+        anchor = shots.landmarks[shots.anchor]
+        tracker, reference, out = make_tracker("mesh"), DriverReference(), []
+        for index, frame in enumerate(iter_frames(REAL_DRIVER)):
+            if index > max(indices):
+                break
+            points = tracker.update(np.ascontiguousarray(frame))
+            gaps, _ = reference.lids(points)
+            crop_points = transform_landmarks(points, crop_transform(points, crop))
+            reference.start(crop_points)
+            if index in indices:
+                out.append((frame, points, retarget_driving(crop_points, reference.landmarks, anchor, gaps)))
+        return shots.frames[shots.anchor], out
+
+    return drive

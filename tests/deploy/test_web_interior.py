@@ -17,29 +17,9 @@ def psnr(first: np.ndarray, second: np.ndarray) -> float:
 
 
 @pytest.fixture(scope="module")
-def driven():
+def driven(bundled_drive):
     """(the source's anchor crop, [(driver frame, its points, the target in crop pixels)] at FRAMES)."""
-    from landmarks.align import crop_transform, transform_landmarks
-    from landmarks.detectors import make_tracker
-    from landmarks.mesh_retarget import DriverReference
-    from landmarks.retarget import retarget_driving
-    from landmarks.video import iter_frames
-    from lsr.core.sources import load_subject_shots
-    from lsr.examples import REAL_DRIVER, REAL_SOURCE
-
-    shots = load_subject_shots(REAL_SOURCE, CROP, k=8)
-    anchor = shots.landmarks[shots.anchor]
-    tracker, reference, out = make_tracker("mesh"), DriverReference(), []
-    for index, frame in enumerate(iter_frames(REAL_DRIVER)):
-        if index > max(FRAMES):
-            break
-        points = tracker.update(np.ascontiguousarray(frame))
-        gaps, _ = reference.lids(points)
-        crop = transform_landmarks(points, crop_transform(points, CROP))
-        reference.start(crop)
-        if index in FRAMES:
-            out.append((frame, points, retarget_driving(crop, reference.landmarks, anchor, gaps)))
-    return shots.frames[shots.anchor], out
+    return bundled_drive(FRAMES, CROP)
 
 
 def test_the_driver_mouth_is_cut_as_python_cuts_it(web, driven):
