@@ -296,8 +296,8 @@ class BenchReenactConfig:
     mouth_interiors: tuple[Literal["driver", "shots"], ...] = ()
     """Inside an open mouth (as `lsr reenact --mouth-interior`), one row each; driver shots prints the driver
     interior's frame-rate ratio. Empty: the default (driver)."""
-    lids: tuple[Literal["driver", "shots"], ...] = ()
-    """Where the driver shuts its eyes (as `lsr reenact --lids`), one row each; driver shots prints the driver's shut
+    lids: tuple[Literal["driver", "drawn", "shots"], ...] = ()
+    """Where the target shuts its eyes (as `lsr reenact --lids`), one row each; driver shots prints the driver's shut
     lids' frame-rate ratio (they are cut and read on every frame, laid in where they shut). Empty: the default
     (driver)."""
     paste_back: bool = True

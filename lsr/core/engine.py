@@ -46,6 +46,7 @@ from lsr.core.sources import (
     track_driver,
 )
 from landmarks.driver_eyes import DriverEyes, cut_driver_eyes, paste_eyes
+from landmarks.drawn_lids import draw_lids, shot_lid_gaps
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.eyelids import LOOK_AHEAD
 from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
@@ -75,6 +76,11 @@ class Subject:
     source: str | None
     """Resolved source path when the source was one file or folder (decides the default mode)."""
     _irises: tuple | None = dataclasses.field(default=None, repr=False)
+
+    @functools.cached_property
+    def lid_gaps(self) -> np.ndarray:
+        """(2,) its lids at rest, the median lid gaps of its shots (``landmarks.drawn_lids.shot_lid_gaps``)."""
+        return shot_lid_gaps(self.shots.landmarks)
 
     @property
     def irises(self) -> tuple:
@@ -190,9 +196,10 @@ class ReenactorBase:
     mouth_interior = Choice(MOUTH_INTERIORS, "driver", """Inside an open mouth: "driver", the driver frame's cavity,
         teeth and tongue inside the target's inner lips (``landmarks.mouth_interior``; where the driver is a video or a
         camera), or "shots", what the mouth choice gives (``mouth``).""")
-    lids = Choice(LIDS, "driver", """Where the driver shuts its eyes: "driver", its shut lids laid over the synthesis'
-        eyes (``landmarks.driver_eyes``; where the driver is a video or a camera), or "shots", the warped shots' lids
-        lowered alone (``landmarks.eyelids``).""")
+    lids = Choice(LIDS, "driver", """Where the target shuts its eyes: "driver", the driver's shut lids laid over the
+        synthesis' eyes (``landmarks.driver_eyes``; where the driver is a video or a camera), drawn where none were
+        cut (a landmark driver, self re-enactment); "drawn", the subject's own upper lids drawn down over them
+        (``landmarks.drawn_lids``); or "shots", the warped shots' lids lowered alone (``landmarks.eyelids``).""")
     eyes = Choice(EYES, "blend", """"drawn": one iris per eye, the subject's own, where the driver looks
         (``lsr.core.parts.finish_eyes``; frame drivers only: a landmark driver has no irises); "blend": the network's
         blend of its shots.""")
@@ -296,8 +303,8 @@ class ReenactorBase:
         """``network_inputs``' dict -> (synthesis (C, C, 3) uint8, layout (C_l, S, S) float32 or None). ``crop_landmarks``
         given, ``mouth`` "nearest" or "drawn": the mouth of ``subject``'s nearest warped shot as
         ``landmarks.nearest_mouth`` says; "drawn": then redrawn by the mouth generator (``lsr.core.parts``); and with
-        a ``gaze``, the eyes as ``eyes`` says; with a ``driver_mouth``, the interior as ``mouth_interior`` says; with
-        ``driver_eyes``, the shut lids as ``lids`` says."""
+        a ``gaze``, the eyes as ``eyes`` says; with a ``driver_mouth``, the interior as ``mouth_interior`` says; the
+        shut lids as ``lids`` says (the driver's with ``driver_eyes``, else drawn)."""
         image, layout = self.backend.synthesize(
             inputs["landmark_image"], inputs["layout_latent"], inputs["style_latent"], with_layout,
             *((inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()),
@@ -311,6 +318,8 @@ class ReenactorBase:
             image = paste_interior(image, crop_landmarks, driver_mouth)
         if crop_landmarks is not None and driver_eyes is not None and self.lids == "driver":
             image = paste_eyes(image, crop_landmarks, driver_eyes)
+        elif crop_landmarks is not None and self.lids != "shots":
+            image = draw_lids(image, crop_landmarks, (subject or self._require_subject()).lid_gaps)
         if crop_landmarks is not None and gaze is not None and self.eyes == "drawn":
             image = finish_eyes(image, self.eyes, crop_landmarks, gaze, (subject or self._require_subject()).irises[0])
         return image, None if layout is None else np.asarray(layout[0], np.float32)

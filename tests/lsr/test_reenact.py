@@ -580,3 +580,4 @@ def test_reenact_lids_option_reaches_the_reenactor(weights):
     assert ReenactConfig().lids == "driver"
     assert make_reenactor(ReenactConfig(weights=weights)).lids == "driver"
     assert make_reenactor(ReenactConfig(weights=weights, lids="shots")).lids == "shots"
+    assert make_reenactor(ReenactConfig(weights=weights, lids="drawn")).lids == "drawn"

@@ -194,3 +194,26 @@ def test_the_driver_shut_eyes_go_over_the_eyes_by_default_and_can_be_told_not_to
     assert (reenactor.synthesize_crop(target, driver_eyes=eyes)[0] == plain).all()
     with pytest.raises(ValueError, match="lids"):
         reenactor.lids = "wink"
+
+
+def test_with_no_driver_frame_the_subject_lids_are_drawn_where_the_target_shuts_them(folders):
+    from landmarks.drawn_lids import draw_lids
+    from landmarks.eyelids import closed_gaps, lid_gaps, set_lid_gaps
+    from lsr.pipeline import Reenactor
+
+    reenactor = Reenactor(folders, crop_size=SIDE)
+    reenactor.encode_subject(_shots())
+    open_target = reenactor.subject.shots.landmarks[1]
+    shut = set_lid_gaps(open_target, closed_gaps(lid_gaps(open_target)))
+    reenactor.lids = "shots"
+    warped_only = reenactor.synthesize_crop(shut)[0]
+    for lids in ("driver", "drawn"):  # a landmark driver's shut eyes: no frame to take them from, so drawn
+        reenactor.lids = lids
+        drawn = reenactor.synthesize_crop(shut)[0]
+        np.testing.assert_array_equal(drawn, draw_lids(warped_only, shut, reenactor.subject.lid_gaps))
+        ys, xs = np.nonzero(np.abs(drawn.astype(int) - warped_only.astype(int)).max(axis=-1) > 0)
+        assert len(ys) and (ys <= shut[48:68, 1].min()).all()  # the eyes, nothing from the mouth down
+    reenactor.lids = "drawn"  # open eyes stay as the warps give them
+    drawn_open = reenactor.synthesize_crop(open_target)[0]
+    reenactor.lids = "shots"
+    np.testing.assert_array_equal(drawn_open, reenactor.synthesize_crop(open_target)[0])
