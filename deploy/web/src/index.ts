@@ -8,6 +8,7 @@ export * from "./retarget.js";
 export * from "./mouth.js";
 export * from "./interior.js";
 export * from "./eyes.js";
+export * from "./lids.js";
 export * from "./facedetect.js";
 export * from "./facemesh.js";
 export * from "./tracker.js";

@@ -199,15 +199,15 @@ export function pointBox(p: ArrayLike<number>, from: number, to: number): [numbe
 }
 
 /** The polygon of the points from..to (exclusive) of flat (x, y) pairs, less (x0, y0), filled into a w x h uint8
- * mask (255 inside) as cv2.fillPoly(mask, [np.round(points * 4)], 255, cv2.LINE_AA, shift=2) fills it. */
+ * mask (255 inside) as cv2.fillPoly(mask, [np.round(points * 2**shift)], 255, cv2.LINE_AA, shift) fills it. */
 export function polygonMask(p: ArrayLike<number>, from: number, to: number, x0: number, y0: number, w: number,
-                            h: number): Uint8Array {
-  const mask = new Uint8Array(w * h), polygon = new Int32Array(2 * (to - from));
+                            h: number, shift = 2): Uint8Array {
+  const mask = new Uint8Array(w * h), polygon = new Int32Array(2 * (to - from)), one = 1 << shift;
   for (let i = from; i < to; i++) {
-    polygon[2 * (i - from)] = roundHalfEven((p[2 * i] - x0) * 4);
-    polygon[2 * (i - from) + 1] = roundHalfEven((p[2 * i + 1] - y0) * 4);
+    polygon[2 * (i - from)] = roundHalfEven((p[2 * i] - x0) * one);
+    polygon[2 * (i - from) + 1] = roundHalfEven((p[2 * i + 1] - y0) * one);
   }
-  fillPolyAA(mask, w, h, polygon, 255, 2);
+  fillPolyAA(mask, w, h, polygon, 255, shift);
   return mask;
 }
 

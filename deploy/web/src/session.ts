@@ -9,6 +9,7 @@ import { folderReader } from "./files.js";
 import { Affine, Tensor, tensor } from "./tensor.js";
 import { invertAffine, transformPoints } from "./geometry.js";
 import { DriverEyes, EyePatch, cutEyePatch, pasteEyes, shutEyes } from "./eyes.js";
+import { drawLids, shotLidGaps } from "./lids.js";
 import { DriverMouth, cutDriverMouth, pasteInterior } from "./interior.js";
 import { finishMouthNearest } from "./mouth.js";
 import { FrameGenerator, Latents } from "./network.js";
@@ -117,6 +118,8 @@ export class LiveSession {
   private readonly smoother = new LiveSmoother();
   private readonly reference = new DriverReference();
   private readonly referenceLandmarks: Tensor<Float64Array>;
+  /** The subject's lids at rest (shotLidGaps), which the drawn lids are read against. */
+  private readonly lidGaps: Float64Array;
   private readonly cropToScene: Affine;
   last: LiveFrame | null = null;
   frames = 0;
@@ -126,6 +129,7 @@ export class LiveSession {
     const { person } = site;
     const anchor = person.anchor * 68 * 2;
     this.referenceLandmarks = tensor(person.shotLandmarks.data.slice(anchor, anchor + 136), [68, 2]);
+    this.lidGaps = shotLidGaps(person.shotLandmarks);
     this.cropToScene = invertAffine(person.sceneMatrix);
   }
 
@@ -196,8 +200,10 @@ export class LiveSession {
       ? finishMouthNearest(synthesis.image, references.warped, references.masks, references.indices, target,
                            person.shotLandmarks, true) as Tensor<Uint8Array>
       : synthesis.image;
-    const face = pasteEyes(pasteInterior(mouthed, target, prepared.mouth, true), target, prepared.eyes,
-                           true) as Tensor<Uint8Array>;
+    const interior = pasteInterior(mouthed, target, prepared.mouth, true);
+    const face = (prepared.eyes !== null && config.lids === "driver"
+      ? pasteEyes(interior, target, prepared.eyes, true)
+      : config.lids !== "shots" ? drawLids(interior, target, this.lidGaps, true) : interior) as Tensor<Uint8Array>;
     const interiored = now();
     const composite = compositeFace(person.scene, person.sceneLandmarks, transformPoints(target, this.cropToScene), face,
                                     person.sceneMatrix, person.layers);
