@@ -1,22 +1,23 @@
-"""Shut lids drawn from the subject's own skin (issue 40: the eyes shut where the target's do, with no driver frame).
+"""Shut lids drawn from the subject's own skin (issue 40: the eyes shut where the target's do, drawn, not blended).
 
-Where a driver's frame is at hand, its shut lids are laid in (``landmarks.driver_eyes``). A landmark driver and
-self re-enactment have none, and a subject whose shots all show open eyes has no shut eye to warp: the warps squeeze
-the open eye, and the blend of them still shows the white and the iris. On the validation people, real046 looking
-down with his lids shut was drawn with his eyes open and white (self re-enactment, K = 8: 16 hold-outs below
-``SHUT[1]``, eye region 16.2 dB). So where the target's lids shut, the upper lid is drawn down over the eye:
+A subject whose shots all show open eyes has no shut eye to warp: the warps squeeze the open eye, and the blend of
+them still shows the white and the iris. On the validation people, real046 looking down with his lids shut was drawn
+with his eyes open and white (self re-enactment, K = 8: 16 hold-outs below ``SHUT[1]``, eye region 16.2 dB). A
+driver's frame has shut lids (``landmarks.driver_eyes``, ``--lids driver``), but they are another person's: its
+crease, lashes and make-up. A landmark driver and self re-enactment have none. So where the target's lids shut, the
+subject's own upper lid is drawn down over the eye (the default, ``--lids drawn``):
 
 * how far: the target's aperture share against the subject's own lids at rest (``driver_eyes.aperture_share``
   against the median lid gaps of the shots, ``shot_lid_gaps``), the ramp of the driver's lids (``SHUT``: from
   ``SHUT[1]`` down the lid comes down, at ``SHUT[0]`` and below it meets the lower lid);
 * where: between the eye as the shots show it open (the target's lids at the shots' gaps, ``eyelids.set_lid_gaps``,
   grown by ``GROW`` for the lashes and the white's edge) and the drawn lid's margin, the target's upper lid lowered
-  by that strength (a half-shut eye keeps the lower half of its opening);
+  by that strength (a half-shut eye keeps the lower part of its opening);
 * with what: the skin around it, filled in (``scene.fill_in``: the lid, the crease and the cheek below, lit as they
-  are), darkened along the margin by a lash line (``LASH``, ``DARK``), feathered (``FEATHER``) and faded in with
-  the strength (``RAMP``).
+  are), darkened along the margin by a lash line (``LASH``, ``DARK``, a little above it: ``LIFT``), feathered
+  (``FEATHER``) and faded in with the strength (``RAMP``).
 
-Set on the validation people only (real046's 16 such hold-outs: eye region 16.2 -> 19.3 dB). numpy + OpenCV only:
+Set on the validation people only (real046's 16 such hold-outs: eye region 16.2 -> 19.5 dB). numpy + OpenCV only:
 the torch and ONNX runtimes share it.
 """
 

@@ -259,12 +259,12 @@ class ReenactConfig:
     lips, lit and tinted as the skin around them (a video or image driver; the teeth are the driver's);
     shots = what --mouth gives (the shots' insides, stretched where none is as open). Compared by `lsr eval
     --mouth-interiors`."""
-    lids: Literal["driver", "drawn", "shots"] = "driver"
-    """Where the target shuts its eyes: driver = the driver's shut lids laid over the subject's eyes, lit as the skin
-    around them (a video or image driver: lids, crease and lash line are the driver's), drawn where the driver gives
-    none (a landmark file); drawn = the subject's own upper lids drawn down over its eyes (its skin filled in, a
-    lash line along the lid); shots = the warped shots' lids lowered alone (an open eye squeezed to a slit).
-    Compared by `lsr eval --lids`."""
+    lids: Literal["drawn", "driver", "shots"] = "drawn"
+    """Where the target shuts its eyes: drawn = the subject's own upper lids drawn down over its eyes (the skin
+    around them filled in, a lash line along the lowered lid); driver = the driver's shut lids laid over the
+    subject's eyes, lit as the skin around them (a video or image driver: lids, crease and lash line are the
+    driver's), drawn where the driver gives none (a landmark file); shots = the warped shots' lids lowered alone (an
+    open eye squeezed to a slit). Compared by `lsr eval --lids`."""
     eyes: Literal["drawn", "blend"] = "blend"
     """drawn = one iris per eye, the subject's own (its shot with the most open eyes), laid where the driver looks
     (MediaPipe's iris net on the driver's frames) inside the driven lids, clipped by them; blend = the network's

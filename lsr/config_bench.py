@@ -296,10 +296,10 @@ class BenchReenactConfig:
     mouth_interiors: tuple[Literal["driver", "shots"], ...] = ()
     """Inside an open mouth (as `lsr reenact --mouth-interior`), one row each; driver shots prints the driver
     interior's frame-rate ratio. Empty: the default (driver)."""
-    lids: tuple[Literal["driver", "drawn", "shots"], ...] = ()
-    """Where the target shuts its eyes (as `lsr reenact --lids`), one row each; driver shots prints the driver's shut
-    lids' frame-rate ratio (they are cut and read on every frame, laid in where they shut). Empty: the default
-    (driver)."""
+    lids: tuple[Literal["drawn", "driver", "shots"], ...] = ()
+    """Where the target shuts its eyes (as `lsr reenact --lids`), one row each; with shots among them each other
+    choice's frame-rate ratio is printed (the driver's shut lids are cut and read on every frame, laid in where they
+    shut; the drawn ones read from the target). Empty: the default (drawn)."""
     paste_back: bool = True
     k: int = 4
     device: Literal["auto", "cpu", "cuda"] = "auto"

@@ -71,11 +71,11 @@ class EvalConfig:
     target's inner lips: landmarks.mouth_interior) or shots (what the mouth choice gives); empty: the model's default
     (driver); more than one adds a row per extra choice ("+shots-interior"). Self re-enactment drives by landmarks
     alone (its driving frames are the ground truth), so there it changes nothing."""
-    lids: tuple[Literal["driver", "drawn", "shots"], ...] = ()
-    """Where the target shuts its eyes: driver (cross-identity, the driving frame's shut lids laid over the model's
-    eyes: landmarks.driver_eyes; self re-enactment, which drives by landmarks alone, drawn), drawn (the subject's own
-    upper lids drawn down: landmarks.drawn_lids) or shots (the warped shots' lids alone); empty: the model's default
-    (driver); more than one adds a row per extra choice ("+shots-lids")."""
+    lids: tuple[Literal["drawn", "driver", "shots"], ...] = ()
+    """Where the target shuts its eyes: drawn (the subject's own upper lids drawn down: landmarks.drawn_lids), driver
+    (cross-identity, the driving frame's shut lids laid over the model's eyes: landmarks.driver_eyes; self
+    re-enactment, which drives by landmarks alone, drawn) or shots (the warped shots' lids alone); empty: the model's
+    default (drawn); more than one adds a row per extra choice ("+shots-lids")."""
     detector_upsample: int = 1
     """dlib only: pyramid upsampling; 1 finds the faces of 224-px crops at 1/4 the cost of 2."""
     bucket_thresholds: tuple[float, ...] = ()

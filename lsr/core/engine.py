@@ -196,10 +196,10 @@ class ReenactorBase:
     mouth_interior = Choice(MOUTH_INTERIORS, "driver", """Inside an open mouth: "driver", the driver frame's cavity,
         teeth and tongue inside the target's inner lips (``landmarks.mouth_interior``; where the driver is a video or a
         camera), or "shots", what the mouth choice gives (``mouth``).""")
-    lids = Choice(LIDS, "driver", """Where the target shuts its eyes: "driver", the driver's shut lids laid over the
-        synthesis' eyes (``landmarks.driver_eyes``; where the driver is a video or a camera), drawn where none were
-        cut (a landmark driver, self re-enactment); "drawn", the subject's own upper lids drawn down over them
-        (``landmarks.drawn_lids``); or "shots", the warped shots' lids lowered alone (``landmarks.eyelids``).""")
+    lids = Choice(LIDS, "drawn", """Where the target shuts its eyes: "drawn", the subject's own upper lids drawn down
+        over the synthesis' eyes (``landmarks.drawn_lids``); "driver", the driver's shut lids laid over them
+        (``landmarks.driver_eyes``; where the driver is a video or a camera), drawn where none were cut (a landmark
+        driver); or "shots", the warped shots' lids lowered alone (``landmarks.eyelids``).""")
     eyes = Choice(EYES, "blend", """"drawn": one iris per eye, the subject's own, where the driver looks
         (``lsr.core.parts.finish_eyes``; frame drivers only: a landmark driver has no irises); "blend": the network's
         blend of its shots.""")

@@ -29,9 +29,9 @@ EYES = ("drawn", "blend")
 or the network's blend of its shots ("blend")."""
 MOUTH_INTERIORS = ("driver", "shots")
 """Inside an open mouth: the driver frame's (``landmarks.mouth_interior``) or what ``MOUTHS``' choice gives."""
-LIDS = ("driver", "drawn", "shots")
-"""Where the target shuts its eyes: the driver frame's shut lids laid in (``landmarks.driver_eyes``; with no driver
-frame or none cut from it, drawn), the subject's own lids drawn down (``landmarks.drawn_lids``), or the warped shots'
+LIDS = ("drawn", "driver", "shots")
+"""Where the target shuts its eyes: the subject's own lids drawn down (``landmarks.drawn_lids``), the driver frame's
+shut lids laid in (``landmarks.driver_eyes``; with no driver frame or none cut from it, drawn), or the warped shots'
 alone."""
 MOUTHS = ("drawn", "nearest", "blend")
 """A warp-guided model's mouth: the nearest warped shot's where the target opens it wider than the shots, then

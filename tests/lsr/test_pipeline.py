@@ -158,16 +158,24 @@ def test_a_video_driver_gives_its_blink_its_shut_lids(reenactor, tmp_path):
     from lsr.data.synth import render_video
 
     clip = write_clip(tmp_path / "blink.mp4", list(render_video(44, 8, 256).frames), audio=False)  # shut at 2-3
-    out = list(reenactor(clip))
-    assert out[0].driver_eyes is None and out[7].driver_eyes is None  # open: nothing cut
-    assert out[2].driver_eyes is not None and out[2].driver_eyes.patch.ndim == 3  # landmarks.driver_eyes
-    absolute = list(reenactor(clip, mode="absolute"))  # the driver's own lids, and still its shut eyes
-    assert absolute[2].driver_eyes is not None and absolute[0].driver_eyes is None
-    reenactor.lids = "shots"
+    drawn = list(reenactor(clip))  # the default: the subject's own lids drawn where the target's shut, nothing cut
+    assert reenactor.lids == "drawn" and all(frame.driver_eyes is None for frame in drawn)
     try:
-        assert all(frame.driver_eyes is None for frame in reenactor(clip))
-    finally:
         reenactor.lids = "driver"
+        out = list(reenactor(clip))
+        assert out[0].driver_eyes is None and out[7].driver_eyes is None  # open: nothing cut
+        assert out[2].driver_eyes is not None and out[2].driver_eyes.patch.ndim == 3  # landmarks.driver_eyes
+        absolute = list(reenactor(clip, mode="absolute"))  # the driver's own lids, and still its shut eyes
+        assert absolute[2].driver_eyes is not None and absolute[0].driver_eyes is None
+        reenactor.lids = "shots"
+        lowered = list(reenactor(clip))
+        assert all(frame.driver_eyes is None for frame in lowered)
+    finally:
+        reenactor.lids = "drawn"
+    assert np.array_equal(drawn[0].synthesis, lowered[0].synthesis)  # open eyes: as the warps give them
+    eyes = drawn[2].landmarks[36:48]
+    rows = slice(int(eyes[:, 1].min()) - 6, int(eyes[:, 1].max()) + 7)
+    assert not np.array_equal(drawn[2].synthesis[rows], lowered[2].synthesis[rows])  # shut: the lids drawn down
 
 
 def test_bf16_error_is_reported(reenactor, capsys):

@@ -577,7 +577,8 @@ def test_reenact_lids_option_reaches_the_reenactor(weights):
     from lsr.config import ReenactConfig
     from lsr.reenact import make_reenactor
 
-    assert ReenactConfig().lids == "driver"
-    assert make_reenactor(ReenactConfig(weights=weights)).lids == "driver"
+    assert ReenactConfig().lids == "drawn"
+    assert make_reenactor(ReenactConfig(weights=weights)).lids == "drawn"
+    assert make_reenactor(ReenactConfig(weights=weights, lids="driver")).lids == "driver"
     assert make_reenactor(ReenactConfig(weights=weights, lids="shots")).lids == "shots"
     assert make_reenactor(ReenactConfig(weights=weights, lids="drawn")).lids == "drawn"

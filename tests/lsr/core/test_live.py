@@ -112,12 +112,16 @@ def test_a_blink_on_camera_gives_the_synthesis_the_shut_lids(reenactor, tmp_path
     clip = render_video(44, 4, 256)  # open, closing, shut, shut
     session = LiveSession(reenactor, subject)
     prepared = [session.prepare(frame) for frame in clip.frames]
-    assert prepared[0].driver_eyes is None  # open: nothing cut
-    # landmarks.driver_eyes, against the lids at rest so far (a camera has nothing ahead: two of three are closing)
-    assert prepared[2].driver_eyes is not None and prepared[2].driver_eyes.strength > 0
-    reenactor.lids = "shots"
+    assert all(p.driver_eyes is None for p in prepared)  # the default draws the subject's lids: nothing to cut
     try:
+        reenactor.lids = "driver"
+        session = LiveSession(reenactor, subject)
+        prepared = [session.prepare(frame) for frame in clip.frames]
+        assert prepared[0].driver_eyes is None  # open: nothing cut
+        # landmarks.driver_eyes, against the lids at rest so far (a camera has nothing ahead: two of three closing)
+        assert prepared[2].driver_eyes is not None and prepared[2].driver_eyes.strength > 0
+        reenactor.lids = "shots"
         session = LiveSession(reenactor, subject)
         assert all(session.prepare(frame).driver_eyes is None for frame in clip.frames)
     finally:
-        reenactor.lids = "driver"
+        reenactor.lids = "drawn"

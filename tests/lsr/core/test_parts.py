@@ -169,13 +169,14 @@ def test_the_driver_mouth_interior_goes_inside_the_lips_by_default_and_can_be_to
         reenactor.mouth_interior = "tongue"
 
 
-def test_the_driver_shut_eyes_go_over_the_eyes_by_default_and_can_be_told_not_to(folders):
+def test_the_driver_shut_eyes_go_over_the_eyes_when_asked_and_can_be_told_not_to(folders):
     from landmarks.driver_eyes import cut_driver_eyes
     from landmarks.eyelids import closed_gaps, lid_gaps, set_lid_gaps
     from lsr.pipeline import Reenactor
 
     reenactor = Reenactor(folders, crop_size=SIDE)
-    assert reenactor.lids == "driver"
+    assert reenactor.lids == "drawn"
+    reenactor.lids = "driver"
     reenactor.encode_subject(_shots())
     target = reenactor.subject.shots.landmarks[1]
     rest = lid_gaps(target)
