@@ -103,7 +103,7 @@ def draw_lids(image: np.ndarray, landmarks: np.ndarray, reference_gaps: np.ndarr
     for eye in EYES:
         centre = (points[eye][0] + points[eye][3]) / 2
         x0, y0 = (int(max(0, np.floor(c - REACH * scale))) for c in centre)
-        x1, y1 = int(min(width, np.ceil(centre[0] + REACH * scale))), int(min(height, np.ceil(centre[1] + REACH * scale)))
+        x1, y1 = (int(min(side, np.ceil(c + REACH * scale))) for c, side in zip(centre, (width, height)))
         if x1 - x0 < 2 or y1 - y0 < 2 or not np.isfinite(opened[eye]).all():
             continue
         offset = np.array([x0, y0], np.float64)
