@@ -193,16 +193,9 @@ class ReenactorBase:
                               "ONNX bundle with mouth_generator.onnx); use --mouth nearest")
         self._mouth = mouth
 
-    mouth_interior = Choice(MOUTH_INTERIORS, "driver", """Inside an open mouth: "driver", the driver frame's cavity,
-        teeth and tongue inside the target's inner lips (``landmarks.mouth_interior``; where the driver is a video or a
-        camera), or "shots", what the mouth choice gives (``mouth``).""")
-    lids = Choice(LIDS, "drawn", """Where the target shuts its eyes: "drawn", the subject's own upper lids drawn down
-        over the synthesis' eyes (``landmarks.drawn_lids``); "driver", the driver's shut lids laid over them
-        (``landmarks.driver_eyes``; where the driver is a video or a camera), drawn where none were cut (a landmark
-        driver); or "shots", the warped shots' lids lowered alone (``landmarks.eyelids``).""")
-    eyes = Choice(EYES, "blend", """"drawn": one iris per eye, the subject's own, where the driver looks
-        (``lsr.core.parts.finish_eyes``; frame drivers only: a landmark driver has no irises); "blend": the network's
-        blend of its shots.""")
+    mouth_interior = Choice(MOUTH_INTERIORS, "driver", "Inside an open mouth (``lsr.core.parts.MOUTH_INTERIORS``).")
+    lids = Choice(LIDS, "drawn", "Where the target shuts its eyes (``lsr.core.parts.LIDS``).")
+    eyes = Choice(EYES, "blend", "The eyes' irises (``lsr.core.parts.EYES``).")
 
     @property
     def resolution(self) -> int:
@@ -550,8 +543,8 @@ class ReenactorBase:
                 matrix = crop_transform(points, size)
                 crop_landmarks = transform_landmarks(points, matrix)
                 crop_mesh = self._crop_mesh(mesh, raw_points, points, matrix, retarget if relative else "2d")
-                lids = reference.lids(raw_points, mesh)  # as detected, as lsr eval reads them; relative motion and
-                # the driver's shut eyes are read against them (an absolute driver has its own lids, so only the eyes)
+                lids = (reference.lids(raw_points, mesh) if relative or self.lids == "driver"
+                        else None)  # as detected, as lsr eval reads them: relative motion and the driver's eyes
                 reference.start(crop_landmarks, crop_mesh)  # the driver's first face: its motion moves the source's
                 crop_landmarks, crop_mesh = self._drive(crop_landmarks, crop_mesh, reference, lids, relative,
                                                         retarget)

@@ -25,14 +25,17 @@ from landmarks.part_window import (MOUTH, PartWindow, extract, lip_masks, paste,
 PartRunner = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """(window (1, 3, P, P) float32 in [-1, 1], masks (1, 2, P, P) float32 in [0, 1]) -> (1, 3, P, P) in [-1, 1]."""
 EYES = ("drawn", "blend")
-"""A model's eyes: one iris per eye, the subject's own, drawn where the driver looks ("drawn", ``landmarks.iris``)
-or the network's blend of its shots ("blend")."""
+"""A model's eyes: one iris per eye, the subject's own, drawn where the driver looks ("drawn", ``finish_eyes``,
+``landmarks.iris``; frame drivers only: a landmark driver has no irises) or the network's blend of its shots
+("blend")."""
 MOUTH_INTERIORS = ("driver", "shots")
-"""Inside an open mouth: the driver frame's (``landmarks.mouth_interior``) or what ``MOUTHS``' choice gives."""
+"""Inside an open mouth: the driver frame's cavity, teeth and tongue inside the target's inner lips ("driver",
+``landmarks.mouth_interior``; where the driver is a video or a camera) or what ``MOUTHS``' choice gives ("shots")."""
 LIDS = ("drawn", "driver", "shots")
-"""Where the target shuts its eyes: the subject's own lids drawn down (``landmarks.drawn_lids``), the driver frame's
-shut lids laid in (``landmarks.driver_eyes``; with no driver frame or none cut from it, drawn), or the warped shots'
-alone."""
+"""Where the target shuts its eyes: the subject's own upper lids drawn down over the synthesis' eyes ("drawn",
+``landmarks.drawn_lids``), the driver frame's shut lids laid in ("driver", ``landmarks.driver_eyes``; where the
+driver is a video or a camera, drawn where none were cut), or the warped shots' lids lowered alone ("shots",
+``landmarks.eyelids``)."""
 MOUTHS = ("drawn", "nearest", "blend")
 """A warp-guided model's mouth: the nearest warped shot's where the target opens it wider than the shots, then
 redrawn by the mouth generator ("drawn"); without the redrawing ("nearest"); the network's blend alone ("blend")."""

@@ -8,14 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lsr.eval.metrics import psnr
+
 CROP = 256
 FRAMES = (2, 20, 40, 60)
 WIDER = (1.0, 1.9, 2.5, 4.0)  # the lids at rest as this many times the frame's own: strength 0, partial, ..., 1
-
-
-def psnr(first: np.ndarray, second: np.ndarray) -> float:
-    error = np.mean((first.astype(np.float64) - second.astype(np.float64)) ** 2)
-    return float("inf") if error == 0 else float(10 * np.log10(255.0**2 / error))
 
 
 @pytest.fixture(scope="module")

@@ -7,13 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lsr.eval.metrics import psnr
+
 CROP = 256
 FRAMES = (2, 16, 30, 37, 51, 60)  # the driver's mouth: parted, open, open, widest, open, shut
-
-
-def psnr(first: np.ndarray, second: np.ndarray) -> float:
-    error = np.mean((first.astype(np.float64) - second.astype(np.float64)) ** 2)
-    return float("inf") if error == 0 else float(10 * np.log10(255.0**2 / error))
 
 
 @pytest.fixture(scope="module")

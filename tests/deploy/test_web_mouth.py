@@ -8,14 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lsr.eval.metrics import psnr
+
 CROP = 256
 COUNT = 8  # warped references, as the warp-guided model takes them
 OPENINGS = (None, None, 0.2, 0.3, 0.45, None, 0.6)  # None: the driver's own mouth
-
-
-def psnr(first: np.ndarray, second: np.ndarray) -> float:
-    error = np.mean((first.astype(np.float64) - second.astype(np.float64)) ** 2)
-    return float("inf") if error == 0 else float(10 * np.log10(255.0**2 / error))
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import { polygonMask } from "./mouth.js";
 import { dilateEllipse, gaussianBlurF32, roundHalfEven } from "./remap.js";
 import { finite, flat, interOcularDistance, lidGaps, setLidGaps } from "./retarget.js";
 import { fillIn } from "./segment.js";
-import { Tensor, tensor } from "./tensor.js";
+import { Tensor, median, tensor } from "./tensor.js";
 
 export const LID_GROW = 0.04;
 export const LID_LASH = 0.06;
@@ -26,14 +26,9 @@ const f32 = Math.fround;
 
 /** shot_lid_gaps: the subject's lids at rest, the median lidGaps of its shots' (K, 68, 2) points (NaN ignored). */
 export function shotLidGaps(shotLandmarks: Tensor): Float64Array {
-  const count = shotLandmarks.shape[0], data = flat(shotLandmarks), out = new Float64Array(2).fill(NaN);
+  const count = shotLandmarks.shape[0], data = flat(shotLandmarks), out = new Float64Array(2);
   const per = Array.from({ length: count }, (_, k) => lidGaps(Array.prototype.slice.call(data, 136 * k, 136 * (k + 1))));
-  for (let e = 0; e < 2; e++) {
-    const values = per.map((g) => g[e]).filter((v) => !Number.isNaN(v)).sort((a, b) => a - b);
-    if (values.length === 0) continue;
-    const middle = values.length >> 1;
-    out[e] = values.length % 2 ? values[middle] : (values[middle - 1] + values[middle]) / 2;
-  }
+  for (let e = 0; e < 2; e++) out[e] = median(per.map((g) => g[e]).filter((v) => !Number.isNaN(v)));
   return out;
 }
 

@@ -169,18 +169,25 @@ def test_the_driver_mouth_interior_goes_inside_the_lips_by_default_and_can_be_to
         reenactor.mouth_interior = "tongue"
 
 
-def test_the_driver_shut_eyes_go_over_the_eyes_when_asked_and_can_be_told_not_to(folders):
-    from landmarks.driver_eyes import cut_driver_eyes
+def _encoded_with_shut_eyes(folders):
+    """(a reenactor with the shots encoded, a shot's own open-eyed landmarks, the same with the lids shut)."""
     from landmarks.eyelids import closed_gaps, lid_gaps, set_lid_gaps
     from lsr.pipeline import Reenactor
 
     reenactor = Reenactor(folders, crop_size=SIDE)
-    assert reenactor.lids == "drawn"
-    reenactor.lids = "driver"
     reenactor.encode_subject(_shots())
     target = reenactor.subject.shots.landmarks[1]
+    return reenactor, target, set_lid_gaps(target, closed_gaps(lid_gaps(target)))
+
+
+def test_the_driver_shut_eyes_go_over_the_eyes_when_asked_and_can_be_told_not_to(folders):
+    from landmarks.driver_eyes import cut_driver_eyes
+    from landmarks.eyelids import lid_gaps
+
+    reenactor, target, shut = _encoded_with_shut_eyes(folders)
+    assert reenactor.lids == "drawn"
+    reenactor.lids = "driver"
     rest = lid_gaps(target)
-    shut = set_lid_gaps(target, closed_gaps(rest))
     driver = np.full((SIDE, SIDE, 3), 150, np.uint8)  # a driver whose shut eyes are plain skin
     eyes = cut_driver_eyes(driver, shut, rest)
     assert eyes is not None and eyes.strength == pytest.approx(1.0)
@@ -199,13 +206,8 @@ def test_the_driver_shut_eyes_go_over_the_eyes_when_asked_and_can_be_told_not_to
 
 def test_with_no_driver_frame_the_subject_lids_are_drawn_where_the_target_shuts_them(folders):
     from landmarks.drawn_lids import draw_lids
-    from landmarks.eyelids import closed_gaps, lid_gaps, set_lid_gaps
-    from lsr.pipeline import Reenactor
 
-    reenactor = Reenactor(folders, crop_size=SIDE)
-    reenactor.encode_subject(_shots())
-    open_target = reenactor.subject.shots.landmarks[1]
-    shut = set_lid_gaps(open_target, closed_gaps(lid_gaps(open_target)))
+    reenactor, open_target, shut = _encoded_with_shut_eyes(folders)
     reenactor.lids = "shots"
     warped_only = reenactor.synthesize_crop(shut)[0]
     for lids in ("driver", "drawn"):  # a landmark driver's shut eyes: no frame to take them from, so drawn
