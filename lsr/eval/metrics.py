@@ -162,15 +162,26 @@ def masked_laplacian_variance(image: np.ndarray, mask: np.ndarray) -> float:
     return float(cv2.Laplacian(grey, cv2.CV_64F, ksize=LAPLACIAN_KSIZE)[mask].var())
 
 
-def sharpness(output: np.ndarray, target: np.ndarray) -> np.ndarray:
+def sharpness(output: np.ndarray, target: np.ndarray, masks: np.ndarray | None = None) -> np.ndarray:
     """Laplacian-variance ratio output / ground truth (1 = as sharp as the real frame; module docstring).
 
-    output, target: (..., H, W, 3) uint8 -> (...) float64; NaN where the target's variance is 0.
+    output, target: (..., H, W, 3) uint8; masks: None (the whole frame) or (..., H, W) bool, each frame's variances
+    over its mask (``masked_laplacian_variance``, e.g. the face region) -> (...) float64; NaN where the target's
+    variance is 0 or its mask empty.
     """
     _check_image_pair(output, target)
-    reference = laplacian_variance(target)
+    if masks is None:
+        reference, value = laplacian_variance(target), laplacian_variance(output)
+    else:
+        masks = np.asarray(masks)
+        if masks.shape != output.shape[:-1]:
+            raise ConfigError(f"masks must be {output.shape[:-1]} (one per frame), got {masks.shape}")
+        pairs = [(masked_laplacian_variance(t, m), masked_laplacian_variance(o, m)) for o, t, m in zip(
+            output.reshape(-1, *output.shape[-3:]), target.reshape(-1, *target.shape[-3:]),
+            masks.reshape(-1, *masks.shape[-2:]))]
+        reference, value = (np.array([p[i] for p in pairs], np.float64).reshape(output.shape[:-3]) for i in (0, 1))
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(reference > 0, laplacian_variance(output) / np.where(reference > 0, reference, 1.0), np.nan)
+        return np.where(reference > 0, value / np.where(reference > 0, reference, 1.0), np.nan)
 
 
 def median_sharpness(values: np.ndarray) -> float:

@@ -315,8 +315,8 @@ def assign_buckets(pose_distances: np.ndarray, thresholds: tuple[float, float]) 
 @dataclasses.dataclass
 class EvalRun:
     """Everything a report needs. records: one dict per (method, K, identity, hold-out frame) with
-    keys method, k, identity, frame, mse, psnr, ssim, psnr_face, ssim_face, sharpness, idsim, nmke, no_face,
-    pose_distance, bucket, truth_mouth / truth_eye (the ground truth's landmarks' openings) and output_mouth /
+    keys method, k, identity, frame, mse, psnr, ssim, psnr_face, ssim_face, sharpness, sharpness_face, idsim, nmke,
+    no_face, pose_distance, bucket, truth_mouth / truth_eye (the ground truth's landmarks' openings) and output_mouth /
     output_eye (the output's detected ones, NaN: no face). cross_records: one per cross-identity frame, keys of
     ``lsr.eval.cross.evaluate_method`` (method, k, identity, driver, frame, anchor, no_face, idsim_source, nmke,
     yaw/pitch/roll_error, driver_mouth, driver_eye, output_mouth, output_eye, sharpness_face, scene_mse, scene_psnr,
@@ -500,6 +500,7 @@ def run_protocol(
                 face_errors = mse(outputs, targets, mask=face_masks) if len(targets) else np.zeros(0)
                 face_similarities = ssim(outputs, targets, mask=face_masks) if len(targets) else np.zeros(0)
                 sharpnesses = sharpness(outputs, targets)  # (T,) Laplacian-variance ratio, NaN for a flat ground truth
+                face_sharpnesses = sharpness(outputs, targets, masks=face_masks) if len(targets) else np.zeros(0)
                 extra = {key: metric(outputs, targets) for key, metric in (frame_metrics or {}).items()}
                 truth_mouth, truth_eye = mouth_opening(target_landmarks), eye_opening(target_landmarks)  # (T,) each
                 part_scores = parts.self_part_scores(outputs, targets, target_landmarks)
@@ -511,6 +512,7 @@ def run_protocol(
                         "mse": float(errors[row]), "psnr": float(psnr_from_mse(errors[row])),
                         "ssim": float(similarities[row]), "psnr_face": float(psnr_from_mse(face_errors[row])),
                         "ssim_face": float(face_similarities[row]), "sharpness": float(sharpnesses[row]),
+                        "sharpness_face": float(face_sharpnesses[row]),
                         "idsim": idsim.cosine_similarity(analysis.embedding(output, align), target_embeddings[row]),
                         "nmke": float(nmke(found, target_landmarks[row])) if found is not None else float("nan"),
                         "no_face": found is None, "pose_distance": float(pose_distances[row]),

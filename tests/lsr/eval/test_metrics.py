@@ -102,9 +102,23 @@ class TestSharpness:
         expected = laplacian_variance(output) / laplacian_variance(target)
         assert metrics.sharpness(output, target) == pytest.approx(expected, rel=1e-12)
 
+    def test_over_a_mask_counts_only_its_pixels(self, rng):
+        target = _smooth_image(rng)
+        output = target.copy()
+        output[:, : target.shape[1] // 2] = cv2.GaussianBlur(target, (0, 0), 2.0)[:, : target.shape[1] // 2]
+        right = np.zeros(target.shape[:2], bool)
+        right[:, target.shape[1] // 2 + 2 :] = True  # clear of the blurred half's edge
+        assert metrics.sharpness(output, target) < 0.9  # the blurred half counts over the whole frame ...
+        assert metrics.sharpness(output, target, masks=right) == 1.0  # ... not over the sharp half
+        pair = metrics.sharpness(np.stack([output, output]), np.stack([target, target]), masks=np.stack([right, ~right]))
+        assert pair[0] == 1.0 and pair[1] < 0.5
+        assert np.isnan(metrics.sharpness(output, target, masks=np.zeros_like(right)))  # an empty mask
+
     def test_bad_inputs_raise(self):
         with pytest.raises(ConfigError):
             metrics.sharpness(np.zeros((8, 8, 3), np.uint8), np.zeros((8, 9, 3), np.uint8))
+        with pytest.raises(ConfigError):
+            metrics.sharpness(np.zeros((8, 8, 3), np.uint8), np.zeros((8, 8, 3), np.uint8), masks=np.ones((8, 9), bool))
         with pytest.raises(ConfigError):
             metrics.laplacian_variance(np.zeros((8, 8), np.uint8))
 

@@ -32,7 +32,7 @@ def test_report_on_synthetic_identities(tmp_path, no_face_detector):
     written = markdown_path.read_text()
     assert "| tps | 1 | 8 |" in written and "| tps_mean3 | 1 | 8 |" in written
     header = next(line for line in written.splitlines() if line.startswith("| method | K | frames | PSNR"))
-    assert "| PSNR face ↑ | SSIM ↑ | SSIM face ↑ | sharpness →1 | ID-SIM" in header
+    assert "| PSNR face ↑ | SSIM ↑ | SSIM face ↑ | sharpness →1 | sharpness face →1 | ID-SIM" in header
     cross_header = ("| method | K | frames | mouth corr ↑ | mouth gain →1 | eye corr ↑ | eye gain →1 | yaw / pitch / roll err ° ↓ | "
                     "NMKE ↓ | ID-SIM to source ↑ | sharpness (face) →1 | scene PSNR ↑ | scene flicker ↓ | no face |")
     assert cross_header in written.splitlines()
@@ -49,6 +49,10 @@ def test_report_on_synthetic_identities(tmp_path, no_face_detector):
     assert sharpness["tps_mean3"] == sharpness["tps"]  # K = 1: the mean of one warped shot is that shot
     per_frame = [r["sharpness"] for r in run.records if r["method"] == "tps"]
     assert sharpness["tps"] == pytest.approx(float(np.median(per_frame)))
+    per_frame_face = [r["sharpness_face"] for r in run.records if r["method"] == "tps"]
+    assert rows["tps"]["sharpness_face"] == pytest.approx(float(np.median(per_frame_face)))
+    assert rows["tps_mean3"]["sharpness_face"] == rows["tps"]["sharpness_face"] > 0
+    assert "'sharpness face'" in stored["conventions"]["sharpness"]
     assert "median" in stored["conventions"]["sharpness"] and "- sharpness: " in written
     assert "not computed" in stored["lpips"]
     assert all(np.isfinite(row["psnr_face"]) and 0 < row["ssim_face"] <= 1 for row in stored["rows"])
