@@ -20,7 +20,8 @@ Conventions (stated in every report):
         mouth), dilated by ``FACE_DILATION`` = 0.1 of the inter-ocular distance (about the jaw line's own
         width at 224 px) so that the chin and cheek edges count as face. ``psnr_face`` = PSNR of the MSE over
         the masked pixels; ``ssim_face`` = mean of the same SSIM map (computed on the whole frame, so the
-        window sees real context) over the masked pixels.
+        window sees real context) over the masked pixels; ``sharpness_face`` = the sharpness ratio of the
+        Laplacian's variances over the masked pixels (the Laplacian still taken on the whole frame).
 ID-SIM lives in ``lsr.eval.idsim`` (dlib embeddings; needs the model file).
 """
 
@@ -176,10 +177,10 @@ def sharpness(output: np.ndarray, target: np.ndarray, masks: np.ndarray | None =
         masks = np.asarray(masks)
         if masks.shape != output.shape[:-1]:
             raise ConfigError(f"masks must be {output.shape[:-1]} (one per frame), got {masks.shape}")
-        pairs = [(masked_laplacian_variance(t, m), masked_laplacian_variance(o, m)) for o, t, m in zip(
+        pairs = np.array([(masked_laplacian_variance(t, m), masked_laplacian_variance(o, m)) for o, t, m in zip(
             output.reshape(-1, *output.shape[-3:]), target.reshape(-1, *target.shape[-3:]),
-            masks.reshape(-1, *masks.shape[-2:]))]
-        reference, value = (np.array([p[i] for p in pairs], np.float64).reshape(output.shape[:-3]) for i in (0, 1))
+            masks.reshape(-1, *masks.shape[-2:]))], np.float64).reshape(*output.shape[:-3], 2)
+        reference, value = pairs[..., 0], pairs[..., 1]
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(reference > 0, value / np.where(reference > 0, reference, 1.0), np.nan)
 

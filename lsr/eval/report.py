@@ -202,9 +202,8 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
             f"| {row['method']} | {row['k']} | {row['frames']} | {_fmt(row['psnr'], 2)} | {row['psnr_infinite']} | "
             f"{_fmt(row['psnr_of_mean_mse'], 2)} | {_fmt(row['psnr_face'], 2)} | {_fmt(row['ssim'])} | "
             f"{_fmt(row['ssim_face'])} | {_fmt(row['sharpness'], 2)} | {_fmt(row['sharpness_face'], 2)} | "
-            f"{_fmt(row['idsim'])} | "
-            f"{_fmt(row['nmke'])} | {_fmt(row['mouth_corr'], 2)} | {_fmt(row['eye_corr'], 2)} | {row['no_face']} | "
-            f"{_fmt(row['lpips'])} | {_fmt(row['fid'], 2)} |"
+            f"{_fmt(row['idsim'])} | {_fmt(row['nmke'])} | {_fmt(row['mouth_corr'], 2)} | {_fmt(row['eye_corr'], 2)} | "
+            f"{row['no_face']} | {_fmt(row['lpips'])} | {_fmt(row['fid'], 2)} |"
         )
     lines += ["", f"LPIPS: {summary['lpips']}.", "", f"FID: {summary['fid']}.", "",
               "## Thesis Table 4.4 (reference; VoxCeleb2, 50 ids, ID-SIM from VGGFace: compare trends, not absolute ID-SIM)", "",
