@@ -302,6 +302,12 @@ class PartTrainConfig:
     """A new generator's channels per level (default: PartGeneratorConfig's)."""
     hole: OptionalInt = None
     """A new generator's blanking of the open mouth, in pixels grown (-1: none; default: PartGeneratorConfig's)."""
+    interior: bool = False
+    """A new generator draws only the open mouth (the lips and skin stay the synthesis'), and the discriminator
+    judges only the open mouth: the interior as its own target."""
+    interior_sigma: float = 0.0
+    """> 0: inside the open mouth the L1 terms compare Gaussian low bands of this sigma (window pixels) only, so
+    that the cavity's darkness is learnt from them and its detail (teeth) from the discriminator."""
     device: str = "cpu"
     """Where to train: cpu, or cuda on a GPU."""
     minutes: float = 0.0
@@ -314,5 +320,9 @@ class PartTrainConfig:
             raise ConfigError(f"--lr must be > 0, got {self.lr}")
         if self.device not in ("cpu", "cuda") and not self.device.startswith("cuda:"):
             raise ConfigError(f"--device must be cpu or cuda[:N], got {self.device!r}")
-        if min(self.adversarial, self.feature_matching, self.r1, self.minutes) < 0 or self.critic_lr <= 0:
-            raise ConfigError("--adversarial, --feature-matching, --r1 and --minutes must be >= 0, --critic-lr > 0")
+        if self.interior and self.hole is not None and self.hole < 0:
+            raise ConfigError("--interior draws the open mouth grown by --hole pixels: --hole must be >= 0")
+        weights = (self.adversarial, self.feature_matching, self.r1, self.minutes, self.interior_sigma)
+        if min(weights) < 0 or self.critic_lr <= 0:
+            raise ConfigError("--adversarial, --feature-matching, --r1, --minutes and --interior-sigma must be >= 0, "
+                              "--critic-lr > 0")

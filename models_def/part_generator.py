@@ -5,7 +5,8 @@ blend hedges (lips stretched over where the cavity should be, two sets of teeth)
 window of that synthesis (``landmarks.part_window``: the mouth's square, level with the eyes, at the part's own
 resolution) with the open mouth blanked out (``PartGeneratorConfig.hole``) and the target's lips as two masks (the
 outer-lip polygon, the open mouth inside the inner lips), and returns the window redrawn: a residual over that
-input, so the skin and lips the blend got right pass through and the inside of the mouth is drawn.
+input, so the skin and lips the blend got right pass through and the inside of the mouth is drawn. An interior
+generator (``PartGeneratorConfig.interior``) changes the open mouth alone.
 
 forward(window: (B, 3, P, P) in [-1, 1], masks: (B, 2, P, P) in [0, 1]) -> (B, 3, P, P) in [-1, 1].
 
@@ -44,8 +45,13 @@ class PartGeneratorConfig:
     """The window is blanked where the last mask (the open mouth) is, grown by this many pixels, before the network
     sees it: what the blend put there (stretched lips, another shot's teeth) is not kept; the network draws it.
     -1: nothing is blanked."""
+    interior: bool = False
+    """The network draws only the open mouth (grown by ``hole``, feathered by a pixel): the rest of the window,
+    lips included, is the synthesis', unchanged. Needs ``hole`` >= 0."""
 
     def __post_init__(self) -> None:
+        if self.interior and self.hole < 0:
+            raise ModelConfigError("an interior generator needs hole >= 0 (the region it draws)")
         levels = len(self.widths)
         if levels < 2 or any(w < 1 for w in self.widths):
             raise ModelConfigError(f"widths must be two or more positive channel counts, got {self.widths}")
@@ -97,6 +103,7 @@ class PartGenerator(nn.Module):
             raise ValueError(f"expected window (B, 3, {size}, {size}) and masks (B, {self.config.mask_channels}, "
                              f"{size}, {size}), got {tuple(window.shape)} and {tuple(masks.shape)}")
         window, masks = window.clamp(-1.0, 1.0), masks.clamp(0.0, 1.0)
+        synthesis, hole = window, None
         if self.config.hole >= 0:  # blank the open mouth: drawn, not kept from the blend
             reach = self.config.hole
             hole = F.max_pool2d(masks[:, -1:], 2 * reach + 1, stride=1, padding=reach) if reach else masks[:, -1:]
@@ -111,7 +118,11 @@ class PartGenerator(nn.Module):
             x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
             x = F.leaky_relu(decode(torch.cat([x, skip], dim=1)), 0.2)
         x = F.leaky_relu(self.refine(x), 0.2)
-        return (window + self.out(x)).clamp(-1.0, 1.0)
+        drawn = (window + self.out(x)).clamp(-1.0, 1.0)
+        if not self.config.interior or hole is None:
+            return drawn
+        inside = F.avg_pool2d(hole, 3, stride=1, padding=1, count_include_pad=False) * hole  # 0 outside the hole
+        return synthesis + inside * (drawn - synthesis)
 
     def save_pretrained(self, folder: str | os.PathLike) -> Path:
         from safetensors.torch import save_file

@@ -11,9 +11,11 @@ Two steps, both resumable, both under ``lsr parts``:
    many targets open the mouth wider than every shot: the moments the blend cannot draw. One ``.npz`` per
    clip and half, written atomically; finished ones are skipped.
 2. ``train`` (``lsr parts train``): L1 and an L1 of image gradients (edges: teeth, the lip line) over the paste
-   weight of the window, three times over the open mouth; flips left-right; Adam. The validation split's pairs
-   (people the frame model did not train on) are scored every ``eval_every`` steps; the best is kept.
-   Checkpoints every ``save_every`` steps let a run resume where it stopped.
+   weight of the window, three times over the open mouth; flips left-right; Adam. Optionally a patch
+   discriminator (``Adversary``), and the open mouth as its own target (``--interior``: drawn alone, judged alone,
+   its L1 on low bands only). The validation split's pairs (people the frame model did not train on) are scored
+   every ``eval_every`` steps; the best is kept. Checkpoints every ``save_every`` steps let a run resume where it
+   stopped.
 """
 
 from __future__ import annotations
@@ -36,6 +38,9 @@ GRADIENT_WEIGHT = 1.0
 CRITIC_LR = 0.25
 """The discriminator learns at this fraction of the generator's rate (at the same rate it won within a few hundred
 steps and the generator drew magenta lips to fool it)."""
+CRITIC_REACH = 4
+"""Pixels the open mouth is grown by for an interior discriminator's view (``Adversary.interior``): the inner lip's
+edge is in it."""
 COLOUR_JITTER = 0.08
 """Training pairs' colours are jittered by up to this gain and offset (fractions) per channel."""
 
@@ -222,8 +227,19 @@ def batch_tensors(pairs: PairSet, indices, flip=None, generator=None):
     return synthesis / 127.5 - 1.0, masks, truth / 127.5 - 1.0, weight
 
 
-def part_loss(drawn, truth, weight):
-    """Weighted L1 plus ``GRADIENT_WEIGHT`` x the weighted L1 of horizontal and vertical differences."""
+def part_loss(drawn, truth, weight, masks=None, interior_sigma: float = 0.0):
+    """Weighted L1 plus ``GRADIENT_WEIGHT`` x the weighted L1 of horizontal and vertical differences.
+
+    ``interior_sigma`` > 0 (with the lip ``masks``): inside the open mouth only the Gaussian low bands of this
+    sigma (window pixels) are compared: how dark the cavity is and where the teeth's brightness lies, not their
+    detail, which an L1 averages into a smear (the detail is the discriminator's). The two regions' terms are each
+    a weighted mean, summed: the open mouth counts as much as the rest of the window, however small it is."""
+    if interior_sigma > 0 and masks is not None:
+        from models_def.composite import low_band
+
+        inside = masks[:, -1:]
+        return (part_loss(drawn, truth, weight * (1.0 - inside))
+                + part_loss(low_band(drawn, interior_sigma), low_band(truth, interior_sigma), weight * inside))
     norm = weight.sum().clamp_min(1e-6) * 3
     loss = ((drawn - truth).abs() * weight).sum() / norm
     for axis in (2, 3):
@@ -307,20 +323,34 @@ class Adversary:
     r1: float = 0.0
     critic_lr: float = CRITIC_LR
     critic_width: int = 32
+    interior: bool = False
+    """The discriminator sees only the open mouth grown by ``CRITIC_REACH`` pixels (the rest of the window black):
+    the cavity and teeth, not the skin around, which an interior generator keeps from the synthesis."""
+
+    def view(self, window, masks):
+        """What the discriminator judges of a window: all of it, or (``interior``) the grown open mouth."""
+        import torch.nn.functional as F
+
+        if not self.interior:
+            return window
+        region = F.max_pool2d(masks[:, -1:], 2 * CRITIC_REACH + 1, stride=1, padding=CRITIC_REACH)
+        return window * region
 
 
 def train(pairs_dir: Path, out: Path, steps: int = 3000, batch: int = 32, lr: float = 1e-3, seed: int = 0,
           eval_every: int = 250, save_every: int = 250, threads: int = 2, adversarial: float | Adversary = 0.0,
           init_from: Path | None = None, device: str = "cpu", minutes: float = 0.0,
-          widths: tuple[int, ...] | None = None, hole: int | None = None) -> dict:
+          widths: tuple[int, ...] | None = None, hole: int | None = None, interior: bool = False,
+          interior_sigma: float = 0.0) -> dict:
     """Step 2 (module docstring). ``out``: ``checkpoint.pt`` (resumable), ``best/`` (the lowest validation
     loss, a ``PartGenerator.save_pretrained`` folder), ``steps/<step>/`` (each evaluated step's), ``log.jsonl`` and
     ``preview.png`` (``preview`` of the validation pairs at the last evaluation; ``steps/<step>.png`` each).
 
     ``adversarial``: an ``Adversary`` (or its weight alone), so that an open mouth is drawn as one plausible
     mouth (a dark cavity, teeth or not) rather than the average of them that L1 alone settles on.
-    ``init_from``: a ``best/`` folder to start the generator from (a new run only); else ``widths`` and ``hole``
-    size a new one (``PartGeneratorConfig``). ``minutes`` > 0: the run also ends (and its learning rate decays)
+    ``init_from``: a ``best/`` folder to start the generator from (a new run only); else ``widths``, ``hole`` and
+    ``interior`` (it draws the open mouth only) size a new one (``PartGeneratorConfig``). ``interior_sigma``: inside
+    the open mouth the L1 terms see only low bands (``part_loss``). ``minutes`` > 0: the run also ends (and its learning rate decays)
     by this run's wall time, whichever of the two comes first; ``device``: where it trains ("cuda" on a GPU)."""
     import torch
     import torch.nn.functional as F
@@ -338,6 +368,7 @@ def train(pairs_dir: Path, out: Path, steps: int = 3000, batch: int = 32, lr: fl
     else:
         sizes = {"widths": tuple(widths)} if widths else {}
         sizes.update({} if hole is None else {"hole": hole})
+        sizes.update({"interior": True} if interior else {})
         model = PartGenerator(PartGeneratorConfig(size=train_pairs.synthesis.shape[1], **sizes))
     model.to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=lr, betas=(0.9, 0.99))
@@ -376,13 +407,13 @@ def train(pairs_dir: Path, out: Path, steps: int = 3000, batch: int = 32, lr: fl
         for group in [] if critic is None else critic_optimizer.param_groups:
             group["lr"] = lr * adversary.critic_lr * decay
         drawn = model(window, masks)
-        loss = part_loss(drawn, truth, weight)
+        loss = part_loss(drawn, truth, weight, masks, interior_sigma)
         if critic is not None:
             critic.requires_grad_(False)
-            fake_logits, fake_features = critic(drawn, masks, features=True)
+            fake_logits, fake_features = critic(adversary.view(drawn, masks), masks, features=True)
             loss = loss + adversary.weight * F.softplus(-fake_logits).mean()
             if adversary.feature_matching > 0:
-                _, real_features = critic(truth, masks, features=True)
+                _, real_features = critic(adversary.view(truth, masks), masks, features=True)
                 loss = loss + adversary.feature_matching * sum(
                     (fake - real.detach()).abs().mean() for fake, real in zip(fake_features, real_features)) / len(fake_features)
         optimizer.zero_grad(set_to_none=True)
@@ -390,9 +421,10 @@ def train(pairs_dir: Path, out: Path, steps: int = 3000, batch: int = 32, lr: fl
         optimizer.step()
         if critic is not None:  # the discriminator's step: real frames against the drawn ones
             critic.requires_grad_(True)
-            real = truth.detach().requires_grad_(adversary.r1 > 0)
+            real = adversary.view(truth, masks).detach().requires_grad_(adversary.r1 > 0)
             real_logits = critic(real, masks)
-            critic_loss = F.softplus(-real_logits).mean() + F.softplus(critic(drawn.detach(), masks)).mean()
+            critic_loss = (F.softplus(-real_logits).mean()
+                           + F.softplus(critic(adversary.view(drawn.detach(), masks), masks)).mean())
             if adversary.r1 > 0:
                 (grad,) = torch.autograd.grad(real_logits.sum(), real, create_graph=True)
                 critic_loss = critic_loss + 0.5 * adversary.r1 * grad.pow(2).sum(dim=(1, 2, 3)).mean()
@@ -444,9 +476,10 @@ def run_pairs(cfg) -> None:
 def run_train(cfg) -> None:
     """Entry point of ``lsr parts train`` (``lsr.config.PartTrainConfig``)."""
     adversary = Adversary(weight=cfg.adversarial, feature_matching=cfg.feature_matching, r1=cfg.r1,
-                          critic_lr=cfg.critic_lr, critic_width=cfg.critic_width)
+                          critic_lr=cfg.critic_lr, critic_width=cfg.critic_width, interior=cfg.interior)
     result = train(cfg.pairs, cfg.out, steps=cfg.steps, batch=cfg.batch_size, lr=cfg.lr, seed=cfg.seed,
                    eval_every=cfg.eval_every, save_every=cfg.eval_every, threads=cfg.threads,
                    adversarial=adversary, init_from=cfg.init_from, device=cfg.device, minutes=cfg.minutes,
-                   widths=tuple(cfg.widths) if cfg.widths else None, hole=cfg.hole)
+                   widths=tuple(cfg.widths) if cfg.widths else None, hole=cfg.hole, interior=cfg.interior,
+                   interior_sigma=cfg.interior_sigma)
     print(f"trained to step {result['step']}; best validation loss {result['best_val_loss']:.4f}: {cfg.out / 'best'}")

@@ -29,6 +29,25 @@ def test_an_untrained_generator_passes_its_window_through_but_the_open_mouth():
     assert torch.equal(kept(window, masks), window)
 
 
+def test_an_interior_generator_changes_only_the_open_mouth():
+    model = PartGenerator(PartGeneratorConfig(size=40, widths=(8, 16, 16), interior=True))
+    torch.nn.init.normal_(model.out.weight, std=0.5)
+    window, masks = _inputs()
+    masks = torch.zeros_like(masks)
+    masks[:, 0, 14:26, 6:34] = 1.0  # the lips, kept
+    masks[:, 1, 18:22, 10:30] = 1.0  # the open mouth, drawn (grown by the hole's 2 pixels)
+    with torch.no_grad():
+        out = model(window, masks)
+    grown = torch.zeros(40, 40, dtype=torch.bool)
+    grown[16:24, 8:32] = True
+    assert torch.equal(out[..., ~grown], window[..., ~grown])
+    inner = torch.zeros(40, 40, dtype=torch.bool)
+    inner[17:23, 9:31] = True  # a pixel in from the grown edge: fully drawn
+    assert float((out[..., inner] - window[..., inner]).abs().mean()) > 0.05
+    with pytest.raises(ModelConfigError, match="hole"):
+        PartGeneratorConfig(interior=True, hole=-1)
+
+
 def test_shapes_are_checked_and_outputs_stay_in_range():
     model = PartGenerator(PartGeneratorConfig(size=40, widths=(8, 16, 16)))
     torch.nn.init.normal_(model.out.weight, std=1.0)
@@ -55,11 +74,12 @@ def test_save_and_load_round_trip(tmp_path):
         load_mouth_generator(tmp_path)
 
 
-def test_onnx_export_matches_torch(tmp_path):
+@pytest.mark.parametrize("interior", [False, True])
+def test_onnx_export_matches_torch(tmp_path, interior):
     ort = pytest.importorskip("onnxruntime")
     from lsr.export import export_onnx
 
-    model = PartGenerator(PartGeneratorConfig(size=40, widths=(8, 16, 16))).eval()
+    model = PartGenerator(PartGeneratorConfig(size=40, widths=(8, 16, 16), interior=interior)).eval()
     torch.nn.init.normal_(model.out.weight, std=0.1)
     window, masks = _inputs()
     path = export_onnx(model, (window[:1], masks[:1]), tmp_path / "mouth.onnx", ["window", "masks"], ["drawn"], {})

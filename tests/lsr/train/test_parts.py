@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from landmarks.part_window import MOUTH, extract, to_window, window_transform
-from lsr.train.parts import Adversary, _choose_shots, batch_tensors, clip_pairs, evaluate, load_pairs, train
+from lsr.train.parts import (Adversary, _choose_shots, batch_tensors, clip_pairs, evaluate, load_pairs, part_loss,
+                             train)
 
 
 def test_closed_shots_come_from_the_least_open_mouths(rng):
@@ -110,3 +111,65 @@ def test_adversarial_training_keeps_its_discriminator_across_a_resume(tmp_path, 
     resumed = train(tmp_path / "pairs", run / "next", steps=2, batch=2, eval_every=2, save_every=2, threads=1,
                     adversarial=0.1, init_from=run / "best")
     assert resumed["step"] == 2
+
+
+def _open_mouth(size: int = 40):
+    import torch
+
+    masks = torch.zeros(2, 2, size, size)
+    masks[:, 0, 12:28, 6:34] = 1.0  # outer lips
+    masks[:, 1, 17:23, 10:30] = 1.0  # the open mouth inside
+    return masks
+
+
+def test_the_interior_loss_sees_the_cavity_darkness_not_its_detail():
+    import torch
+
+    truth = torch.zeros(2, 3, 40, 40)
+    masks = _open_mouth()
+    weight = torch.ones(2, 1, 40, 40)
+    detail = truth.clone()
+    detail[..., 17:23, 10:30] = 0.5 * (torch.arange(20) % 2 * 2 - 1).float()  # teeth-like stripes, zero mean
+    darker = truth.clone()
+    darker[..., 17:23, 10:30] = -0.5  # a darker cavity
+    plain = part_loss(detail, truth, weight)
+    low = part_loss(detail, truth, weight, masks, interior_sigma=2.0)
+    assert low < 0.1 * plain  # the stripes' detail is the discriminator's, not the L1's
+    assert part_loss(darker, truth, weight, masks, interior_sigma=2.0) > 0.5 * part_loss(darker, truth, weight)
+    outside = truth.clone()
+    outside[..., 0:5, :] = 0.5  # outside the open mouth the plain L1, a mean over the rest of the window
+    expected = part_loss(outside, truth, weight * (1.0 - masks[:, 1:]))
+    assert torch.isclose(part_loss(outside, truth, weight, masks, interior_sigma=2.0), expected)
+
+
+def test_an_interior_discriminator_sees_only_the_open_mouth():
+    import torch
+
+    window = torch.ones(2, 3, 40, 40)
+    masks = _open_mouth()
+    view = Adversary(interior=True).view(window, masks)
+    assert torch.equal(view[..., 17:23, 10:30], window[..., 17:23, 10:30])
+    assert float(view[..., :10, :].abs().max()) == 0.0 and float(view[..., 17:23, :4].abs().max()) == 0.0
+    assert torch.equal(Adversary().view(window, masks), window)
+
+
+def test_an_interior_generator_trains_with_its_discriminator(tmp_path, drawn_face):
+    from models_def.part_generator import PartGenerator
+
+    _fake_pairs(tmp_path / "pairs" / "train", drawn_face, 6, 0)
+    _fake_pairs(tmp_path / "pairs" / "test", drawn_face, 2, 1)
+    run = tmp_path / "run"
+    adversary = Adversary(weight=0.1, feature_matching=1.0, r1=1.0, critic_lr=1.0, critic_width=8, interior=True)
+    result = train(tmp_path / "pairs", run, steps=2, batch=2, eval_every=2, save_every=2, threads=1,
+                   adversarial=adversary, widths=(8, 16), hole=2, interior=True, interior_sigma=2.0)
+    assert result["step"] == 2
+    model = PartGenerator.from_pretrained(run / "best")
+    assert model.config.interior and model.config.hole == 2
+    pairs = load_pairs(tmp_path / "pairs" / "test")
+    window, masks, _, _ = batch_tensors(pairs, np.arange(2))
+    import torch
+
+    with torch.no_grad():
+        drawn = model(window, masks)
+    far = torch.nn.functional.max_pool2d(masks[:, 1:], 7, stride=1, padding=3) == 0  # beyond the grown mouth
+    assert torch.equal(drawn.expand_as(window)[far.expand_as(window)], window[far.expand_as(window)])
