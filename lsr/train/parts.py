@@ -350,8 +350,9 @@ def train(pairs_dir: Path, out: Path, steps: int = 3000, batch: int = 32, lr: fl
     mouth (a dark cavity, teeth or not) rather than the average of them that L1 alone settles on.
     ``init_from``: a ``best/`` folder to start the generator from (a new run only); else ``widths``, ``hole`` and
     ``interior`` (it draws the open mouth only) size a new one (``PartGeneratorConfig``). ``interior_sigma``: inside
-    the open mouth the L1 terms see only low bands (``part_loss``). ``minutes`` > 0: the run also ends (and its learning rate decays)
-    by this run's wall time, whichever of the two comes first; ``device``: where it trains ("cuda" on a GPU)."""
+    the open mouth the L1 terms see only low bands (``part_loss``). ``minutes`` > 0: the run also ends (and its
+    learning rate decays) by this run's wall time, whichever of the two comes first; ``device``: where it trains
+    ("cuda" on a GPU)."""
     import torch
     import torch.nn.functional as F
     from tqdm import tqdm
