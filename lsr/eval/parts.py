@@ -287,21 +287,15 @@ def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str],
 
 AGREEMENT = "the drivers: driving detector vs judge"
 """The row of ``summarise_cross`` that compares the two detectors on the drivers' own frames."""
-CEILING = "an output that follows the driving detector exactly"
-"""The row of ``summarise_cross`` that judges the driving detector's own reading as an output would be judged."""
 
 
 def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks: Sequence[int]
                    ) -> list[dict[str, Any]]:
-    """Per K, two rows on the drivers' own frames. ``AGREEMENT``: how far the judge and the detector that drove the
-    motion agree, the per-sequence correlation (mean) and pooled gain of the judge's mouth and eye openings on the
-    driving detector's. ``CEILING``: what an output that opens exactly as the driving detector read the driver
-    would be judged, its opening read by the judge at the judge's scale on real faces (the driving detector's
-    openings times the agreement's gain): correlated with and regressed on the judge's reading of the driver as a
-    method's output is. A method drives its output to the driving detector's reading, so the judge's own error on
-    the drivers caps its judged correlation at the agreement's and its judged gain at this row's (the regression
-    on a noisy reading is damped by the square of their correlation). Read from the first method's records (the
-    drivers are the same for every method)."""
+    """Per K, how far the judge and the detector that drove the motion agree on the drivers' own frames: the
+    per-sequence correlation (mean) and pooled gain of the judge's mouth and eye openings on the driving detector's.
+    A method drives its output to the driving detector's reading, so its judged correlation can reach this only
+    where the two detectors agree (the rows' ceiling). Read from the first method's records (the drivers are the
+    same for every method)."""
     from lsr.eval.cross import opening_correlation, pooled_gain
 
     rows = []
@@ -315,17 +309,14 @@ def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
         pairs = {part: [(np.array([r[f"driver_{part}"] for r in members], np.float64),
                          np.array([r[f"judge_driver_{part}"] for r in members], np.float64))
                         for members in sequences.values()] for part in ("mouth", "eye")}
-        scales = {part: pooled_gain(pairs[part]) for part in pairs}  # the judge's opening per driving detector's
-        followed = {part: [(judge, scales[part] * driving) for driving, judge in pairs[part]] for part in pairs}
-        for name, judged in ((AGREEMENT, pairs), (CEILING, followed)):
-            rows.append({"method": name, "k": k, "frames": len(group), "sequences": len(sequences),
-                         "judge_mouth_corr": _finite_mean([opening_correlation(*p) for p in judged["mouth"]]),
-                         "judge_mouth_gain": pooled_gain(judged["mouth"]),
-                         "judge_eye_corr": _finite_mean([opening_correlation(*p) for p in judged["eye"]]),
-                         "judge_eye_gain": pooled_gain(judged["eye"]),
-                         **dict.fromkeys(("gaze_corr", "iris_contrast", "output_cavity", "driver_cavity",
-                                          "output_teeth", "driver_teeth"), math.nan),
-                         "open_frames": 0, "judge_no_face": sum(r["judge_no_face"] for r in group)})
+        rows.append({"method": AGREEMENT, "k": k, "frames": len(group), "sequences": len(sequences),
+                     "judge_mouth_corr": _finite_mean([opening_correlation(*p) for p in pairs["mouth"]]),
+                     "judge_mouth_gain": pooled_gain(pairs["mouth"]),
+                     "judge_eye_corr": _finite_mean([opening_correlation(*p) for p in pairs["eye"]]),
+                     "judge_eye_gain": pooled_gain(pairs["eye"]),
+                     **dict.fromkeys(("gaze_corr", "iris_contrast", "output_cavity", "driver_cavity", "output_teeth",
+                                      "driver_teeth"), math.nan),
+                     "open_frames": 0, "judge_no_face": sum(r["judge_no_face"] for r in group)})
     return rows
 
 
@@ -347,10 +338,7 @@ CONVENTION = (
     "inter-ocular distances; an output mouth it sees closed counts as cavity 1, teeth 0). "
     f"'{AGREEMENT}': the judge's openings of the drivers' own frames against the driving detector's, correlated "
     "and pooled as above: a method's output follows the driving detector's reading, so its judged correlation "
-    f"reaches this only where the two detectors agree. '{CEILING}': the driving detector's openings of the drivers "
-    "(times the judge's gain on them: the judge's scale) taken as an output's and judged as above: the judge's "
-    "error on the drivers damps the gain it measures by the square of the two detectors' correlation, so a method "
-    "driven by the driving detector is judged at about this gain when it follows that detector exactly"
+    "reaches this only where the two detectors agree"
 )
 
 
@@ -379,8 +367,8 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
                   "judge no face |",
                   "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for row in cross_rows:
-            if row["method"] in (AGREEMENT, CEILING):
-                lines.append(f"| {row['method']} | {row['k']} | {row['frames']} | {fmt(row['judge_mouth_corr'], 2)} | "
+            if row["method"] == AGREEMENT:
+                lines.append(f"| {AGREEMENT} | {row['k']} | {row['frames']} | {fmt(row['judge_mouth_corr'], 2)} | "
                              f"{fmt(row['judge_mouth_gain'], 2)} | {fmt(row['judge_eye_corr'], 2)} | "
                              f"{fmt(row['judge_eye_gain'], 2)} | – | – | – | – | – | {row['judge_no_face']} |")
                 continue
