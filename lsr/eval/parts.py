@@ -10,6 +10,9 @@ Self re-enactment, per hold-out frame (``self_part_scores``):
     regions (each eye's hull dilated by ``EYE_DILATION``, lids and lashes included). PSNR of the MSE over the
     region, SSIM the mean of the whole-frame map over it, sharpness the Laplacian variance inside it over the
     ground truth's (``metrics``' conventions);
+  * ``psnr_inside`` / ``psnr_lips``: the mouth region split where the error lies: inside the ground truth's inner
+    lips (cavity, teeth, tongue; NaN where its mouth is closed, below ``OPEN_MOUTH``) and on its lips (the
+    outer-lip polygon less that);
   * ``beyond_*``: the hold-out lies beyond the K shots (``landmarks.coverage.beyond_shots``: mouth wider, eyes
     more closed, head turned or tilted further, iris further aside than in every shot; the ground truth's
     landmarks and its image's gaze against the shots').
@@ -46,6 +49,8 @@ from lsr.eval.cross import _finite_mean
 MOUTH_DILATION = 0.15  # mouth region: outer-lip hull dilated by this x the inter-ocular distance
 EYE_DILATION = 0.12  # eye regions: each eye's hull dilated by this x the inter-ocular distance
 REGIONS = ("mouth", "eyes")
+SPLIT = ("inside", "lips")
+"""The mouth region's parts scored apart (PSNR only: SSIM and sharpness are noisy over a few hundred pixels)."""
 BEYOND = ("mouth", "eyes", "yaw", "gaze", "any")
 
 
@@ -72,6 +77,27 @@ def part_masks(landmarks: np.ndarray, shape: tuple[int, int]) -> dict[str, np.nd
     return {"mouth": _dilated_hull(points[48:60], shape, MOUTH_DILATION * distance), "eyes": eyes}
 
 
+def mouth_split(landmarks: np.ndarray, shape: tuple[int, int]) -> dict[str, np.ndarray]:
+    """The mouth's parts (module docstring): landmarks (68, 2); shape (H, W) -> {"inside": the inner-lip polygon,
+    empty where the mouth is closed (below ``OPEN_MOUTH``); "lips": the outer-lip polygon less it} (H, W) bool,
+    both empty for non-finite landmarks."""
+    from landmarks.expression import mouth_opening
+
+    points = metrics.check_landmarks(landmarks)
+    empty = np.zeros(shape, bool)
+    if points.shape != (68, 2) or not np.isfinite(points).all():
+        return {"inside": empty, "lips": empty.copy()}
+    outer = _filled(points[48:60], shape)
+    inside = _filled(points[60:68], shape) & outer if mouth_opening(points) >= OPEN_MOUTH else empty
+    return {"inside": inside, "lips": outer & ~inside}
+
+
+def _filled(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    mask = np.zeros(shape, np.uint8)
+    cv2.fillPoly(mask, [np.round(points).astype(np.int32)], 1)
+    return mask.astype(bool)
+
+
 def self_part_scores(outputs: np.ndarray, targets: np.ndarray, target_landmarks: np.ndarray) -> list[dict[str, float]]:
     """PSNR, SSIM and sharpness inside the mouth and eye regions of each target (module docstring).
     outputs, targets: (T, S, S, 3) uint8; target_landmarks: (T, 68, 2) -> T dicts with keys psnr_/ssim_/sharpness_
@@ -89,6 +115,12 @@ def self_part_scores(outputs: np.ndarray, targets: np.ndarray, target_landmarks:
             scores[row].update({f"psnr_{region}": float(metrics.psnr_from_mse(errors[row])),
                                 f"ssim_{region}": float(similarities[row]),
                                 f"sharpness_{region}": float(sharpnesses[row])})
+    splits = [mouth_split(points, targets.shape[1:3]) for points in target_landmarks]
+    for part in SPLIT:
+        errors = metrics.mse(outputs, targets, mask=np.stack([s[part] for s in splits]))  # NaN where empty
+        for row in range(len(targets)):
+            scores[row][f"psnr_{part}"] = (float(metrics.psnr_from_mse(errors[row])) if np.isfinite(errors[row])
+                                           else math.nan)
     return scores
 
 
@@ -211,6 +243,8 @@ def _region_scores(group: Sequence[dict[str, Any]]) -> dict[str, float]:
         scores[f"psnr_{region}"] = _finite_mean([r[f"psnr_{region}"] for r in group])
         scores[f"ssim_{region}"] = _finite_mean([r[f"ssim_{region}"] for r in group])
         scores[f"sharpness_{region}"] = metrics.median_sharpness(np.array([r[f"sharpness_{region}"] for r in group]))
+    for part in SPLIT:  # NaN where no hold-out has it (a closed mouth has no inside)
+        scores[f"psnr_{part}"] = _finite_mean([r.get(f"psnr_{part}", math.nan) for r in group])
     return scores
 
 
@@ -250,7 +284,9 @@ def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str],
     """Per (method, K) over the cross records with the judge's fields: judge_mouth_corr / judge_eye_corr (mean
     per-sequence correlation), judge_mouth_gain / judge_eye_gain (pooled), gaze_corr (mean per-sequence correlation
     of output and driver gaze), iris_contrast (median), output_cavity / driver_cavity and output_teeth /
-    driver_teeth (means over the frames where the driver's mouth is open), open_frames, judge_no_face."""
+    driver_teeth (means over the frames where the driver's mouth is open), open_frames, judge_no_face; read_mouth_gain
+    / read_eye_gain: the judge's openings of the outputs on the driving detector's of the same outputs, pooled per
+    sequence (how alike the two detectors read what was drawn; the agreement row's are the drivers' own frames)."""
     from lsr.eval.cross import opening_correlation, pooled_gain
 
     rows = []
@@ -280,6 +316,9 @@ def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str],
                 **{key: _finite_mean([r[key] for r in opened])
                    for key in ("output_cavity", "driver_cavity", "output_teeth", "driver_teeth")},
                 "judge_no_face": sum(r["judge_no_face"] for r in group),
+                **{f"read_{part}_gain": pooled_gain([(np.array([r[f"output_{part}"] for r in members], np.float64),
+                                                     np.array([r[f"judge_output_{part}"] for r in members], np.float64))
+                                                    for members in sequences.values()]) for part in ("mouth", "eye")},
             })
     return rows + agreement_rows(records, methods, ks)
 
@@ -315,6 +354,7 @@ def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
                      "judge_eye_gain": pooled_gain(pairs["eye"]),
                      **dict.fromkeys(("gaze_corr", "iris_contrast", "output_cavity", "driver_cavity", "output_teeth",
                                       "driver_teeth"), math.nan),
+                     "read_mouth_gain": pooled_gain(pairs["mouth"]), "read_eye_gain": pooled_gain(pairs["eye"]),
                      "open_frames": 0, "judge_no_face": sum(r["judge_no_face"] for r in group)})
     return rows
 
@@ -337,7 +377,10 @@ CONVENTION = (
     "inter-ocular distances; an output mouth it sees closed counts as cavity 1, teeth 0). "
     f"'{AGREEMENT}': the judge's openings of the drivers' own frames against the driving detector's, correlated "
     "and pooled as above: a method's output follows the driving detector's reading, so its judged correlation "
-    "reaches this only where the two detectors agree"
+    "reaches this only where the two detectors agree. 'read alike': the judge's openings of the outputs on the "
+    "driving detector's of the same outputs, pooled per sequence as the gain (the agreement row: of the drivers' own "
+    "frames); below the drivers' figure, the two detectors read the drawn mouth or eyes apart where they read real "
+    "ones alike, so what is lost lies in the drawing, not in following the driver"
 )
 
 
@@ -346,8 +389,9 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
     lines: list[str] = []
     if self_rows:
         lines += ["", "## Moving parts, self re-enactment: all hold-outs and those beyond the shots", "",
-                  "| method | K | frames | mouth PSNR ↑ | mouth SSIM ↑ | mouth sharpness →1 | eyes PSNR ↑ | "
-                  "eyes SSIM ↑ | eyes sharpness →1 |", "|---|---|---|---|---|---|---|---|---|"]
+                  "| method | K | frames | mouth PSNR ↑ | mouth SSIM ↑ | mouth sharpness →1 | inside the lips PSNR ↑ "
+                  "| lips PSNR ↑ | eyes PSNR ↑ | eyes SSIM ↑ | eyes sharpness →1 |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
         for row in self_rows:
             counts = row["counts"]
             for label, mouth, eyes, frames in (
@@ -356,20 +400,26 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
                      f"{row['beyond_frames']} (mouth {counts['mouth']}, eyes {counts['eyes']}, pose {counts['yaw']}, "
                      f"gaze {counts['gaze']})")):
                 cells = [fmt(mouth.get("psnr_mouth"), 2), fmt(mouth.get("ssim_mouth")),
-                         fmt(mouth.get("sharpness_mouth"), 2), fmt(eyes.get("psnr_eyes"), 2),
+                         fmt(mouth.get("sharpness_mouth"), 2), fmt(mouth.get("psnr_inside"), 2),
+                         fmt(mouth.get("psnr_lips"), 2), fmt(eyes.get("psnr_eyes"), 2),
                          fmt(eyes.get("ssim_eyes")), fmt(eyes.get("sharpness_eyes"), 2)]
                 lines.append(f"| {row['method']} | {row['k']} | {label}: {frames} | " + " | ".join(cells) + " |")
+        lines += ["", "The mouth region split where its error lies: *inside the lips* is the ground truth's inner-lip "
+                  f"polygon where its mouth is open (>= {OPEN_MOUTH:g} eye distances: cavity, teeth, tongue), *lips* "
+                  "its outer-lip polygon less that."]
     if cross_rows:
         lines += ["", "## Moving parts, cross-identity: judged by dlib's 68 points (not the driving detector)", "",
                   "| method | K | frames | mouth corr ↑ | mouth gain →1 | eye corr ↑ | eye gain →1 | "
-                  "gaze corr ↑ | iris contrast →1 | cavity out (driver) | teeth out (driver) | open frames | "
-                  "judge no face |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "gaze corr ↑ | iris contrast →1 | cavity out (driver) | teeth out (driver) | read alike: mouth, "
+                  "eyes →1 | open frames | judge no face |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for row in cross_rows:
             if row["method"] == AGREEMENT:
                 lines.append(f"| {AGREEMENT} | {row['k']} | {row['frames']} | {fmt(row['judge_mouth_corr'], 2)} | "
                              f"{fmt(row['judge_mouth_gain'], 2)} | {fmt(row['judge_eye_corr'], 2)} | "
-                             f"{fmt(row['judge_eye_gain'], 2)} | – | – | – | – | – | {row['judge_no_face']} |")
+                             f"{fmt(row['judge_eye_gain'], 2)} | – | – | – | – | "
+                             f"{fmt(row['read_mouth_gain'], 2)}, {fmt(row['read_eye_gain'], 2)} | – | "
+                             f"{row['judge_no_face']} |")
                 continue
             lines.append(
                 f"| {row['method']} | {row['k']} | {row['frames']} | {fmt(row['judge_mouth_corr'], 2)} | "
@@ -377,7 +427,8 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
                 f"{fmt(row['judge_eye_gain'], 2)} | "
                 f"{fmt(row['gaze_corr'], 2)} | {fmt(row['iris_contrast'], 2)} | "
                 f"{fmt(row['output_cavity'], 2)} ({fmt(row['driver_cavity'], 2)}) | "
-                f"{fmt(row['output_teeth'], 2)} ({fmt(row['driver_teeth'], 2)}) | {row['open_frames']} | "
+                f"{fmt(row['output_teeth'], 2)} ({fmt(row['driver_teeth'], 2)}) | "
+                f"{fmt(row['read_mouth_gain'], 2)}, {fmt(row['read_eye_gain'], 2)} | {row['open_frames']} | "
                 f"{row['judge_no_face']} |")
     return lines
 

@@ -75,6 +75,7 @@ def _cross_record(identity: str, frame: int, driver: float, output: float, cavit
             "driver_mouth": 2 * driver + 0.01 * (frame % 2), "driver_eye": 0.1 + 3 * driver,  # the driving detector's
             "judge_driver_mouth": driver, "judge_output_mouth": output, "judge_driver_eye": 0.1 + driver,
             "judge_output_eye": 0.1 + 0.5 * driver, "judge_driver_gaze": driver, "judge_output_gaze": -driver,
+            "output_mouth": 4 * output, "output_eye": 0.2 + driver,  # the driving detector's reading of the outputs
             "iris_contrast": 0.5 + frame / 10, "output_cavity": cavity,
             "driver_cavity": 0.3 if opened else math.nan, "output_teeth": 0.0 if opened else math.nan,
             "driver_teeth": 0.2 if opened else math.nan}
@@ -92,9 +93,13 @@ def test_summarise_cross_judges_correlation_gain_gaze_contrast_and_the_inside():
     assert agreement["method"] == parts.AGREEMENT and agreement["frames"] == 6
     assert 0.9 < agreement["judge_mouth_corr"] < 1.0 and agreement["judge_mouth_gain"] == pytest.approx(0.5, abs=0.05)
     assert agreement["judge_eye_corr"] == pytest.approx(1.0) and agreement["judge_eye_gain"] == pytest.approx(1 / 3)
+    # read alike: the judge reads the drawn mouth at a quarter, the drawn eyes at half the driving detector's reading
+    assert row["read_mouth_gain"] == pytest.approx(0.25) and row["read_eye_gain"] == pytest.approx(0.5)
+    assert (agreement["read_mouth_gain"], agreement["read_eye_gain"]) == (agreement["judge_mouth_gain"],
+                                                                        agreement["judge_eye_gain"])
     assert parts.summarise_cross(records, ["other"], [8]) == []
     lines = "\n".join(parts.markdown([], [row, agreement], lambda value, digits=3: f"{value:.{digits}f}"))
-    assert f"| {parts.AGREEMENT} | 8 | 6 | " in lines
+    assert f"| {parts.AGREEMENT} | 8 | 6 | " in lines and "| 0.25, 0.50 | 3 | 0 |" in lines
 
 
 def test_summarise_self_splits_all_hold_outs_from_those_beyond():
@@ -103,13 +108,33 @@ def test_summarise_self_splits_all_hold_outs_from_those_beyond():
     records = [{**base, "psnr_mouth": 30.0, "ssim_mouth": 0.9, "sharpness_mouth": 1.0, "beyond_mouth": False,
                 "beyond_any": False}] * 3
     records += [{**base, "psnr_mouth": 20.0, "ssim_mouth": 0.5, "sharpness_mouth": 0.5, "beyond_mouth": True,
-                 "beyond_any": True}]
+                 "beyond_any": True, "psnr_inside": 15.0, "psnr_lips": 25.0}]
     (row,) = parts.summarise_self(records, ["m"], [8])
     assert (row["frames"], row["beyond_frames"], row["counts"]["mouth"]) == (4, 1, 1)
     assert row["all"]["psnr_mouth"] == pytest.approx(27.5) and row["mouth_beyond"]["psnr_mouth"] == 20.0
     assert row["eyes_beyond"] == {}
+    assert row["all"]["psnr_inside"] == 15.0 and row["mouth_beyond"]["psnr_lips"] == 25.0
     text = "\n".join(parts.markdown([row], [], lambda v, digits=3: "–" if v is None else f"{v:.{digits}f}"))
-    assert "| m | 8 | beyond: 1 (mouth 1, eyes 0, pose 0, gaze 0) | 20.00 | 0.500 | 0.50 | – | – | – |" in text
+    assert "| m | 8 | beyond: 1 (mouth 1, eyes 0, pose 0, gaze 0) | 20.00 | 0.500 | 0.50 | 15.00 | 25.00 | – | – | – |" in text
+
+
+def test_the_mouth_split_scores_the_inside_of_an_open_mouth_apart_from_its_lips(drawn_face):
+    image, points = drawn_face(mouth=0.3)
+    split = parts.mouth_split(points, image.shape[:2])
+    inner = np.round(points[60:68].mean(0)).astype(int)
+    lower_lip = np.round(points[57] * 0.7 + points[66] * 0.3).astype(int)
+    assert split["inside"][inner[1], inner[0]] and not split["lips"][inner[1], inner[0]]
+    assert split["lips"][lower_lip[1], lower_lip[0]] and not split["inside"][lower_lip[1], lower_lip[0]]
+    darker = image.copy()
+    darker[split["inside"]] //= 2  # a wrong inside, right lips
+    (score,) = parts.self_part_scores(darker[None], image[None], points[None])
+    assert np.isfinite(score["psnr_inside"]) and math.isinf(score["psnr_lips"])
+    assert score["psnr_inside"] < score["psnr_mouth"]
+    closed_image, closed = drawn_face(mouth=0.0)
+    assert not parts.mouth_split(closed, closed_image.shape[:2])["inside"].any()
+    (shut,) = parts.self_part_scores(closed_image[None] // 2, closed_image[None], closed[None])
+    assert math.isnan(shut["psnr_inside"]) and np.isfinite(shut["psnr_lips"])
+    assert not parts.mouth_split(np.full((68, 2), np.nan), image.shape[:2])["lips"].any()
 
 
 def test_the_drivers_shut_eyes_are_cut_against_their_lids_at_rest():
