@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 
 from landmarks.appearance import OPEN_MOUTH, gaze, gazes, iris_contrast, mouth_interior
+from landmarks.expression import eye_opening, mouth_opening
 from lsr.eval import metrics
 from lsr.eval.cross import _finite_mean
 
@@ -81,11 +82,11 @@ def mouth_split(landmarks: np.ndarray, shape: tuple[int, int]) -> dict[str, np.n
     """The mouth's parts (module docstring): landmarks (68, 2); shape (H, W) -> {"inside": the inner-lip polygon,
     empty where the mouth is closed (below ``OPEN_MOUTH``); "lips": the outer-lip polygon less it} (H, W) bool,
     both empty for non-finite landmarks."""
-    from landmarks.expression import mouth_opening
-
     points = metrics.check_landmarks(landmarks)
+    if points.shape != (68, 2):
+        raise ValueError(f"mouth_split needs one face's (68, 2) landmarks, got {points.shape}")
     empty = np.zeros(shape, bool)
-    if points.shape != (68, 2) or not np.isfinite(points).all():
+    if not np.isfinite(points).all():
         return {"inside": empty, "lips": empty.copy()}
     outer = _filled(points[48:60], shape)
     inside = _filled(points[60:68], shape) & outer if mouth_opening(points) >= OPEN_MOUTH else empty
@@ -176,8 +177,6 @@ class Judge:
 
 
 def _openings(points: np.ndarray | None) -> tuple[float, float]:
-    from landmarks.expression import eye_opening, mouth_opening
-
     if points is None:
         return math.nan, math.nan
     return float(mouth_opening(points)), float(eye_opening(points))

@@ -135,6 +135,8 @@ def test_the_mouth_split_scores_the_inside_of_an_open_mouth_apart_from_its_lips(
     (shut,) = parts.self_part_scores(closed_image[None] // 2, closed_image[None], closed[None])
     assert math.isnan(shut["psnr_inside"]) and np.isfinite(shut["psnr_lips"])
     assert not parts.mouth_split(np.full((68, 2), np.nan), image.shape[:2])["lips"].any()
+    with pytest.raises(ValueError, match="68, 2"):
+        parts.mouth_split(np.zeros((2, 68, 2)), image.shape[:2])
 
 
 def test_the_drivers_shut_eyes_are_cut_against_their_lids_at_rest():
