@@ -119,9 +119,9 @@ def self_part_scores(outputs: np.ndarray, targets: np.ndarray, target_landmarks:
     splits = [mouth_split(points, targets.shape[1:3]) for points in target_landmarks]
     for part in SPLIT:
         errors = metrics.mse(outputs, targets, mask=np.stack([s[part] for s in splits]))  # NaN where empty
+        psnrs = np.where(np.isnan(errors), np.nan, metrics.psnr_from_mse(errors))  # psnr_from_mse gives inf for NaN
         for row in range(len(targets)):
-            scores[row][f"psnr_{part}"] = (float(metrics.psnr_from_mse(errors[row])) if np.isfinite(errors[row])
-                                           else math.nan)
+            scores[row][f"psnr_{part}"] = float(psnrs[row])
     return scores
 
 

@@ -115,7 +115,8 @@ def test_summarise_self_splits_all_hold_outs_from_those_beyond():
     assert row["eyes_beyond"] == {}
     assert row["all"]["psnr_inside"] == 15.0 and row["mouth_beyond"]["psnr_lips"] == 25.0
     text = "\n".join(parts.markdown([row], [], lambda v, digits=3: "–" if v is None else f"{v:.{digits}f}"))
-    assert "| m | 8 | beyond: 1 (mouth 1, eyes 0, pose 0, gaze 0) | 20.00 | 0.500 | 0.50 | 15.00 | 25.00 | – | – | – |" in text
+    assert ("| m | 8 | beyond: 1 (mouth 1, eyes 0, pose 0, gaze 0) | 20.00 | 0.500 | 0.50 | 15.00 | 25.00 | – | – | – |"
+            in text)
 
 
 def test_the_mouth_split_scores_the_inside_of_an_open_mouth_apart_from_its_lips(drawn_face):
