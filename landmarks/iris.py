@@ -67,7 +67,7 @@ GHOST_HEIGHT = 0.8
 """... and at least this share of its radius tall."""
 
 
-def _eye_axes(landmarks: np.ndarray, eye: int) -> tuple[np.ndarray, np.ndarray, float]:
+def eye_axes(landmarks: np.ndarray, eye: int) -> tuple[np.ndarray, np.ndarray, float]:
     """(centre (2,), unit axis along the corners (2,), width) of eye ``eye`` (0 = image left) of (68, 2) points."""
     first, last, _ = EYES[eye]
     start, end = np.asarray(landmarks[first], np.float64), np.asarray(landmarks[last], np.float64)
@@ -94,7 +94,7 @@ def _find_iris(image: np.ndarray, points: np.ndarray, eye: int) -> np.ndarray:
     """``find_irises``' row for one eye (``landmarks.mesh.eye_iris``), on this thread's iris net session."""
     from landmarks.mesh import EYE_ROI_SCALE, Region, eye_input, eye_iris, iris_outputs
 
-    centre, axis, width = _eye_axes(points, eye)
+    centre, axis, width = eye_axes(points, eye)
     if width < 1.0:
         return np.full(4, np.nan)
     region = Region((float(centre[0]), float(centre[1])), width * EYE_ROI_SCALE, float(np.arctan2(axis[1], axis[0])))
@@ -114,7 +114,7 @@ def gaze_offsets(irises: np.ndarray, landmarks: np.ndarray, open_apertures: np.n
             continue
         if open_apertures is not None and not irises[eye, 3] >= CLOSED * open_apertures[eye]:
             continue
-        centre, axis, width = _eye_axes(points, eye)
+        centre, axis, width = eye_axes(points, eye)
         if width < 1.0:
             continue
         delta = irises[eye, :2] - centre
@@ -127,7 +127,7 @@ def eye_apertures(landmarks: np.ndarray) -> np.ndarray:
     points = np.asarray(landmarks, np.float64)
     gaps = []
     for eye, ring in enumerate(EYE_RINGS):
-        _, _, width = _eye_axes(points, eye)
+        _, _, width = eye_axes(points, eye)
         upper, lower = points[[ring[1], ring[2]]], points[[ring[5], ring[4]]]
         gaps.append(float(np.mean(np.linalg.norm(upper - lower, axis=1))) / max(width, 1e-9))
     return np.array(gaps)
@@ -162,7 +162,7 @@ def iris_donor(frames: np.ndarray, landmarks: np.ndarray) -> IrisDonor | None:
             matrix = np.array([[scale, 0.0, PATCH / 2 - 0.5 - scale * x], [0.0, scale, PATCH / 2 - 0.5 - scale * y]])
             patches.append(cv2.warpAffine(frames[shot], matrix, (PATCH, PATCH), flags=cv2.INTER_AREA if scale < 1
                                           else cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
-            radii.append(radius / _eye_axes(landmarks[shot], eye)[2])
+            radii.append(radius / eye_axes(landmarks[shot], eye)[2])
         if all(_looks_like_an_iris(patch, white) for patch, white in zip(patches, whites)):
             return IrisDonor(np.stack(patches), np.array(radii), np.array(whites), int(shot))
     return None
@@ -236,7 +236,7 @@ def draw_irises(image: np.ndarray, landmarks: np.ndarray, offsets: np.ndarray, d
     for eye, ring in enumerate(EYE_RINGS):
         if apertures[eye] < MIN_APERTURE or not np.isfinite(offsets[eye]).all():
             continue
-        centre, axis, eye_width = _eye_axes(points, eye)
+        centre, axis, eye_width = eye_axes(points, eye)
         across = np.array([-axis[1], axis[0]])
         radius = donor.radii[eye] * eye_width
         iris_centre = centre + offsets[eye, 0] * eye_width * axis + offsets[eye, 1] * eye_width * across

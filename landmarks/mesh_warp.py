@@ -514,7 +514,8 @@ def warp_mesh(image: np.ndarray, source_mesh: np.ndarray, target_mesh: np.ndarra
 
 def warp_references_mesh(shots: np.ndarray, shot_meshes: np.ndarray, shot_landmarks: np.ndarray,
                          target_mesh: np.ndarray, target_landmarks: np.ndarray, count: int, *,
-                         grid_step: int = 4, expression_gain: float = EXPRESSION_GAIN, lid_closed: float = LID_CLOSED
+                         grid_step: int = 4, expression_gain: float = EXPRESSION_GAIN, lid_closed: float = LID_CLOSED,
+                         irises: np.ndarray | None = None, gaze: np.ndarray | None = None
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``landmarks.tps.warp_references`` over the face mesh: the ``count`` nearest shots (by the 68 points, the same
     choice), each warped piecewise-affine over the mesh inside the face and by the 68-point TPS outside
@@ -525,6 +526,9 @@ def warp_references_mesh(shots: np.ndarray, shot_meshes: np.ndarray, shot_landma
     carried up to ``expression_gain`` times as far (``landmarks.expression_gain``; 1 = exactly onto the target);
     where it closes its eyes further than the shots, its upper lids are lowered so that the warps show its
     aperture (``landmarks.eyelids``, for the median lid gaps of the shots warped; ``lid_closed`` = 0: as measured).
+    With ``irises`` ((K, 2, 2) each shot's iris centres, NaN where not found), the warps carry every iris to where
+    the target looks (``gaze`` (2, 2), ``landmarks.iris.gaze_offsets``; None or NaN: where the nearest shot's
+    lands) by ``landmarks.iris_warp.align_irises``.
 
     shots: (K, S, S, 3) uint8; shot_meshes: (K, 468, 3); shot_landmarks: (K, 68, 2); target_mesh: (468, 3);
     target_landmarks: (68, 2), all in the shots' pixels. -> (warped (count, S, S, 3) uint8, masks (count, S, S)
@@ -544,13 +548,22 @@ def warp_references_mesh(shots: np.ndarray, shot_meshes: np.ndarray, shot_landma
     lids_mesh = close_lids(target_mesh, np.median([lid_gaps(mesh) for mesh in meshed], axis=0), lid_closed
                            ) if meshed else target_mesh
     layout = target_layout(lids_mesh, height, width, grid_step=grid_step)
-    warped_by_shot, mask_by_shot = {}, {}
+    warps = []
     for index, fallback in zip(unique, fallbacks):
         warp = fallback
         if np.isfinite(shot_meshes[index]).all():
             source = amplify_mouth(shot_meshes[index], target_mesh,
                                    mouth_gain(shot_landmarks[index], target_landmarks, expression_gain))
             warp = mesh_warp_map(source, lids_mesh, height, width, fallback=fallback, layout=layout)
+        warps.append(warp)
+    if irises is not None:
+        from landmarks.iris_warp import align_irises
+
+        maps = align_irises([(warp.map_x, warp.map_y) for warp in warps], np.asarray(irises)[unique],
+                            target_landmarks, gaze)
+        warps = [dataclasses.replace(warp, map_x=map_x, map_y=map_y) for warp, (map_x, map_y) in zip(warps, maps)]
+    warped_by_shot, mask_by_shot = {}, {}
+    for index, warp in zip(unique, warps):
         warped_by_shot[index] = cv2.remap(shots[index], warp.map_x, warp.map_y, tps.INTERPOLATION,
                                           borderMode=cv2.BORDER_REPLICATE)
         mask_by_shot[index] = warp.valid(height, width)

@@ -461,12 +461,17 @@ def warp_references(
     count: int,
     *,
     grid_step: int = 4,
+    irises: np.ndarray | None = None,
+    gaze: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The ``count`` nearest shots, each TPS-warped onto the target landmarks, with validity masks.
 
     shots: (K, S, S, 3) uint8; shot_landmarks: (K, 68, 2); target_landmarks: (68, 2), all in the shots' pixels.
     -> (warped (count, S, S, 3) uint8, masks (count, S, S) float32 in {0, 1}, indices (count,) int). With
-    fewer than ``count`` shots the nearest ones repeat (the network always sees ``count`` references).
+    fewer than ``count`` shots the nearest ones repeat (the network always sees ``count`` references). With
+    ``irises`` ((K, 2, 2) each shot's iris centres, NaN where not found), the warps carry every iris to where the
+    target looks (``gaze`` (2, 2), ``landmarks.iris.gaze_offsets``; None or NaN: where the nearest shot's lands) by
+    ``landmarks.iris_warp.align_irises``.
     """
     shots = np.asarray(shots)
     if shots.ndim != 4 or shots.shape[-1] != 3 or shots.dtype != np.uint8:
@@ -476,18 +481,25 @@ def warp_references(
     indices = nearest_shots(shot_landmarks, target_landmarks, count)
     indices = np.resize(indices, count)  # repeat the nearest when K < count
     height, width = shots.shape[1:3]
-    warped = np.empty((count, height, width, 3), np.uint8)
-    masks = np.empty((count, height, width), np.float32)
-    unique, slots = np.unique(indices, return_inverse=True)  # a repeated shot (K < count) is warped once
+    unique = [int(index) for index in dict.fromkeys(indices.tolist())]  # nearest first; a repeated shot is warped once
     warps = tps_maps([shot_landmarks[index] for index in unique], target_landmarks, height, width, grid_step=grid_step)
-    for slot, index in enumerate(indices):
-        warp = warps[slots[slot]]
-        if slot and indices[slot] in indices[:slot]:
-            first = int(np.flatnonzero(indices[:slot] == index)[0])
-            warped[slot], masks[slot] = warped[first], masks[first]
-            continue
-        warped[slot] = shots[index] if warp.method == "identity" else _remap(shots[index], warp.map_x, warp.map_y)
-        masks[slot] = warp.valid(height, width)
+    maps = [None if warp.method == "identity" else (warp.map_x, warp.map_y) for warp in warps]
+    if irises is not None:
+        from landmarks.iris_warp import align_irises
+
+        grid = np.mgrid[0:height, 0:width].astype(np.float32)
+        maps = align_irises([(grid[1], grid[0]) if pair is None else pair for pair in maps], np.asarray(irises)[unique],
+                            target_landmarks, gaze)
+    by_shot = {}
+    for index, pair in zip(unique, maps):
+        if pair is None:
+            by_shot[index] = (shots[index], np.ones((height, width), bool))
+        else:
+            map_x, map_y = pair
+            by_shot[index] = (_remap(shots[index], map_x, map_y), WarpMap.valid(
+                dataclasses.replace(warps[unique.index(index)], map_x=map_x, map_y=map_y), height, width))
+    warped = np.stack([by_shot[int(index)][0] for index in indices])
+    masks = np.stack([by_shot[int(index)][1] for index in indices]).astype(np.float32)
     return warped, masks, indices
 
 
