@@ -265,11 +265,12 @@ class ReenactConfig:
     subject's eyes, lit as the skin around them (a video or image driver: lids, crease and lash line are the
     driver's), drawn where the driver gives none (a landmark file); shots = the warped shots' lids lowered alone (an
     open eye squeezed to a slit). Compared by `lsr eval --lids`."""
-    eyes: Literal["drawn", "blend"] = "blend"
+    eyes: Literal["drawn", "warped", "blend"] = "warped"
     """drawn = one iris per eye, the subject's own (its shot with the most open eyes), laid where the driver looks
-    (MediaPipe's iris net on the driver's frames) inside the driven lids, clipped by them; blend = the network's
-    blend of the shots (two irises where they looked two ways). A video or image driver only. Compared by
-    `lsr eval --eyes`."""
+    (MediaPipe's iris net on the driver's frames) inside the driven lids, clipped by them (a video or image driver
+    only); warped = the shots' own irises carried by their warps to where the driver looks (where no gaze is known,
+    to the nearest shot's), so the shots agree before the network blends them; blend = the network's blend of the
+    shots as warped (two irises where they looked two ways). Compared by `lsr eval --eyes`."""
     paste_back: bool = False
     """Composite the re-enacted face into full frames of --scene (background and body stay, hair follows the head);
     otherwise output the crop-sized synthesis."""

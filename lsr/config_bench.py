@@ -290,9 +290,9 @@ class BenchReenactConfig:
     mouths: tuple[Literal["drawn", "nearest", "blend"], ...] = ()
     """A warp-guided model's mouth (as `lsr reenact --mouth`), one row each; e.g. drawn nearest times the mouth
     generator against the per-frame path without it, in the same run. Empty: the model's default."""
-    eyes: tuple[Literal["drawn", "blend"], ...] = ()
-    """The eyes (as `lsr reenact --eyes`), one row each; drawn blend prints the drawn eyes' frame-rate ratio. Empty:
-    the default (blend)."""
+    eyes: tuple[Literal["drawn", "warped", "blend"], ...] = ()
+    """The eyes (as `lsr reenact --eyes`), one row each; with blend among them, drawn or warped prints its frame-rate
+    ratio to blend. Empty: the default (warped)."""
     mouth_interiors: tuple[Literal["driver", "shots"], ...] = ()
     """Inside an open mouth (as `lsr reenact --mouth-interior`), one row each; driver shots prints the driver
     interior's frame-rate ratio. Empty: the default (driver)."""

@@ -62,9 +62,10 @@ class EvalConfig:
     """A warp-guided model's mouth: drawn (redrawn by the model's mouth generator, lsr.core.parts), nearest (from the
     nearest warped shot, landmarks.nearest_mouth) or blend (the network's blend of all its shots); empty: the model's
     default (drawn when it has a mouth generator); more than one adds a row per extra choice ("+blend-mouth")."""
-    eyes: tuple[Literal["drawn", "blend"], ...] = ()
-    """A model's eyes: drawn (one iris per eye, the subject's own, where the target looks: lsr.core.parts) or blend
-    (the network's blend of its shots); empty: the model's default; more than one adds a row per extra choice
+    eyes: tuple[Literal["drawn", "warped", "blend"], ...] = ()
+    """A model's eyes: drawn (one iris per eye, the subject's own, where the target looks: lsr.core.parts), warped
+    (the shots' irises carried by their warps to where the target looks: landmarks.iris_warp) or blend (the network's
+    blend of its shots); empty: the model's default; more than one adds a row per extra choice
     ("+blend-eyes")."""
     mouth_interiors: tuple[Literal["driver", "shots"], ...] = ()
     """Inside a model's open mouth, cross-identity: driver (the driving frame's cavity, teeth and tongue inside the

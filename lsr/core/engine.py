@@ -56,7 +56,7 @@ from lsr.core.overlap import finish_behind, prefetch
 from lsr.core.scene_source import paste_into_driver, paste_into_scene
 from lsr.core.images import from_network, square_resize, to_network
 from lsr.core.parts import (EYES, LIDS, MOUTH_INTERIORS, MOUTHS, Choice, DriverGaze, draws_mouth, finish_eyes,
-                             finish_mouth, subject_irises)
+                             finish_mouth, shot_irises, subject_irises)
 
 Mode = Literal["auto", "relative", "absolute"]
 Scene = Literal["source", "driver"]
@@ -81,6 +81,12 @@ class Subject:
     def lid_gaps(self) -> np.ndarray:
         """(2,) its lids at rest, the median lid gaps of its shots (``landmarks.drawn_lids.shot_lid_gaps``)."""
         return shot_lid_gaps(self.shots.landmarks)
+
+    @functools.cached_property
+    def shot_irises(self) -> np.ndarray:
+        """(K, 2, 2) each shot's iris centres in its crop pixels (``lsr.core.parts.shot_irises``), for ``eyes``
+        "warped"; found on first use."""
+        return shot_irises(self.shots.frames, self.shots.landmarks)
 
     @property
     def irises(self) -> tuple:
@@ -195,7 +201,7 @@ class ReenactorBase:
 
     mouth_interior = Choice(MOUTH_INTERIORS, "driver", "Inside an open mouth (``lsr.core.parts.MOUTH_INTERIORS``).")
     lids = Choice(LIDS, "drawn", "Where the target shuts its eyes (``lsr.core.parts.LIDS``).")
-    eyes = Choice(EYES, "blend", "The eyes' irises (``lsr.core.parts.EYES``).")
+    eyes = Choice(EYES, "warped", "The eyes' irises (``lsr.core.parts.EYES``).")
 
     @property
     def resolution(self) -> int:
@@ -279,12 +285,12 @@ class ReenactorBase:
         (``landmarks.mesh_warp.warp_references_mesh``), else by the 68-point TPS (``landmarks.tps.warp_references``).
         latents: (layout_latent, style_latent), (1, D) each, in place of the subject's (e.g. one shot's alone).
         subject: an encoded subject other than the cached one (a live stream's own, ``lsr.core.live``).
-        gaze: the target's (2, 2) ``landmarks.iris.gaze_offsets``, for ``eyes`` "drawn".
+        gaze: the target's (2, 2) ``landmarks.iris.gaze_offsets``, for ``eyes`` "drawn" or "warped".
         driver_mouth: the driver frame's mouth (``landmarks.mouth_interior.cut_driver_mouth``), for
         ``mouth_interior`` "driver". driver_eyes: the driver frame's shut eyes (``landmarks.driver_eyes.cut_driver_eyes``),
         for ``lids`` "driver".
         """
-        landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject, crop_mesh)
+        landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject, crop_mesh, gaze)
         image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks, subject, gaze, driver_mouth,
                                                driver_eyes)
         return image, landmark_image, layout
@@ -318,11 +324,12 @@ class ReenactorBase:
         return image, None if layout is None else np.asarray(layout[0], np.float32)
 
     def network_inputs(self, crop_landmarks: np.ndarray, latents: tuple[np.ndarray, np.ndarray] | None = None,
-                       subject: Subject | None = None, crop_mesh: np.ndarray | None = None
-                       ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+                       subject: Subject | None = None, crop_mesh: np.ndarray | None = None,
+                       gaze: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """What the frame network gets for target landmarks (68, 2) in crop pixels: (landmark image (S, S, 3) uint8,
         the named inputs of the frame graph: landmark_image (1, 3, S, S), layout_latent and style_latent (1, D), and
-        for a warp-guided model references (1, N, 3, C, C) and reference_masks (1, N, 1, C, C))."""
+        for a warp-guided model references (1, N, 3, C, C) and reference_masks (1, N, 1, C, C)). With ``eyes``
+        "warped", the references' irises move to ``gaze`` (2, 2) (``landmarks.iris_warp``)."""
         from landmarks.raster import draw_landmarks
 
         subject = subject if subject is not None else self._require_subject()
@@ -332,15 +339,17 @@ class ReenactorBase:
                   "style_latent": style_latent}
         if self.warp_references:
             shots = subject.shots
+            irises = subject.shot_irises if self.eyes == "warped" else None
             if self.reference_warp == "mesh" and crop_mesh is not None and shots.meshes is not None:
                 from landmarks.mesh_warp import warp_references_mesh
 
                 warped, valid, _ = warp_references_mesh(shots.frames, shots.meshes, shots.landmarks, crop_mesh,
-                                                        crop_landmarks, self.warp_references)
+                                                        crop_landmarks, self.warp_references, irises=irises, gaze=gaze)
             else:
                 from landmarks.tps import warp_references
 
-                warped, valid, _ = warp_references(shots.frames, shots.landmarks, crop_landmarks, self.warp_references)
+                warped, valid, _ = warp_references(shots.frames, shots.landmarks, crop_landmarks, self.warp_references,
+                                                   irises=irises, gaze=gaze)
             inputs["references"], inputs["reference_masks"] = to_network(warped)[None], valid[None, :, None]
         return landmark_image, inputs
 
@@ -452,7 +461,7 @@ class ReenactorBase:
         warp-guided model, its nearest shots warped onto it. finish: the frame's paste-back (run behind the loop);
         image: the frame's picture until then (None: the synthesis)."""
         started = time.perf_counter()
-        landmark_image, inputs = self.network_inputs(target, crop_mesh=target_mesh)
+        landmark_image, inputs = self.network_inputs(target, crop_mesh=target_mesh, gaze=gaze)
         stats.add("warps", time.perf_counter() - started)
         return _Prepared(ReenactedFrame(index, image, True, driver_frame, landmark_image, None, None, target, gaze,
                                         driver_mouth, driver_eyes), inputs, finish)
@@ -530,7 +539,7 @@ class ReenactorBase:
         reference = DriverReference()
         ahead, tracked = track_driver(info, tracker, LOOK_AHEAD if relative else 0)  # the lids at rest, first
         reference.look_ahead([points for points, *_ in ahead], [mesh for _, mesh, *_ in ahead])
-        gazes = DriverGaze(self._require_subject().irises[1] if relative else None) if self.eyes == "drawn" else None
+        gazes = DriverGaze(self._require_subject().irises[1] if relative else None) if self.eyes != "blend" else None
         frames = prefetch(tracked)  # decoding and tracking on a thread, a few frames ahead of the synthesis
         index = 0
         for frame, points, mesh, irises, tracking_seconds in frames:

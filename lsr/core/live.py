@@ -74,7 +74,7 @@ class LiveSession:
         self.one_euro = OneEuroFilter(25.0, driving_cutoffs()) if smooth else None
         self.scene = next(SourceScene(subject.shots, reenactor.crop_size)) if paste_back else None
         self.reference = DriverReference()
-        self.gazes = DriverGaze(subject.irises[1]) if reenactor.eyes == "drawn" else None  # drawn eyes' gaze
+        self.gazes = DriverGaze(subject.irises[1]) if reenactor.eyes != "blend" else None  # drawn eyes' gaze
         self.last: LiveFrame | None = None
         self._last_time: float | None = None
         self.frames = self.faces = 0
@@ -136,7 +136,7 @@ class LiveSession:
 
     def _inputs(self, target: np.ndarray, started: float, gaze: np.ndarray | None = None,
                 driver_mouth: DriverMouth | None = None, driver_eyes: DriverEyes | None = None) -> Prepared:
-        landmark_image, inputs = self.reenactor.network_inputs(target, subject=self.subject)
+        landmark_image, inputs = self.reenactor.network_inputs(target, subject=self.subject, gaze=gaze)
         return Prepared(np.asarray(target, np.float64), landmark_image, inputs, time.perf_counter() - started,
                         self.frames, gaze, driver_mouth, driver_eyes)
 

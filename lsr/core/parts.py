@@ -3,7 +3,8 @@ mouth drawn by a part generator over it, and the eyes drawn with one iris where 
 
 ``finish_eyes`` applies a reenactor's ``eyes`` choice (``EYES``): the subject's irises (``subject_irises``: the
 shot with the most open eyes, and the anchor shot's gaze, which relative motion starts from) drawn into the
-synthesis at the target's gaze (``DriverGaze``, ``sequence_gazes``; ``landmarks.iris``).
+synthesis at the target's gaze (``DriverGaze``, ``sequence_gazes``; ``landmarks.iris``). "warped" acts before the
+synthesis instead: the engine gives the references' warps each shot's iris (``shot_irises``) and the target's gaze.
 
 ``finish_mouth`` applies a reenactor's ``mouth`` choice (``MOUTHS``). ``draw_mouth`` cuts the mouth's window out of the synthesised crop (``landmarks.part_window``), gives it and the
 target's lip masks to the backend's part generator (``models_def.part_generator``: the torch module or its ONNX
@@ -17,17 +18,18 @@ from collections.abc import Callable
 
 import numpy as np
 
-from landmarks.iris import IrisDonor, draw_irises, find_irises, gaze_offsets, iris_donor, retarget_gaze
+from landmarks.iris import CLOSED, IrisDonor, draw_irises, find_irises, gaze_offsets, iris_donor, retarget_gaze
 from lsr.core.images import from_network, to_network
 from landmarks.part_window import (MOUTH, PartWindow, extract, lip_masks, paste, paste_weight, to_window,
                                    window_eye_distance, window_transform)
 
 PartRunner = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """(window (1, 3, P, P) float32 in [-1, 1], masks (1, 2, P, P) float32 in [0, 1]) -> (1, 3, P, P) in [-1, 1]."""
-EYES = ("drawn", "blend")
+EYES = ("drawn", "warped", "blend")
 """A model's eyes: one iris per eye, the subject's own, drawn where the driver looks ("drawn", ``finish_eyes``,
-``landmarks.iris``; frame drivers only: a landmark driver has no irises) or the network's blend of its shots
-("blend")."""
+``landmarks.iris``; frame drivers only: a landmark driver has no irises); the shots' own irises carried by their
+warps to where the driver looks, or where a landmark driver gives no gaze, to where the nearest shot's lands
+("warped", ``shot_irises``, ``landmarks.iris_warp``); or the network's blend of its shots as warped ("blend")."""
 MOUTH_INTERIORS = ("driver", "shots")
 """Inside an open mouth: the driver frame's cavity, teeth and tongue inside the target's inner lips ("driver",
 ``landmarks.mouth_interior``; where the driver is a video or a camera) or what ``MOUTHS``' choice gives ("shots")."""
@@ -113,6 +115,19 @@ def subject_irises(frames: np.ndarray, landmarks: np.ndarray, anchor: int) -> tu
     ``landmarks.iris.iris_donor``, or None; the anchor shot's gaze (2, 2), NaN where not found)."""
     donor = iris_donor(frames, landmarks)
     return donor, gaze_offsets(find_irises(frames[anchor], landmarks[anchor]), landmarks[anchor])
+
+
+def shot_irises(frames: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
+    """A subject's shots (K, C, C, 3) uint8 with their landmarks (K, 68, 2) -> (K, 2, 2) float64 each shot's iris
+    centres (``landmarks.iris.find_irises``), NaN where not found or where the eye is closing against its median
+    aperture over the shots (``landmarks.iris.CLOSED``): the irises ``landmarks.iris_warp`` carries."""
+    irises = np.stack([find_irises(frame, points) for frame, points in zip(frames, landmarks)]) if len(frames) else \
+        np.zeros((0, 2, 4))
+    centres = irises[..., :2].copy()
+    if np.isfinite(irises[..., 3]).any():
+        opened = np.nanmedian(irises[..., 3], axis=0)
+        centres[~(irises[..., 3] >= CLOSED * opened)] = np.nan
+    return centres
 
 
 def sequence_gazes(frames, landmarks: np.ndarray) -> np.ndarray:

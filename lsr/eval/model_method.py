@@ -104,7 +104,7 @@ class LsrModelMethod:
             reenactor.mouth_interior = mouth_interior
         if lids is not None:
             reenactor.lids = lids
-        self.uses_gazes = reenactor.eyes == "drawn"
+        self.uses_gazes = reenactor.eyes != "blend"
         self.uses_driver_mouths = reenactor.mouth_interior == "driver"
         self.uses_driver_eyes = reenactor.lids == "driver"
         self.needs_target_segmentation = self.variant == "oracle_seg"

@@ -190,3 +190,35 @@ def test_the_stages_overlap_on_threads_and_give_the_frames_of_the_sequential_pat
         np.testing.assert_array_equal(frame.image, reenactor.synthesize_crop(frame.landmarks)[0])
     stages = reenactor.last_stats.seconds
     assert stages["warps"] > 0 and stages["synthesis"] > 0
+
+
+def test_warped_eyes_carry_the_references_irises_to_the_gaze_and_change_nothing_else(reenactor, people):
+    from landmarks.iris import eye_axes
+    from landmarks.iris_warp import BAND, REACH
+
+    subject = reenactor.encode_subject(people["source"], k=4)
+    irises = subject.shot_irises
+    assert irises.shape == (len(subject.shots.frames), 2, 2) and np.isfinite(irises).all()
+    target, mesh = subject.shots.landmarks[1] + np.array([1.0, 0.5]), subject.shots.meshes[1] + [1.0, 0.5, 0.0]
+    gaze = np.array([[0.12, 0.0], [0.12, 0.0]])
+    assert reenactor.eyes == "warped"  # the default
+    reenactor.eyes = "blend"
+    blend = reenactor.network_inputs(target, crop_mesh=mesh, gaze=gaze)[1]["references"]
+    np.testing.assert_array_equal(blend, reenactor.network_inputs(target, crop_mesh=mesh)[1]["references"])
+    reenactor.eyes = "warped"
+    try:
+        warped = reenactor.network_inputs(target, crop_mesh=mesh, gaze=gaze)[1]["references"]
+        agreed = reenactor.network_inputs(target, crop_mesh=mesh)[1]["references"]  # no gaze: the nearest shot's
+    finally:
+        reenactor.eyes = "warped"
+    eyes = np.zeros(blend.shape[-2:], bool)
+    for eye in range(2):
+        centre, axis, width = eye_axes(target, eye)
+        reach = np.ceil(width * np.hypot(REACH, BAND[1])) + 2
+        x0, y0 = np.floor(centre - reach).astype(int)
+        x1, y1 = np.ceil(centre + reach).astype(int)
+        eyes[max(y0, 0):y1, max(x0, 0):x1] = True
+    changed = np.abs(warped - blend).max(axis=(0, 1, 2)) > 0
+    assert changed[eyes].any() and not changed[~eyes].any()
+    np.testing.assert_array_equal(agreed[0, 0], blend[0, 0])  # the nearest shot is the one the others move to
+    assert not np.array_equal(agreed, blend)

@@ -68,12 +68,13 @@ def test_the_face_crop_instead_of_the_scene(reenactor, tmp_path):
     assert frame.face and frame.image.shape == (reenactor.crop_size, reenactor.crop_size, 3) and frame.layout is None
 
 
-def test_drawn_eyes_follow_the_cameras_gaze_from_the_trackers_irises(reenactor, tmp_path):
+@pytest.mark.parametrize("eyes", ["drawn", "warped"])
+def test_drawn_or_warped_eyes_follow_the_cameras_gaze_from_the_trackers_irises(reenactor, tmp_path, eyes):
     from lsr.core.live import LiveSession
     from lsr.data.synth import render_video
 
     subject = reenactor.encode_subject(_shots(tmp_path, 46, 2, pad=48), k=2, cache=False)
-    reenactor.eyes = "drawn"
+    reenactor.eyes = eyes
     try:
         session = LiveSession(reenactor, subject, paste_back=False, watermark=False)
         assert session.gazes is not None
@@ -84,7 +85,7 @@ def test_drawn_eyes_follow_the_cameras_gaze_from_the_trackers_irises(reenactor, 
         session.recentre()
         assert session.gazes.reference is None
     finally:
-        reenactor.eyes = "blend"
+        reenactor.eyes = "warped"
 
 
 def test_an_open_mouth_on_camera_gives_the_synthesis_its_inside(reenactor, tmp_path):

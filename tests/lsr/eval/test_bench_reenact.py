@@ -36,7 +36,7 @@ def test_warp_guided_model_is_timed_on_both_runtimes(tmp_path):
     assert [row.split("|")[2].strip() for row in rows] == ["mesh", "hog", "mesh", "hog"]
     for row in rows:
         cells = [cell.strip() for cell in row.strip("|").split("|")]
-        assert cells[2] == "nearest" and cells[3] == "blend"  # the defaults: no mouth generator, blended eyes
+        assert cells[2] == "nearest" and cells[3] == "warped"  # the defaults: no mouth generator, warped irises
         assert cells[4] == "driver" and cells[5] == "drawn"  # the driver's mouth interior, the subject's drawn lids
         assert int(cells[6]) == 4 and float(cells[15]) > 0  # frames, end-to-end fps
     assert "`" in table.splitlines()[0]  # the model named as given, not a random preset
