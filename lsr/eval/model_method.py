@@ -75,10 +75,11 @@ class LsrModelMethod:
         ``weights``); None = load the torch model from ``weights``. reference_warp: how a warp-guided model's
         references are warped ("mesh": over the face mesh, given the meshes; "tps": the 68-point TPS). mouth: a
         warp-guided model's mouth ("drawn": redrawn by its mouth generator; "nearest": the nearest warped shot's;
-        "blend": the network's; None: the model's default, ``lsr.core.engine.ReenactorBase.mouth``). eyes: "drawn"
-        (one iris where the target looks: the protocol then passes ``target_gazes``) or "blend" (None: the model's
-        default, ``ReenactorBase.eyes``). mouth_interior: "driver" (the driver frame's inside an open mouth:
-        cross-identity, the protocol then passes ``driver_mouths``) or "shots" (None: the model's default). lids:
+        "blend": the network's; None: the model's default, ``lsr.core.engine.ReenactorBase.mouth``). eyes: "warped"
+        (the references' irises carried to where the target looks) or "drawn" (one iris laid where it looks): the
+        protocol then passes ``target_gazes``; or "blend" (None: the model's default, ``ReenactorBase.eyes``).
+        mouth_interior: "driver" (the driver frame's inside an open mouth: cross-identity, the protocol then passes
+        ``driver_mouths``) or "shots" (None: the model's default). lids:
         "driver" (the driver frame's shut eyes: cross-identity, the protocol then passes ``driver_eyes``) or "shots"
         (None: the model's default)."""
         self.weights = Path(weights)

@@ -457,10 +457,10 @@ def driver_eye_inputs(sequences: Sequence[Any]) -> list[dict[str, list]]:
 
 def gaze_inputs(targets: np.ndarray, target_landmarks: np.ndarray, sequences: Sequence[Any]
                 ) -> tuple[dict[str, np.ndarray], list[dict[str, np.ndarray]]]:
-    """What a method with drawn eyes is given (``protocol.takes_gazes``): self re-enactment, the hold-outs' own gaze
-    ``{"target_gazes": (T, 2, 2)}``; cross-identity, one such dict per ``cross.CrossSequence``: the driver's gaze
-    as ``lsr reenact`` gives it to the source (``lsr.core.parts.DriverGaze``), the anchor shot's moved by the
-    driver's since its first frame whose irises were found."""
+    """What a method with warped or drawn eyes is given (``protocol.takes_gazes``): self re-enactment, the hold-outs'
+    own gaze ``{"target_gazes": (T, 2, 2)}``; cross-identity, one such dict per ``cross.CrossSequence``: the
+    driver's gaze as ``lsr reenact`` gives it to the source (``lsr.core.parts.DriverGaze``), the anchor shot's moved
+    by the driver's since its first frame whose irises were found."""
     from landmarks.iris import retarget_gaze
     from lsr.core.parts import sequence_gazes
 

@@ -108,7 +108,7 @@ def takes_meshes(method: Any) -> bool:
 
 def takes_gazes(method: Any) -> bool:
     """The method is passed ``target_gazes=`` (T, 2, 2), where each target looks (``landmarks.iris.gaze_offsets``
-    of the hold-out or, cross-identity, the driver's relative gaze): it ``uses_gazes`` (drawn eyes)."""
+    of the hold-out or, cross-identity, the driver's relative gaze): it ``uses_gazes`` (warped or drawn eyes)."""
     return bool(getattr(method, "uses_gazes", False))
 
 
@@ -464,7 +464,7 @@ def run_protocol(
             judges = [None if judged_by is None else parts.CrossJudge(
                 judged_by, sequence.driver_frames, sequence.driver_landmarks, shots, shot_landmarks)
                 for sequence, _ in sequences]  # the driver and shots read once, for every method
-            # what drawn eyes get, self and cross (per driver)
+            # what warped or drawn eyes get, self and cross (per driver)
             gaze_inputs, cross_gazes = parts.gaze_inputs(targets, target_landmarks, [s for s, _ in sequences]) if any(
                 takes_gazes(method) for method in methods) else ({}, [{} for _ in sequences])
             from_drivers = {attribute: cut([s for s, _ in sequences]) for attribute, cut in DRIVER_FRAME_INPUTS.items()

@@ -122,3 +122,22 @@ def test_an_iris_not_found_leaves_its_shot_and_no_gaze_no_nearest_iris_leaves_al
         np.testing.assert_array_equal(warp[0], _identity()[0])
     with pytest.raises(ValueError, match="irises"):
         align_irises([_identity()] * 2, irises[:1], points)
+
+
+def test_the_tps_references_carry_their_irises_to_the_gaze():
+    from landmarks.tps import warp_references
+
+    points = _eyes()
+    shots = [_shot(points, look) for look in (0.1, -0.1)]
+    frames, irises = np.stack([image for image, _ in shots]), np.stack([irises for _, irises in shots])
+    plain, plain_masks, indices = warp_references(frames, np.stack([points, points]), points, 2)
+    warped, masks, same = warp_references(frames, np.stack([points, points]), points, 2, irises=irises,
+                                          gaze=np.array([[0.0, 0.0], [0.0, 0.0]]))
+    np.testing.assert_array_equal(same, indices)
+    np.testing.assert_array_equal(masks, plain_masks)
+    for reference, before in zip(warped, plain):
+        for eye in range(2):
+            lids = points[list(EYE_RINGS[eye])]
+            blobs, centroid = _dark(reference, points, eye)
+            assert blobs == 1 and abs(centroid[0] - (lids[0, 0] + lids[3, 0]) / 2) < 0.8  # at the centre: gaze 0
+            assert abs(_dark(before, points, eye)[1][0] - (lids[0, 0] + lids[3, 0]) / 2) > 2.5  # 3 px aside before
