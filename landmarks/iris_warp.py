@@ -114,8 +114,8 @@ def shift_iris(map_x: np.ndarray, map_y: np.ndarray, landmarks: np.ndarray, eye:
     ys, xs = np.mgrid[y0:y1, x0:x1].astype(np.float64)
     u = ((xs - centre[0]) * axis[0] + (ys - centre[1]) * axis[1]) / width
     v = ((xs - centre[0]) * across[0] + (ys - centre[1]) * across[1]) / width
-    moved = np.interp(u, [-REACH, end - plateau, end + plateau, REACH],
-                      [-REACH, start - plateau, start + plateau, REACH])
+    moved = np.where(np.abs(u) < REACH, np.interp(u, [-REACH, end - plateau, end + plateau, REACH],
+                                                  [-REACH, start - plateau, start + plateau, REACH]), u)
     weight = np.clip((BAND[1] - np.abs(v)) / (BAND[1] - BAND[0]), 0.0, 1.0)
     shift = weight * (moved - u) * width  # pixels along the axis, output -> where its map is read
     sample_x = (xs + shift * axis[0]).astype(np.float32)

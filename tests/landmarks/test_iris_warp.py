@@ -141,3 +141,23 @@ def test_the_tps_references_carry_their_irises_to_the_gaze():
             blobs, centroid = _dark(reference, points, eye)
             assert blobs == 1 and abs(centroid[0] - (lids[0, 0] + lids[3, 0]) / 2) < 0.8  # at the centre: gaze 0
             assert abs(_dark(before, points, eye)[1][0] - (lids[0, 0] + lids[3, 0]) / 2) > 2.5  # 3 px aside before
+
+
+def test_a_rolled_eye_keeps_its_warp_beyond_the_reach_along_its_corner_line():
+    from landmarks.iris import eye_axes
+    from landmarks.iris_warp import shift_iris
+
+    points = _eyes()
+    centre = points[36:48].mean(axis=0)
+    angle = np.radians(18.0)
+    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    rolled = (points - centre) @ rotation.T + centre
+    xs, ys = _identity()
+    curved = (xs + 0.002 * (ys - 50) ** 2).astype(np.float32), (ys + 0.003 * (xs - 60) ** 2).astype(np.float32)
+    bent = shift_iris(*curved, rolled, 0, 0.0, 0.12)
+    eye_centre, axis, width = eye_axes(rolled, 0)
+    u = ((xs - eye_centre[0]) * axis[0] + (ys - eye_centre[1]) * axis[1]) / width
+    beyond = np.abs(u) >= REACH
+    assert not np.array_equal(bent[0], curved[0])
+    np.testing.assert_array_equal(bent[0][beyond], curved[0][beyond])
+    np.testing.assert_array_equal(bent[1][beyond], curved[1][beyond])
