@@ -10,9 +10,10 @@ What it writes (``OUT``):
   ``landmarks/assets``) and MediaPipe's selfie segmenter: the page encodes a user's own photos with them
   (``deploy/web/src/encode.ts``);
 * ``person/``: the example person encoded ahead of time, as ``lsr app``'s live tab encodes it: its K shots
-  (crops) with their 68 points, the two latents, the anchor; its scene (the anchor's frame, its face and crop
-  transform) with the person matte and background plate of the head layer (``landmarks.scene.background_plate``);
-  pictures as raw uint8 files (``*.u8``, shapes in ``subject.json``);
+  (crops) with their 68 points and iris centres (``shot_irises``, for ``eyes`` "warped"), the two latents, the
+  anchor and its gaze (``anchor_gaze``, which the driver's moves; NaN, not found, written as null); its scene (the
+  anchor's frame, its face and crop transform) with the person matte and background plate of the head layer
+  (``landmarks.scene.background_plate``); pictures as raw uint8 files (``*.u8``, shapes in ``subject.json``);
 * ``site.json``: the sizes and names the page needs; ``NOTICE.md``: where everything comes from.
 
 The site is written into a temporary folder beside ``OUT`` and renamed into place: an interrupted export leaves the
@@ -66,6 +67,14 @@ def example_subject(bundle: Path, k: int | None = None):
     return reenactor, subject, next(SourceScene(subject.shots, reenactor.crop_size))
 
 
+def _nullable(values) -> list:
+    """An array as nested lists, NaN as None (JSON null: JSON has no NaN; the page reads null back as NaN)."""
+    def convert(item):
+        return [convert(value) for value in item] if isinstance(item, list) else None if np.isnan(item) else item
+
+    return convert(np.asarray(values, np.float64).tolist())
+
+
 def write_person(folder: Path, reenactor, subject, scene) -> dict:
     """The encoded person and its scene as files under ``folder`` (module docstring); returns subject.json's content."""
     from landmarks.imageio import write_image
@@ -84,6 +93,7 @@ def write_person(folder: Path, reenactor, subject, scene) -> dict:
         "shapes": {name: list(picture.shape) for name, picture in pictures.items()},
         "k": len(shots.frames), "anchor": int(shots.anchor), "crop_size": int(reenactor.crop_size),
         "shot_landmarks": np.asarray(shots.landmarks, np.float64).tolist(),
+        "shot_irises": _nullable(subject.shot_irises), "anchor_gaze": _nullable(subject.irises[1]),
         "layout_latent": np.asarray(subject.layout_latent, np.float32).ravel().tolist(),
         "style_latent": np.asarray(subject.style_latent, np.float32).ravel().tolist(),
         "scene": {"width": int(scene.image.shape[1]), "height": int(scene.image.shape[0]),
@@ -124,7 +134,7 @@ def write_site(weights: Path, out: Path, k: int | None = None) -> WebSite:
             "references": int(reenactor.warp_references), "latent_dim": len(person["layout_latent"]),
             "layout": backend.layout_kind, "layout_palette": LAYOUT_PALETTE.tolist(), "layout_legend": legend,
             "mouth": reenactor.mouth, "mouth_interior": reenactor.mouth_interior, "lids": reenactor.lids,
-            "k": person["k"],
+            "eyes": reenactor.eyes, "k": person["k"],
         })
         (temp / "NOTICE.md").write_text(_notice())
         for path in temp.rglob("*"):  # readable by any static server

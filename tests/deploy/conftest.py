@@ -109,6 +109,26 @@ def python_session(site):
 
 
 @pytest.fixture(scope="session")
+def real_shots() -> tuple[np.ndarray, np.ndarray]:
+    """10 crops (256 x 256) of frames of the bundled real video (lsr.examples.REAL_SOURCE, every 7th frame) and their
+    68 points in crop pixels (the default detector): shots and targets of the reference warps."""
+    from landmarks.align import crop_transform, transform_landmarks, warp_to_crop
+    from landmarks.detectors import make_detector
+    from landmarks.video import iter_frames
+    from lsr.examples import REAL_SOURCE
+
+    detector = make_detector()
+    frames = [frame for index, frame in enumerate(iter_frames(REAL_SOURCE)) if index % 7 == 0][:10]
+    crops, points = [], []
+    for frame in frames:
+        landmarks = detector.detect_one(frame).landmarks.astype(np.float64)
+        matrix = crop_transform(landmarks, 256)
+        crops.append(warp_to_crop(frame, matrix, 256))
+        points.append(transform_landmarks(landmarks, matrix))
+    return np.stack(crops), np.stack(points)
+
+
+@pytest.fixture(scope="session")
 def driver_frames():
     """count -> the first ``count`` frames (count, H, W, 3) of the bundled driver (lsr.examples.REAL_DRIVER)."""
     from landmarks.video import iter_frames

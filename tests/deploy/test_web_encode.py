@@ -66,6 +66,18 @@ def test_the_page_encodes_the_same_latents(python_person, web_person):
     assert layout < 0.01 and style < 0.01
 
 
+def test_the_page_finds_the_same_irises(python_person, web_person):
+    """Each shot's iris centres (eyes "warped", lsr.core.engine.Subject.shot_irises) and the anchor's gaze
+    (Subject.irises' second) by the page's iris net."""
+    subject = python_person[0]
+    centres, gaze = subject.shot_irises, subject.irises[1]
+    np.testing.assert_array_equal(np.isnan(web_person["shotIrises"]), np.isnan(centres))
+    error = np.nanmax(np.abs(web_person["shotIrises"] - centres))
+    print(f"\nshot irises: max {error:.4f} px apart")
+    assert error < 0.1 and np.isfinite(centres).any()
+    np.testing.assert_allclose(web_person["anchorGaze"], gaze, atol=0.01, equal_nan=True)
+
+
 def test_the_page_makes_the_same_scene_layers(python_person, web_person):
     _, scene, matte, layers = python_person
     difference = np.abs(web_person["matte"] - matte)

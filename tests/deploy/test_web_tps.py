@@ -7,33 +7,14 @@ import numpy as np
 import pytest
 
 from landmarks import tps
-from landmarks.align import crop_transform, transform_landmarks, warp_to_crop
 from landmarks.pose import project_canonical
 
-SIDE = 256
+SIDE = 256  # the side of conftest.py's real_shots
 
 
 def _psnr(first: np.ndarray, second: np.ndarray) -> float:
     error = np.mean((first.astype(np.float64) - second.astype(np.float64)) ** 2)
     return float("inf") if error == 0 else float(10 * np.log10(255**2 / error))
-
-
-@pytest.fixture(scope="module")
-def real_shots() -> tuple[np.ndarray, np.ndarray]:
-    """10 crops (SIDE) of frames of the bundled real video and their 68 points in crop pixels (the default detector)."""
-    from landmarks.detectors import make_detector
-    from landmarks.video import iter_frames
-    from lsr.examples import REAL_SOURCE
-
-    detector = make_detector()
-    frames = [frame for index, frame in enumerate(iter_frames(REAL_SOURCE)) if index % 7 == 0][:10]
-    crops, points = [], []
-    for frame in frames:
-        landmarks = detector.detect_one(frame).landmarks.astype(np.float64)
-        matrix = crop_transform(landmarks, SIDE)
-        crops.append(warp_to_crop(frame, matrix, SIDE))
-        points.append(transform_landmarks(landmarks, matrix))
-    return np.stack(crops), np.stack(points)
 
 
 def _check_references(expected, got, count: int) -> list[float]:

@@ -11,7 +11,9 @@
 //     (deploy/runtime.py OnnxBackend.encode_subject) -> the layout and style latents;
 //   lsr/core/scene_source.py SourceScene (an image source): the anchor's photo, its 68 points and crop transform;
 //   landmarks/segment.py person_matte and landmarks/scene.py background_plate (segment.ts): the scene's layers,
-//     the matte kept at 8 bits as `lsr export --web` writes it (lsr/export_web.py write_person).
+//     the matte kept at 8 bits as `lsr export --web` writes it (lsr/export_web.py write_person);
+//   lsr/core/parts.py shot_irises and subject_irises' anchor gaze (gaze.ts): each shot's irises by the tracker's iris
+//     net, which eyes "warped" carries to the driver's gaze (iris_warp.ts).
 //
 // Left out: the identity filter (landmarks.identity, dlib's face descriptor) that drops shots of another person's
 // face; with more usable photos than K (default 8), Python's covering choice (landmarks.coverage.choose_covering,
@@ -27,6 +29,7 @@ import * as ort from "onnxruntime-web";
 import { folderReader } from "./files.js";
 import { composeAffine, cropTransform, invertAffine, transformPoints } from "./geometry.js";
 import { MESH_POINTS } from "./facemesh.js";
+import { findShotIrises, gazeOffsets, shotIrisCentres } from "./gaze.js";
 import { FrameGenerator, toNetwork } from "./network.js";
 import { pickAnchor } from "./pose.js";
 import { drawLandmarks } from "./raster.js";
@@ -253,6 +256,11 @@ export async function encodePerson(photos: Tensor<Uint8Array>[], models: PersonM
   const [encoder, segmenter] = await Promise.all([sessionOf(models.subjectEncoder), sessionOf(models.segmenter)]);
   const shotTensor = tensor(frames, [count, crop, crop, 3]);
   const latents = await encodeShots(encoder, shotTensor, landmarks, config.resolution);
+  // each shot's irises with the tracker's iris net, for eyes "warped" (lsr.core.engine.Subject.shot_irises), and the
+  // anchor's gaze that the driver's moves (Subject.irises' second)
+  const irises = await findShotIrises(tracker.faceMesh, shotTensor, landmarks);
+  const anchorGaze = gazeOffsets(irises.subarray(8 * anchor, 8 * anchor + 8),
+                                 shotLandmarks.subarray(136 * anchor, 136 * anchor + 136));
   const scene = photos[shots[anchor].photo];
   const sceneLandmarks = tensor(Float64Array.from(shots[anchor].frameLandmarks), [68, 2]);
   const matte = await personMatte(segmenter, scene);
@@ -260,7 +268,8 @@ export async function encodePerson(photos: Tensor<Uint8Array>[], models: PersonM
   // 8 bits, as lsr export --web writes the example person's matte (and loadSite reads it back)
   const stepped = Float32Array.from(layers.matte.data, (v) => Math.min(Math.max(roundHalfEven(v * 255), 0), 255) / 255);
   return {
-    shots: shotTensor, shotLandmarks: landmarks, anchor, latents, scene, sceneLandmarks,
+    shots: shotTensor, shotLandmarks: landmarks, shotIrises: shotIrisCentres(irises), anchorGaze, anchor, latents, scene,
+    sceneLandmarks,
     sceneMatrix: cropTransform(sceneLandmarks, crop),
     layers: { matte: tensor(stepped, layers.matte.shape), plate: layers.plate },
     photos: shots.map((shot) => shot.photo), frameLandmarks: tensor(frameLandmarks, [count, 68, 2]), matte, notes,
@@ -295,6 +304,7 @@ export async function encodePhotosFromFolder(siteFolder: string, photos: Tensor<
   const person = await encodePerson(splitPhotos(photos), models, config, options);
   return {
     shots: person.shots, shotLandmarks: person.shotLandmarks, anchor: person.anchor, photos: person.photos,
+    shotIrises: tensor(person.shotIrises, [person.shots.shape[0], 2, 2]), anchorGaze: tensor(person.anchorGaze, [2, 2]),
     frameLandmarks: person.frameLandmarks, layoutLatent: person.latents.layout, styleLatent: person.latents.style,
     scene: person.scene, sceneLandmarks: person.sceneLandmarks, sceneMatrix: tensor(Float64Array.from(person.sceneMatrix), [2, 3]),
     matte: person.matte, layerMatte: person.layers.matte, plate: person.layers.plate, notes: person.notes,

@@ -21,3 +21,5 @@ export * from "./pose.js";
 export * from "./segment.js";
 export * from "./encode.js";
 export * from "./references.js";
+export * from "./gaze.js";
+export * from "./iris_warp.js";

@@ -1,11 +1,13 @@
 // The warp-guided generator's references: the N shots nearest the target, each TPS-warped onto it with a mask of
-// where the warp is valid (landmarks/tps.py nearest_shots, landmark_distance, warp_references).
+// where the warp is valid (landmarks/tps.py nearest_shots, landmark_distance, warp_references), and with the shots'
+// irises, each warp bent to carry its shot's iris to where the target looks (iris_warp.ts).
 
 import { LEFT_EYE, RIGHT_EYE } from "./geometry.js";
+import { DenseMaps, alignIrises } from "./iris_warp.js";
 import { densifyGrid, remapCubic } from "./remap.js";
 import { CubicSources } from "./remap_wasm.js";
 import { Tensor, tensor } from "./tensor.js";
-import { WarpMethod, tpsGridMaps, warpValidMask } from "./tps.js";
+import { GridMap, WarpMethod, tpsGridMaps, warpValidMask } from "./tps.js";
 
 // ---- references for the warp-guided generator ---------------------------------------------------------------
 
@@ -54,14 +56,19 @@ export interface References {
 
 /** The `count` nearest shots, each TPS-warped onto the target landmarks, with validity masks
  * (landmarks.tps.warp_references). shots: (K, S, S, 3) uint8; shotLandmarks: (K, 68, 2); targetLandmarks: (68, 2),
- * all in the shots' pixels. With fewer than `count` shots the nearest ones repeat. The shots stay in WebAssembly
- * memory for the next call with the same array (remap_wasm.ts): its values must not change in between. */
+ * all in the shots' pixels. With fewer than `count` shots the nearest ones repeat. With `irises` ((K, 2, 2) each
+ * shot's iris centres, NaN where not found), the warps carry every iris to where the target looks (`gaze` (2, 2),
+ * gaze.ts gazeOffsets; null or NaN: where the nearest shot's lands) by iris_warp.ts alignIrises. The shots stay in
+ * WebAssembly memory for the next call with the same array (remap_wasm.ts): its values must not change in between. */
 export function warpReferences(shots: Tensor<Uint8Array>, shotLandmarks: Tensor, targetLandmarks: Tensor, count: number,
-                               gridStep = 4): References {
+                               gridStep = 4, irises: Tensor | null = null, gaze: Tensor | null = null): References {
   if (shots.shape.length !== 4 || shots.shape[3] !== 3 || !(shots.data instanceof Uint8Array)) {
     throw new Error(`shots must be (K, S, S, 3) uint8, got [${shots.shape}]`);
   }
   if (count < 1) throw new Error(`count must be >= 1, got ${count}`);
+  if (irises !== null && irises.data.length !== shots.shape[0] * 4) {
+    throw new Error(`irises must be (${shots.shape[0]}, 2, 2), got [${irises.shape}]`);
+  }
   const nearest = nearestShots(shotLandmarks, targetLandmarks, count);
   const indices = Array.from({ length: count }, (_, i) => nearest[i % nearest.length]);
   const [, height, width] = shots.shape, pixels = height * width, points = shotLandmarks.shape.slice(1);
@@ -74,6 +81,7 @@ export function warpReferences(shots: Tensor<Uint8Array>, shotLandmarks: Tensor,
   if (denseX.length !== pixels) { denseX = new Float32Array(pixels); denseY = new Float32Array(pixels); }
   const map = { mapX: denseX, mapY: denseY };
   const sources = shotSources(shots);
+  const bent = irises === null ? null : bentMaps(warps, unique, [...new Set(indices)], irises, targetLandmarks, gaze);
   const methods: WarpMethod[] = [];
   indices.forEach((index, slot) => {
     const warp = warps[unique.indexOf(index)];
@@ -87,6 +95,14 @@ export function warpReferences(shots: Tensor<Uint8Array>, shotLandmarks: Tensor,
       return;
     }
     const shot = shots.data.subarray(index * pixels * 3, (index + 1) * pixels * 3);
+    const irisMap = bent?.get(index);
+    if (irisMap) {  // the dense maps bent for the irises: remapped, and their mask, as they are
+      const mapX = irisMap.mapX.data, mapY = irisMap.mapY.data;
+      if (sources) sources.remap(index, mapX, mapY, "replicate", image);
+      else remapCubic({ data: shot, width, height, channels: 3 }, mapX, mapY, "replicate", image);
+      warpValidMask({ mapX, mapY }, height, width, mask);
+      return;
+    }
     // the dense maps, the remap and the mask in WebAssembly (remap_wasm.ts), else here
     if (warp.method !== "identity" && sources?.warp(index, warp.grid, warp.mapX, warp.mapY, "replicate", image, mask)) return;
     densifyGrid(warp.grid, warp.mapX, map.mapX);
@@ -98,4 +114,31 @@ export function warpReferences(shots: Tensor<Uint8Array>, shotLandmarks: Tensor,
   });
   return { warped: tensor(warped, [count, height, width, 3]), masks: tensor(masks, [count, height, width]), indices,
            methods };
+}
+
+let irisMaps: Float32Array[] = [];  // bentMaps' dense maps, kept from frame to frame
+
+/** Each shot's dense maps (warps[i] of shot unique[i]; the identity map, exact, for an "identity" warp, as
+ * landmarks.tps.warp_references makes it for the irises to bend) bent by alignIrises, `nearestFirst` (the unique
+ * shots nearest first, as Python orders them: dict.fromkeys(indices)) -> shot index -> its maps. */
+function bentMaps(warps: GridMap[], unique: number[], nearestFirst: number[], irises: Tensor, target: Tensor,
+                  gaze: Tensor | null): Map<number, DenseMaps> {
+  const { height, width } = warps[0].grid, pixels = height * width;
+  if (irisMaps.length < 2 * unique.length || irisMaps[0].length !== pixels) {
+    irisMaps = Array.from({ length: 2 * unique.length }, () => new Float32Array(pixels));
+  }
+  const maps = nearestFirst.map((index, i) => {
+    const warp = warps[unique.indexOf(index)], mapX = irisMaps[2 * i], mapY = irisMaps[2 * i + 1];
+    if (warp.method === "identity") {
+      for (let p = 0; p < pixels; p++) { mapX[p] = p % width; mapY[p] = Math.floor(p / width); }
+    } else {
+      densifyGrid(warp.grid, warp.mapX, mapX);
+      densifyGrid(warp.grid, warp.mapY, mapY);
+    }
+    return { mapX: tensor(mapX, [height, width]), mapY: tensor(mapY, [height, width]) };
+  });
+  const shotIrises = new Float64Array(4 * nearestFirst.length);
+  nearestFirst.forEach((index, i) => shotIrises.set(irises.data.subarray(4 * index, 4 * index + 4), 4 * i));
+  alignIrises(maps, tensor(shotIrises, [nearestFirst.length, 2, 2]), target, gaze);
+  return new Map(nearestFirst.map((index, i) => [index, maps[i]]));
 }

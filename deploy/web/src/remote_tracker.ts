@@ -12,14 +12,15 @@ export class RemoteTracker {
 
   private constructor(private readonly worker: Worker) {
     worker.onmessage = (event: MessageEvent) => {
-      const { id, points, mouth, eyes, error } = event.data;
+      const { id, points, mouth, eyes, irises, error } = event.data;
       const pending = this.waiting.get(id);
       if (!pending) return;
       this.waiting.delete(id);
       if (error !== undefined) pending.reject(new Error(`the tracker failed: ${error}`));
       else pending.resolve(points === null ? null : { points: tensor(points as Float64Array, [68, 2]),
                                                       mouth: mouth as DriverMouth | null,
-                                                      eyes: eyes as EyePatch | null });
+                                                      eyes: eyes as EyePatch | null,
+                                                      irises: irises as Float64Array | null });
     };
   }
 
@@ -34,7 +35,8 @@ export class RemoteTracker {
     return new RemoteTracker(worker);
   }
 
-  /** An (H, W, 3) RGB frame (handed over to the worker) -> its face (68 points, open mouth, eyes), or null. */
+  /** An (H, W, 3) RGB frame (handed over to the worker) -> its face (68 points, open mouth, eyes, irises), or
+   * null. */
   update(frame: Tensor<Uint8Array>): Promise<Face | null> {
     return this.send({ frame }, frame.data.buffer as ArrayBuffer);
   }

@@ -1,6 +1,7 @@
 // The live path end to end: lsr/core/live.py LiveSession, on the site `lsr export --web` writes (lsr/export_web.py).
-// Per frame: camera frame -> track 68 points -> smooth -> crop -> retarget onto the person's anchor shot -> landmark
-// image -> warp the nearest shots -> frame generator -> the nearest mouth -> the camera's mouth interior (interior.ts)
+// Per frame: camera frame -> track 68 points (and the irises: the gaze, gaze.ts) -> smooth -> crop -> retarget onto
+// the person's anchor shot -> landmark image -> warp the nearest shots (their irises carried to the gaze with eyes
+// "warped", iris_warp.ts) -> frame generator -> the nearest mouth -> the camera's mouth interior (interior.ts)
 // -> the camera's shut eyes (eyes.ts) -> composite into the person's scene.
 // A frame without a face shows the last good output again.
 
@@ -9,6 +10,8 @@ import { folderReader } from "./files.js";
 import { Affine, Tensor, tensor } from "./tensor.js";
 import { invertAffine, transformPoints } from "./geometry.js";
 import { DriverEyes, EyePatch, cutEyePatch, pasteEyes, shutEyes } from "./eyes.js";
+import type { FaceMesh } from "./facemesh.js";
+import { DriverGaze, trackedIrises } from "./gaze.js";
 import { drawLids, shotLidGaps } from "./lids.js";
 import { DriverMouth, cutDriverMouth, pasteInterior } from "./interior.js";
 import { finishMouthNearest } from "./mouth.js";
@@ -31,6 +34,8 @@ export interface SiteConfig {
   mouth: string;
   mouth_interior: string;
   lids: string;
+  eyes?: string;  // lsr.core.parts.EYES: "warped" carries the shots' irises to the gaze; the page draws none (a site
+                  // written before it has none: "blend")
   k: number;
 }
 
@@ -38,6 +43,8 @@ export interface SiteConfig {
 export interface Person {
   shots: Tensor<Uint8Array>;  // (K, C, C, 3) crops
   shotLandmarks: Tensor<Float64Array>;  // (K, 68, 2) crop pixels
+  shotIrises: Float64Array;  // (K, 2, 2) flat: each shot's iris centres, crop pixels, NaN where not found or closing
+  anchorGaze: Float64Array;  // (2, 2) flat: the anchor shot's gaze (gaze.ts gazeOffsets), NaN where not found
   anchor: number;
   latents: Latents;
   scene: Tensor<Uint8Array>;  // (H, W, 3): the anchor's frame, what the face is composited into
@@ -48,24 +55,38 @@ export interface Person {
 
 export type Reader = (path: string) => Promise<Uint8Array>;
 
-/** A camera frame's face: its 68 points (frame pixels), its open mouth (interior.ts cutDriverMouth) and the frame
- * around its eyes (eyes.ts cutEyePatch), cut where the frame is (a tracker's worker holds it). */
-export interface Face { points: Tensor<Float64Array>; mouth: DriverMouth | null; eyes: EyePatch | null }
+/** A camera frame's face: its 68 points (frame pixels), its open mouth (interior.ts cutDriverMouth), the frame
+ * around its eyes (eyes.ts cutEyePatch), cut where the frame is (a tracker's worker holds it), and its irises
+ * ((2, 4) flat [x, y, radius, aperture], gaze.ts trackedIrises; null: none found). */
+export interface Face {
+  points: Tensor<Float64Array>; mouth: DriverMouth | null; eyes: EyePatch | null; irises: Float64Array | null;
+}
 
 /** What finds the face in a camera frame: src/tracker.ts MeshTracker here (`localTracker`), or the page's worker of
  * it (remote_tracker.ts). */
 export interface Tracker { update(frame: Tensor<Uint8Array>): Promise<Face | null> }
 
-/** A tracker of 68 points as a `Tracker`: the frame's mouth and eyes cut beside its points. */
-export function localTracker(tracker: { update(frame: Tensor<Uint8Array>): Promise<Tensor<Float64Array> | null> }
-                             ): Tracker {
+/** A tracker of 68 points as a `Tracker`: the frame's mouth and eyes cut beside its points, and its irises (the
+ * tracker's own, src/tracker.ts MeshTracker's, else found with its iris net). */
+export function localTracker(tracker: { update(frame: Tensor<Uint8Array>): Promise<Tensor<Float64Array> | null>;
+                                        irises?: Float64Array | null; faceMesh?: FaceMesh }): Tracker {
   return {
     async update(frame) {
       const points = await tracker.update(frame);
       if (points === null) return null;
-      return { points, mouth: cutDriverMouth(frame, points), eyes: cutEyePatch(frame, points) };
+      return { points, mouth: cutDriverMouth(frame, points), eyes: cutEyePatch(frame, points),
+               irises: await trackedIrises(tracker, frame, points) };
     },
   };
+}
+
+/** subject.json's NaN-able numbers (written as null) -> float64, NaN where null; `count` NaN where absent (a site
+ * written before them). */
+function nullable(values: unknown, count: number): Float64Array {
+  if (!Array.isArray(values)) return new Float64Array(count).fill(NaN);
+  const flat = (values as unknown[]).flat(2) as (number | null)[];
+  if (flat.length !== count) throw new Error(`person/subject.json: ${count} values expected, got ${flat.length}`);
+  return Float64Array.from(flat, (value) => (value === null ? NaN : value));
 }
 
 export interface Site { config: SiteConfig; person: Person; generator: FrameGenerator; tracker: Tracker }
@@ -89,6 +110,8 @@ export async function loadSite(read: Reader,
   const person: Person = {
     shots: shots as Tensor<Uint8Array>,
     shotLandmarks: tensor(Float64Array.from((subject.shot_landmarks as number[][][]).flat(2)), [subject.k, 68, 2]),
+    shotIrises: nullable(subject.shot_irises, subject.k * 4),
+    anchorGaze: nullable(subject.anchor_gaze, 4),
     anchor: subject.anchor,
     latents: { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) },
     scene: scene as Tensor<Uint8Array>,
@@ -121,6 +144,8 @@ export class LiveSession {
   /** The subject's lids at rest (shotLidGaps), which the drawn lids are read against. */
   private readonly lidGaps: Float64Array;
   private readonly cropToScene: Affine;
+  /** The target's gaze with eyes "warped" (lsr.core.live.LiveSession.gazes), relative to the anchor shot's. */
+  private readonly gazes: DriverGaze | null;
   last: LiveFrame | null = null;
   frames = 0;
   faces = 0;
@@ -131,11 +156,19 @@ export class LiveSession {
     this.referenceLandmarks = tensor(person.shotLandmarks.data.slice(anchor, anchor + 136), [68, 2]);
     this.lidGaps = shotLidGaps(person.shotLandmarks);
     this.cropToScene = invertAffine(person.sceneMatrix);
+    this.gazes = this.warpsIrises ? new DriverGaze(person.anchorGaze) : null;
+  }
+
+  /** Whether the references carry the shots' irises to the gaze (eyes "warped"; Python draws them with "drawn",
+   * which the page runs as "blend"). */
+  get warpsIrises(): boolean {
+    return this.site.config.eyes === "warped";
   }
 
   /** The next face becomes the driver's neutral one (LiveSession.recentre). */
   recentre(): void {
     this.reference.reset();
+    if (this.gazes !== null) this.gazes.reference = null;
   }
 
   /** One camera frame (H, W, 3) RGB and its capture time in seconds -> the re-enacted frame (LiveSession.step). */
@@ -164,22 +197,26 @@ export class LiveSession {
     }
     const { points } = face;
     const gaps = this.reference.lids(points);  // the driver's lids at rest: its shut eyes are read against them
+    const gaze = this.gazes === null ? null : this.gazes.update(face.irises, points);  // the raw points, as Python
     const target = liveTarget(this.reference, points, this.smoother.step(points, timestamp), this.site.config.crop_size,
                               this.referenceLandmarks, gaps);
     const mouth = this.site.config.mouth_interior === "driver" ? face.mouth : null;
     const eyes = this.site.config.lids === "driver" ? shutEyes(face.eyes, points, gaps) : null;
-    return this.inputs(target, started, { track, retarget: now() - tracked }, mouth, eyes);
+    return this.inputs(target, started, { track, retarget: now() - tracked }, mouth, eyes, gaze);
   }
 
-  /** The network's inputs for a target (68, 2) in the anchor's crop pixels: its landmark image and warped shots. */
+  /** The network's inputs for a target (68, 2) in the anchor's crop pixels: its landmark image and warped shots
+   * (with eyes "warped", the shots' irises carried to `gaze` (2, 2) flat, or without one to the nearest shot's). */
   inputs(target: Tensor<Float64Array>, started = now(), stages: Partial<Stages> = {},
-         mouth: DriverMouth | null = null, eyes: DriverEyes | null = null): Prepared {
+         mouth: DriverMouth | null = null, eyes: DriverEyes | null = null, gaze: Float64Array | null = null): Prepared {
     const { config, person } = this.site;
     const warping = now();
     const scale = config.resolution / config.crop_size;
     const small = tensor(Float64Array.from(target.data, (value) => value * scale), [68, 2]);
     const landmarkImage = drawLandmarks(small, config.resolution);
-    const references = warpReferences(person.shots, person.shotLandmarks, target, config.references);
+    const irises = this.warpsIrises ? tensor(person.shotIrises, [person.shots.shape[0], 2, 2]) : null;
+    const references = warpReferences(person.shots, person.shotLandmarks, target, config.references, 4, irises,
+                                      gaze === null ? null : tensor(gaze, [2, 2]));
     return { target, landmarkImage, references, mouth, eyes, started, stages: { ...stages, warps: now() - warping } };
   }
 

@@ -1,11 +1,13 @@
 // The face tracker in a worker of its own (the page's): it tracks camera frame n + 1 while the page warps the shots of
 // frame n and onnxruntime's proxy worker runs frame n - 1's network. Messages: {assets} once, then {id, frame} (or
 // {id, rgba, width, height}: a canvas's pixels) -> {id, points (136 float64) | null, mouth (interior.ts DriverMouth,
-// cut here where the frame is) | null, eyes (eyes.ts EyePatch, likewise) | null} or {id, error}.
+// cut here where the frame is) | null, eyes (eyes.ts EyePatch, likewise) | null, irises (8 float64, gaze.ts
+// trackedIrises) | null} or {id, error}.
 
 import * as ort from "onnxruntime-web";
 
 import { cutEyePatch } from "./eyes.js";
+import { trackedIrises } from "./gaze.js";
 import { cutDriverMouth } from "./interior.js";
 import { MeshTracker, TrackerAssets, createTracker } from "./tracker.js";
 import { Tensor, tensor } from "./tensor.js";
@@ -36,8 +38,9 @@ self.onmessage = async (event: MessageEvent) => {
     const points = await tracker!.update(frame);
     const mouth = points === null ? null : cutDriverMouth(frame, points);
     const eyes = points === null ? null : cutEyePatch(frame, points);
+    const irises = points === null ? null : await trackedIrises(tracker!, frame, points);
     if (message.rgba) spare = frame.data;
-    self.postMessage({ id: message.id, points: points === null ? null : points.data, mouth, eyes });
+    self.postMessage({ id: message.id, points: points === null ? null : points.data, mouth, eyes, irises });
   } catch (error) {
     self.postMessage({ id: message.id, error: error instanceof Error ? error.message : String(error) });
   }
