@@ -68,7 +68,7 @@ class _Reenactor:
 
     crop_size, eyes, mouth_interior, lids, detector = CROP, "blend", "shots", "shots", "mesh"  # the retargeting alone
 
-    def network_inputs(self, target, subject=None):
+    def network_inputs(self, target, subject=None, gaze=None):
         return None, {}
 
 
