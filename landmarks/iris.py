@@ -145,13 +145,13 @@ class IrisDonor:
     shot: int
 
 
-def iris_donor(frames: np.ndarray, landmarks: np.ndarray) -> IrisDonor | None:
+def iris_donor(frames: np.ndarray, landmarks: np.ndarray, found: np.ndarray | None = None) -> IrisDonor | None:
     """The irises of the shot whose eyes are most open (both found, both dark against their eye's white):
     frames (K, S, S, 3) uint8, landmarks (K, 68, 2) in their pixels -> ``IrisDonor``, or None when no shot has
-    both."""
+    both. found: the shots' ``find_irises`` (K, 2, 4), when already at hand."""
     order = np.argsort(-np.array([eye_apertures(points).min() for points in landmarks]), kind="stable")
     for shot in order:
-        irises = find_irises(frames[shot], landmarks[shot])
+        irises = find_irises(frames[shot], landmarks[shot]) if found is None else found[shot]
         if not np.isfinite(irises).all():
             continue
         patches, radii, whites = [], [], []

@@ -496,8 +496,8 @@ def warp_references(
             by_shot[index] = (shots[index], np.ones((height, width), bool))
         else:
             map_x, map_y = pair
-            by_shot[index] = (_remap(shots[index], map_x, map_y), WarpMap.valid(
-                dataclasses.replace(warps[unique.index(index)], map_x=map_x, map_y=map_y), height, width))
+            warp = dataclasses.replace(warps[unique.index(index)], map_x=map_x, map_y=map_y)
+            by_shot[index] = (_remap(shots[index], map_x, map_y), warp.valid(height, width))
     warped = np.stack([by_shot[int(index)][0] for index in indices])
     masks = np.stack([by_shot[int(index)][1] for index in indices]).astype(np.float32)
     return warped, masks, indices

@@ -93,7 +93,7 @@ def write_person(folder: Path, reenactor, subject, scene) -> dict:
         "shapes": {name: list(picture.shape) for name, picture in pictures.items()},
         "k": len(shots.frames), "anchor": int(shots.anchor), "crop_size": int(reenactor.crop_size),
         "shot_landmarks": np.asarray(shots.landmarks, np.float64).tolist(),
-        "shot_irises": _nullable(subject.shot_irises), "anchor_gaze": _nullable(subject.irises[1]),
+        "shot_irises": _nullable(subject.shot_irises), "anchor_gaze": _nullable(subject.anchor_gaze),
         "layout_latent": np.asarray(subject.layout_latent, np.float32).ravel().tolist(),
         "style_latent": np.asarray(subject.style_latent, np.float32).ravel().tolist(),
         "scene": {"width": int(scene.image.shape[1]), "height": int(scene.image.shape[0]),

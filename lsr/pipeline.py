@@ -26,7 +26,8 @@ import numpy as np
 import torch
 
 from lsr.core.backend import LayoutKind
-from lsr.core.engine import ReenactorBase, Subject
+from lsr.core.engine import ReenactorBase
+from lsr.core.subject import Subject
 from lsr.core.sources import SubjectShots
 from lsr.errors import ConfigError, WeightsError
 from lsr.export import FrameGeneratorGraph

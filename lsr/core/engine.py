@@ -46,7 +46,7 @@ from lsr.core.sources import (
     track_driver,
 )
 from landmarks.driver_eyes import DriverEyes, cut_driver_eyes, paste_eyes
-from landmarks.drawn_lids import draw_lids, shot_lid_gaps
+from landmarks.drawn_lids import draw_lids
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.eyelids import LOOK_AHEAD
 from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
@@ -54,60 +54,15 @@ from landmarks.mouth_interior import DriverMouth, cut_driver_mouth, paste_interi
 from lsr.core.backend import SynthesisBackend
 from lsr.core.overlap import finish_behind, prefetch
 from lsr.core.scene_source import paste_into_driver, paste_into_scene
+from lsr.core.subject import Subject
 from lsr.core.images import from_network, square_resize, to_network
 from lsr.core.parts import (EYES, LIDS, MOUTH_INTERIORS, MOUTHS, Choice, DriverGaze, draws_mouth, finish_eyes,
-                             finish_mouth, shot_irises, subject_irises)
+                             finish_mouth)
 
 Mode = Literal["auto", "relative", "absolute"]
 Scene = Literal["source", "driver"]
 """What ``paste_back`` composites into: the source's own frames (its anchor shot or its video) or the driver's."""
 STAGES = ("decode", "landmarks", "subject_encoding", "warps", "synthesis", "paste_back")
-
-
-@dataclasses.dataclass
-class Subject:
-    """An encoded subject: its K shots and averaged latents (thesis eq. 4.3: z = 1/K sum_i E(I_i))."""
-
-    shots: SubjectShots
-    layout_latent: np.ndarray
-    """(1, D) float32."""
-    style_latent: np.ndarray
-    """(1, D) float32."""
-    source: str | None
-    """Resolved source path when the source was one file or folder (decides the default mode)."""
-    _irises: tuple | None = dataclasses.field(default=None, repr=False)
-
-    @functools.cached_property
-    def lid_gaps(self) -> np.ndarray:
-        """(2,) its lids at rest, the median lid gaps of its shots (``landmarks.drawn_lids.shot_lid_gaps``)."""
-        return shot_lid_gaps(self.shots.landmarks)
-
-    @functools.cached_property
-    def shot_irises(self) -> np.ndarray:
-        """(K, 2, 2) each shot's iris centres in its crop pixels (``lsr.core.parts.shot_irises``), for ``eyes``
-        "warped"; found on first use."""
-        return shot_irises(self.shots.frames, self.shots.landmarks)
-
-    @property
-    def irises(self) -> tuple:
-        """(the irises drawn into its frames or None, the anchor shot's gaze (2, 2)): ``lsr.core.parts.subject_irises``,
-        found on first use."""
-        if self._irises is None:
-            self._irises = subject_irises(self.shots.frames, self.shots.landmarks, self.shots.anchor)
-        return self._irises
-
-    @property
-    def reference_landmarks(self) -> np.ndarray:
-        """(68, 2) crop landmarks of the anchor shot (the most neutral): the face relative motion is applied to."""
-        return self.shots.landmarks[self.shots.anchor]
-
-    @property
-    def reference_mesh(self) -> np.ndarray | None:
-        """(468, 3) crop mesh of the anchor shot, or None when the shots have no meshes."""
-        meshes = self.shots.meshes
-        if meshes is None or not np.isfinite(meshes[self.shots.anchor]).all():
-            return None
-        return meshes[self.shots.anchor]
 
 
 @dataclasses.dataclass
@@ -539,7 +494,7 @@ class ReenactorBase:
         reference = DriverReference()
         ahead, tracked = track_driver(info, tracker, LOOK_AHEAD if relative else 0)  # the lids at rest, first
         reference.look_ahead([points for points, *_ in ahead], [mesh for _, mesh, *_ in ahead])
-        gazes = DriverGaze(self._require_subject().irises[1] if relative else None) if self.eyes != "blend" else None
+        gazes = DriverGaze(self._require_subject().anchor_gaze if relative else None) if self.eyes != "blend" else None
         frames = prefetch(tracked)  # decoding and tracking on a thread, a few frames ahead of the synthesis
         index = 0
         for frame, points, mesh, irises, tracking_seconds in frames:

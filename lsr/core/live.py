@@ -26,7 +26,8 @@ import numpy as np
 from landmarks.driver_eyes import DriverEyes, cut_driver_eyes
 from landmarks.mesh_retarget import DriverReference
 from landmarks.mouth_interior import DriverMouth, cut_driver_mouth
-from lsr.core.engine import ReenactorBase, Subject
+from lsr.core.engine import ReenactorBase
+from lsr.core.subject import Subject
 from lsr.core.parts import DriverGaze
 from lsr.core.provenance import draw_watermark
 
@@ -74,7 +75,7 @@ class LiveSession:
         self.one_euro = OneEuroFilter(25.0, driving_cutoffs()) if smooth else None
         self.scene = next(SourceScene(subject.shots, reenactor.crop_size)) if paste_back else None
         self.reference = DriverReference()
-        self.gazes = DriverGaze(subject.irises[1]) if reenactor.eyes != "blend" else None  # drawn eyes' gaze
+        self.gazes = DriverGaze(subject.anchor_gaze) if reenactor.eyes != "blend" else None  # warped or drawn eyes' gaze
         self.last: LiveFrame | None = None
         self._last_time: float | None = None
         self.frames = self.faces = 0

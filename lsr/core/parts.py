@@ -1,8 +1,8 @@
 """The parts' steps after the frame synthesis (issues 23 and 40), torch-free: the nearest warped shot's mouth, the
 mouth drawn by a part generator over it, and the eyes drawn with one iris where the driver looks.
 
-``finish_eyes`` applies a reenactor's ``eyes`` choice (``EYES``): the subject's irises (``subject_irises``: the
-shot with the most open eyes, and the anchor shot's gaze, which relative motion starts from) drawn into the
+``finish_eyes`` applies a reenactor's ``eyes`` choice (``EYES``): the subject's irises (``lsr.core.subject.Subject``:
+the shot with the most open eyes, and the anchor shot's gaze, which relative motion starts from) drawn into the
 synthesis at the target's gaze (``DriverGaze``, ``sequence_gazes``; ``landmarks.iris``). "warped" acts before the
 synthesis instead: the engine gives the references' warps each shot's iris (``shot_irises``) and the target's gaze.
 
@@ -110,22 +110,23 @@ def draw_mouth(image: np.ndarray, crop_landmarks: np.ndarray, run: PartRunner, p
     return paste(image, drawn, paste_weight(points, part.size, window_eye_distance(part)), transform)
 
 
-def subject_irises(frames: np.ndarray, landmarks: np.ndarray, anchor: int) -> tuple[IrisDonor | None, np.ndarray]:
-    """A subject's shots (K, C, C, 3) uint8 with their landmarks (K, 68, 2) -> (the irises drawn into its frames,
-    ``landmarks.iris.iris_donor``, or None; the anchor shot's gaze (2, 2), NaN where not found)."""
-    donor = iris_donor(frames, landmarks)
-    return donor, gaze_offsets(find_irises(frames[anchor], landmarks[anchor]), landmarks[anchor])
-
-
-def shot_irises(frames: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
-    """A subject's shots (K, C, C, 3) uint8 with their landmarks (K, 68, 2) -> (K, 2, 2) float64 each shot's iris
-    centres (``landmarks.iris.find_irises``), NaN where not found or where the eye is closing against its median
-    aperture over the shots (``landmarks.iris.CLOSED``): the irises ``landmarks.iris_warp`` carries."""
+def found_irises(frames, landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Each frame's irises and its eyes' apertures when open: N x (H, W, 3) uint8, (N, 68, 2) -> (irises (N, 2, 4)
+    ``landmarks.iris.find_irises``, the median aperture of each eye over the frames (2,), None where none was
+    found)."""
     irises = np.stack([find_irises(frame, points) for frame, points in zip(frames, landmarks)]) if len(frames) else \
         np.zeros((0, 2, 4))
+    return irises, np.nanmedian(irises[..., 3], axis=0) if np.isfinite(irises[..., 3]).any() else None
+
+
+def shot_irises(frames: np.ndarray, landmarks: np.ndarray, found: tuple | None = None) -> np.ndarray:
+    """A subject's shots (K, C, C, 3) uint8 with their landmarks (K, 68, 2) -> (K, 2, 2) float64 each shot's iris
+    centres (``landmarks.iris.find_irises``), NaN where not found or where the eye is closing against its median
+    aperture over the shots (``landmarks.iris.CLOSED``): the irises ``landmarks.iris_warp`` carries. found:
+    ``found_irises`` of the same shots, when already at hand."""
+    irises, opened = found_irises(frames, landmarks) if found is None else found
     centres = irises[..., :2].copy()
-    if np.isfinite(irises[..., 3]).any():
-        opened = np.nanmedian(irises[..., 3], axis=0)
+    if opened is not None:
         centres[~(irises[..., 3] >= CLOSED * opened)] = np.nan
     return centres
 
@@ -133,9 +134,7 @@ def shot_irises(frames: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
 def sequence_gazes(frames, landmarks: np.ndarray) -> np.ndarray:
     """A whole sequence's gazes: N x (H, W, 3) uint8, (N, 68, 2) -> (N, 2, 2) ``landmarks.iris.gaze_offsets``,
     NaN where an iris is not found or the eye is closing against its median aperture over the sequence."""
-    irises = np.stack([find_irises(frame, points) for frame, points in zip(frames, landmarks)]) if len(frames) else \
-        np.zeros((0, 2, 4))
-    opened = np.nanmedian(irises[..., 3], axis=0) if np.isfinite(irises[..., 3]).any() else None
+    irises, opened = found_irises(frames, landmarks)
     return np.stack([gaze_offsets(i, p, opened) for i, p in zip(irises, landmarks)]) if len(frames) else np.zeros((0, 2, 2))
 
 

@@ -67,7 +67,7 @@ def test_the_page_encodes_the_same_latents(python_person, web_person):
 
 
 def test_the_page_finds_the_same_irises(python_person, web_person):
-    """Each shot's iris centres (eyes "warped", lsr.core.engine.Subject.shot_irises) and the anchor's gaze
+    """Each shot's iris centres (eyes "warped", lsr.core.subject.Subject.shot_irises) and the anchor's gaze
     (Subject.irises' second) by the page's iris net."""
     subject = python_person[0]
     centres, gaze = subject.shot_irises, subject.irises[1]

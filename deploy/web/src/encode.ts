@@ -256,7 +256,7 @@ export async function encodePerson(photos: Tensor<Uint8Array>[], models: PersonM
   const [encoder, segmenter] = await Promise.all([sessionOf(models.subjectEncoder), sessionOf(models.segmenter)]);
   const shotTensor = tensor(frames, [count, crop, crop, 3]);
   const latents = await encodeShots(encoder, shotTensor, landmarks, config.resolution);
-  // each shot's irises with the tracker's iris net, for eyes "warped" (lsr.core.engine.Subject.shot_irises), and the
+  // each shot's irises with the tracker's iris net, for eyes "warped" (lsr.core.subject.Subject.shot_irises), and the
   // anchor's gaze that the driver's moves (Subject.irises' second)
   const irises = await findShotIrises(tracker.faceMesh, shotTensor, landmarks);
   const anchorGaze = gazeOffsets(irises.subarray(8 * anchor, 8 * anchor + 8),
