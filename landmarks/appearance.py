@@ -142,7 +142,8 @@ def iris_contrast(image: np.ndarray, landmarks: np.ndarray) -> float:
     return float(np.mean(values)) if values else math.nan
 
 
-def _polygon_mask(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+def polygon_mask(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: inside the polygon ``points`` (N, 2) pixels, filled at quarter-pixel precision."""
     mask = np.zeros(shape, np.uint8)
     cv2.fillPoly(mask, [np.round(points * 4).astype(np.int32)], 1, shift=2)
     return mask.astype(bool)
@@ -158,13 +159,13 @@ def mouth_interior(image: np.ndarray, landmarks: np.ndarray) -> tuple[float, flo
     if not np.isfinite(points).all() or not mouth_opening(points) >= OPEN_MOUTH:
         return math.nan, math.nan
     shape = image.shape[:2]
-    inside = _polygon_mask(points[60:68], shape)
+    inside = polygon_mask(points[60:68], shape)
     if inside.sum() < 6:
         return math.nan, math.nan
-    face = _polygon_mask(cv2.convexHull(points.astype(np.float32))[:, 0].astype(np.float64), shape)
+    face = polygon_mask(cv2.convexHull(points.astype(np.float32))[:, 0].astype(np.float64), shape)
     for first, _ in EYES:  # the face's reference grey: skin, not eyes or the mouth
-        face &= ~_polygon_mask(points[first:first + 6], shape)
-    face &= ~_polygon_mask(points[48:60], shape)
+        face &= ~polygon_mask(points[first:first + 6], shape)
+    face &= ~polygon_mask(points[48:60], shape)
     grey = _grey(image)
     reference = float(np.median(grey[face])) if face.any() else math.nan
     if not reference > 0:

@@ -23,7 +23,8 @@ the motion:
   * ``judge_driver_mouth`` / ``judge_output_mouth`` (and ``_eye``): openings (``landmarks.expression``), whose
     correlation and pooled gain are summarised as ``lsr.eval.cross`` does;
   * ``judge_driver_gaze`` / ``judge_output_gaze``: the iris's horizontal offset in eye widths, found in the
-    pixels inside the judge's eye polygons (``landmarks.appearance.gaze``);
+    pixels inside the judge's eye polygons (``landmarks.appearance.gaze``); ``driver_gaze``: the driver's as the
+    iris net reads it (``lsr.core.parts.sequence_gazes``, both eyes' mean), the gaze warped and drawn eyes follow;
   * ``iris_contrast``: the output's (``landmarks.appearance.iris_contrast``) over the mean of the source shots'
     (a doubled iris halves it);
   * ``output_cavity`` / ``driver_cavity`` and ``output_teeth`` / ``driver_teeth``: the inside of the mouth
@@ -42,7 +43,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from landmarks.appearance import OPEN_MOUTH, gaze, gazes, iris_contrast, mouth_interior
+from landmarks.appearance import OPEN_MOUTH, gaze, gazes, iris_contrast, mouth_interior, polygon_mask
 from landmarks.expression import eye_opening, mouth_opening
 from lsr.eval import metrics
 from lsr.eval.cross import _finite_mean
@@ -88,15 +89,9 @@ def mouth_split(landmarks: np.ndarray, shape: tuple[int, int]) -> dict[str, np.n
     empty = np.zeros(shape, bool)
     if not np.isfinite(points).all():
         return {"inside": empty, "lips": empty.copy()}
-    outer = _filled(points[48:60], shape)
-    inside = _filled(points[60:68], shape) & outer if mouth_opening(points) >= OPEN_MOUTH else empty
+    outer = polygon_mask(points[48:60], shape)
+    inside = polygon_mask(points[60:68], shape) & outer if mouth_opening(points) >= OPEN_MOUTH else empty
     return {"inside": inside, "lips": outer & ~inside}
-
-
-def _filled(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    mask = np.zeros(shape, np.uint8)
-    cv2.fillPoly(mask, [np.round(points).astype(np.int32)], 1)
-    return mask.astype(bool)
 
 
 def self_part_scores(outputs: np.ndarray, targets: np.ndarray, target_landmarks: np.ndarray) -> list[dict[str, float]]:
@@ -189,15 +184,19 @@ class CrossJudge:
 
     def __init__(self, judge: Judge, driver_frames: np.ndarray, driver_landmarks: np.ndarray,
                  shots: Sequence[np.ndarray], shot_landmarks: np.ndarray) -> None:
+        from lsr.core.parts import sequence_gazes
+
         self.judge = judge
         self.driver: list[dict[str, float]] = []
-        for frame, fallback in zip(driver_frames, driver_landmarks):
+        driving = sequence_gazes(driver_frames, driver_landmarks)[:, :, 0]  # (T, 2): the iris net's, as methods get it
+        for frame, fallback, along in zip(driver_frames, driver_landmarks, driving):
             points = judge.landmarks(frame, fallback)
             mouth, eye = _openings(points)
             cavity, teeth = mouth_interior(frame, points) if points is not None else (math.nan, math.nan)
             self.driver.append({"judge_driver_mouth": mouth, "judge_driver_eye": eye,
                                 "judge_driver_gaze": float(gaze(frame, points)[0]) if points is not None else math.nan,
-                                "driver_cavity": cavity, "driver_teeth": teeth})
+                                "driver_gaze": float(np.mean(along[np.isfinite(along)])) if np.isfinite(along).any()
+                                else math.nan, "driver_cavity": cavity, "driver_teeth": teeth})
         contrasts = []
         for shot, fallback in zip(shots, shot_landmarks):
             points = judge.landmarks(shot, fallback)
@@ -329,7 +328,8 @@ AGREEMENT = "the drivers: driving detector vs judge"
 def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks: Sequence[int]
                    ) -> list[dict[str, Any]]:
     """Per K, how far the judge and the detector that drove the motion agree on the drivers' own frames: the
-    per-sequence correlation (mean) and pooled gain of the judge's mouth and eye openings on the driving detector's.
+    per-sequence correlation (mean) and pooled gain of the judge's mouth and eye openings on the driving detector's,
+    and the correlation of the judge's gaze with the iris net's.
     A method drives its output to the driving detector's reading, so its judged correlation can reach this only
     where the two detectors agree (the rows' ceiling). Read from the first method's records (the drivers are the
     same for every method)."""
@@ -345,14 +345,15 @@ def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
         sequences = _by_sequence(group)
         pairs = {part: [(np.array([r[f"driver_{part}"] for r in members], np.float64),
                          np.array([r[f"judge_driver_{part}"] for r in members], np.float64))
-                        for members in sequences.values()] for part in ("mouth", "eye")}
+                        for members in sequences.values()] for part in ("mouth", "eye", "gaze")}
         rows.append({"method": AGREEMENT, "k": k, "frames": len(group), "sequences": len(sequences),
                      "judge_mouth_corr": _finite_mean([opening_correlation(*p) for p in pairs["mouth"]]),
                      "judge_mouth_gain": pooled_gain(pairs["mouth"]),
                      "judge_eye_corr": _finite_mean([opening_correlation(*p) for p in pairs["eye"]]),
                      "judge_eye_gain": pooled_gain(pairs["eye"]),
-                     **dict.fromkeys(("gaze_corr", "iris_contrast", "output_cavity", "driver_cavity", "output_teeth",
-                                      "driver_teeth"), math.nan),
+                     "gaze_corr": _finite_mean([opening_correlation(*p) for p in pairs["gaze"]]),
+                     **dict.fromkeys(("iris_contrast", "output_cavity", "driver_cavity", "output_teeth", "driver_teeth"),
+                                     math.nan),
                      "read_mouth_gain": pooled_gain(pairs["mouth"]), "read_eye_gain": pooled_gain(pairs["eye"]),
                      "open_frames": 0, "judge_no_face": sum(r["judge_no_face"] for r in group)})
     return rows
@@ -375,8 +376,9 @@ CONVENTION = (
     f"teeth-like pixels there, on the frames where the judge sees the driver's mouth open (>= {OPEN_MOUTH:g} "
     "inter-ocular distances; an output mouth it sees closed counts as cavity 1, teeth 0). "
     f"'{AGREEMENT}': the judge's openings of the drivers' own frames against the driving detector's, correlated "
-    "and pooled as above: a method's output follows the driving detector's reading, so its judged correlation "
-    "reaches this only where the two detectors agree. 'read alike': the judge's openings of the outputs on the "
+    "and pooled as above, and its iris offset against the iris net's gaze (what warped and drawn eyes are given, "
+    "landmarks.iris.gaze_offsets, both eyes' mean): a method's output follows the driving detector's reading, so "
+    "its judged correlation reaches this only where the two detectors agree. 'read alike': the judge's openings of the outputs on the "
     "driving detector's of the same outputs, pooled per sequence as the gain (the agreement row: of the drivers' own "
     "frames); below the drivers' figure, the two detectors read the drawn mouth or eyes apart where they read real "
     "ones alike, so what is lost lies in the drawing, not in following the driver"
@@ -416,7 +418,7 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
             if row["method"] == AGREEMENT:
                 lines.append(f"| {AGREEMENT} | {row['k']} | {row['frames']} | {fmt(row['judge_mouth_corr'], 2)} | "
                              f"{fmt(row['judge_mouth_gain'], 2)} | {fmt(row['judge_eye_corr'], 2)} | "
-                             f"{fmt(row['judge_eye_gain'], 2)} | – | – | – | – | "
+                             f"{fmt(row['judge_eye_gain'], 2)} | {fmt(row['gaze_corr'], 2)} | – | – | – | "
                              f"{fmt(row['read_mouth_gain'], 2)}, {fmt(row['read_eye_gain'], 2)} | – | "
                              f"{row['judge_no_face']} |")
                 continue

@@ -75,6 +75,7 @@ def _cross_record(identity: str, frame: int, driver: float, output: float, cavit
             "driver_mouth": 2 * driver + 0.01 * (frame % 2), "driver_eye": 0.1 + 3 * driver,  # the driving detector's
             "judge_driver_mouth": driver, "judge_output_mouth": output, "judge_driver_eye": 0.1 + driver,
             "judge_output_eye": 0.1 + 0.5 * driver, "judge_driver_gaze": driver, "judge_output_gaze": -driver,
+            "driver_gaze": 0.5 * driver + 0.01 * (frame % 3),  # the iris net's reading, with its own jitter
             "output_mouth": 4 * output, "output_eye": 0.2 + driver,  # the driving detector's reading of the outputs
             "iris_contrast": 0.5 + frame / 10, "output_cavity": cavity,
             "driver_cavity": 0.3 if opened else math.nan, "output_teeth": 0.0 if opened else math.nan,
@@ -93,6 +94,7 @@ def test_summarise_cross_judges_correlation_gain_gaze_contrast_and_the_inside():
     assert agreement["method"] == parts.AGREEMENT and agreement["frames"] == 6
     assert 0.9 < agreement["judge_mouth_corr"] < 1.0 and agreement["judge_mouth_gain"] == pytest.approx(0.5, abs=0.05)
     assert agreement["judge_eye_corr"] == pytest.approx(1.0) and agreement["judge_eye_gain"] == pytest.approx(1 / 3)
+    assert 0.8 < agreement["gaze_corr"] < 1.0  # the judge's gaze against the iris net's, whose jitter it lacks
     # read alike: the judge reads the drawn mouth at a quarter, the drawn eyes at half the driving detector's reading
     assert row["read_mouth_gain"] == pytest.approx(0.25) and row["read_eye_gain"] == pytest.approx(0.5)
     assert (agreement["read_mouth_gain"], agreement["read_eye_gain"]) == (agreement["judge_mouth_gain"],
@@ -100,6 +102,7 @@ def test_summarise_cross_judges_correlation_gain_gaze_contrast_and_the_inside():
     assert parts.summarise_cross(records, ["other"], [8]) == []
     lines = "\n".join(parts.markdown([], [row, agreement], lambda value, digits=3: f"{value:.{digits}f}"))
     assert f"| {parts.AGREEMENT} | 8 | 6 | " in lines and "| 0.25, 0.50 | 3 | 0 |" in lines
+    assert f"| {agreement['judge_eye_gain']:.2f} | {agreement['gaze_corr']:.2f} | – | – | – | " in lines
 
 
 def test_summarise_self_splits_all_hold_outs_from_those_beyond():
