@@ -352,8 +352,8 @@ def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
                      "judge_eye_corr": _finite_mean([opening_correlation(*p) for p in pairs["eye"]]),
                      "judge_eye_gain": pooled_gain(pairs["eye"]),
                      "gaze_corr": _finite_mean([opening_correlation(*p) for p in pairs["gaze"]]),
-                     **dict.fromkeys(("iris_contrast", "output_cavity", "driver_cavity", "output_teeth", "driver_teeth"),
-                                     math.nan),
+                     **dict.fromkeys(("iris_contrast", "output_cavity", "driver_cavity", "output_teeth",
+                                      "driver_teeth"), math.nan),
                      "read_mouth_gain": pooled_gain(pairs["mouth"]), "read_eye_gain": pooled_gain(pairs["eye"]),
                      "open_frames": 0, "judge_no_face": sum(r["judge_no_face"] for r in group)})
     return rows
@@ -378,10 +378,10 @@ CONVENTION = (
     f"'{AGREEMENT}': the judge's openings of the drivers' own frames against the driving detector's, correlated "
     "and pooled as above, and its iris offset against the iris net's gaze (what warped and drawn eyes are given, "
     "landmarks.iris.gaze_offsets, both eyes' mean): a method's output follows the driving detector's reading, so "
-    "its judged correlation reaches this only where the two detectors agree. 'read alike': the judge's openings of the outputs on the "
-    "driving detector's of the same outputs, pooled per sequence as the gain (the agreement row: of the drivers' own "
-    "frames); below the drivers' figure, the two detectors read the drawn mouth or eyes apart where they read real "
-    "ones alike, so what is lost lies in the drawing, not in following the driver"
+    "its judged correlation reaches this only where the two detectors agree. 'read alike': the judge's openings "
+    "of the outputs on the driving detector's of the same outputs, pooled per sequence as the gain (the agreement "
+    "row: of the drivers' own frames); below the drivers' figure, the two detectors read the drawn mouth or eyes "
+    "apart where they read real ones alike, so what is lost lies in the drawing, not in following the driver"
 )
 
 
