@@ -26,7 +26,6 @@ class Subject:
     """(1, D) float32."""
     source: str | None
     """Resolved source path when the source was one file or folder (decides the default mode)."""
-    _irises: tuple | None = dataclasses.field(default=None, repr=False)
 
     @functools.cached_property
     def lid_gaps(self) -> np.ndarray:
@@ -52,13 +51,11 @@ class Subject:
         anchor = self.shots.anchor
         return gaze_offsets(self.found_irises[0][anchor], self.shots.landmarks[anchor])
 
-    @property
+    @functools.cached_property
     def irises(self) -> tuple:
         """(the irises drawn into its frames, ``landmarks.iris.iris_donor``, or None; ``anchor_gaze``), found on
         first use."""
-        if self._irises is None:
-            self._irises = (iris_donor(self.shots.frames, self.shots.landmarks, self.found_irises[0]), self.anchor_gaze)
-        return self._irises
+        return iris_donor(self.shots.frames, self.shots.landmarks, self.found_irises[0]), self.anchor_gaze
 
     @property
     def reference_landmarks(self) -> np.ndarray:

@@ -180,15 +180,19 @@ def _openings(points: np.ndarray | None) -> tuple[float, float]:
 class CrossJudge:
     """The judge's reading of one cross-identity sequence's driver and shots, made once and shared by every
     method. driver_frames: (T, S', S', 3) uint8 with driver_landmarks (T, 68, 2) (the primary detector's: the
-    fallback boxes); shots: K x (S, S, 3) with shot_landmarks (K, 68, 2)."""
+    fallback boxes); shots: K x (S, S, 3) with shot_landmarks (K, 68, 2); driver_gazes: the driver's
+    ``lsr.core.parts.sequence_gazes`` (T, 2, 2), when already at hand."""
 
     def __init__(self, judge: Judge, driver_frames: np.ndarray, driver_landmarks: np.ndarray,
-                 shots: Sequence[np.ndarray], shot_landmarks: np.ndarray) -> None:
+                 shots: Sequence[np.ndarray], shot_landmarks: np.ndarray, driver_gazes: np.ndarray | None = None
+                 ) -> None:
         from lsr.core.parts import sequence_gazes
 
         self.judge = judge
         self.driver: list[dict[str, float]] = []
-        driving = sequence_gazes(driver_frames, driver_landmarks)[:, :, 0]  # (T, 2): the iris net's, as methods get it
+        if driver_gazes is None:
+            driver_gazes = sequence_gazes(driver_frames, driver_landmarks)
+        driving = driver_gazes[:, :, 0]  # (T, 2): the iris net's, as methods get it
         for frame, fallback, along in zip(driver_frames, driver_landmarks, driving):
             points = judge.landmarks(frame, fallback)
             mouth, eye = _openings(points)
@@ -457,18 +461,29 @@ def driver_eye_inputs(sequences: Sequence[Any]) -> list[dict[str, list]]:
                                  running_reference_gaps(sequence.driver_landmarks))]} for sequence in sequences]
 
 
-def gaze_inputs(targets: np.ndarray, target_landmarks: np.ndarray, sequences: Sequence[Any]
+def driver_gazes(sequences: Sequence[Any]) -> list[np.ndarray]:
+    """Each ``cross.CrossSequence``'s driver's gaze by the iris net (``lsr.core.parts.sequence_gazes``, (T, 2, 2)):
+    made once, for what warped or drawn eyes follow (``gaze_inputs``) and what the judge checks (``CrossJudge``)."""
+    from lsr.core.parts import sequence_gazes
+
+    return [sequence_gazes(sequence.driver_frames, sequence.driver_landmarks) for sequence in sequences]
+
+
+def gaze_inputs(targets: np.ndarray, target_landmarks: np.ndarray, sequences: Sequence[Any],
+                driver_gazes: Sequence[np.ndarray] | None = None
                 ) -> tuple[dict[str, np.ndarray], list[dict[str, np.ndarray]]]:
     """What a method with warped or drawn eyes is given (``protocol.takes_gazes``): self re-enactment, the hold-outs'
     own gaze ``{"target_gazes": (T, 2, 2)}``; cross-identity, one such dict per ``cross.CrossSequence``: the
     driver's gaze as ``lsr reenact`` gives it to the source (``lsr.core.parts.DriverGaze``), the anchor shot's moved
-    by the driver's since its first frame whose irises were found."""
+    by the driver's since its first frame whose irises were found. driver_gazes: each sequence's driver's
+    ``sequence_gazes``, when already at hand."""
     from landmarks.iris import retarget_gaze
     from lsr.core.parts import sequence_gazes
 
     crossed = []
-    for sequence in sequences:
-        driver = sequence_gazes(sequence.driver_frames, sequence.driver_landmarks)
+    for position, sequence in enumerate(sequences):
+        driver = sequence_gazes(sequence.driver_frames, sequence.driver_landmarks) if driver_gazes is None else \
+            driver_gazes[position]
         anchor = sequence_gazes(sequence.anchor_shot[None], sequence.anchor_landmarks[None])[0]
         found = np.flatnonzero(np.isfinite(driver).all(axis=(1, 2)))
         crossed.append({"target_gazes": driver if not len(found) else retarget_gaze(driver, driver[found[0]], anchor)})

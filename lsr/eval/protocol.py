@@ -461,12 +461,15 @@ def run_protocol(
                         shot_meshes=identity.input_meshes[shot_indices] if meshes else None,  # type: ignore[index]
                         driver_meshes=driver.holdout_meshes[driver_rows] if meshes else None,  # type: ignore[index]
                         retarget=retarget), _rows_or_none(driver.holdout_segmentations, driver_rows)))
+            gazing = any(takes_gazes(method) for method in methods)
+            # the drivers' gaze by the iris net, once: what warped or drawn eyes follow, and what the judge checks
+            driver_gazes = parts.driver_gazes([s for s, _ in sequences]) if gazing or judged_by is not None else None
             judges = [None if judged_by is None else parts.CrossJudge(
-                judged_by, sequence.driver_frames, sequence.driver_landmarks, shots, shot_landmarks)
-                for sequence, _ in sequences]  # the driver and shots read once, for every method
-            # what warped or drawn eyes get, self and cross (per driver)
-            gaze_inputs, cross_gazes = parts.gaze_inputs(targets, target_landmarks, [s for s, _ in sequences]) if any(
-                takes_gazes(method) for method in methods) else ({}, [{} for _ in sequences])
+                judged_by, sequence.driver_frames, sequence.driver_landmarks, shots, shot_landmarks, driving)
+                for (sequence, _), driving in zip(sequences, driver_gazes or [None] * len(sequences))]
+            # the driver and shots read once, for every method; what warped or drawn eyes get, self and cross
+            gaze_inputs, cross_gazes = parts.gaze_inputs(targets, target_landmarks, [s for s, _ in sequences],
+                                                         driver_gazes) if gazing else ({}, [{} for _ in sequences])
             from_drivers = {attribute: cut([s for s, _ in sequences]) for attribute, cut in DRIVER_FRAME_INPUTS.items()
                             if any(getattr(method, attribute, False) for method in methods)}  # mouths, shut eyes
             mesh_inputs: dict[str, np.ndarray] | None = None  # what mesh methods get, self and cross
