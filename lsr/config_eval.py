@@ -77,6 +77,10 @@ class EvalConfig:
     (cross-identity, the driving frame's shut lids laid over the model's eyes: landmarks.driver_eyes; self
     re-enactment, which drives by landmarks alone, drawn) or shots (the warped shots' lids alone); empty: the model's
     default (drawn); more than one adds a row per extra choice ("+shots-lids")."""
+    expression_gains: tuple[float, ...] = ()
+    """How many times, at most, a warp-guided model's mesh-warped references carry a shot's mouth toward a target
+    that opens it wider (landmarks.expression_gain, in [1, 2]; 1 = onto the target's points); empty: the model's
+    default (1.25); more than one adds a row per extra gain ("+gain1")."""
     detector_upsample: int = 1
     """dlib only: pyramid upsampling; 1 finds the faces of 224-px crops at 1/4 the cost of 2."""
     bucket_thresholds: tuple[float, ...] = ()
@@ -131,6 +135,8 @@ class EvalConfig:
             raise ConfigError("--methods needs at least one of nearest_shot, tps, tps_mean3, mesh, mesh_mean3 (or give --weights)")
         if not self.reference_warps:
             raise ConfigError("--reference-warps needs at least one of mesh, tps")
+        if any(not 1.0 <= gain <= 2.0 for gain in self.expression_gains):
+            raise ConfigError(f"--expression-gains must lie in [1, 2], got {' '.join(map(str, self.expression_gains))}")
         for folder in self.weights:
             check_weights(folder)
         if self.finetune_steps < 0 or not self.finetune_lr > 0:

@@ -48,6 +48,7 @@ from lsr.core.sources import (
 from landmarks.driver_eyes import DriverEyes, cut_driver_eyes, paste_eyes
 from landmarks.drawn_lids import draw_lids
 from landmarks.errors import InputFileError, NoFaceError
+from landmarks.expression_gain import EXPRESSION_GAIN
 from landmarks.eyelids import LOOK_AHEAD
 from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
 from landmarks.mouth_interior import DriverMouth, cut_driver_mouth, paste_interior
@@ -134,6 +135,7 @@ class ReenactorBase:
         """How a warp-guided model's references are warped when meshes are at hand: "mesh" (piecewise affine over
         the face mesh, TPS outside) or "tps" (the 68-point TPS everywhere)."""
         self._mouth: str = "drawn" if draws_mouth(backend) else "nearest"
+        self._expression_gain: float = EXPRESSION_GAIN
         self.subject: Subject | None = None
         self.last_stats = ReenactStats()
 
@@ -153,6 +155,19 @@ class ReenactorBase:
             raise InputFileError("--mouth drawn needs a model with a mouth generator (a weights folder with mouth/, or an "
                               "ONNX bundle with mouth_generator.onnx); use --mouth nearest")
         self._mouth = mouth
+
+    @property
+    def expression_gain(self) -> float:
+        """How many times, at most, mesh-warped references carry a shot's mouth toward a target that opens it wider
+        (``landmarks.expression_gain``; 1 = exactly onto the target's points: the lips beyond the shots land where
+        they should, but read as less open; MODEL_CARD.md)."""
+        return self._expression_gain
+
+    @expression_gain.setter
+    def expression_gain(self, gain: float) -> None:
+        if not 1.0 <= float(gain) <= 2.0:
+            raise ValueError(f"expression_gain must be in [1, 2], got {gain!r}")
+        self._expression_gain = float(gain)
 
     mouth_interior = Choice(MOUTH_INTERIORS, "driver", "Inside an open mouth (``lsr.core.parts.MOUTH_INTERIORS``).")
     lids = Choice(LIDS, "drawn", "Where the target shuts its eyes (``lsr.core.parts.LIDS``).")
@@ -299,7 +314,8 @@ class ReenactorBase:
                 from landmarks.mesh_warp import warp_references_mesh
 
                 warped, valid, _ = warp_references_mesh(shots.frames, shots.meshes, shots.landmarks, crop_mesh,
-                                                        crop_landmarks, self.warp_references, irises=irises, gaze=gaze)
+                                                        crop_landmarks, self.warp_references, irises=irises, gaze=gaze,
+                                                        expression_gain=self.expression_gain)
             else:
                 from landmarks.tps import warp_references
 

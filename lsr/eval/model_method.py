@@ -70,7 +70,8 @@ class LsrModelMethod:
     def __init__(self, weights: str | os.PathLike, *, device: str = "cpu", finetune_steps: int = 0,
                  finetune_lr: float = DEFAULT_FINETUNE_LR, name: str | None = None, reenactor=None,
                  reference_warp: str = "mesh", mouth: str | None = None, eyes: str | None = None,
-                 mouth_interior: str | None = None, lids: str | None = None) -> None:
+                 mouth_interior: str | None = None, lids: str | None = None,
+                 expression_gain: float | None = None) -> None:
         """reenactor: a ready ``ReenactorBase`` (e.g. ``deploy.runtime.OnnxReenactor`` over the bundle at
         ``weights``); None = load the torch model from ``weights``. reference_warp: how a warp-guided model's
         references are warped ("mesh": over the face mesh, given the meshes; "tps": the 68-point TPS). mouth: a
@@ -81,7 +82,8 @@ class LsrModelMethod:
         mouth_interior: "driver" (the driver frame's inside an open mouth: cross-identity, the protocol then passes
         ``driver_mouths``) or "shots" (None: the model's default). lids:
         "driver" (the driver frame's shut eyes: cross-identity, the protocol then passes ``driver_eyes``) or "shots"
-        (None: the model's default)."""
+        (None: the model's default). expression_gain: how far mesh-warped references carry a shot's mouth toward a
+        wider one (``ReenactorBase.expression_gain``; None: the model's default)."""
         self.weights = Path(weights)
         self.device = device
         self.finetune_steps = finetune_steps
@@ -105,6 +107,8 @@ class LsrModelMethod:
             reenactor.mouth_interior = mouth_interior
         if lids is not None:
             reenactor.lids = lids
+        if expression_gain is not None:
+            reenactor.expression_gain = expression_gain
         self.uses_gazes = reenactor.eyes != "blend"
         self.uses_driver_mouths = reenactor.mouth_interior == "driver"
         self.uses_driver_eyes = reenactor.lids == "driver"
@@ -201,7 +205,7 @@ class LsrModelMethod:
         subject = LsrModelMethod(self.weights, device=self.device, name=self.name,
                                  reference_warp=self.reenactor.reference_warp, mouth=self.reenactor.mouth,
                                  eyes=self.reenactor.eyes, mouth_interior=self.reenactor.mouth_interior,
-                                 lids=self.reenactor.lids)
+                                 lids=self.reenactor.lids, expression_gain=self.reenactor.expression_gain)
         subject._encode(shots, shot_landmarks)
         from lsr.train.finetune import finetune_reenactor
 

@@ -479,7 +479,8 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
         choice = {"reference_warp": cfg.reference_warps[0], "mouth": cfg.mouths[0] if cfg.mouths else None,
                   "eyes": cfg.eyes[0] if cfg.eyes else None,
                   "mouth_interior": cfg.mouth_interiors[0] if cfg.mouth_interiors else None,
-                  "lids": cfg.lids[0] if cfg.lids else None}
+                  "lids": cfg.lids[0] if cfg.lids else None,
+                  "expression_gain": cfg.expression_gains[0] if cfg.expression_gains else None}
         models = [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps,
                                  finetune_lr=cfg.finetune_lr, **choice) for folder in cfg.weights]
         methods += label_by_variant(models, cfg.weights)
@@ -489,6 +490,7 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
         extras += [({**choice, "eyes": other}, f"+{other}-eyes") for other in cfg.eyes[1:]]
         extras += [({**choice, "mouth_interior": other}, f"+{other}-interior") for other in cfg.mouth_interiors[1:]]
         extras += [({**choice, "lids": other}, f"+{other}-lids") for other in cfg.lids[1:]]
+        extras += [({**choice, "expression_gain": other}, f"+gain{other:g}") for other in cfg.expression_gains[1:]]
         for options, suffix in extras:
             for model in models:
                 if model.reenactor.warp_references:

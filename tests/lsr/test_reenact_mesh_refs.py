@@ -222,3 +222,31 @@ def test_warped_eyes_carry_the_references_irises_to_the_gaze_and_change_nothing_
     assert changed[eyes].any() and not changed[~eyes].any()
     np.testing.assert_array_equal(agreed[0, 0], blend[0, 0])  # the nearest shot is the one the others move to
     assert not np.array_equal(agreed, blend)
+
+
+def test_the_expression_gain_reaches_the_mesh_references_where_the_target_opens_wider(reenactor, people):
+    from landmarks.expression_gain import EXPRESSION_GAIN, mouth_weights
+    from landmarks.mesh68 import mesh_to_68
+    from landmarks.mesh_pose import canonical
+
+    subject = reenactor.encode_subject(people["source"], k=4)
+    shots = subject.shots
+    mesh = shots.meshes[1].astype(np.float64)
+    jaw = (mesh[:, 1] > mesh_to_68(mesh)[60:68, 1].mean()) & ~canonical()[1]  # below the lips, not rigid
+    opened = mesh.copy()
+    opened[:, 1] += 0.06 * reenactor.crop_size * jaw * mouth_weights()  # a mouth wider than every shot's
+
+    def references(target_mesh: np.ndarray, gain: float) -> np.ndarray:
+        reenactor.expression_gain = gain
+        try:
+            return reenactor.network_inputs(mesh_to_68(target_mesh), crop_mesh=target_mesh)[1]["references"]
+        finally:
+            reenactor.expression_gain = EXPRESSION_GAIN
+
+    assert reenactor.expression_gain == EXPRESSION_GAIN  # the default
+    assert not np.array_equal(references(opened, EXPRESSION_GAIN), references(opened, 1.0))
+    # where the target's mouth is the shot's own, the gain has nothing to carry
+    np.testing.assert_array_equal(references(mesh, EXPRESSION_GAIN), references(mesh, 1.0))
+    for wrong in (0.5, 3.0):
+        with pytest.raises(ValueError, match="expression_gain"):
+            reenactor.expression_gain = wrong

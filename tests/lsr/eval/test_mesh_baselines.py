@@ -153,3 +153,30 @@ def test_lsr_eval_with_a_detector_without_meshes_skips_the_mesh_baselines(tmp_pa
 
     with pytest.raises(ConfigError, match="--detector mesh"):
         report.run_eval(only_mesh)
+
+
+def test_lsr_eval_adds_a_row_per_extra_expression_gain_and_refuses_one_out_of_range(tmp_path, monkeypatch):
+    import lsr.eval.protocol as protocol
+    from lsr.config import EvalConfig
+    from lsr.errors import ConfigError
+    from lsr.eval import report
+    from models_def import LSRModel, preset_config
+
+    weights = LSRModel(preset_config("tiny", variant="warp_guided")).save_pretrained(tmp_path / "w")
+    with pytest.raises(ConfigError, match="--expression-gains"):
+        EvalConfig(weights=(weights,), expression_gains=(1.25, 0.5)).validate()
+    seen = []
+
+    def stop(methods, *args, **kwargs):  # the methods the runner is given; they need not run
+        seen.extend((m.name, getattr(getattr(m, "reenactor", None), "expression_gain", None)) for m in methods)
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(protocol, "run_protocol", stop)
+    monkeypatch.setattr(protocol, "detect_layout", lambda data: "lsr")
+    monkeypatch.setattr(protocol, "load_lsr_split", lambda *args, **kwargs: [])
+    cfg = EvalConfig(data=tmp_path, weights=(weights,), expression_gains=(1.25, 1.0), methods=("tps",),
+                     cross_identity=False, progress=False)
+    cfg.validate()
+    with pytest.raises(RuntimeError, match="stop"):
+        report.run_eval(cfg)
+    assert seen == [("tps", None), ("lsr:warp_guided", 1.25), ("lsr:warp_guided+gain1", 1.0)]  # labelled by variant
