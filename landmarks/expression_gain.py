@@ -38,6 +38,9 @@ from landmarks.mesh_pose import canonical, mesh_rotation, to_head_frame
 
 EXPRESSION_GAIN = 1.25
 """How many times the shot -> target expression around the mouth is applied, at most."""
+GAIN_RANGE = (1.0, 2.0)
+"""The gains a caller may choose (``lsr eval --expression-gains``, ``ReenactorBase.expression_gain``): 1 carries a
+shot's mouth exactly onto the target's points; past 2 a warp folds the lips over."""
 MOUTH_REACH = 0.45
 """The mouth region: full weight within half this fraction of the canonical face's eye distance of the inner
 lips' centre, none beyond 1.5 times it (a linear ramp between)."""

@@ -6,6 +6,7 @@ import dataclasses
 from pathlib import Path
 from typing import Literal
 
+from landmarks.expression_gain import GAIN_RANGE
 from lsr.config_bench import OptionalPath, check_metric_weights, check_weights, evaluation_data
 from lsr.core import DEFAULT_FINETUNE_LR
 from lsr.errors import ConfigError
@@ -135,8 +136,9 @@ class EvalConfig:
             raise ConfigError("--methods needs at least one of nearest_shot, tps, tps_mean3, mesh, mesh_mean3 (or give --weights)")
         if not self.reference_warps:
             raise ConfigError("--reference-warps needs at least one of mesh, tps")
-        if any(not 1.0 <= gain <= 2.0 for gain in self.expression_gains):
-            raise ConfigError(f"--expression-gains must lie in [1, 2], got {' '.join(map(str, self.expression_gains))}")
+        if any(not GAIN_RANGE[0] <= gain <= GAIN_RANGE[1] for gain in self.expression_gains):
+            raise ConfigError(f"--expression-gains must lie in [{GAIN_RANGE[0]:g}, {GAIN_RANGE[1]:g}], got "
+                              f"{' '.join(map(str, self.expression_gains))}")
         for folder in self.weights:
             check_weights(folder)
         if self.finetune_steps < 0 or not self.finetune_lr > 0:

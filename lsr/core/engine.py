@@ -48,7 +48,7 @@ from lsr.core.sources import (
 from landmarks.driver_eyes import DriverEyes, cut_driver_eyes, paste_eyes
 from landmarks.drawn_lids import draw_lids
 from landmarks.errors import InputFileError, NoFaceError
-from landmarks.expression_gain import EXPRESSION_GAIN
+from landmarks.expression_gain import EXPRESSION_GAIN, GAIN_RANGE
 from landmarks.eyelids import LOOK_AHEAD
 from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
 from landmarks.mouth_interior import DriverMouth, cut_driver_mouth, paste_interior
@@ -165,8 +165,9 @@ class ReenactorBase:
 
     @expression_gain.setter
     def expression_gain(self, gain: float) -> None:
-        if not 1.0 <= float(gain) <= 2.0:
-            raise ValueError(f"expression_gain must be in [1, 2], got {gain!r}")
+        low, high = GAIN_RANGE
+        if not low <= float(gain) <= high:
+            raise ValueError(f"expression_gain must be in [{low:g}, {high:g}], got {gain!r}")
         self._expression_gain = float(gain)
 
     mouth_interior = Choice(MOUTH_INTERIORS, "driver", "Inside an open mouth (``lsr.core.parts.MOUTH_INTERIORS``).")
