@@ -145,7 +145,14 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where the process is: temp files are removed and checkpoints kept as for Ctrl-C."""
 
 
+_terminated = threading.Event()
+"""Set by SIGTERM. Python drops an exception raised inside a weakref callback or ``__del__`` ("Exception
+ignored in ..."), so a SIGTERM that lands while the garbage collector runs one would be lost and the run
+would end with status 0; ``main`` reads this flag after the run as well."""
+
+
 def _raise_terminated(signum: int, frame: Any) -> None:
+    _terminated.set()
     raise Terminated()
 
 
@@ -174,6 +181,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     runners = {cls: run for cls, run in table.values()}
     user_errors = _user_errors()
     previous = None
+    _terminated.clear()
     if threading.current_thread() is threading.main_thread():  # SIGTERM cleans up as Ctrl-C does
         previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
@@ -182,6 +190,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         single_blas_thread()  # the frame loops' stages fill the cores; OpenBLAS's spinning threads only take them
         _resolve(runners[type(cfg)])(cfg)
+        if _terminated.is_set():  # the signal's exception was swallowed where it landed (see _terminated)
+            raise Terminated()
     except user_errors as exc:
         print(f"lsr: error: {exc}", file=sys.stderr)
         return 2
