@@ -59,6 +59,11 @@ MOVING = 1.0  # pixels: where the head layer moves this far or more, the matte p
 PERSON_SCALE = 1.6  # with the matte, the head layer reaches this many times the head ellipse (hair beyond it) ...
 PERSON_INNER = 0.8  # ... moving fully inside this fraction of it ...
 NECK_FADE = 0.3  # ... and above the chin, fading to none this far below it (the neck stretches, the body stays)
+INNER_RETRIES = (0.0, 0.15, 0.3)  # where the faded motion folds, the inner fraction is lowered by these in turn ...
+EDGE_RAMP = 2.0  # ... and where it would show pixels from beyond a frame edge, it fades to none at that edge over
+# this many times its largest reach beyond it (a ramp wider than the motion cannot fold)
+EDGE_REACH = 0.5  # pixels: a layer reaching less than this beyond an edge is left as it is
+EDGE_CELLS = 3  # the edge's ramp spans at least this many of the head layer's grid cells
 
 
 def face_side(landmarks: np.ndarray) -> float:
@@ -99,9 +104,9 @@ def _radius_at(ellipse: tuple[np.ndarray, np.ndarray], xs: np.ndarray, ys: np.nd
     return np.sqrt(across * across + down * down)
 
 
-def _smooth_weight(radius: np.ndarray) -> np.ndarray:
-    """Head weight from the ellipse radius: 1 inside ``HEAD_INNER``, smoothstep to 0 on the ellipse."""
-    ramp = np.clip((1.0 - radius) / (1.0 - HEAD_INNER), 0.0, 1.0)
+def _smooth_weight(radius: np.ndarray, inner: float = HEAD_INNER) -> np.ndarray:
+    """Head weight from the ellipse radius: 1 inside ``inner``, smoothstep to 0 on the ellipse."""
+    ramp = np.clip((1.0 - radius) / (1.0 - inner), 0.0, 1.0)
     return (ramp * ramp * (3.0 - 2.0 * ramp)).astype(np.float32)  # smoothstep: no kink at either edge
 
 
@@ -135,12 +140,12 @@ def _person_ellipse(landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _person_weight(ellipses: list[tuple[np.ndarray, np.ndarray]], xs: np.ndarray, ys: np.ndarray, chin: float,
-                   side: float) -> np.ndarray:
+                   side: float, inner: float = PERSON_INNER) -> np.ndarray:
     """With the matte, how much each point of the grid of frame columns ``xs`` by rows ``ys`` moves with the head:
-    1 inside ``PERSON_INNER`` of the grown ellipses and above the chin row ``chin``, smoothstep to 0 at their edge
-    and ``NECK_FADE`` face sides below the chin. (H, W) float32."""
+    1 inside ``inner`` of the grown ellipses and above the chin row ``chin``, smoothstep to 0 at their edge and
+    ``NECK_FADE`` face sides below the chin. (H, W) float32."""
     radius = np.minimum.reduce([_radius_at(ellipse, xs, ys) for ellipse in ellipses])
-    ramp = np.clip((1.0 - radius) / (1.0 - PERSON_INNER), 0.0, 1.0) * _neck(ys, chin, side)[:, None]
+    ramp = np.clip((1.0 - radius) / (1.0 - inner), 0.0, 1.0) * _neck(ys, chin, side)[:, None]
     return (ramp * ramp * (3.0 - 2.0 * ramp)).astype(np.float32)
 
 
@@ -148,6 +153,65 @@ def _neck(ys: np.ndarray, chin: float, side: float) -> np.ndarray:
     """Per frame row ``ys`` (H,): 1 above the chin row, falling to 0 ``NECK_FADE`` face sides below it. float32."""
     return np.clip((np.float32(chin + NECK_FADE * side) - np.asarray(ys, np.float32)) / np.float32(NECK_FADE * side),
                    0.0, 1.0).astype(np.float32)
+
+
+def _edge_fade(grid_x: np.ndarray, grid_y: np.ndarray, shift_x: np.ndarray, shift_y: np.ndarray,
+               frame_hw: tuple[int, int], step: float) -> np.ndarray | None:
+    """Where the head layer (``shift`` (H, W) on the grid of frame columns ``grid_x`` by rows ``grid_y``) would show
+    pixels from beyond a frame edge (a head moving away from the edge, or shrinking), a factor that fades it to none
+    at that edge over ``EDGE_RAMP`` times its largest reach beyond it (at least ``EDGE_CELLS`` of the grid's
+    ``step``, which the field is interpolated over): the hair at the edge stretches instead of mirroring what lies
+    past it. (H, W) float32, or None where no edge is reached ``EDGE_REACH`` pixels or more."""
+    height, width = frame_hw
+    fade = None
+    for distance, beyond in ((grid_x[None, :], -(grid_x[None, :] + shift_x)),  # left: sources left of column 0
+                             (grid_y[:, None], -(grid_y[:, None] + shift_y)),  # top
+                             (width - 1.0 - grid_x[None, :], grid_x[None, :] + shift_x - (width - 1.0)),  # right
+                             (height - 1.0 - grid_y[:, None], grid_y[:, None] + shift_y - (height - 1.0))):  # bottom
+        reach = float(beyond.max())
+        if reach < EDGE_REACH:
+            continue
+        ramp = np.clip(distance / max(EDGE_RAMP * reach, EDGE_CELLS * step), 0.0, 1.0)
+        ramp = np.broadcast_to(ramp * ramp * (3.0 - 2.0 * ramp), shift_x.shape)
+        fade = ramp.astype(np.float32) if fade is None else fade * ramp.astype(np.float32)
+    return fade
+
+
+def _folds(grid_x: np.ndarray, grid_y: np.ndarray, shift_x: np.ndarray, shift_y: np.ndarray) -> bool:
+    """Whether the map grid + shift (on the grid of frame columns ``grid_x`` by rows ``grid_y``) folds: its
+    Jacobian's determinant is not positive somewhere."""
+    if len(grid_x) < 2 or len(grid_y) < 2:
+        return False
+    dxx, dxy = np.gradient(shift_x, grid_x, axis=1), np.gradient(shift_x, grid_y, axis=0)
+    dyx, dyy = np.gradient(shift_y, grid_x, axis=1), np.gradient(shift_y, grid_y, axis=0)
+    return bool(((1.0 + dxx) * (1.0 + dyy) - dxy * dyx <= 0.0).any())
+
+
+def _fold_free_weight(ellipses: list[tuple[np.ndarray, np.ndarray]], grid_x: np.ndarray, grid_y: np.ndarray,
+                      shift_x: np.ndarray, shift_y: np.ndarray, chin: float, side: float, person: bool,
+                      box: tuple[int, int, int, int], frame_hw: tuple[int, int]) -> np.ndarray:
+    """How much of its motion (``shift``, on the grid) each grid point of the head layer takes: the head weight
+    (``_smooth_weight``, with the matte ``_person_weight``), faded toward the frame edges it would reach past
+    (``_edge_fade``). A motion larger than the ramp it fades over folds the layer (the hair and collar drawn as
+    loops, at a large turn of a close-up): then the ramp starts further in (``INNER_RETRIES``), the head's outer
+    part lagging a little, until it does not fold; the outer edge, what a composite may change, stays where it is.
+    (H, W) float32."""
+    weight = None
+    for lower in INNER_RETRIES:
+        if person:
+            weight = _person_weight(ellipses, grid_x, grid_y, chin, side, PERSON_INNER - lower)
+        else:
+            weight = np.maximum(*(_smooth_weight(_radius_at(ellipse, grid_x, grid_y), HEAD_INNER - lower)
+                                  for ellipse in ellipses))
+        x0, y0, x1, y1 = box
+        if x0 == 0 or y0 == 0 or x1 == frame_hw[1] or y1 == frame_hw[0]:  # only a box clipped by the frame reaches past it
+            fade = _edge_fade(grid_x, grid_y, shift_x * weight, shift_y * weight, frame_hw,
+                              float(grid_x[1] - grid_x[0]) if len(grid_x) > 1 else 1.0)
+            if fade is not None:
+                weight = weight * fade
+        if not _folds(grid_x, grid_y, shift_x * weight, shift_y * weight):
+            break
+    return weight
 
 
 def head_box(landmarks_list: list[np.ndarray], frame_hw: tuple[int, int], margin: int = 2) -> tuple[int, int, int, int] | None:
@@ -327,10 +391,8 @@ def composite_face(scene: np.ndarray, scene_landmarks: np.ndarray, target_landma
     shift_y = inverse[1, 0] * moved_x + inverse[1, 1] * moved_y + inverse[1, 2] - grid_y[:, None]
     if max(np.abs(shift_x).max(), np.abs(shift_y).max()) > STILL:
         chin, sides = max(scene_points[8, 1], target_points[8, 1]), max(side, face_side(scene_points))
-        if layers is None:
-            weight = np.maximum(*(_smooth_weight(_radius_at(ellipse, grid_x, grid_y)) for ellipse in ellipses))
-        else:
-            weight = _person_weight(ellipses, grid_x, grid_y, chin, sides)
+        weight = _fold_free_weight(ellipses, grid_x, grid_y, shift_x, shift_y, chin, sides, layers is not None,
+                                   (x0, y0, x1, y1), scene.shape[:2])
         source_x = warp.densify(shift_x * weight)
         source_x += np.arange(x0, x1, dtype=np.float32)[None, :]
         source_y = warp.densify(shift_y * weight)

@@ -125,3 +125,18 @@ def test_bad_landmarks_raise(web, real_frames):
     with pytest.raises(RuntimeError, match="target_landmarks"):
         web.call("compositeFace", frames[0], landmarks[0], np.full((68, 2), np.nan), np.zeros((64, 64, 3), np.uint8),
                  [1.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+
+
+def test_a_close_up_moving_far_composites_as_python(web, real_frames):
+    """A head cut by the frame's top that moves down and aside further than its ramp is wide: the head layer fades
+    to none at the edges it would reach past and starts its ramp further in where it would fold
+    (landmarks.scene._fold_free_weight), in the web page as in Python."""
+    frames, landmarks = real_frames
+    scene, points = frames[0][90:, 40:-40].copy(), landmarks[0] - [40.0, 90.0]
+    target = _moved(points, 8.0, (0.15 * scene_module.face_side(points), 14.0), 0.9)
+    assert scene_module.composite_face(scene, points, target, np.zeros((256, 256, 3), np.uint8),
+                                       crop_transform(target, 256)).box[1] == 0  # cut by the top
+    face = warp_to_crop(frames[1], crop_transform(landmarks[1], 256), 256)
+    values = _compare(web, [(scene, points, target, face, crop_transform(target, 256), layers)
+                            for layers in (None, _layers(scene, points))])
+    print(f"close-up moving far, PSNR against Python (dB): {np.round(values, 1).tolist()}")

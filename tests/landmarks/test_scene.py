@@ -219,3 +219,55 @@ def test_a_plate_needs_a_matte_of_the_scene_size(rng):
     scene, points, matte = _person_scene(rng)
     with pytest.raises(ValueError, match="matte"):
         background_plate(scene, points, matte[:-1])
+
+
+def test_a_close_up_moving_down_keeps_its_hair_at_the_frame_top_instead_of_mirroring_what_lies_above(rng):
+    """The head layer of a head that leaves the frame's top and moves down would show rows from above the frame,
+    which it does not have (a mirrored band of hair, before): the motion fades to none at that edge, so the top
+    row stays the scene's and the head a little below it still moves down."""
+    import cv2
+
+    noise = cv2.GaussianBlur(rng.random((*SIZE, 3)).astype(np.float32), (0, 0), 3)
+    scene = np.clip((noise - noise.mean()) / noise.std() * 50 + 128, 0, 255).astype(np.uint8)
+    points = project_canonical(0, 0, 0, SIZE, scale=0.8, translation=(0, -10)).astype(np.float64)
+    target = points + [0.0, 12.0]
+    result = composite_face(scene, points, target, np.full((128, 128, 3), 90, np.uint8), crop_transform(target, 128))
+    x0, y0, x1, y1 = result.box
+    assert y0 == 0  # the head region is cut by the frame's top
+    region = head_region([points, target], SIZE)
+    face_layer = np.zeros(SIZE, bool)
+    face_layer[y0:y1, x0:x1] = result.face_alpha > 0
+    top = region[0] & ~face_layer[0]
+    assert top.sum() > 50
+    np.testing.assert_array_equal(result.frame[0, top], scene[0, top])  # the edge itself: the scene's, unmirrored
+    # further down the hair moves with the head: row 40 shows rows above it
+    column = int(points[27, 0])
+    row = 40
+    errors = [np.abs(result.frame[row, column - 20 : column + 20].astype(int) - scene[row - d, column - 20 : column + 20]).mean()
+              for d in range(0, 13)]
+    assert int(np.argmin(errors)) >= 3
+
+
+def test_a_head_moving_further_than_its_ramp_is_wide_does_not_fold_the_layer(rng):
+    """A motion larger than the ramp the head layer fades over folds it (the hair and collar drawn as loops at a
+    large turn of a close-up): the ramp then starts further in until the layer does not fold."""
+    from landmarks.scene import _fold_free_weight, _folds, _person_ellipse, _person_weight
+
+    points = project_canonical(0, 0, 0, (480, 640), scale=0.5, translation=(0, 0)).astype(np.float64)
+    side = face_side(points)
+    shift = 0.12 * side  # 17 pixels: the grown ellipse's ramp is 16 wide
+    target = points + [shift, 0.0]
+    ellipses = [_person_ellipse(points), _person_ellipse(target)]
+    grid_x, grid_y = np.arange(0, 640, 4, dtype=np.float64), np.arange(0, 480, 4, dtype=np.float64)
+    shift_x, shift_y = np.full((len(grid_y), len(grid_x)), -shift), np.zeros((len(grid_y), len(grid_x)))
+    chin = float(max(points[8, 1], target[8, 1]))
+    plain = _person_weight(ellipses, grid_x, grid_y, chin, side)
+    assert _folds(grid_x, grid_y, shift_x * plain, shift_y * plain)  # the shipped ramp alone folds here
+    weight = _fold_free_weight(ellipses, grid_x, grid_y, shift_x, shift_y, chin, side, True, (1, 1, 639, 479),
+                               (480, 640))
+    assert not _folds(grid_x, grid_y, shift_x * weight, shift_y * weight)
+    assert weight.max() == 1.0 and ((weight > 0) == (plain > 0)).all()  # the head still moves; the region is the same
+    # a small motion keeps the shipped ramp, exactly
+    small = _fold_free_weight(ellipses, grid_x, grid_y, shift_x / 10, shift_y, chin, side, True, (1, 1, 639, 479),
+                              (480, 640))
+    np.testing.assert_array_equal(small, plain)

@@ -30,6 +30,10 @@ const MOVING = 1.0;
 const PERSON_SCALE = 1.6;
 const PERSON_INNER = 0.8;
 const NECK_FADE = 0.3;
+const INNER_RETRIES = [0.0, 0.15, 0.3];
+const EDGE_RAMP = 2.0;
+const EDGE_REACH = 0.5;
+const EDGE_CELLS = 3;
 const f32 = Math.fround;
 
 /** The scene split into what moves with the head and what stays (landmarks.scene.SceneLayers, made in Python by
@@ -66,8 +70,8 @@ function radiusAt(e: Ellipse, x: number, y: number): number {
   return f32(Math.sqrt(f32(f32(across * across) + f32(down * down))));
 }
 
-function smoothWeight(radius: number): number {
-  const ramp = Math.min(Math.max(f32(f32(1 - radius) / f32(1 - HEAD_INNER)), 0), 1);
+function smoothWeight(radius: number, inner = HEAD_INNER): number {
+  const ramp = Math.min(Math.max(f32(f32(1 - radius) / f32(1 - inner)), 0), 1);
   return f32(ramp * ramp * (3 - 2 * ramp));
 }
 
@@ -83,11 +87,102 @@ function neck(y: number, chin: number, side: number): number {
 }
 
 /** With the matte, how much the point (x, y) moves with the head (landmarks.scene._person_weight). */
-function personWeight(ellipses: Ellipse[], x: number, y: number, chin: number, side: number): number {
+function personWeight(ellipses: Ellipse[], x: number, y: number, chin: number, side: number,
+                      inner = PERSON_INNER): number {
   let radius = Infinity;
   for (const e of ellipses) radius = Math.min(radius, radiusAt(e, x, y));
-  const ramp = f32(Math.min(Math.max(f32(f32(1 - radius) / f32(1 - PERSON_INNER)), 0), 1) * neck(y, chin, side));
+  const ramp = f32(Math.min(Math.max(f32(f32(1 - radius) / f32(1 - inner)), 0), 1) * neck(y, chin, side));
   return f32(ramp * ramp * (3 - 2 * ramp));
+}
+
+/** np.gradient of values (rows x cols, row-major) along the columns (axis 1) or rows (axis 0) at the coordinates
+ * `at`: second order inside (non-uniform spacing), first order at the ends. */
+function gradient(values: Float64Array, rows: number, cols: number, at: ArrayLike<number>, axis: 0 | 1): Float64Array {
+  const out = new Float64Array(values.length), n = axis === 1 ? cols : rows;
+  const index = (r: number, c: number) => r * cols + c;
+  for (let r = 0; r < rows; r++) {
+    for (let c = 0; c < cols; c++) {
+      const i = axis === 1 ? c : r;
+      const get = (k: number) => values[axis === 1 ? index(r, k) : index(k, c)];
+      if (i === 0) out[index(r, c)] = (get(1) - get(0)) / (at[1] - at[0]);
+      else if (i === n - 1) out[index(r, c)] = (get(n - 1) - get(n - 2)) / (at[n - 1] - at[n - 2]);
+      else {
+        const hd = at[i] - at[i - 1], hs = at[i + 1] - at[i];
+        out[index(r, c)] = (hd * hd * get(i + 1) - hs * hs * get(i - 1) + (hs * hs - hd * hd) * get(i))
+          / (hs * hd * (hd + hs));
+      }
+    }
+  }
+  return out;
+}
+
+/** Whether grid + shift folds (landmarks.scene._folds): its Jacobian's determinant is not positive somewhere. */
+function folds(gridX: Float64Array, gridY: Float64Array, shiftX: Float64Array, shiftY: Float64Array): boolean {
+  const rows = gridY.length, cols = gridX.length;
+  if (rows < 2 || cols < 2) return false;
+  const dxx = gradient(shiftX, rows, cols, gridX, 1), dxy = gradient(shiftX, rows, cols, gridY, 0);
+  const dyx = gradient(shiftY, rows, cols, gridX, 1), dyy = gradient(shiftY, rows, cols, gridY, 0);
+  for (let p = 0; p < shiftX.length; p++) if (!((1 + dxx[p]) * (1 + dyy[p]) - dxy[p] * dyx[p] > 0)) return true;
+  return false;
+}
+
+/** Where the head layer would show pixels from beyond a frame edge, a factor fading it to none at that edge over
+ * EDGE_RAMP times its largest reach beyond it, at least EDGE_CELLS grid steps (landmarks.scene._edge_fade); null
+ * where no edge is reached EDGE_REACH pixels or more. */
+function edgeFade(gridX: Float64Array, gridY: Float64Array, shiftX: Float64Array, shiftY: Float64Array,
+                  height: number, width: number, step: number): Float32Array | null {
+  const rows = gridY.length, cols = gridX.length;
+  let fade: Float32Array | null = null;
+  const edges: [(j: number, i: number) => number, (j: number, i: number, p: number) => number][] = [
+    [(_j, i) => gridX[i], (_j, i, p) => -(gridX[i] + shiftX[p])],
+    [(j) => gridY[j], (j, _i, p) => -(gridY[j] + shiftY[p])],
+    [(_j, i) => width - 1 - gridX[i], (_j, i, p) => gridX[i] + shiftX[p] - (width - 1)],
+    [(j) => height - 1 - gridY[j], (j, _i, p) => gridY[j] + shiftY[p] - (height - 1)],
+  ];
+  for (const [distance, beyond] of edges) {
+    let reach = -Infinity;
+    for (let j = 0, p = 0; j < rows; j++) for (let i = 0; i < cols; i++, p++) reach = Math.max(reach, beyond(j, i, p));
+    if (reach < EDGE_REACH) continue;
+    const span = Math.max(EDGE_RAMP * reach, EDGE_CELLS * step);
+    const next: Float32Array = fade ?? new Float32Array(rows * cols).fill(1);
+    for (let j = 0, p = 0; j < rows; j++) {
+      for (let i = 0; i < cols; i++, p++) {
+        const ramp = Math.min(Math.max(distance(j, i) / span, 0), 1);
+        next[p] = f32(next[p] * f32(ramp * ramp * (3 - 2 * ramp)));
+      }
+    }
+    fade = next;
+  }
+  return fade;
+}
+
+/** How much of its motion each grid point of the head layer takes: the head weight, faded toward the frame edges
+ * it would reach past, its ramp starting further in (INNER_RETRIES) until it does not fold
+ * (landmarks.scene._fold_free_weight). */
+function foldFreeWeight(ellipses: Ellipse[], gridX: Float64Array, gridY: Float64Array, shiftX: Float64Array,
+                        shiftY: Float64Array, chin: number, side: number, person: boolean, box: Box, height: number,
+                        width: number): Float32Array {
+  const rows = gridY.length, cols = gridX.length, count = rows * cols;
+  const weight = new Float32Array(count), movedX = new Float64Array(count), movedY = new Float64Array(count);
+  const [x0, y0, x1, y1] = box;
+  for (const lower of INNER_RETRIES) {
+    for (let j = 0, p = 0; j < rows; j++) {
+      for (let i = 0; i < cols; i++, p++) {
+        let w = 0;
+        if (person) w = personWeight(ellipses, gridX[i], gridY[j], chin, side, PERSON_INNER - lower);
+        else for (const e of ellipses) w = Math.max(w, smoothWeight(radiusAt(e, gridX[i], gridY[j]), HEAD_INNER - lower));
+        weight[p] = w;
+      }
+    }
+    if (x0 === 0 || y0 === 0 || x1 === width || y1 === height) {
+      for (let p = 0; p < count; p++) { movedX[p] = shiftX[p] * weight[p]; movedY[p] = shiftY[p] * weight[p]; }
+      const fade = edgeFade(gridX, gridY, movedX, movedY, height, width, cols > 1 ? gridX[1] - gridX[0] : 1);
+      if (fade) for (let p = 0; p < count; p++) weight[p] = f32(weight[p] * fade[p]);
+    }
+    for (let p = 0; p < count; p++) { movedX[p] = shiftX[p] * weight[p]; movedY[p] = shiftY[p] * weight[p]; }
+    if (!folds(gridX, gridY, movedX, movedY)) break;
+  }
+  return weight;
 }
 
 function boxOf(ellipses: Ellipse[], height: number, width: number, margin = 2): Box | null {
@@ -411,14 +506,12 @@ function headLayer(scene: Tensor<Uint8Array>, output: Uint8Array, scenePoints: T
   }
   if (!(largest > STILL)) return;
   const chin = Math.max(scenePoints.data[17], targetPoints.data[17]), sides = Math.max(side, faceSide(scenePoints));
-  for (let j = 0, p = 0; j < ys.length; j++) {
-    for (let i = 0; i < cols; i++, p++) {
-      let weight = 0;
-      if (layers) weight = personWeight(ellipses, xs[i] + x0, ys[j] + y0, chin, sides);
-      else for (const e of ellipses) weight = Math.max(weight, smoothWeight(radiusAt(e, xs[i] + x0, ys[j] + y0)));
-      shiftX[p] *= weight;
-      shiftY[p] *= weight;
-    }
+  const gridX = Float64Array.from(xs, (x) => x + x0), gridY = Float64Array.from(ys, (y) => y + y0);
+  const weight = foldFreeWeight(ellipses, gridX, gridY, shiftX, shiftY, chin, sides, layers !== null, box, height,
+                                width);
+  for (let p = 0; p < count; p++) {
+    shiftX[p] *= weight[p];
+    shiftY[p] *= weight[p];
   }
   const sourceX = densifyGrid(warp.grid, shiftX), sourceY = densifyGrid(warp.grid, shiftY);
   for (let y = 0, i = 0; y < h; y++) {
