@@ -36,7 +36,7 @@ import numpy as np
 from landmarks.align import crop_transform, face_geometry, invert_affine, transform_landmarks
 from landmarks.parts import NUM_LANDMARKS
 from landmarks.retarget import RIGID_INDEX, apply_similarity, similarity_procrustes
-from landmarks.tps import tps_grid_map
+from landmarks.tps import folded_fraction, tps_grid_map
 
 # Head region (fractions of the crop side s), centred above the eyes/mouth midpoint; a VoxCeleb2 crop has the
 # top of the hair about 0.35 s above that point and the chin about 0.22 s below it.
@@ -178,13 +178,11 @@ def _edge_fade(grid_x: np.ndarray, grid_y: np.ndarray, shift_x: np.ndarray, shif
 
 
 def _folds(grid_x: np.ndarray, grid_y: np.ndarray, shift_x: np.ndarray, shift_y: np.ndarray) -> bool:
-    """Whether the map grid + shift (on the grid of frame columns ``grid_x`` by rows ``grid_y``) folds: its
-    Jacobian's determinant is not positive somewhere."""
+    """Whether the map grid + shift (on the grid of frame columns ``grid_x`` by rows ``grid_y``) folds somewhere
+    (``landmarks.tps.folded_fraction``: the TPS's own test, in grid steps)."""
     if len(grid_x) < 2 or len(grid_y) < 2:
         return False
-    dxx, dxy = np.gradient(shift_x, grid_x, axis=1), np.gradient(shift_x, grid_y, axis=0)
-    dyx, dyy = np.gradient(shift_y, grid_x, axis=1), np.gradient(shift_y, grid_y, axis=0)
-    return bool(((1.0 + dxx) * (1.0 + dyy) - dxy * dyx <= 0.0).any())
+    return folded_fraction(grid_x[None, :] + shift_x, grid_y[:, None] + shift_y) > 0.0
 
 
 def _fold_free_weight(ellipses: list[tuple[np.ndarray, np.ndarray]], grid_x: np.ndarray, grid_y: np.ndarray,
@@ -196,6 +194,9 @@ def _fold_free_weight(ellipses: list[tuple[np.ndarray, np.ndarray]], grid_x: np.
     loops, at a large turn of a close-up): then the ramp starts further in (``INNER_RETRIES``), the head's outer
     part lagging a little, until it does not fold; the outer edge, what a composite may change, stays where it is.
     (H, W) float32."""
+    x0, y0, x1, y1 = box
+    clipped = x0 == 0 or y0 == 0 or x1 == frame_hw[1] or y1 == frame_hw[0]  # only then can it reach past an edge
+    step = float(grid_x[1] - grid_x[0]) if len(grid_x) > 1 else 1.0
     weight = None
     for lower in INNER_RETRIES:
         if person:
@@ -203,12 +204,9 @@ def _fold_free_weight(ellipses: list[tuple[np.ndarray, np.ndarray]], grid_x: np.
         else:
             weight = np.maximum(*(_smooth_weight(_radius_at(ellipse, grid_x, grid_y), HEAD_INNER - lower)
                                   for ellipse in ellipses))
-        x0, y0, x1, y1 = box
-        if x0 == 0 or y0 == 0 or x1 == frame_hw[1] or y1 == frame_hw[0]:  # only a box clipped by the frame reaches past it
-            fade = _edge_fade(grid_x, grid_y, shift_x * weight, shift_y * weight, frame_hw,
-                              float(grid_x[1] - grid_x[0]) if len(grid_x) > 1 else 1.0)
-            if fade is not None:
-                weight = weight * fade
+        fade = _edge_fade(grid_x, grid_y, shift_x * weight, shift_y * weight, frame_hw, step) if clipped else None
+        if fade is not None:
+            weight = weight * fade
         if not _folds(grid_x, grid_y, shift_x * weight, shift_y * weight):
             break
     return weight

@@ -11,7 +11,7 @@ import { PixelImage, bilinearAt, clampedView, densifyGrid, gaussianBlurF32, rema
          roundHalfEven as rint, warpAffineCubic } from "./remap.js";
 import { RIGID_INDEX } from "./retarget.js";
 import { Affine, Tensor, checkPoints, tensor } from "./tensor.js";
-import { tpsGridMap } from "./tps.js";
+import { foldedFraction, tpsGridMap } from "./tps.js";
 
 // landmarks/scene.py
 const HEAD_CENTRE_UP = 0.08;
@@ -95,35 +95,15 @@ function personWeight(ellipses: Ellipse[], x: number, y: number, chin: number, s
   return f32(ramp * ramp * (3 - 2 * ramp));
 }
 
-/** np.gradient of values (rows x cols, row-major) along the columns (axis 1) or rows (axis 0) at the coordinates
- * `at`: second order inside (non-uniform spacing), first order at the ends. */
-function gradient(values: Float64Array, rows: number, cols: number, at: ArrayLike<number>, axis: 0 | 1): Float64Array {
-  const out = new Float64Array(values.length), n = axis === 1 ? cols : rows;
-  const index = (r: number, c: number) => r * cols + c;
-  for (let r = 0; r < rows; r++) {
-    for (let c = 0; c < cols; c++) {
-      const i = axis === 1 ? c : r;
-      const get = (k: number) => values[axis === 1 ? index(r, k) : index(k, c)];
-      if (i === 0) out[index(r, c)] = (get(1) - get(0)) / (at[1] - at[0]);
-      else if (i === n - 1) out[index(r, c)] = (get(n - 1) - get(n - 2)) / (at[n - 1] - at[n - 2]);
-      else {
-        const hd = at[i] - at[i - 1], hs = at[i + 1] - at[i];
-        out[index(r, c)] = (hd * hd * get(i + 1) - hs * hs * get(i - 1) + (hs * hs - hd * hd) * get(i))
-          / (hs * hd * (hd + hs));
-      }
-    }
-  }
-  return out;
-}
-
-/** Whether grid + shift folds (landmarks.scene._folds): its Jacobian's determinant is not positive somewhere. */
+/** Whether grid + shift folds somewhere (landmarks.scene._folds: the TPS's own foldedFraction, in grid steps). */
 function folds(gridX: Float64Array, gridY: Float64Array, shiftX: Float64Array, shiftY: Float64Array): boolean {
   const rows = gridY.length, cols = gridX.length;
   if (rows < 2 || cols < 2) return false;
-  const dxx = gradient(shiftX, rows, cols, gridX, 1), dxy = gradient(shiftX, rows, cols, gridY, 0);
-  const dyx = gradient(shiftY, rows, cols, gridX, 1), dyy = gradient(shiftY, rows, cols, gridY, 0);
-  for (let p = 0; p < shiftX.length; p++) if (!((1 + dxx[p]) * (1 + dyy[p]) - dxy[p] * dyx[p] > 0)) return true;
-  return false;
+  const mapX = new Float64Array(rows * cols), mapY = new Float64Array(rows * cols);
+  for (let j = 0, p = 0; j < rows; j++) {
+    for (let i = 0; i < cols; i++, p++) { mapX[p] = gridX[i] + shiftX[p]; mapY[p] = gridY[j] + shiftY[p]; }
+  }
+  return foldedFraction(mapX, mapY, rows, cols) > 0;
 }
 
 /** Where the head layer would show pixels from beyond a frame edge, a factor fading it to none at that edge over
@@ -165,6 +145,8 @@ function foldFreeWeight(ellipses: Ellipse[], gridX: Float64Array, gridY: Float64
   const rows = gridY.length, cols = gridX.length, count = rows * cols;
   const weight = new Float32Array(count), movedX = new Float64Array(count), movedY = new Float64Array(count);
   const [x0, y0, x1, y1] = box;
+  const clipped = x0 === 0 || y0 === 0 || x1 === width || y1 === height;  // only then can it reach past an edge
+  const step = cols > 1 ? gridX[1] - gridX[0] : 1;
   for (const lower of INNER_RETRIES) {
     for (let j = 0, p = 0; j < rows; j++) {
       for (let i = 0; i < cols; i++, p++) {
@@ -174,9 +156,9 @@ function foldFreeWeight(ellipses: Ellipse[], gridX: Float64Array, gridY: Float64
         weight[p] = w;
       }
     }
-    if (x0 === 0 || y0 === 0 || x1 === width || y1 === height) {
+    if (clipped) {
       for (let p = 0; p < count; p++) { movedX[p] = shiftX[p] * weight[p]; movedY[p] = shiftY[p] * weight[p]; }
-      const fade = edgeFade(gridX, gridY, movedX, movedY, height, width, cols > 1 ? gridX[1] - gridX[0] : 1);
+      const fade = edgeFade(gridX, gridY, movedX, movedY, height, width, step);
       if (fade) for (let p = 0; p < count; p++) weight[p] = f32(weight[p] * fade[p]);
     }
     for (let p = 0; p < count; p++) { movedX[p] = shiftX[p] * weight[p]; movedY[p] = shiftY[p] * weight[p]; }

@@ -305,7 +305,7 @@ function borderPoints(height: number, width: number): number[] {
 }
 
 /** Share of the grid where the map folds: Jacobian determinant <= 0 (np.gradient along each axis). */
-function foldedFraction(mapX: Float64Array, mapY: Float64Array, rows: number, cols: number): number {
+export function foldedFraction(mapX: Float64Array, mapY: Float64Array, rows: number, cols: number): number {
   const gradient = (m: Float64Array, i: number, j: number, alongRows: boolean): number => {
     const n = alongRows ? rows : cols, k = alongRows ? i : j, step = alongRows ? cols : 1, at = i * cols + j;
     if (n < 2) return 0;
