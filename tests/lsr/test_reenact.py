@@ -428,52 +428,6 @@ def test_truncated_driver_video_warns_with_decoded_and_declared_counts(weights, 
     assert probe(out)[0] == decoded
 
 
-def _start_batch(weights, inputs, tmp_path, jobs: int):
-    """A reenact batch in a child process, stopped by the test once its first output exists."""
-    import subprocess
-    import sys
-    import time
-
-    table = tmp_path / "jobs.csv"
-    drive = write_clip(tmp_path / "long.mp4", [face_frame(s % 12) for s in range(40)], fps=20, audio=False)
-    with open(table, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(["source", "driving", "output"])
-        for index in range(jobs):
-            writer.writerow([inputs / "alice.png", drive, f"out/{index}.mp4"])
-    args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--jobs", str(table), "--no-progress"]
-    child = subprocess.Popen([sys.executable, "-m", "lsr.cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                             text=True, cwd=Path(__file__).parents[2])
-    while not (tmp_path / "out" / "0.mp4").exists():
-        if child.poll() is not None:
-            raise AssertionError(f"the batch ended before it was stopped: {child.communicate()}")
-        time.sleep(0.05)
-    return child, args
-
-
-def test_killed_batch_resumes_without_redoing_finished_jobs(weights, inputs, tmp_path, capsys):
-    import signal
-
-    child, args = _start_batch(weights, inputs, tmp_path, jobs=3)
-    child.send_signal(signal.SIGKILL)
-    child.communicate()
-    first = (tmp_path / "out" / "0.mp4").stat().st_mtime_ns
-    assert main(args) == 0
-    assert (tmp_path / "out" / "0.mp4").stat().st_mtime_ns == first  # finished before the kill: not redone
-    assert all(probe(tmp_path / "out" / f"{i}.mp4")[0] == 40 for i in range(3))
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["0.mp4", "1.mp4", "2.mp4"]  # temp files swept
-
-
-def test_sigterm_stops_like_ctrl_c_and_leaves_no_temp_file(weights, inputs, tmp_path):
-    import signal
-
-    child, _ = _start_batch(weights, inputs, tmp_path, jobs=3)
-    child.send_signal(signal.SIGTERM)
-    _, err = child.communicate()
-    assert child.returncode == 128 + signal.SIGTERM and "lsr: terminated" in err, err
-    assert not [p.name for p in (tmp_path / "out").iterdir() if p.name.startswith(".")]
-
-
 def test_one_corrupt_image_in_a_source_folder_is_skipped_with_a_note(weights, inputs, tmp_path, capsys):
     from landmarks.imageio import write_image
 
@@ -582,28 +536,3 @@ def test_reenact_lids_option_reaches_the_reenactor(weights):
     assert make_reenactor(ReenactConfig(weights=weights, lids="driver")).lids == "driver"
     assert make_reenactor(ReenactConfig(weights=weights, lids="shots")).lids == "shots"
     assert make_reenactor(ReenactConfig(weights=weights, lids="drawn")).lids == "drawn"
-
-
-@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")  # the swallowed exception, on purpose
-def test_sigterm_swallowed_where_it_landed_still_ends_the_run_as_terminated(tmp_path, monkeypatch, capsys):
-    """Python drops an exception raised inside ``__del__`` or a weakref callback; a SIGTERM whose handler ran there
-    (the garbage collector at work) once let a batch end with status 0 (tests/lsr/test_reenact.py, CI)."""
-    import gc
-    import signal
-
-    import lsr.cli
-
-    class SignalsOnCollection:
-        def __del__(self) -> None:
-            os.kill(os.getpid(), signal.SIGTERM)
-            for _ in range(1000):  # the handler runs at a bytecode boundary, still inside __del__
-                pass
-
-    def run(cfg) -> None:
-        SignalsOnCollection()  # collected at once: its __del__ swallows the handler's exception
-        gc.collect()
-
-    monkeypatch.setattr(lsr.cli, "_resolve", lambda runner: run)
-    assert main(["synth", "--out", str(tmp_path / "synth")]) == 128 + signal.SIGTERM
-    assert "lsr: terminated" in capsys.readouterr().err
-    assert signal.getsignal(signal.SIGTERM) is not lsr.cli._raise_terminated  # the previous handler is back
