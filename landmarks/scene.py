@@ -60,7 +60,7 @@ PERSON_SCALE = 1.6  # with the matte, the head layer reaches this many times the
 PERSON_INNER = 0.8  # ... moving fully inside this fraction of it ...
 NECK_FADE = 0.3  # ... and above the chin, fading to none this far below it (the neck stretches, the body stays)
 INNER_RETRIES = (0.0, 0.15, 0.3)  # where the faded motion folds, the inner fraction is lowered by these in turn ...
-EDGE_RAMP = 2.0  # ... and where it would show pixels from beyond a frame edge, it fades to none at that edge over
+EDGE_RAMP = 4.0  # ... and where it would show pixels from beyond a frame edge, it fades to none at that edge over
 # this many times its largest reach beyond it (a ramp wider than the motion cannot fold)
 EDGE_REACH = 0.5  # pixels: a layer reaching less than this beyond an edge is left as it is
 EDGE_CELLS = 3  # the edge's ramp spans at least this many of the head layer's grid cells
