@@ -76,7 +76,7 @@ def test_shut_lids_hide_the_white_and_the_iris_and_nothing_else_moves():
     for eye in EYES:
         rows, cols = _eye_box(points, eye)
         inside = drawn[rows, cols].astype(int)
-        assert inside.min(axis=(0, 1))[2] > 0.5 * SKIN[2] - 15  # no blue iris left (the lash line darkens a little)
+        assert inside.min(axis=(0, 1))[2] > 0.5 * SKIN[2] - 15  # no blue iris left (the lash line halves the skin)
         assert (inside.sum(axis=2) < 3 * 230).all()  # no white
         skin = np.clip(SKIN + np.linspace(-12, 12, SIDE)[rows.start:rows.stop, None], 0, 255)
         assert np.median(np.abs(inside - skin[:, None]).max(axis=2)) < 25  # skin filled in, lit as around it
@@ -99,7 +99,7 @@ def test_a_half_shut_eye_keeps_the_lower_part_of_its_opening():
         column = [drawn[int(round(y)), int(round(lower[0]))].astype(int).sum()
                   for y in np.linspace(target[eye][[1, 2], 1].mean(), lower[1], 8)]
         assert drawn[above[1], above[0]].astype(int).sum() < 3 * 200  # skin, not white
-        assert max(column) > 3 * 180  # the white still shows under the drawn lid (in the lashes' shade)
+        assert max(column) > (SKIN + 12).sum()  # brighter than any skin: the white shows under it (in the lashes' shade)
 
 
 def test_the_lash_line_peaks_on_the_polyline():

@@ -14,7 +14,7 @@ import { Tensor, median, tensor } from "./tensor.js";
 
 export const LID_GROW = 0.04;
 export const LID_LASH = 0.06;
-export const LID_DARK = 0.4;
+export const LID_DARK = 0.5;
 export const LID_FEATHER = 0.02;
 export const LID_RAMP = 2.0;
 export const LID_REACH = 0.5;
