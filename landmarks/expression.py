@@ -21,6 +21,8 @@ INNER_LIP_PAIRS = ((61, 67), (62, 66), (63, 65))
 EYE_LID_PAIRS = ((37, 41), (38, 40), (43, 47), (44, 46))
 CLOSED_MOUTH = 0.05
 """Mouth opening below which a shot counts as closed-mouthed (about a third of a talking mouth's range)."""
+BLINKING = 0.7
+"""Eyes opened less than this share of a person's median opening count as closing (a blink, shut lids)."""
 
 
 def _points(landmarks: np.ndarray) -> np.ndarray:
@@ -54,7 +56,7 @@ def pick_anchor(landmarks: np.ndarray, image_size: tuple[int, int]) -> int:
 
     landmarks: (K, 68, 2) shots' landmarks (NaN rows never chosen unless all are); image_size: (H, W) of the
     frames they live in. Score (lower is better): head rotation hypot(yaw, pitch) / 10 degrees, plus the mouth
-    opening above ``CLOSED_MOUTH`` in units of it, plus eyes closed more than 0.7 of the shots' median.
+    opening above ``CLOSED_MOUTH`` in units of it, plus eyes opened less than ``BLINKING`` of the shots' median.
     """
     from landmarks.pose import estimate_head_pose
 
@@ -71,7 +73,7 @@ def pick_anchor(landmarks: np.ndarray, image_size: tuple[int, int]) -> int:
         yaw, pitch, _ = estimate_head_pose(points[index], image_size)
         rotation = np.hypot(yaw, pitch) / 10.0 if np.isfinite(yaw) else 10.0
         mouth = max(0.0, mouths[index] - CLOSED_MOUTH) / CLOSED_MOUTH
-        eye = max(0.0, 0.7 * typical_eye - eyes[index]) / max(0.1 * typical_eye, 1e-6)
+        eye = max(0.0, BLINKING * typical_eye - eyes[index]) / max(0.1 * typical_eye, 1e-6)
         scores[index] = rotation + mouth + eye
     return int(np.argmin(scores))
 

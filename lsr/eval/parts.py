@@ -44,7 +44,7 @@ import cv2
 import numpy as np
 
 from landmarks.appearance import OPEN_MOUTH, gaze, gazes, iris_contrast, mouth_interior, polygon_mask
-from landmarks.expression import eye_opening, mouth_opening
+from landmarks.expression import BLINKING, eye_opening, mouth_opening
 from lsr.eval import metrics
 from lsr.eval.cross import _finite_mean
 
@@ -281,6 +281,19 @@ def _by_sequence(group: Sequence[dict[str, Any]]) -> dict[tuple[str, str], list[
     return sequences
 
 
+def gaze_pairs(sequences: dict[tuple[str, str], list[dict[str, Any]]], driver: str, output: str
+               ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per sequence, (driver's, output's) gaze over the frames where the judge sees the driver's eyes open (NaN where
+    it reads them under ``BLINKING`` of the sequence's median opening: a shut eye shows no iris to follow)."""
+    pairs = []
+    for members in sequences.values():
+        eyes = np.array([r["judge_driver_eye"] for r in members], np.float64)
+        opened = eyes >= BLINKING * np.nanmedian(eyes) if np.isfinite(eyes).any() else np.zeros(len(eyes), bool)
+        pairs.append(tuple(np.where(opened, np.array([r[key] for r in members], np.float64), np.nan)
+                           for key in (driver, output)))
+    return pairs
+
+
 def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str],
                     ks: Sequence[int]) -> list[dict[str, Any]]:
     """Per (method, K) over the cross records with the judge's fields: judge_mouth_corr / judge_eye_corr (mean
@@ -298,7 +311,7 @@ def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str],
             if not group:
                 continue
             sequences = _by_sequence(group)
-            pairs: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {"mouth": [], "eye": [], "gaze": []}
+            pairs: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {"mouth": [], "eye": []}
             for members in sequences.values():
                 for part in pairs:
                     pairs[part].append((np.array([r[f"judge_driver_{part}"] for r in members], np.float64),
@@ -311,7 +324,8 @@ def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str],
                 "judge_mouth_gain": pooled_gain(pairs["mouth"]),
                 "judge_eye_corr": _finite_mean([opening_correlation(*p) for p in pairs["eye"]]),
                 "judge_eye_gain": pooled_gain(pairs["eye"]),
-                "gaze_corr": _finite_mean([opening_correlation(*p) for p in pairs["gaze"]]),
+                "gaze_corr": _finite_mean([opening_correlation(*p) for p in gaze_pairs(
+                    sequences, "judge_driver_gaze", "judge_output_gaze")]),
                 "iris_contrast": float(np.median(contrasts[np.isfinite(contrasts)])) if np.isfinite(contrasts).any()
                 else math.nan,
                 "open_frames": len(opened),
@@ -349,7 +363,8 @@ def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
         sequences = _by_sequence(group)
         pairs = {part: [(np.array([r[f"driver_{part}"] for r in members], np.float64),
                          np.array([r[f"judge_driver_{part}"] for r in members], np.float64))
-                        for members in sequences.values()] for part in ("mouth", "eye", "gaze")}
+                        for members in sequences.values()] for part in ("mouth", "eye")}
+        pairs["gaze"] = gaze_pairs(sequences, "driver_gaze", "judge_driver_gaze")
         rows.append({"method": AGREEMENT, "k": k, "frames": len(group), "sequences": len(sequences),
                      "judge_mouth_corr": _finite_mean([opening_correlation(*p) for p in pairs["mouth"]]),
                      "judge_mouth_gain": pooled_gain(pairs["mouth"]),
@@ -374,14 +389,17 @@ CONVENTION = (
     "shape predictor in the box of the primary detector's points, counted) on the composited frame and on the "
     "driver's frame, so that neither is read by the detector that drove the motion; mouth / eye corr and gain as "
     "in the cross-identity table; gaze corr = per-sequence correlation of the output's and the driver's iris "
-    "offset (landmarks.appearance.gaze, the dark-weighted centroid inside the judge's eye polygon, in eye widths); "
+    "offset (landmarks.appearance.gaze, the dark-weighted centroid inside the judge's eye polygon, in eye widths) "
+    f"over the frames where the judge sees the driver's eyes open (at >= {BLINKING:g} of the sequence's median "
+    "opening: a shut eye has no iris to follow); "
     "iris contrast = the output eyes' (bright - dark) / bright over the source shots' (median over frames; a "
     f"doubled iris halves it); cavity = median grey inside the inner lips over the face's, teeth = share of "
     f"teeth-like pixels there, on the frames where the judge sees the driver's mouth open (>= {OPEN_MOUTH:g} "
     "inter-ocular distances; an output mouth it sees closed counts as cavity 1, teeth 0). "
     f"'{AGREEMENT}': the judge's openings of the drivers' own frames against the driving detector's, correlated "
     "and pooled as above, and its iris offset against the iris net's gaze (what warped and drawn eyes are given, "
-    "landmarks.iris.gaze_offsets, both eyes' mean): a method's output follows the driving detector's reading, so "
+    "landmarks.iris.gaze_offsets, both eyes' mean; on the same open-eyed frames): a method's output follows the "
+    "driving detector's reading, so "
     "its judged correlation reaches this only where the two detectors agree. 'read alike': the judge's openings "
     "of the outputs on the driving detector's of the same outputs, pooled per sequence as the gain (the agreement "
     "row: of the drivers' own frames); below the drivers' figure, the two detectors read the drawn mouth or eyes "

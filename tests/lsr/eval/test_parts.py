@@ -82,6 +82,22 @@ def _cross_record(identity: str, frame: int, driver: float, output: float, cavit
             "driver_teeth": 0.2 if opened else math.nan}
 
 
+def test_the_gaze_is_judged_where_the_driver_eyes_are_open():
+    """A shut eye has no iris: where the judge reads the driver's eyes shut, neither gaze counts (the output's, nor the
+    agreement row's iris net against the judge)."""
+    records = [_cross_record("a", t, 0.01 * t, 0.0) for t in range(10)]
+    for t in (3, 6, 7):  # blinks: the judge reads the lids shut, and the gaze there is noise
+        records[t].update(judge_driver_eye=0.02, judge_output_gaze=0.5 * (-1) ** t, judge_driver_gaze=-0.4,
+                          driver_gaze=0.3 * (-1) ** t)
+    row, agreement = parts.summarise_cross(records, ["m"], [8])
+    assert row["gaze_corr"] == pytest.approx(-1.0)  # the output looks the other way, on every open frame
+    opened = [r for t, r in enumerate(records) if t not in (3, 6, 7)]
+    assert 0.8 < agreement["gaze_corr"] == pytest.approx(parts.summarise_cross(opened, ["m"], [8])[1]["gaze_corr"])
+    assert parts.gaze_pairs({("a", "d"): records}, "judge_driver_gaze", "judge_output_gaze")[0][0][[3, 6, 7]] == \
+        pytest.approx([np.nan] * 3, nan_ok=True)
+    assert parts.summarise_cross(opened, ["m"], [8])[0]["gaze_corr"] == pytest.approx(row["gaze_corr"])
+
+
 def test_summarise_cross_judges_correlation_gain_gaze_contrast_and_the_inside():
     records = [_cross_record("a", t, 0.02 * t, 0.01 * t + 0.05, cavity=0.7 if t >= 3 else math.nan) for t in range(6)]
     row, agreement = parts.summarise_cross(records, ["m"], [8])
