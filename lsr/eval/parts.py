@@ -298,7 +298,7 @@ def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str],
                     ks: Sequence[int]) -> list[dict[str, Any]]:
     """Per (method, K) over the cross records with the judge's fields: judge_mouth_corr / judge_eye_corr (mean
     per-sequence correlation), judge_mouth_gain / judge_eye_gain (pooled), gaze_corr (mean per-sequence correlation
-    of output and driver gaze), iris_contrast (median), output_cavity / driver_cavity and output_teeth /
+    of output and driver gaze where the driver's eyes are open, ``gaze_pairs``), iris_contrast (median), output_cavity / driver_cavity and output_teeth /
     driver_teeth (means over the frames where the driver's mouth is open), open_frames, judge_no_face; read_mouth_gain
     / read_eye_gain: the judge's openings of the outputs on the driving detector's of the same outputs, pooled per
     sequence (how alike the two detectors read what was drawn; the agreement row's are the drivers' own frames)."""
@@ -347,7 +347,7 @@ def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
                    ) -> list[dict[str, Any]]:
     """Per K, how far the judge and the detector that drove the motion agree on the drivers' own frames: the
     per-sequence correlation (mean) and pooled gain of the judge's mouth and eye openings on the driving detector's,
-    and the correlation of the judge's gaze with the iris net's.
+    and the correlation of the judge's gaze with the iris net's (where the driver's eyes are open, ``gaze_pairs``).
     A method drives its output to the driving detector's reading, so its judged correlation can reach this only
     where the two detectors agree (the rows' ceiling). Read from the first method's records (the drivers are the
     same for every method)."""
