@@ -298,8 +298,9 @@ def summarise_cross(records: Sequence[dict[str, Any]], methods: Sequence[str],
                     ks: Sequence[int]) -> list[dict[str, Any]]:
     """Per (method, K) over the cross records with the judge's fields: judge_mouth_corr / judge_eye_corr (mean
     per-sequence correlation), judge_mouth_gain / judge_eye_gain (pooled), gaze_corr (mean per-sequence correlation
-    of output and driver gaze where the driver's eyes are open, ``gaze_pairs``), iris_contrast (median), output_cavity / driver_cavity and output_teeth /
-    driver_teeth (means over the frames where the driver's mouth is open), open_frames, judge_no_face; read_mouth_gain
+    of output and driver gaze where the driver's eyes are open, ``gaze_pairs``), iris_contrast (median),
+    output_cavity / driver_cavity and output_teeth / driver_teeth (means over the frames where the driver's mouth is
+    open), open_frames, judge_no_face; read_mouth_gain
     / read_eye_gain: the judge's openings of the outputs on the driving detector's of the same outputs, pooled per
     sequence (how alike the two detectors read what was drawn; the agreement row's are the drivers' own frames)."""
     from lsr.eval.cross import opening_correlation, pooled_gain

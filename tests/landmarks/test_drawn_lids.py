@@ -99,7 +99,7 @@ def test_a_half_shut_eye_keeps_the_lower_part_of_its_opening():
         column = [drawn[int(round(y)), int(round(lower[0]))].astype(int).sum()
                   for y in np.linspace(target[eye][[1, 2], 1].mean(), lower[1], 8)]
         assert drawn[above[1], above[0]].astype(int).sum() < 3 * 200  # skin, not white
-        assert max(column) > (SKIN + 12).sum()  # brighter than any skin: the white shows under it (in the lashes' shade)
+        assert max(column) > (SKIN + 12).sum()  # brighter than any skin: the white shows (in the lashes' shade)
 
 
 def test_the_lash_line_peaks_on_the_polyline():
