@@ -117,6 +117,7 @@ GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
         "speed": (config.BenchSpeedConfig, "lsr.eval.bench_speed:run_bench_speed"),
         "finetune": (config.BenchFinetuneConfig, "lsr.eval.bench_finetune:run_bench_finetune"),
         "hard": (config.BenchHardConfig, "lsr.eval.bench_hard:run_bench_hard"),
+        "lids": (config.BenchLidsConfig, "lsr.eval.bench_lids:run_bench_lids"),
         "ablation": (config.BenchAblationConfig, "lsr.eval.bench_ablation:run_bench_ablation"),
         "synth": (config.BenchSynthConfig, _run_bench_synth),
         "oracle-seg": (config.BenchOracleSegConfig, "lsr.data.oracle_seg:run_bench_oracle_seg"),

@@ -24,6 +24,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchSoakConfig,
     BenchFinetuneConfig,
     BenchHardConfig,
+    BenchLidsConfig,
     BenchLayoutLegendConfig,
     BenchAblationConfig,
     BenchOracleSegConfig,

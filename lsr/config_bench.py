@@ -362,6 +362,51 @@ class BenchFinetuneConfig:
 
 
 @dataclasses.dataclass
+class BenchLidsConfig:
+    """Print how far the synthesised lids follow the lids they are asked for, as the driving detector and the judge
+    read them (lsr.eval.bench_lids): each hold-out re-enacted with its upper lids at a range of shares of the shots'
+    aperture."""
+
+    weights: OptionalPath = None
+    """A warp-guided model folder; default: $LSR_WEIGHTS, else the shipped default model."""
+    data: OptionalPath = None
+    """As `lsr eval --data` (an lsr dataset's test split or the FSTH layout); default: the shared FSTH sample."""
+    out: Path = Path("out/bench_lids")
+    """Folder for the face and mesh cache of the evaluation frames."""
+    k: int = 8
+    """Shots per identity (drawn as `lsr eval` draws them)."""
+    holdouts: int = 3
+    """Hold-outs per identity, evenly among those with a face."""
+    shares: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5)
+    """Aperture shares asked for, of the shots' at rest (0 shut, 1 as open as the shots)."""
+    lids: tuple[Literal["drawn", "shots"], ...] = ("drawn", "shots")
+    """Where the target shuts its eyes (as `lsr reenact --lids`), one row each."""
+    judge: bool = True
+    """Also read the outputs and the identities' real frames with dlib's 68 points (the independent judge)."""
+    figure: OptionalPath = None
+    """Also write the eyes of each identity's first hold-out at every share (a .png)."""
+    max_identities: int = 0
+    seed: int = 0
+    threads: int = 0
+    """CPU threads for torch (0 = torch's default)."""
+    out_md: OptionalPath = None
+    """Also write the tables as the 'lids' section of this markdown file (e.g. BENCHMARKS.md)."""
+    progress: bool = True
+
+    def resolved_data(self) -> Path:
+        return evaluation_data(self.data)
+
+    def validate(self) -> None:
+        if self.k < 1 or self.holdouts < 1 or len(self.shares) < 2 or min(self.shares) < 0 or not self.lids:
+            raise ConfigError("--k >= 1, --holdouts >= 1, at least two --shares >= 0 and one --lids are required")
+        if not any(share < 1 for share in self.shares) or not any(share > 1 for share in self.shares):
+            raise ConfigError("--shares must reach below 1 and above 1 (closing and opening are measured apart)")
+        if self.max_identities < 0 or self.threads < 0:
+            raise ConfigError("--max-identities and --threads must be >= 0")
+        check_weights(self.weights)
+
+
+@dataclasses.dataclass
 class BenchAblationConfig:
     """Reproduce the thesis ablation (Table 4.2): train baseline, +SPADE, +learned seg. maps and +latent layout with
     one schedule on one data set (resumable), score each single-shot without fine-tuning with `lsr eval`'s protocol,
