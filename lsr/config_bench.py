@@ -372,7 +372,7 @@ class BenchLidsConfig:
     data: OptionalPath = None
     """As `lsr eval --data` (an lsr dataset's test split or the FSTH layout); default: the shared FSTH sample."""
     out: Path = Path("out/bench_lids")
-    """Folder for the face and mesh cache of the evaluation frames."""
+    """Folder for the face and mesh cache of the evaluation frames, and the readings (lids.npz)."""
     k: int = 8
     """Shots per identity (drawn as `lsr eval` draws them)."""
     holdouts: int = 3
