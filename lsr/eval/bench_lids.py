@@ -5,8 +5,8 @@ The cross-identity eye correlation of ``lsr eval`` mixes three things: how the d
 source, how far the synthesis moves the lids it is given, and how the judge reads what is drawn. This bench takes
 the middle one alone, on real people, with no driver: each identity's hold-outs are re-enacted with their upper
 lids set (``landmarks.eyelids.set_lid_gaps``, on the 68 points and the mesh alike) to a range of aperture shares of
-the K shots' own lids at rest (``SHARES``: 0 shut, 1 as open as the shots, 1.5 wider; the aperture is the lid gap
-less the closed gap, ``eyelids.closed_gaps``), and each output is read twice:
+the K shots' own lids at rest (``BenchLidsConfig.shares``: 0 shut, 1 as open as the shots, 1.5 wider; the aperture
+is the lid gap less the closed gap, ``eyelids.closed_gaps``), and each output is read twice:
 
 * by the driving detector (the mesh's 68 points), as an aperture share against the same rest
   (``landmarks.driver_eyes.aperture_share``). Synthesis that follows reads back each share it was asked for. The
@@ -34,8 +34,6 @@ import numpy as np
 from lsr.config import BenchLidsConfig
 
 SECTION = "lids"
-SHARES = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5)
-"""The aperture shares asked for, of the shots' at rest (``BenchLidsConfig.shares``' default)."""
 CROP = (0.35, 0.3)
 """The figure's eye strip: the eye corners' box grown by these fractions of the eye distance (across, up and down)."""
 
@@ -77,7 +75,9 @@ def lid_targets(landmarks: np.ndarray, mesh: np.ndarray, rest: np.ndarray, mesh_
 def pooled_slope(x: np.ndarray, y: np.ndarray) -> float:
     """Least-squares slope of ``y`` on ``x`` with one intercept per row: the sum over rows of their covariances over
     the sum of their variances (the pairs where either is NaN left out; rows with fewer than 2 pairs add nothing).
-    x, y: (G, n) or a list of (n_g,) arrays -> float (NaN when no row varies)."""
+    x, y: (G, n) or a list of (n_g,) arrays -> float (NaN when no row varies). ``lsr.eval.cross.pooled_gain`` pools
+    the same way but leaves out a sequence whose output does not move, which here is the answer: a synthesis that
+    keeps its lids reads at 0."""
     covariance = variance = 0.0
     for row_x, row_y in zip(x, y):
         row_x, row_y = np.asarray(row_x, np.float64), np.asarray(row_y, np.float64)
@@ -147,6 +147,7 @@ def sweep(method: Any, identities: Sequence[Any], *, k: int, holdouts: int, shar
             raise DatasetError(f"{identity.name}: no shot or hold-out with a face mesh; the bench needs both")
         chosen = sample_shots(candidates, min(k, len(candidates)), seed, identity.name)
         shots = [identity.input_frames[c] for c in chosen]
+        stacked = np.stack(shots)
         shot_landmarks = identity.input_landmarks[chosen].astype(np.float64)
         shot_meshes = identity.input_meshes[chosen].astype(np.float64)
         rest = shot_lid_gaps(shot_landmarks)
@@ -157,7 +158,7 @@ def sweep(method: Any, identities: Sequence[Any], *, k: int, holdouts: int, shar
                                          mesh_rest, shares)
             asked[i, t] = eye_opening(points)
             for s in range(len(shares)):
-                warped = warp_references_mesh(np.stack(shots), shot_meshes, shot_landmarks, meshes[s], points[s], 1)
+                warped = warp_references_mesh(stacked, shot_meshes, shot_landmarks, meshes[s], points[s], 1)
                 reference[i, t, s] = share_of(warped[0][0], rest)[0]
             bar.update(1)
             for choice in lids:
