@@ -351,7 +351,8 @@ def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
     and the correlation of the judge's gaze with the iris net's (where the driver's eyes are open, ``gaze_pairs``).
     A method drives its output to the driving detector's reading, so its judged correlation can reach this only
     where the two detectors agree (the rows' ceiling). Read from the first method's records (the drivers are the
-    same for every method)."""
+    same for every method). ``by_driver``: each driver's own pooled mouth and eye gains ({driver: {"mouth_gain",
+    "eye_gain"}}), since the pooled row hides a driver the two detectors read apart when another moves more."""
     from lsr.eval.cross import opening_correlation, pooled_gain
 
     rows = []
@@ -366,6 +367,10 @@ def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
                          np.array([r[f"judge_driver_{part}"] for r in members], np.float64))
                         for members in sequences.values()] for part in ("mouth", "eye")}
         pairs["gaze"] = gaze_pairs(sequences, "driver_gaze", "judge_driver_gaze")
+        drivers = sorted({driver for _, driver in sequences})
+        by_driver = {driver: {f"{part}_gain": pooled_gain([pair for (_, each), pair in zip(sequences, pairs[part])
+                                                           if each == driver]) for part in ("mouth", "eye")}
+                     for driver in drivers}
         rows.append({"method": AGREEMENT, "k": k, "frames": len(group), "sequences": len(sequences),
                      "judge_mouth_corr": _finite_mean([opening_correlation(*p) for p in pairs["mouth"]]),
                      "judge_mouth_gain": pooled_gain(pairs["mouth"]),
@@ -375,7 +380,8 @@ def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
                      **dict.fromkeys(("iris_contrast", "output_cavity", "driver_cavity", "output_teeth",
                                       "driver_teeth"), math.nan),
                      "read_mouth_gain": pooled_gain(pairs["mouth"]), "read_eye_gain": pooled_gain(pairs["eye"]),
-                     "open_frames": 0, "judge_no_face": sum(r["judge_no_face"] for r in group)})
+                     "open_frames": 0, "judge_no_face": sum(r["judge_no_face"] for r in group),
+                     "by_driver": by_driver})
     return rows
 
 
@@ -454,6 +460,12 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
                 f"{fmt(row['output_teeth'], 2)} ({fmt(row['driver_teeth'], 2)}) | "
                 f"{fmt(row['read_mouth_gain'], 2)}, {fmt(row['read_eye_gain'], 2)} | {row['open_frames']} | "
                 f"{row['judge_no_face']} |")
+        for row in cross_rows:
+            if row["method"] == AGREEMENT and len(row.get("by_driver", {})) > 1:
+                each = ", ".join(f"{driver} {fmt(gains['mouth_gain'], 2)} / {fmt(gains['eye_gain'], 2)}"
+                                 for driver, gains in row["by_driver"].items())
+                lines += ["", f"The drivers one by one, K = {row['k']} (the judge's pooled mouth / eye gain on the "
+                          f"driving detector's, per driver): {each}."]
     return lines
 
 

@@ -121,6 +121,30 @@ def test_summarise_cross_judges_correlation_gain_gaze_contrast_and_the_inside():
     assert f"| {agreement['judge_eye_gain']:.2f} | {agreement['gaze_corr']:.2f} | – | – | – | " in lines
 
 
+def test_the_agreement_row_names_a_driver_the_detectors_read_apart():
+    """Pooled, a driver that moves a lot hides one whose mouth the two detectors read apart (real015's lower teeth: the
+    mesh reads the inner lip on them); the row keeps each driver's own gains, and the report says them."""
+    records = []
+    for driver, judged in (("wide", 0.5), ("teeth", 3.0)):  # the judge reads half / three times the driving detector
+        for source in ("a", "b"):
+            for t in range(6):
+                record = _cross_record(source, t, 0.01 * t, 0.0)
+                scale = 4.0 if driver == "wide" else 0.2  # how far the driving detector reads each driver's mouth move
+                record.update(driver=driver, driver_mouth=scale * 0.01 * t,
+                              judge_driver_mouth=judged * scale * 0.01 * t, driver_eye=0.01 * t,
+                              judge_driver_eye=(0.5 if driver == "wide" else 1.0) * 0.01 * t)
+                records.append(record)
+    agreement = parts.summarise_cross(records, ["m"], [8])[1]
+    assert agreement["by_driver"]["wide"] == pytest.approx({"mouth_gain": 0.5, "eye_gain": 0.5})
+    assert agreement["by_driver"]["teeth"] == pytest.approx({"mouth_gain": 3.0, "eye_gain": 1.0})
+    assert agreement["judge_mouth_gain"] < 0.6  # pooled, the wide driver's motion sets the number
+    lines = "\n".join(parts.markdown([], [agreement], lambda value, digits=3: f"{value:.{digits}f}"))
+    assert "per driver): teeth 3.00 / 1.00, wide 0.50 / 0.50." in lines
+    one = [r for r in records if r["driver"] == "wide"]  # one driver: the pooled row says it all, no line
+    assert "one by one" not in "\n".join(parts.markdown([], parts.summarise_cross(one, ["m"], [8]),
+                                                         lambda value, digits=3: f"{value:.{digits}f}"))
+
+
 def test_summarise_self_splits_all_hold_outs_from_those_beyond():
     base = {"method": "m", "k": 8, "psnr_eyes": 30.0, "ssim_eyes": 0.9, "sharpness_eyes": 1.0,
             "beyond_eyes": False, "beyond_yaw": False, "beyond_gaze": False}
