@@ -351,8 +351,10 @@ def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
     and the correlation of the judge's gaze with the iris net's (where the driver's eyes are open, ``gaze_pairs``).
     A method drives its output to the driving detector's reading, so its judged correlation can reach this only
     where the two detectors agree (the rows' ceiling). Read from the first method's records (the drivers are the
-    same for every method). ``by_driver``: each driver's own pooled mouth and eye gains ({driver: {"mouth_gain",
-    "eye_gain"}}), since the pooled row hides a driver the two detectors read apart when another moves more."""
+    same for every method). ``by_driver``: each driver's own pooled mouth and eye gains and how far the driving
+    detector reads them move ({driver: {"mouth_gain", "eye_gain", "mouth_range", "eye_range"}}, openings in eye
+    distances), since the pooled row hides a driver the two detectors read apart when another moves more; a driver
+    that barely moves has a gain of noise."""
     from lsr.eval.cross import opening_correlation, pooled_gain
 
     rows = []
@@ -368,9 +370,15 @@ def agreement_rows(records: Sequence[dict[str, Any]], methods: Sequence[str], ks
                         for members in sequences.values()] for part in ("mouth", "eye")}
         pairs["gaze"] = gaze_pairs(sequences, "driver_gaze", "judge_driver_gaze")
         drivers = sorted({driver for _, driver in sequences})
-        by_driver = {driver: {f"{part}_gain": pooled_gain([pair for (_, each), pair in zip(sequences, pairs[part])
-                                                           if each == driver]) for part in ("mouth", "eye")}
-                     for driver in drivers}
+        by_driver = {}
+        for driver in drivers:
+            own = {part: [pair for (_, each), pair in zip(sequences, pairs[part]) if each == driver]
+                   for part in ("mouth", "eye")}
+            by_driver[driver] = {f"{part}_gain": pooled_gain(own[part]) for part in own}
+            for part in own:
+                read = np.concatenate([driving for driving, _ in own[part]])
+                read = read[np.isfinite(read)]
+                by_driver[driver][f"{part}_range"] = float(np.ptp(read)) if len(read) else math.nan
         rows.append({"method": AGREEMENT, "k": k, "frames": len(group), "sequences": len(sequences),
                      "judge_mouth_corr": _finite_mean([opening_correlation(*p) for p in pairs["mouth"]]),
                      "judge_mouth_gain": pooled_gain(pairs["mouth"]),
@@ -462,10 +470,12 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
                 f"{row['judge_no_face']} |")
         for row in cross_rows:
             if row["method"] == AGREEMENT and len(row.get("by_driver", {})) > 1:
-                each = ", ".join(f"{driver} {fmt(gains['mouth_gain'], 2)} / {fmt(gains['eye_gain'], 2)}"
+                each = ", ".join(f"{driver} {fmt(gains['mouth_gain'], 2)} / {fmt(gains['eye_gain'], 2)} (moving "
+                                 f"{fmt(gains['mouth_range'], 2)} / {fmt(gains['eye_range'], 2)})"
                                  for driver, gains in row["by_driver"].items())
                 lines += ["", f"The drivers one by one, K = {row['k']} (the judge's pooled mouth / eye gain on the "
-                          f"driving detector's, per driver): {each}."]
+                          "driving detector's, per driver, and how far the driving detector reads that driver's mouth "
+                          f"and eyes move, in eye distances: a driver that barely moves has a gain of noise): {each}."]
     return lines
 
 

@@ -135,11 +135,13 @@ def test_the_agreement_row_names_a_driver_the_detectors_read_apart():
                               judge_driver_eye=(0.5 if driver == "wide" else 1.0) * 0.01 * t)
                 records.append(record)
     agreement = parts.summarise_cross(records, ["m"], [8])[1]
-    assert agreement["by_driver"]["wide"] == pytest.approx({"mouth_gain": 0.5, "eye_gain": 0.5})
-    assert agreement["by_driver"]["teeth"] == pytest.approx({"mouth_gain": 3.0, "eye_gain": 1.0})
+    assert agreement["by_driver"]["wide"] == pytest.approx({"mouth_gain": 0.5, "eye_gain": 0.5, "mouth_range": 0.2,
+                                                            "eye_range": 0.05})
+    assert agreement["by_driver"]["teeth"] == pytest.approx({"mouth_gain": 3.0, "eye_gain": 1.0, "mouth_range": 0.01,
+                                                             "eye_range": 0.05})
     assert agreement["judge_mouth_gain"] < 0.6  # pooled, the wide driver's motion sets the number
     lines = "\n".join(parts.markdown([], [agreement], lambda value, digits=3: f"{value:.{digits}f}"))
-    assert "per driver): teeth 3.00 / 1.00, wide 0.50 / 0.50." in lines
+    assert "noise): teeth 3.00 / 1.00 (moving 0.01 / 0.05), wide 0.50 / 0.50 (moving 0.20 / 0.05)." in lines
     one = [r for r in records if r["driver"] == "wide"]  # one driver: the pooled row says it all, no line
     assert "one by one" not in "\n".join(parts.markdown([], parts.summarise_cross(one, ["m"], [8]),
                                                          lambda value, digits=3: f"{value:.{digits}f}"))
