@@ -468,14 +468,17 @@ def markdown(self_rows: Sequence[dict[str, Any]], cross_rows: Sequence[dict[str,
                 f"{fmt(row['output_teeth'], 2)} ({fmt(row['driver_teeth'], 2)}) | "
                 f"{fmt(row['read_mouth_gain'], 2)}, {fmt(row['read_eye_gain'], 2)} | {row['open_frames']} | "
                 f"{row['judge_no_face']} |")
+        said: dict[str, list[int]] = {}  # the drivers' frames are the same at every K: one line per reading
         for row in cross_rows:
             if row["method"] == AGREEMENT and len(row.get("by_driver", {})) > 1:
                 each = ", ".join(f"{driver} {fmt(gains['mouth_gain'], 2)} / {fmt(gains['eye_gain'], 2)} (moving "
                                  f"{fmt(gains['mouth_range'], 2)} / {fmt(gains['eye_range'], 2)})"
                                  for driver, gains in row["by_driver"].items())
-                lines += ["", f"The drivers one by one, K = {row['k']} (the judge's pooled mouth / eye gain on the "
-                          "driving detector's, per driver, and how far the driving detector reads that driver's mouth "
-                          f"and eyes move, in eye distances: a driver that barely moves has a gain of noise): {each}."]
+                said.setdefault(each, []).append(row["k"])
+        for each, ks in said.items():
+            lines += ["", f"The drivers one by one, K = {', '.join(map(str, ks))} (the judge's pooled mouth / eye gain "
+                      "on the driving detector's, per driver, and how far the driving detector reads that driver's "
+                      f"mouth and eyes move, in eye distances: a driver that barely moves has a gain of noise): {each}."]
     return lines
 
 

@@ -142,6 +142,10 @@ def test_the_agreement_row_names_a_driver_the_detectors_read_apart():
     assert agreement["judge_mouth_gain"] < 0.6  # pooled, the wide driver's motion sets the number
     lines = "\n".join(parts.markdown([], [agreement], lambda value, digits=3: f"{value:.{digits}f}"))
     assert "noise): teeth 3.00 / 1.00 (moving 0.01 / 0.05), wide 0.50 / 0.50 (moving 0.20 / 0.05)." in lines
+    at_each_k = [r | {"k": k} for k in (1, 8) for r in records]  # the same drivers' frames at two K: said once
+    lines = "\n".join(parts.markdown([], parts.summarise_cross(at_each_k, ["m"], [1, 8]),
+                                     lambda value, digits=3: f"{value:.{digits}f}"))
+    assert lines.count("one by one") == 1 and "one by one, K = 1, 8 (" in lines
     one = [r for r in records if r["driver"] == "wide"]  # one driver: the pooled row says it all, no line
     assert "one by one" not in "\n".join(parts.markdown([], parts.summarise_cross(one, ["m"], [8]),
                                                          lambda value, digits=3: f"{value:.{digits}f}"))
