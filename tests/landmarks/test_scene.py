@@ -213,6 +213,30 @@ def test_fill_in_keeps_what_is_known_and_fills_holes_smoothly_from_around(rng):
     assert np.isfinite(fill_in(ramp, np.zeros_like(known))).all()  # nothing known: no NaN
 
 
+def test_the_plate_fills_the_person_with_the_wall_beside_them_not_a_ghost_of_the_far_background(rng):
+    """A white wall beside the person and a dark doorway across the frame: what a moved head uncovers is the white
+    wall, not the grey the plain push-pull left (the doorway's share of the mean: a shadow of the person)."""
+    from landmarks.scene import PLATE_TRUST, background_plate, fill_in
+
+    _, points = _scene(rng)
+    height, width = SIZE
+    scene = np.full((height, width, 3), 230, np.uint8)
+    scene[:, : width // 5] = 40  # the doorway, far from the person
+    matte = np.zeros(SIZE, np.float32)
+    centre, side = points.mean(0), face_side(points)
+    rows, cols = np.mgrid[0:height, 0:width]
+    matte[np.hypot((cols - centre[0]) / (0.3 * side), (rows - centre[1]) / (0.45 * side)) <= 1] = 1.0
+    scene[matte > 0] = (200, 80, 60)  # the person
+    plate = background_plate(scene, points, matte).plate
+    beside = (matte > 0) & (cv2_dilated(1 - matte, 9) > 0)  # the person's rim: what a small head motion uncovers
+    assert beside.sum() > 100
+    assert plate[beside].min() >= 215  # the white wall carried in
+    # the plain push-pull (trust 1) on the same pixels: the doorway's grey shows through at the rim
+    known = (cv2_dilated(matte, 2 * max(1, round(0.03 * side)) + 1) == 0).astype(np.float32)
+    plain = fill_in(scene.astype(np.float32), known)
+    assert plain[beside].mean() < plate[beside].astype(float).mean() - 5 and PLATE_TRUST > 1
+
+
 def test_a_plate_needs_a_matte_of_the_scene_size(rng):
     from landmarks.scene import background_plate
 

@@ -17,6 +17,7 @@ export const SEGMENTER_SIZE = 256;
 export const PERSON_LEVEL = 0.1; // landmarks.scene.PERSON_LEVEL
 export const PERSON_REACH = 0.03; // landmarks.scene.PERSON_REACH
 export const PLATE_SIDE = 384; // landmarks.scene.PLATE_SIDE
+export const PLATE_TRUST = 16; // landmarks.scene.PLATE_TRUST
 
 /** The face's crop side in frame pixels (landmarks.scene.face_side). */
 function faceSide(landmarks: Tensor): number {
@@ -101,8 +102,9 @@ export function pyrDown(src: Float32Array, height: number, width: number, channe
 
 /** Fill an image where it is unknown from the known pixels around (landmarks.scene.fill_in: push-pull, a pyramid of
  * weighted means, each level's holes taken from the next coarser level). image (h, w, C) float32, known (h, w)
- * float32 weights in [0, 1] -> (h, w, C) float32. */
-export function fillIn(image: Tensor<Float32Array>, known: Tensor<Float32Array>): Tensor<Float32Array> {
+ * float32 weights in [0, 1] -> (h, w, C) float32. trust: a level's mean is taken fully where at least 1 / trust of
+ * its footprint is known. */
+export function fillIn(image: Tensor<Float32Array>, known: Tensor<Float32Array>, trust = 1): Tensor<Float32Array> {
   const [height, width] = known.shape, channels = image.shape[2];
   const levels: { weighted: Float32Array; weight: Float32Array; height: number; width: number }[] = [];
   let weighted: Float32Array = new Float32Array(image.data.length), weight: Float32Array = Float32Array.from(known.data);
@@ -130,10 +132,10 @@ export function fillIn(image: Tensor<Float32Array>, known: Tensor<Float32Array>)
     const coarse = resizeImage(tensor(filled, [fh, fw, channels]), level.width, level.height, "linear").data;
     const next = new Float32Array(level.height * level.width * channels);
     for (let p = 0; p < level.height * level.width; p++) {
-      const trust = Math.min(level.weight[p], 1), divisor = Math.max(level.weight[p], 1e-6);
+      const taken = Math.min(level.weight[p] * trust, 1), divisor = Math.max(level.weight[p], 1e-6);
       for (let c = 0; c < channels; c++) {
         const i = p * channels + c;
-        next[i] = (level.weighted[i] / divisor) * trust + coarse[i] * (1 - trust);
+        next[i] = (level.weighted[i] / divisor) * taken + coarse[i] * (1 - taken);
       }
     }
     filled = next; fh = level.height; fw = level.width;
@@ -142,9 +144,9 @@ export function fillIn(image: Tensor<Float32Array>, known: Tensor<Float32Array>)
 }
 
 /** The scene's layers (landmarks.scene.background_plate): its person matte, clipped, and the background with the
- * person (and PERSON_REACH of the face side around the matte's edge) filled in from around, the fill made at most
- * PLATE_SIDE pixels wide and high, then enlarged. scene (H, W, 3) uint8; landmarks (68, 2) its face, frame pixels;
- * matte (H, W) float32. */
+ * person (and PERSON_REACH of the face side around the matte's edge) filled in from around (its nearest colours
+ * carried in: PLATE_TRUST), the fill made at most PLATE_SIDE pixels wide and high, then enlarged. scene (H, W, 3)
+ * uint8; landmarks (68, 2) its face, frame pixels; matte (H, W) float32. */
 export function backgroundPlate(scene: Tensor<Uint8Array>, landmarks: Tensor, matte: Tensor<Float32Array>
                                 ): { matte: Tensor<Float32Array>; plate: Tensor<Uint8Array> } {
   const [height, width] = scene.shape;
@@ -159,7 +161,7 @@ export function backgroundPlate(scene: Tensor<Uint8Array>, landmarks: Tensor, ma
   const smallW = Math.max(1, roundHalfEven(width / shrink)), smallH = Math.max(1, roundHalfEven(height / shrink));
   const small = resizeUint8(scene, smallW, smallH, "area");
   const filled = fillIn(tensor(Float32Array.from(small.data), [smallH, smallW, 3]),
-                        resizeImage(known, smallW, smallH, "area"));
+                        resizeImage(known, smallW, smallH, "area"), PLATE_TRUST);
   const enlarged = resizeUint8(tensor(toUint8(filled.data), [smallH, smallW, 3]), width, height, "linear");
   const plate = scene.data.slice();
   for (let p = 0; p < height * width; p++) {
