@@ -47,7 +47,7 @@ def _run_prepare(cfg: config.PrepareConfig) -> None:
     workers = min(2, os.cpu_count() or 1) if cfg.workers == -1 else cfg.workers
     summary = prepare_dataset(cfg.input, cfg.out, options, workers=workers, test_fraction=cfg.test_fraction,
                               test_identities=cfg.test_identities,
-                              split_all=None if cfg.split_all == "auto" else cfg.split_all)
+                              split_all=None if cfg.split_all == "auto" else cfg.split_all, progress=cfg.progress)
     print(summary.table())
     print(f"dataset written to {cfg.out} (manifest.json, prepare_summary.json)")
 

@@ -194,6 +194,8 @@ class PrepareConfig:
     """Identities forced into the test split."""
     split_all: Literal["auto", "train", "test"] = "auto"
     """Put every identity into one split; auto: LSR release inputs -> test, others by --test-fraction."""
+    progress: bool = True
+    """A progress bar over the clips (--no-progress in logs, as lsr eval and lsr train take it)."""
 
     def validate(self) -> None:
         from landmarks.imageio import check_output_path
