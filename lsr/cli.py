@@ -118,6 +118,7 @@ GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
         "finetune": (config.BenchFinetuneConfig, "lsr.eval.bench_finetune:run_bench_finetune"),
         "hard": (config.BenchHardConfig, "lsr.eval.bench_hard:run_bench_hard"),
         "lids": (config.BenchLidsConfig, "lsr.eval.bench_lids:run_bench_lids"),
+        "plate": (config.BenchPlateConfig, "lsr.eval.bench_plate:run_bench_plate"),
         "ablation": (config.BenchAblationConfig, "lsr.eval.bench_ablation:run_bench_ablation"),
         "synth": (config.BenchSynthConfig, _run_bench_synth),
         "oracle-seg": (config.BenchOracleSegConfig, "lsr.data.oracle_seg:run_bench_oracle_seg"),

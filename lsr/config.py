@@ -25,6 +25,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchFinetuneConfig,
     BenchHardConfig,
     BenchLidsConfig,
+    BenchPlateConfig,
     BenchLayoutLegendConfig,
     BenchAblationConfig,
     BenchOracleSegConfig,

@@ -579,3 +579,39 @@ class BenchLayoutLegendConfig:
         check_weights(self.weights)
         if self.clips < 1 or self.every < 1:
             raise ConfigError(f"--clips and --every must be >= 1, got {self.clips} and {self.every}")
+
+
+@dataclasses.dataclass
+class BenchPlateConfig:
+    """Print how well the scene plate's fill guesses the background beside a person, at several trusts
+    (lsr.eval.bench_plate): one frame of the first clip of each person, a band just outside the person hidden and
+    filled, its error against the real background."""
+
+    data: OptionalPath = None
+    """A folder of <person>/.../<clip>.mp4 (the first clip of each person); default: the shared training clips
+    (../shared/data/real_talking_heads or $LSR_SHARED_DATA/real_talking_heads)."""
+    trusts: tuple[float, ...] = (1.0, 2.0, 8.0, 16.0, 64.0)
+    """``landmarks.scene.fill_in`` trusts to compare (the shipped ``PLATE_TRUST`` is marked)."""
+    frame: int = 10
+    """Which frame of each clip (0-based; a clip shorter than that gives its last)."""
+    band: float = 0.08
+    """The hidden band's width beyond the person's plate margin, in face sides."""
+    max_people: int = 0
+    """0 = every person."""
+    out_md: OptionalPath = None
+    """Also write the table as the 'plate' section of this markdown file (e.g. BENCHMARKS.md)."""
+    progress: bool = True
+
+    def resolved_data(self) -> Path:
+        if self.data is not None:
+            return Path(self.data)
+        repo_root = Path(__file__).resolve().parents[1]
+        return Path(os.environ.get("LSR_SHARED_DATA", repo_root.parent / "shared" / "data")) / "real_talking_heads"
+
+    def validate(self) -> None:
+        if not self.trusts or min(self.trusts) < 1.0:
+            raise ConfigError(f"--trusts must be >= 1 (1 = the plain push-pull), got {self.trusts}")
+        if self.frame < 0 or self.max_people < 0 or not 0.0 < self.band <= 0.5:
+            raise ConfigError("--frame and --max-people must be >= 0 and --band in (0, 0.5]")
+        if not self.resolved_data().is_dir():
+            raise ConfigError(f"{self.resolved_data()} is not a folder: give --data, a folder of <person>/.../*.mp4")
