@@ -59,9 +59,9 @@ PLATE_TRUST = 16.0
 """The plate's fill carries the background's nearest colours into the person's place (``fill_in``'s ``trust``):
 with the plain push-pull (1) the far background's mean showed through as a darker or lighter ghost of the person,
 a halo beside a head that moved (real046's grey shadow on a white wall). Chosen on the training and validation
-people (one frame of each of the 60, a band 0.08 of the face side hidden just outside the person and filled, its
-mean absolute error against the real background beside the head: 17.98 grey levels at 1, 15.99 at 2, 13.88 at 8,
-13.36 at 16, 12.79 at 64); by eye 16 and 64 are alike and 1 leaves the ghost."""
+people (``lsr bench plate``: one frame of each of the 60, a band 0.08 of the face side hidden just outside the
+person and filled, its mean absolute error against the real background beside the head: 18.12 grey levels at 1,
+16.13 at 2, 13.98 at 8, 13.46 at 16, 12.90 at 64); by eye 16 and 64 are alike and 1 leaves the ghost."""
 MOVING = 1.0  # pixels: where the head layer moves this far or more, the matte parts person from background
 PERSON_SCALE = 1.6  # with the matte, the head layer reaches this many times the head ellipse (hair beyond it) ...
 PERSON_INNER = 0.8  # ... moving fully inside this fraction of it ...
