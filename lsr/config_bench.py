@@ -313,14 +313,16 @@ class BenchReenactConfig:
             raise ConfigError("--frames >= 2, --k >= 1 and --resolution >= 32 are required")
 
 
+def shared_data_dir() -> Path:
+    """Real data beside the project: $LSR_SHARED_DATA, default ../shared/data from the repo root."""
+    return Path(os.environ.get("LSR_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+
+
 def evaluation_data(data: Path | None) -> Path:
     """``data``, or the shared FSTH sample (../shared/data/fsth_eval_sample or $LSR_SHARED_DATA/fsth_eval_sample)."""
-    import os
-
     if data is not None:
         return Path(data)
-    repo_root = Path(__file__).resolve().parents[1]
-    shared = Path(os.environ.get("LSR_SHARED_DATA", repo_root.parent / "shared" / "data")) / "fsth_eval_sample"
+    shared = shared_data_dir() / "fsth_eval_sample"
     if not shared.is_dir():
         raise ConfigError(f"no --data given and the shared FSTH sample {shared} is absent; pass --data FOLDER")
     return shared
@@ -483,10 +485,8 @@ def shared_real_clips() -> tuple[Path | None, Path | None]:
     """Two clips of different people from the shared *training* clips (../shared/data/real_talking_heads or
     $LSR_SHARED_DATA/real_talking_heads): the manifest's first clip and the first clip of the next person."""
     import csv
-    import os
 
-    repo_root = Path(__file__).resolve().parents[1]
-    root = Path(os.environ.get("LSR_SHARED_DATA", repo_root.parent / "shared" / "data")) / "real_talking_heads"
+    root = shared_data_dir() / "real_talking_heads"
     manifest = root / "manifest.csv"
     if not manifest.is_file():
         return None, None
@@ -605,8 +605,7 @@ class BenchPlateConfig:
     def resolved_data(self) -> Path:
         if self.data is not None:
             return Path(self.data)
-        repo_root = Path(__file__).resolve().parents[1]
-        return Path(os.environ.get("LSR_SHARED_DATA", repo_root.parent / "shared" / "data")) / "real_talking_heads"
+        return shared_data_dir() / "real_talking_heads"
 
     def validate(self) -> None:
         if not self.trusts or min(self.trusts) < 1.0:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import os
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -26,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from lsr.config import BenchLandmarksConfig
+from lsr.config_bench import shared_data_dir
 from lsr.errors import ConfigError
 
 DEFAULT_CLIP = "clips/tpsmm_driving.mp4"
@@ -44,10 +44,6 @@ STATIC_REPEATS, STATIC_NOISE = 50, 4.0  # the static face: one frame this many t
 GROSS_NME = 0.25  # beyond this the two trackers put the face in different places: one of them is off it
 
 
-def shared_data_dir() -> Path:
-    """Real data beside the project: $LSR_SHARED_DATA, default ../shared/data from the repo root."""
-    repo_root = Path(__file__).resolve().parents[2]
-    return Path(os.environ.get("LSR_SHARED_DATA", repo_root.parent / "shared" / "data"))
 
 
 def default_video() -> Path:
