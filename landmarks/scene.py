@@ -309,6 +309,15 @@ def fill_in(image: np.ndarray, known: np.ndarray, trust: float = 1.0) -> np.ndar
     return filled
 
 
+def plate_hole(matte: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
+    """Where the plate fills in: the person (matte above ``PERSON_LEVEL``) and ``PERSON_REACH`` of the face side
+    around, where the matte's edge is unsure. matte: (H, W) float32 in [0, 1]; landmarks: (68, 2) frame pixels of
+    the face -> (H, W) uint8, 1 in the hole."""
+    reach = max(1, round(PERSON_REACH * face_side(landmarks)))
+    return cv2.dilate((matte > PERSON_LEVEL).astype(np.uint8), cv2.getStructuringElement(
+        cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1)))
+
+
 def background_plate(scene: np.ndarray, scene_landmarks: np.ndarray, matte: np.ndarray) -> SceneLayers:
     """The scene's layers for ``composite_face``: its person matte, and the background with the person (and a
     margin of ``PERSON_REACH`` of the face side around the matte's edge) filled in from around (``fill_in``, its
@@ -318,9 +327,7 @@ def background_plate(scene: np.ndarray, scene_landmarks: np.ndarray, matte: np.n
     matte = np.clip(np.asarray(matte, np.float32), 0.0, 1.0)
     if matte.shape != scene.shape[:2]:
         raise ValueError(f"the matte must be the scene's size {scene.shape[:2]}, got {matte.shape}")
-    reach = max(1, round(PERSON_REACH * face_side(_check(scene, scene_landmarks, "scene_landmarks"))))
-    person = cv2.dilate((matte > PERSON_LEVEL).astype(np.uint8), cv2.getStructuringElement(
-        cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1)))
+    person = plate_hole(matte, _check(scene, scene_landmarks, "scene_landmarks"))
     known = (1 - person).astype(np.float32)
     height, width = matte.shape
     shrink = max(1.0, max(height, width) / PLATE_SIDE)  # the fill is smooth: made small, then enlarged

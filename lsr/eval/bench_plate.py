@@ -27,13 +27,10 @@ def band_errors(frame: np.ndarray, landmarks: np.ndarray, matte: np.ndarray, tru
     """Mean absolute error (grey levels, all channels) of the fill in a band ``band`` face sides wide just outside
     the person, beside the head, per trust; None where the band holds under 50 background pixels. frame: (H, W, 3)
     uint8; landmarks: (68, 2) frame pixels; matte: (H, W) float32 in [0, 1]."""
-    from landmarks.scene import PERSON_LEVEL, PERSON_REACH, face_side, fill_in
+    from landmarks.scene import face_side, fill_in, plate_hole
 
-    side = face_side(landmarks)
-    reach = max(1, round(PERSON_REACH * side))
-    person = cv2.dilate((matte > PERSON_LEVEL).astype(np.uint8),
-                        cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1)))
-    width = max(2, round(band * side))
+    person = plate_hole(matte, landmarks)  # what the plate fills: the band lies just beyond it
+    width = max(2, round(band * face_side(landmarks)))
     grown = cv2.dilate(person, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * width + 1, 2 * width + 1)))
     hidden = (grown > 0) & (person == 0) & (matte < 0.02)  # sure background
     hidden[int(math.ceil(landmarks[8, 1])):] = False  # beside the head: where its motion uncovers background
@@ -45,24 +42,26 @@ def band_errors(frame: np.ndarray, landmarks: np.ndarray, matte: np.ndarray, tru
 
 
 def first_clips(root: Path) -> list[tuple[str, Path]]:
-    """(person, clip) for the first clip (sorted) of each person folder under ``root``."""
-    found = []
-    for person in sorted(p for p in root.iterdir() if p.is_dir()):
-        clips = sorted(person.rglob("*.mp4"))
-        if clips:
-            found.append((person.name, clips[0]))
-    return found
+    """(person, clip) for the first clip of each person under ``root``, as ``lsr prepare`` finds them
+    (``lsr.data.prepare.discover_sources``)."""
+    from lsr.data.prepare import discover_sources
+
+    found: dict[str, Path] = {}
+    for source in discover_sources(root):
+        if source.kind == "video":
+            found.setdefault(source.identity, source.path)
+    return sorted(found.items())
 
 
 def _frame(clip: Path, index: int) -> np.ndarray | None:
-    import av
+    """Frame ``index`` of a clip (its last where it is shorter), upright (``landmarks.video.iter_frames``)."""
+    import itertools
+
+    from landmarks.video import iter_frames
 
     frame = None
-    with av.open(str(clip)) as container:
-        for number, decoded in enumerate(container.decode(video=0)):
-            frame = decoded.to_ndarray(format="rgb24")
-            if number >= index:
-                break
+    for frame in itertools.islice(iter_frames(clip), index + 1):
+        pass
     return frame
 
 

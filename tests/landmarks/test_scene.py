@@ -216,7 +216,7 @@ def test_fill_in_keeps_what_is_known_and_fills_holes_smoothly_from_around(rng):
 def test_the_plate_fills_the_person_with_the_wall_beside_them_not_a_ghost_of_the_far_background(rng):
     """A white wall beside the person and a dark doorway across the frame: what a moved head uncovers is the white
     wall, not the grey the plain push-pull left (the doorway's share of the mean: a shadow of the person)."""
-    from landmarks.scene import PLATE_TRUST, background_plate, fill_in
+    from landmarks.scene import PLATE_TRUST, background_plate, fill_in, plate_hole
 
     _, points = _scene(rng)
     height, width = SIZE
@@ -232,7 +232,7 @@ def test_the_plate_fills_the_person_with_the_wall_beside_them_not_a_ghost_of_the
     assert beside.sum() > 100
     assert plate[beside].min() >= 215  # the white wall carried in
     # the plain push-pull (trust 1) on the same pixels: the doorway's grey shows through at the rim
-    known = (cv2_dilated(matte, 2 * max(1, round(0.03 * side)) + 1) == 0).astype(np.float32)
+    known = (1 - plate_hole(matte, points)).astype(np.float32)
     plain = fill_in(scene.astype(np.float32), known)
     assert plain[beside].mean() < plate[beside].astype(float).mean() - 5 and PLATE_TRUST > 1
 
