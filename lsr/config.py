@@ -19,9 +19,6 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchModelsConfig,
     BenchSpeedConfig,
     BenchReenactConfig,
-    BenchLiveConfig,
-    BenchWebConfig,
-    BenchSoakConfig,
     BenchFinetuneConfig,
     BenchHardConfig,
     BenchLidsConfig,
@@ -36,6 +33,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     OptionalStr,
     check_weights,
 )
+from lsr.config_bench_app import BenchLiveConfig, BenchSoakConfig, BenchWebConfig  # noqa: F401 - re-exported
 from lsr.config_eval import EvalConfig  # noqa: F401 - re-exported
 from lsr.config_train import (  # noqa: F401 - re-exported: every sub-command config is lsr.config.*
     FinetuneConfig,
