@@ -228,6 +228,16 @@ def lid_share(share: np.ndarray, gain: float | None = None, span: float | None =
     return np.clip(1.0 + change, 0.0, MAX_APERTURE)
 
 
+def driver_share(share: np.ndarray, gain: float | None = None, span: float | None = None) -> np.ndarray:
+    """The inverse of ``lid_share``: the driver's share of its reference's aperture that ``lid_share`` maps onto
+    ``share`` (the smallest, where ``lid_share`` clips). A part shown as it is, not warped (``landmarks.bank.eye_bank``),
+    follows the driver's own lid motion, not its small motions multiplied. (...) -> (...) float64."""
+    grid = np.linspace(0.0, 2.0 * MAX_APERTURE, 1201)
+    mapped = np.maximum.accumulate(lid_share(grid, gain, span))
+    first = np.concatenate([[True], np.diff(mapped) > 0])  # xp must increase: a clipped run keeps its first point
+    return np.interp(np.asarray(share, np.float64), mapped[first], grid[first])
+
+
 def lids_as_driver(faces: np.ndarray, drivers: np.ndarray, reference_gaps: np.ndarray, source: np.ndarray,
                    closed: float = LID_CLOSED) -> np.ndarray:
     """Retargeted faces with their lids as closed as their drivers', in proportion: each eye's aperture (gap -
