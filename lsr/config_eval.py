@@ -78,6 +78,10 @@ class EvalConfig:
     (cross-identity, the driving frame's shut lids laid over the model's eyes: landmarks.driver_eyes; self
     re-enactment, which drives by landmarks alone, drawn) or shots (the warped shots' lids alone); empty: the model's
     default (drawn); more than one adds a row per extra choice ("+shots-lids")."""
+    banks: tuple[Literal["shots", "none"], ...] = ()
+    """Where a model's eyes and mouth come from (landmarks.bank): shots (one real exemplar of the person per part and
+    frame, from the K shots: the protocol's inputs) or none (the synthesis'); empty: the model's default (shots);
+    more than one adds a row per extra choice ("+none-bank")."""
     expression_gains: tuple[float, ...] = ()
     """How many times, at most, a warp-guided model's mesh-warped references carry a shot's mouth toward a target
     that opens it wider (landmarks.expression_gain, in [1, 2]; 1 = onto the target's points); empty: the model's

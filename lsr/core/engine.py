@@ -49,6 +49,8 @@ from landmarks.driver_eyes import DriverEyes, cut_driver_eyes, paste_eyes
 from landmarks.drawn_lids import draw_lids
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.expression_gain import EXPRESSION_GAIN, GAIN_RANGE
+from landmarks.bank.eye_bank import EyeBankTrack, EyeChoice, paste_bank_eyes
+from landmarks.bank.mouth_bank import MouthBankTrack, MouthChoice, paste_bank_mouth
 from landmarks.eyelids import LOOK_AHEAD
 from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
 from landmarks.mouth_interior import DriverMouth, cut_driver_mouth, paste_interior
@@ -57,8 +59,8 @@ from lsr.core.overlap import finish_behind, prefetch
 from lsr.core.scene_source import paste_into_driver, paste_into_scene
 from lsr.core.subject import Subject
 from lsr.core.images import from_network, square_resize, to_network
-from lsr.core.parts import (EYES, LIDS, MOUTH_INTERIORS, MOUTHS, Choice, DriverGaze, draws_mouth, finish_eyes,
-                             finish_mouth)
+from lsr.core.parts import (BANK_PARTS, BANKS, EYES, LIDS, MOUTH_INTERIORS, MOUTHS, Choice, DriverGaze, draws_mouth,
+                             finish_eyes, finish_mouth)
 
 Mode = Literal["auto", "relative", "absolute"]
 Scene = Literal["source", "driver"]
@@ -91,6 +93,10 @@ class ReenactedFrame:
     """The driver frame's open mouth, whose interior the synthesis takes (``mouth_interior`` "driver")."""
     driver_eyes: DriverEyes | None = None
     """The driver frame's shut eyes, which the synthesis takes (``lids`` "driver")."""
+    eye_choice: EyeChoice | None = None
+    """The subject's own eyes the frame takes from its eye bank (``bank``; ``landmarks.bank.eye_bank``)."""
+    mouth_choice: MouthChoice | None = None
+    """The subject's own mouth the frame takes from its mouth bank (``bank``; ``landmarks.bank.mouth_bank``)."""
 
 
 @dataclasses.dataclass
@@ -118,6 +124,23 @@ class _Prepared:
     frame: ReenactedFrame
     inputs: dict[str, np.ndarray]
     finish: Callable[[ReenactedFrame], ReenactedFrame] | None
+
+
+@dataclasses.dataclass
+class PartTracks:
+    """A driven sequence's choice of bank parts (``landmarks.bank``): the eyes' and the mouth's, either None."""
+
+    eyes: EyeBankTrack | None
+    mouth: MouthBankTrack | None
+
+    def __call__(self, landmarks: np.ndarray, gaze: np.ndarray | None) -> tuple[EyeChoice | None, MouthChoice | None]:
+        return (None if self.eyes is None else self.eyes(landmarks, gaze),
+                None if self.mouth is None else self.mouth(landmarks))
+
+    def reset(self) -> None:
+        for track in (self.eyes, self.mouth):
+            if track is not None:
+                track.reset()
 
 
 class ReenactorBase:
@@ -173,6 +196,8 @@ class ReenactorBase:
     mouth_interior = Choice(MOUTH_INTERIORS, "driver", "Inside an open mouth (``lsr.core.parts.MOUTH_INTERIORS``).")
     lids = Choice(LIDS, "drawn", "Where the target shuts its eyes (``lsr.core.parts.LIDS``).")
     eyes = Choice(EYES, "warped", "The eyes' irises (``lsr.core.parts.EYES``).")
+    bank = Choice(BANKS, "all", "Which of the subject's frames its own parts come from (``lsr.core.parts.BANKS``).")
+    bank_parts = Choice(BANK_PARTS, "eyes", "Which parts come from the banks (``lsr.core.parts.BANK_PARTS``).")
 
     @property
     def resolution(self) -> int:
@@ -247,6 +272,7 @@ class ReenactorBase:
         self, crop_landmarks: np.ndarray, with_layout: bool = False, latents: tuple[np.ndarray, np.ndarray] | None = None,
         subject: Subject | None = None, crop_mesh: np.ndarray | None = None, gaze: np.ndarray | None = None,
         driver_mouth: DriverMouth | None = None, driver_eyes: DriverEyes | None = None,
+        eye_choice: EyeChoice | None = None, mouth_choice: MouthChoice | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Target landmarks (68, 2) in crop pixels -> (synthesis (C, C, 3) uint8, landmark image (S, S, 3) uint8, layout).
 
@@ -259,22 +285,24 @@ class ReenactorBase:
         gaze: the target's (2, 2) ``landmarks.iris.gaze_offsets``, for ``eyes`` "drawn" or "warped".
         driver_mouth: the driver frame's mouth (``landmarks.mouth_interior.cut_driver_mouth``), for
         ``mouth_interior`` "driver". driver_eyes: the driver frame's shut eyes (``landmarks.driver_eyes.cut_driver_eyes``),
-        for ``lids`` "driver".
+        for ``lids`` "driver". eye_choice, mouth_choice: the subject's own parts from its banks (``part_tracks``).
         """
         landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject, crop_mesh, gaze)
         image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks, subject, gaze, driver_mouth,
-                                               driver_eyes)
+                                               driver_eyes, eye_choice, mouth_choice)
         return image, landmark_image, layout
 
     def synthesize_inputs(self, inputs: dict[str, np.ndarray], with_layout: bool = False,
                           crop_landmarks: np.ndarray | None = None, subject: Subject | None = None,
                           gaze: np.ndarray | None = None, driver_mouth: DriverMouth | None = None,
-                          driver_eyes: DriverEyes | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+                          driver_eyes: DriverEyes | None = None, eye_choice: EyeChoice | None = None,
+                          mouth_choice: MouthChoice | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """``network_inputs``' dict -> (synthesis (C, C, 3) uint8, layout (C_l, S, S) float32 or None). ``crop_landmarks``
         given, ``mouth`` "nearest" or "drawn": the mouth of ``subject``'s nearest warped shot as
         ``landmarks.nearest_mouth`` says; "drawn": then redrawn by the mouth generator (``lsr.core.parts``); and with
         a ``gaze``, the eyes as ``eyes`` says; with a ``driver_mouth``, the interior as ``mouth_interior`` says; the
-        shut lids as ``lids`` says (the driver's with ``driver_eyes``, else drawn)."""
+        shut lids as ``lids`` says (the driver's with ``driver_eyes``, else drawn); with an ``eye_choice`` and a
+        ``mouth_choice``, the subject's own eyes and mouth from its part banks over all that (``landmarks.bank``)."""
         image, layout = self.backend.synthesize(
             inputs["landmark_image"], inputs["layout_latent"], inputs["style_latent"], with_layout,
             *((inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()),
@@ -292,6 +320,10 @@ class ReenactorBase:
             image = draw_lids(image, crop_landmarks, (subject or self._require_subject()).lid_gaps)
         if crop_landmarks is not None and gaze is not None and self.eyes == "drawn":
             image = finish_eyes(image, self.eyes, crop_landmarks, gaze, (subject or self._require_subject()).irises[0])
+        if crop_landmarks is not None and (eye_choice is not None or mouth_choice is not None):
+            eye_bank, mouth_bank = (subject or self._require_subject()).part_banks(self.bank)
+            image = paste_bank_mouth(image, crop_landmarks, mouth_bank, mouth_choice)
+            image = paste_bank_eyes(image, crop_landmarks, eye_bank, eye_choice)
         return image, None if layout is None else np.asarray(layout[0], np.float32)
 
     def network_inputs(self, crop_landmarks: np.ndarray, latents: tuple[np.ndarray, np.ndarray] | None = None,
@@ -381,7 +413,7 @@ class ReenactorBase:
             frames = self._frame_driver(info, relative, smooth, paste_back and not into_source, stats, scenes, retarget)
         # three overlapping stages: the frames prepared (decoded, tracked, retargeted, the shots warped) on a thread
         # ahead, the network here, each frame's paste-back on a worker behind (lsr.core.overlap)
-        frames = finish_behind(self._synthesized(prefetch(frames), with_layout, stats))
+        frames = finish_behind(self._synthesized(prefetch(frames), with_layout, stats, self.part_tracks(subject, relative)))
         return _with_progress(frames, info.frames) if progress else frames  # checks above run now; frames lazily
 
     __call__ = reenact
@@ -438,9 +470,23 @@ class ReenactorBase:
         return _Prepared(ReenactedFrame(index, image, True, driver_frame, landmark_image, None, None, target, gaze,
                                         driver_mouth, driver_eyes), inputs, finish)
 
-    def _synthesized(self, items, with_layout: bool, stats: ReenactStats) -> Iterator[ReenactedFrame | Callable]:
+    def part_tracks(self, subject: Subject, relative: bool) -> PartTracks | None:
+        """A new driven sequence's choice of ``subject``'s bank parts (``landmarks.bank``), or None where ``bank`` is
+        "none". Builds the banks on first use (``Subject.part_banks``). relative: the targets' lids were retargeted
+        from a driver's onto the subject's anchor."""
+        if self.bank == "none":
+            return None
+        eye_bank, mouth_bank = subject.part_banks(self.bank, self.detector)
+        eyes = (EyeBankTrack(eye_bank, subject.reference_landmarks if relative else None)
+                if eye_bank is not None and self.bank_parts in ("eyes", "both") else None)
+        mouth = MouthBankTrack(mouth_bank) if mouth_bank is not None and self.bank_parts in ("mouth", "both") else None
+        return PartTracks(eyes, mouth)
+
+    def _synthesized(self, items, with_layout: bool, stats: ReenactStats, tracks: PartTracks | None = None
+                     ) -> Iterator[ReenactedFrame | Callable]:
         """The network on each prepared frame, here (the items come from the preparing thread); the frames, or their
-        finishers (``lsr.core.overlap.finish_behind``), in order. decode = what the network waited for."""
+        finishers (``lsr.core.overlap.finish_behind``), in order. decode = what the network waited for. tracks: the
+        sequence's bank parts, chosen here frame by frame in order (``PartTracks``)."""
         with contextlib.closing(items):  # stopped early: the preparing threads stop too
             while True:
                 started = time.perf_counter()
@@ -450,13 +496,19 @@ class ReenactorBase:
                     return
                 if isinstance(item, _Prepared):
                     started, frame = time.perf_counter(), item.frame
+                    if tracks is not None:
+                        frame.eye_choice, frame.mouth_choice = tracks(frame.landmarks, frame.gaze)
                     frame.synthesis, frame.layout = self.synthesize_inputs(item.inputs, with_layout, frame.landmarks,
                                                                            gaze=frame.gaze,
                                                                            driver_mouth=frame.driver_mouth,
-                                                                           driver_eyes=frame.driver_eyes)
+                                                                           driver_eyes=frame.driver_eyes,
+                                                                           eye_choice=frame.eye_choice,
+                                                                           mouth_choice=frame.mouth_choice)
                     stats.add("synthesis", time.perf_counter() - started)
                     frame.image = frame.synthesis if frame.image is None else frame.image
                     item = frame if item.finish is None else functools.partial(item.finish, frame)
+                elif tracks is not None and isinstance(item, ReenactedFrame) and not item.has_face:
+                    tracks.reset()  # a gap in the face: the parts are chosen afresh after it
                 yield item
 
     def _into_scene(self, scenes, index: int, driver_frame: np.ndarray | None, target: np.ndarray,

@@ -23,6 +23,8 @@ import time
 
 import numpy as np
 
+from landmarks.bank.eye_bank import EyeChoice
+from landmarks.bank.mouth_bank import MouthChoice
 from landmarks.driver_eyes import DriverEyes, cut_driver_eyes
 from landmarks.mesh_retarget import DriverReference
 from landmarks.mouth_interior import DriverMouth, cut_driver_mouth
@@ -76,6 +78,7 @@ class LiveSession:
         self.scene = next(SourceScene(subject.shots, reenactor.crop_size)) if paste_back else None
         self.reference = DriverReference()
         self.gazes = DriverGaze(subject.anchor_gaze) if reenactor.eyes != "blend" else None  # warped or drawn eyes' gaze
+        self.tracks = reenactor.part_tracks(subject, relative=True)  # the subject's own parts (landmarks.bank)
         self.last: LiveFrame | None = None
         self._last_time: float | None = None
         self.frames = self.faces = 0
@@ -94,6 +97,8 @@ class LiveSession:
         started = time.perf_counter() if started is None else started
         if self.one_euro is not None:
             self.one_euro.reset()  # never smooth across a gap
+        if self.tracks is not None:
+            self.tracks.reset()  # the parts are chosen afresh after a gap
         if self.last is not None:
             shown = self.last.image
         else:
@@ -138,8 +143,9 @@ class LiveSession:
     def _inputs(self, target: np.ndarray, started: float, gaze: np.ndarray | None = None,
                 driver_mouth: DriverMouth | None = None, driver_eyes: DriverEyes | None = None) -> Prepared:
         landmark_image, inputs = self.reenactor.network_inputs(target, subject=self.subject, gaze=gaze)
+        choices = (None, None) if self.tracks is None else self.tracks(target, gaze)  # in order: prepare's thread
         return Prepared(np.asarray(target, np.float64), landmark_image, inputs, time.perf_counter() - started,
-                        self.frames, gaze, driver_mouth, driver_eyes)
+                        self.frames, gaze, driver_mouth, driver_eyes, *choices)
 
     def render(self, target: np.ndarray) -> LiveFrame:
         """Target landmarks (68, 2) in the anchor's crop pixels (e.g. the anchor's own, edited by
@@ -159,7 +165,8 @@ class LiveSession:
         started = time.perf_counter()
         synthesis, layout = self.reenactor.synthesize_inputs(prepared.inputs, self.with_layout, prepared.target,
                                                              self.subject, prepared.gaze, prepared.driver_mouth,
-                                                             prepared.driver_eyes)
+                                                             prepared.driver_eyes, prepared.eye_choice,
+                                                             prepared.mouth_choice)
         image = synthesis if self.scene is None else self.scene.composite(prepared.target, synthesis)
         self.faces += 1
         self.last = LiveFrame(self._mark(image), True, layout, prepared.landmark_image,
@@ -184,3 +191,7 @@ class Prepared:
     """The camera frame's open mouth (``landmarks.mouth_interior``), or None."""
     driver_eyes: DriverEyes | None = None
     """The camera frame's shut eyes (``landmarks.driver_eyes``), or None."""
+    eye_choice: EyeChoice | None = None
+    """The subject's own eyes from its bank (``landmarks.bank.eye_bank``), or None."""
+    mouth_choice: MouthChoice | None = None
+    """The subject's own mouth from its bank (``landmarks.bank.mouth_bank``), or None."""

@@ -38,6 +38,14 @@ LIDS = ("drawn", "driver", "shots")
 ``landmarks.drawn_lids``), the driver frame's shut lids laid in ("driver", ``landmarks.driver_eyes``; where the
 driver is a video or a camera, drawn where none were cut), or the warped shots' lids lowered alone ("shots",
 ``landmarks.eyelids``)."""
+BANKS = ("all", "shots", "none")
+"""Where the subject's own eyes and mouth come from (``landmarks.bank``: per frame one real exemplar of the person,
+moved into place over the synthesis): every frame the source gives, a video's every frame ("all"), the K shots alone
+("shots", the evaluation protocol's inputs), or none: the synthesis' ("none")."""
+BANK_PARTS = ("eyes", "both", "mouth")
+"""Which parts come from the banks (``BANKS``): the eyes by default. The mouth bank is indexed by the driving
+detector's inner lips, which read a mouth showing its teeth as nearly shut (MODEL_CARD.md), so it lays teeth into
+shut mouths and a slit into open ones; it is measured beside the eyes (``lsr bench eyes``), not shipped on."""
 MOUTHS = ("drawn", "nearest", "blend")
 """A warp-guided model's mouth: the nearest warped shot's where the target opens it wider than the shots, then
 redrawn by the mouth generator ("drawn"); without the redrawing ("nearest"); the network's blend alone ("blend")."""

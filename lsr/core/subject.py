@@ -10,6 +10,8 @@ import functools
 import numpy as np
 
 from landmarks.drawn_lids import shot_lid_gaps
+from landmarks.bank.eye_bank import EyeBank, build_eye_bank
+from landmarks.bank.mouth_bank import MouthBank, build_mouth_bank
 from landmarks.iris import gaze_offsets, iris_donor
 from lsr.core.parts import found_irises, shot_irises
 from lsr.core.sources import SubjectShots
@@ -26,6 +28,21 @@ class Subject:
     """(1, D) float32."""
     source: str | None
     """Resolved source path when the source was one file or folder (decides the default mode)."""
+    banks: dict[str, tuple[EyeBank | None, MouthBank | None]] = dataclasses.field(default_factory=dict, repr=False)
+    """Its part banks, by ``lsr.core.parts.BANKS`` scope, built on first use (``part_banks``)."""
+
+    def part_banks(self, scope: str, detector=None) -> tuple[EyeBank | None, MouthBank | None]:
+        """Its eyes and mouths, indexed (``landmarks.bank``): scope "shots", its K shots; "all", every frame of a
+        video source (tracked with ``detector``'s tracker; the shots for other sources). None where none shows a
+        face."""
+        if scope not in self.banks:
+            if scope == "all" and self.shots.video is not None:
+                self.banks[scope] = video_part_banks(self.shots.video, detector)
+            else:
+                shots = self.shots
+                self.banks[scope] = (build_eye_bank(zip(shots.frames, shots.landmarks, self.found_irises[0])),
+                                     build_mouth_bank(zip(shots.frames, shots.landmarks)))
+        return self.banks[scope]
 
     @functools.cached_property
     def lid_gaps(self) -> np.ndarray:
@@ -69,3 +86,38 @@ class Subject:
         if meshes is None or not np.isfinite(meshes[self.shots.anchor]).all():
             return None
         return meshes[self.shots.anchor]
+
+
+def video_part_banks(video, detector=None) -> tuple[EyeBank | None, MouthBank | None]:
+    """The eye and mouth banks of every frame of a video (``landmarks.bank``), in one pass: tracked with
+    ``detector``'s tracker (``landmarks.detectors.make_tracker``), whose iris net's irises come with its faces (the
+    mesh tracker); other trackers' irises are found per frame (``landmarks.iris.find_irises``)."""
+    from landmarks.detectors import make_tracker
+    from landmarks.iris import find_irises
+    from landmarks.video import iter_frames
+
+    tracker = make_tracker(detector)
+    mouths: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def faces():
+        for frame in iter_frames(video):
+            points = tracker.update(frame)
+            if points is None or not np.isfinite(points).all():
+                continue
+            points = np.asarray(points, np.float64)
+            irises = getattr(tracker, "irises", None)
+            mouths.append(_mouth_crop(frame, points))
+            yield frame, points, irises if irises is not None else find_irises(frame, points)
+
+    eyes = build_eye_bank(faces())
+    return eyes, build_mouth_bank(mouths)
+
+
+def _mouth_crop(frame: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The frame around the mouth (the box of the lower face grown by half its size) and the points in it: a small
+    copy, so that a long video's frames are not all kept."""
+    lower = points[2:15]
+    reach = 0.5 * float(np.ptp(lower, axis=0).max())
+    x0, y0 = np.maximum(np.floor(lower.min(axis=0) - reach), 0).astype(int)
+    x1, y1 = np.minimum(np.ceil(lower.max(axis=0) + reach) + 1, (frame.shape[1], frame.shape[0])).astype(int)
+    return frame[y0:y1, x0:x1].copy(), points - (x0, y0)

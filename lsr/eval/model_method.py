@@ -71,7 +71,7 @@ class LsrModelMethod:
                  finetune_lr: float = DEFAULT_FINETUNE_LR, name: str | None = None, reenactor=None,
                  reference_warp: str = "mesh", mouth: str | None = None, eyes: str | None = None,
                  mouth_interior: str | None = None, lids: str | None = None,
-                 expression_gain: float | None = None) -> None:
+                 expression_gain: float | None = None, bank: str | None = None) -> None:
         """reenactor: a ready ``ReenactorBase`` (e.g. ``deploy.runtime.OnnxReenactor`` over the bundle at
         ``weights``); None = load the torch model from ``weights``. reference_warp: how a warp-guided model's
         references are warped ("mesh": over the face mesh, given the meshes; "tps": the 68-point TPS). mouth: a
@@ -83,7 +83,9 @@ class LsrModelMethod:
         ``driver_mouths``) or "shots" (None: the model's default). lids:
         "driver" (the driver frame's shut eyes: cross-identity, the protocol then passes ``driver_eyes``) or "shots"
         (None: the model's default). expression_gain: how far mesh-warped references carry a shot's mouth toward a
-        wider one (``ReenactorBase.expression_gain``; None: the model's default)."""
+        wider one (``ReenactorBase.expression_gain``; None: the model's default). bank: where its eyes and mouth
+        come from ("shots": one real exemplar of the K shots per part and frame, ``landmarks.bank``; "none": the
+        synthesis'; None: the model's default)."""
         self.weights = Path(weights)
         self.device = device
         self.finetune_steps = finetune_steps
@@ -109,6 +111,8 @@ class LsrModelMethod:
             reenactor.lids = lids
         if expression_gain is not None:
             reenactor.expression_gain = expression_gain
+        if bank is not None:
+            reenactor.bank = bank  # "shots": the K shots are every frame the protocol gives (as "all" is here)
         self.uses_gazes = reenactor.eyes != "blend"
         self.uses_driver_mouths = reenactor.mouth_interior == "driver"
         self.uses_driver_eyes = reenactor.lids == "driver"
@@ -164,10 +168,21 @@ class LsrModelMethod:
         gazes = [None] * len(target_landmarks) if target_gazes is None else list(target_gazes)
         mouths = [None] * len(target_landmarks) if driver_mouths is None else list(driver_mouths)
         shut = [None] * len(target_landmarks) if driver_eyes is None else list(driver_eyes)
+        # the subject's own parts from its bank of the K shots, chosen per frame: the protocol's targets are sparse
+        # hold-outs, not a sequence to keep parts steady over. Cross-identity targets (driven: driver frames come with
+        # them) were retargeted, their lids as lsr reenact's
+        tracks = self.reenactor.part_tracks(self.reenactor.subject, relative=driver_mouths is not None
+                                            or driver_eyes is not None)
         for points, mesh, gaze, mouth, eyes in zip(target_landmarks, target_meshes, gazes, mouths, shut, strict=True):
             crop_mesh = scale_mesh(mesh, scale) if np.isfinite(mesh).all() else None
-            image = self.reenactor.synthesize_crop(scale_points(points, scale), crop_mesh=crop_mesh, gaze=gaze,
-                                                   driver_mouth=mouth, driver_eyes=eyes)[0]
+            crop_points = scale_points(points, scale)
+            choices = (None, None)
+            if tracks is not None:
+                tracks.reset()
+                choices = tracks(crop_points, gaze)
+            image = self.reenactor.synthesize_crop(crop_points, crop_mesh=crop_mesh, gaze=gaze, driver_mouth=mouth,
+                                                   driver_eyes=eyes, eye_choice=choices[0],
+                                                   mouth_choice=choices[1])[0]
             outputs.append(_resize(image, size))
         return np.stack(outputs) if outputs else np.zeros((0, size, size, 3), np.uint8)
 
@@ -205,7 +220,8 @@ class LsrModelMethod:
         subject = LsrModelMethod(self.weights, device=self.device, name=self.name,
                                  reference_warp=self.reenactor.reference_warp, mouth=self.reenactor.mouth,
                                  eyes=self.reenactor.eyes, mouth_interior=self.reenactor.mouth_interior,
-                                 lids=self.reenactor.lids, expression_gain=self.reenactor.expression_gain)
+                                 lids=self.reenactor.lids, expression_gain=self.reenactor.expression_gain,
+                                 bank=self.reenactor.bank)
         subject._encode(shots, shot_landmarks)
         from lsr.train.finetune import finetune_reenactor
 

@@ -480,7 +480,8 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
                   "eyes": cfg.eyes[0] if cfg.eyes else None,
                   "mouth_interior": cfg.mouth_interiors[0] if cfg.mouth_interiors else None,
                   "lids": cfg.lids[0] if cfg.lids else None,
-                  "expression_gain": cfg.expression_gains[0] if cfg.expression_gains else None}
+                  "expression_gain": cfg.expression_gains[0] if cfg.expression_gains else None,
+                  "bank": cfg.banks[0] if cfg.banks else None}
         models = [LsrModelMethod(folder, device=cfg.device, finetune_steps=cfg.finetune_steps,
                                  finetune_lr=cfg.finetune_lr, **choice) for folder in cfg.weights]
         methods += label_by_variant(models, cfg.weights)
@@ -491,6 +492,7 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
         extras += [({**choice, "mouth_interior": other}, f"+{other}-interior") for other in cfg.mouth_interiors[1:]]
         extras += [({**choice, "lids": other}, f"+{other}-lids") for other in cfg.lids[1:]]
         extras += [({**choice, "expression_gain": other}, f"+gain{other:g}") for other in cfg.expression_gains[1:]]
+        extras += [({**choice, "bank": other}, f"+{other}-bank") for other in cfg.banks[1:]]
         for options, suffix in extras:
             for model in models:
                 if model.reenactor.warp_references:
