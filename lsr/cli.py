@@ -119,6 +119,7 @@ GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
         "hard": (config.BenchHardConfig, "lsr.eval.bench_hard:run_bench_hard"),
         "lids": (config.BenchLidsConfig, "lsr.eval.bench_lids:run_bench_lids"),
         "plate": (config.BenchPlateConfig, "lsr.eval.bench_plate:run_bench_plate"),
+        "eyes": (config.BenchEyesConfig, "lsr.eval.bench_eyes:run_bench_eyes"),
         "ablation": (config.BenchAblationConfig, "lsr.eval.bench_ablation:run_bench_ablation"),
         "synth": (config.BenchSynthConfig, _run_bench_synth),
         "oracle-seg": (config.BenchOracleSegConfig, "lsr.data.oracle_seg:run_bench_oracle_seg"),

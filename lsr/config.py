@@ -23,6 +23,7 @@ from lsr.config_bench import (  # noqa: F401 - re-exported: every sub-command co
     BenchHardConfig,
     BenchLidsConfig,
     BenchPlateConfig,
+    BenchEyesConfig,
     BenchLayoutLegendConfig,
     BenchAblationConfig,
     BenchOracleSegConfig,

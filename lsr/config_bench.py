@@ -540,3 +540,53 @@ class BenchPlateConfig:
             raise ConfigError("--frame and --max-people must be >= 0 and --band in (0, 0.5]")
         if not self.resolved_data().is_dir():
             raise ConfigError(f"{self.resolved_data()} is not a folder: give --data, a folder of <person>/.../*.mp4")
+
+
+@dataclasses.dataclass
+class BenchEyesConfig:
+    """Print how real and how faithful the re-enacted eyes and mouth are over whole driving clips, per eye bank
+    (lsr.eval.bench_eyes): each clip re-enacted by the next as `lsr reenact` drives it, every frame judged by dlib
+    beside the two detectors' agreement on the drivers' own frames, and each output eye's distance to the nearest of
+    the source's real eyes beside that of its real frames."""
+
+    clips: tuple[Path, ...] = ()
+    """Videos of people (each source is driven by the next, the last by the first); default: the expressive
+    evaluation set (../shared/data/clips/expressive or $LSR_SHARED_DATA/clips/expressive)."""
+    weights: OptionalPath = None
+    """A model folder; default: $LSR_WEIGHTS, else the shipped default model."""
+    k: int = 8
+    banks: tuple[Literal["none", "shots", "all", "all+mouth"], ...] = ("none", "shots", "all", "all+mouth")
+    """Where the eyes come from (``lsr.core.parts.BANKS``), one row each; "all+mouth": the mouth from the bank too."""
+    max_frames: int = 0
+    """Judge at most this many frames of each driver, evenly spread (0 = every frame)."""
+    figure: OptionalPath = None
+    """Also write each pair's hardest eye moments, driver | each bank, zoomed on the eyes (a .png)."""
+    threads: int = 0
+    """CPU threads for torch (0 = torch's default)."""
+    set_name: str = "expressive"
+    """The clips' name in the table's title and its section ('eyes_<set-name>')."""
+    out_md: OptionalPath = None
+    """Also write the table as the 'eyes_<set-name>' section of this markdown file (e.g. BENCHMARKS.md)."""
+    progress: bool = True
+
+    def resolved_clips(self) -> tuple[Path, ...]:
+        if self.clips:
+            return tuple(Path(clip) for clip in self.clips)
+        from landmarks.video import VIDEO_SUFFIXES
+
+        folder = shared_data_dir() / "clips" / "expressive"
+        return tuple(sorted(p for p in folder.glob("*") if p.suffix.lower() in VIDEO_SUFFIXES)) if folder.is_dir() else ()
+
+    def validate(self) -> None:
+        clips = self.resolved_clips()
+        if len(clips) < 2:
+            raise ConfigError("--clips needs at least two videos (each drives the next); the default, the shared "
+                              "expressive set, was not found")
+        missing = [str(clip) for clip in clips if not clip.is_file()]
+        if missing:
+            raise ConfigError(f"--clips: no such file: {', '.join(missing)}")
+        if not self.set_name.replace("_", "").isalnum():
+            raise ConfigError(f"--set-name must be letters, digits and _, got {self.set_name!r}")
+        if not 1 <= self.k <= 32 or not self.banks or self.max_frames < 0 or self.threads < 0:
+            raise ConfigError("--k in 1..32, at least one --banks, --max-frames and --threads >= 0")
+        check_weights(self.weights)
