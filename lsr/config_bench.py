@@ -580,13 +580,15 @@ class BenchEyesConfig:
     def validate(self) -> None:
         clips = self.resolved_clips()
         if len(clips) < 2:
-            raise ConfigError("--clips needs at least two videos (each drives the next); the default, the shared "
-                              "expressive set, was not found")
+            raise ConfigError("--clips needs at least two videos (each drives the next)" + (
+                "" if self.clips else "; the default, the shared expressive set, was not found"))
         missing = [str(clip) for clip in clips if not clip.is_file()]
         if missing:
             raise ConfigError(f"--clips: no such file: {', '.join(missing)}")
         if not self.set_name.replace("_", "").isalnum():
             raise ConfigError(f"--set-name must be letters, digits and _, got {self.set_name!r}")
-        if not 1 <= self.k <= 32 or not self.banks or self.max_frames < 0 or self.threads < 0:
-            raise ConfigError("--k in 1..32, at least one --banks, --max-frames and --threads >= 0")
+        if not 1 <= self.k <= 32:
+            raise ConfigError(f"--k must be in 1..32, got {self.k}")
+        if not self.banks or self.max_frames < 0 or self.threads < 0:
+            raise ConfigError("give at least one --banks, and --max-frames and --threads >= 0")
         check_weights(self.weights)

@@ -31,6 +31,7 @@ from collections.abc import Iterable
 import cv2
 import numpy as np
 
+from landmarks.bank.entries import BankRows, usable_face
 from landmarks.bank.hysteresis import EntryTrack
 from landmarks.driver_eyes import FEATHER, RING, ellipse_mask
 from landmarks.iris import eye_apertures, eye_axes, gaze_offsets
@@ -153,25 +154,16 @@ def build_eye_bank(faces: Iterable[tuple[np.ndarray, np.ndarray | None, np.ndarr
     pixels; None or NaN: no face, skipped), its irises ((2, 4) ``landmarks.iris.find_irises`` rows, or None)) ->
     ``EyeBank``, or None when no frame has a face whose eyes are at least 4 pixels wide. At most ``max_entries``
     entries, evenly spread over the frames."""
-    if max_entries < 1:
-        raise ValueError(f"max_entries must be >= 1, got {max_entries}")
-    rows: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+    bank_rows = BankRows(max_entries)
     for frame, points, found in faces:
-        if points is None:
+        face = usable_face(frame, points)
+        if face is None or min(_width(c) for c in eye_corners(face[1])) < 4.0:
             continue
-        points = finite_points(points)
-        if points is None or min(_width(c) for c in eye_corners(points)) < 4.0:
-            continue
-        frame = np.asarray(frame)
-        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
-            raise ValueError(f"bank frames must be (H, W, 3) uint8, got {frame.shape} {frame.dtype}")
-        rows.append((cut_eyes(frame, points), *eye_state(points, found)))
-        if len(rows) >= 4 * max_entries:  # a long video: every other entry, so memory stays bounded
-            rows = rows[::2]
+        frame, points = face
+        bank_rows.add((cut_eyes(frame, points), *eye_state(points, found)))
+    rows = bank_rows.spread()
     if not rows:
         return None
-    if len(rows) > max_entries:
-        rows = [rows[i] for i in np.linspace(0, len(rows) - 1, max_entries).round().astype(int)]
     patches, apertures, gazes, poses = (np.stack(column) for column in zip(*rows))
     return EyeBank(patches, apertures, gazes, poses)
 
@@ -202,6 +194,8 @@ class EyeChoice:
     """The apertures asked of each eye (``EyeBankTrack.asked``), which its lid opening is stretched toward."""
     gazes: tuple[float, float] = (math.nan, math.nan)
     """Where each iris is moved, along the corner line in eye widths (the target's gaze; NaN: left where it is)."""
+    bank: EyeBank | None = dataclasses.field(default=None, compare=False, repr=False)
+    """The bank it was chosen from (``EyeBankTrack``): what ``paste_bank_eyes`` lays in when given no other."""
 
 
 class EyeBankTrack:
@@ -260,17 +254,18 @@ class EyeBankTrack:
         entry, previous, weight = self.entries(state_cost(self.bank, clipped, gazes, head_turn(points)))
         along = (np.full(2, np.nan) if gazes is None else np.asarray(gazes, np.float64)[:, 0])
         return EyeChoice(entry, previous, weight, eyes=eyes, apertures=tuple(float(a) for a in apertures),  # type: ignore
-                         gazes=tuple(float(g) for g in along))  # type: ignore[arg-type]
+                         gazes=tuple(float(g) for g in along), bank=self.bank)  # type: ignore[arg-type]
 
 
 def paste_bank_eyes(image: np.ndarray, landmarks: np.ndarray, bank: EyeBank | None, choice: EyeChoice | None
                     ) -> np.ndarray:
     """``image`` (S, S, 3) uint8, the synthesis for the target's 68 points ``landmarks`` (its pixels), with the
     chosen bank eyes laid over its own (module docstring): a new array, or ``image`` itself when there is no
-    choice or the target's points are not finite."""
+    choice or the target's points are not finite. bank: None, the one the choice was made from."""
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise ValueError(f"image must be (H, W, 3) uint8, got {image.shape} {image.dtype}")
     points = finite_points(landmarks)
+    bank = bank if bank is not None or choice is None else choice.bank
     if bank is None or choice is None or points is None:
         return image
     ring = max(1, round(RING * float(inter_ocular_distance(points))))

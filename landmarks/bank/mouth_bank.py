@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from landmarks.bank.eye_bank import head_turn
+from landmarks.bank.entries import BankRows, usable_face
 from landmarks.bank.hysteresis import EntryTrack
 from landmarks.expression import mouth_opening
 from landmarks.mouth_interior import LIPS, finite_points, lip_affine, match_light
@@ -110,27 +111,18 @@ def build_mouth_bank(faces: Iterable[tuple[np.ndarray, np.ndarray | None]], max_
     """The mouth bank of a person's frames, read one at a time: (frame (H, W, 3) uint8 RGB, its 68 points (frame
     pixels; None or NaN: no face, skipped)) -> ``MouthBank``, or None when no frame has a mouth at least
     ``MIN_WIDTH`` pixels wide. At most ``max_entries`` entries, evenly spread over the frames."""
-    if max_entries < 1:
-        raise ValueError(f"max_entries must be >= 1, got {max_entries}")
-    rows: list[tuple[np.ndarray, np.ndarray, float, np.ndarray]] = []
+    bank_rows = BankRows(max_entries)
     for frame, points in faces:
-        if points is None:
+        face = usable_face(frame, points)
+        if face is None or np.hypot(*(face[1][CORNERS[1]] - face[1][CORNERS[0]])) < MIN_WIDTH:
             continue
-        points = finite_points(points)
-        if points is None or np.hypot(*(points[CORNERS[1]] - points[CORNERS[0]])) < MIN_WIDTH:
-            continue
-        frame = np.asarray(frame)
-        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
-            raise ValueError(f"bank frames must be (H, W, 3) uint8, got {frame.shape} {frame.dtype}")
+        frame, points = face
         patch = cv2.warpAffine(frame, mouth_affine(points), PATCH, flags=cv2.INTER_LINEAR,
                                borderMode=cv2.BORDER_REPLICATE)
-        rows.append((patch, own_lips(points), float(mouth_opening(points)), head_turn(points)))
-        if len(rows) >= 4 * max_entries:  # a long video: every other entry, so memory stays bounded
-            rows = rows[::2]
+        bank_rows.add((patch, own_lips(points), float(mouth_opening(points)), head_turn(points)))
+    rows = bank_rows.spread()
     if not rows:
         return None
-    if len(rows) > max_entries:
-        rows = [rows[i] for i in np.linspace(0, len(rows) - 1, max_entries).round().astype(int)]
     patches, lips, openings, poses = zip(*rows)
     return MouthBank(np.stack(patches), np.stack(lips), np.asarray(openings, np.float64), np.stack(poses))
 
@@ -155,6 +147,8 @@ class MouthChoice:
     entry: int
     previous: int | None = None
     previous_weight: float = 0.0
+    bank: MouthBank | None = dataclasses.field(default=None, compare=False, repr=False)
+    """The bank it was chosen from (``MouthBankTrack``): what ``paste_bank_mouth`` lays in when given no other."""
 
 
 class MouthBankTrack:
@@ -185,17 +179,19 @@ class MouthBankTrack:
         entry, previous, weight = self.entries(cost)
         if not np.isfinite(cost[previous if previous is not None else entry]):
             previous, weight = None, 0.0  # never fade from a mouth that opens otherwise
-        return MouthChoice(entry, previous, weight)
+        return MouthChoice(entry, previous, weight, bank=self.bank)
 
 
 def paste_bank_mouth(image: np.ndarray, landmarks: np.ndarray, bank: MouthBank | None, choice: MouthChoice | None
                      ) -> np.ndarray:
     """``image`` (S, S, 3) uint8, the synthesis for the target's 68 points ``landmarks`` (its pixels), with the
     chosen bank mouth laid over its own (module docstring): a new array, or ``image`` itself when there is no
-    choice, the target's points are not finite or its mouth region lies outside the image."""
+    choice, the target's points are not finite or its mouth region lies outside the image. bank: None, the one the
+    choice was made from."""
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise ValueError(f"image must be (H, W, 3) uint8, got {image.shape} {image.dtype}")
     points = finite_points(landmarks)
+    bank = bank if bank is not None or choice is None else choice.bank
     if bank is None or choice is None or points is None:
         return image
     region = mouth_weight(points, image.shape[:2])

@@ -320,10 +320,9 @@ class ReenactorBase:
             image = draw_lids(image, crop_landmarks, (subject or self._require_subject()).lid_gaps)
         if crop_landmarks is not None and gaze is not None and self.eyes == "drawn":
             image = finish_eyes(image, self.eyes, crop_landmarks, gaze, (subject or self._require_subject()).irises[0])
-        if crop_landmarks is not None and (eye_choice is not None or mouth_choice is not None):
-            eye_bank, mouth_bank = (subject or self._require_subject()).part_banks(self.bank)
-            image = paste_bank_mouth(image, crop_landmarks, mouth_bank, mouth_choice)
-            image = paste_bank_eyes(image, crop_landmarks, eye_bank, eye_choice)
+        if crop_landmarks is not None:  # each choice carries the bank it was made from
+            image = paste_bank_mouth(image, crop_landmarks, None, mouth_choice)
+            image = paste_bank_eyes(image, crop_landmarks, None, eye_choice)
         return image, None if layout is None else np.asarray(layout[0], np.float32)
 
     def network_inputs(self, crop_landmarks: np.ndarray, latents: tuple[np.ndarray, np.ndarray] | None = None,

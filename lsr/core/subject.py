@@ -35,6 +35,8 @@ class Subject:
         """Its eyes and mouths, indexed (``landmarks.bank``): scope "shots", its K shots; "all", every frame of a
         video source (tracked with ``detector``'s tracker; the shots for other sources). None where none shows a
         face."""
+        if scope not in ("all", "shots"):
+            raise ValueError(f"a part bank's scope must be 'all' or 'shots', got {scope!r}")
         if scope not in self.banks:
             if scope == "all" and self.shots.video is not None:
                 self.banks[scope] = video_part_banks(self.shots.video, detector)

@@ -327,6 +327,20 @@ def test_a_single_photo_makes_a_bank():
     assert not np.array_equal(paste_bank_eyes(drawn, points, bank, choices[0]), drawn)
 
 
+def test_a_choice_is_pasted_from_the_bank_it_was_chosen_from():
+    # a reenactor whose bank setting changes mid-stream must not paste entry 1 of another, smaller bank
+    bank, other = _open_and_half(), _bank([((0.3, 0.3), STRAIGHT)])
+    points = _points(0.2)
+    choice = EyeBankTrack(bank)(points)
+    assert choice.entry == 1 and choice.bank is bank
+    drawn = _smudged(points)
+    np.testing.assert_array_equal(paste_bank_eyes(drawn, points, None, choice),
+                                  paste_bank_eyes(drawn, points, bank, choice))
+    assert not np.array_equal(paste_bank_eyes(drawn, points, None, choice), drawn)
+    assert paste_bank_eyes(drawn, points, None, dataclasses.replace(choice, bank=None)) is drawn
+    assert len(other) == 1  # given explicitly, another bank is the caller's to match
+
+
 def test_a_frame_without_a_face_resets_the_track():
     bank = _open_and_half()
     track = EyeBankTrack(bank)
