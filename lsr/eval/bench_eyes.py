@@ -22,6 +22,7 @@ means something only as a share of it.
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 from typing import Any
 
@@ -121,7 +122,7 @@ def pair_rows(pair: str, driver: dict[str, np.ndarray], outputs: dict[str, dict[
     rows = [{"pair": pair, "row": "agreement", **{f"{part}_{what}": value for part in ("eye", "mouth")
              for what, value in zip(("r", "gain"), judged(part, driver[f"mesh_{part}"]))},
              "gaze_r": opening_correlation(driver["judge_gaze"], driver["mesh_gaze"]), "realism": floor,
-             "switches": math.nan}]
+             "switches": math.nan, "ms_per_frame": math.nan}]
     for bank, reading in outputs.items():
         row = {"pair": pair, "row": bank}
         for part in ("eye", "mouth"):
@@ -129,6 +130,7 @@ def pair_rows(pair: str, driver: dict[str, np.ndarray], outputs: dict[str, dict[
         row["gaze_r"] = opening_correlation(driver["judge_gaze"], reading["judge_gaze"])
         row["realism"] = float(np.nanmedian(reading["realism"])) if np.isfinite(reading["realism"]).any() else math.nan
         row["switches"] = float(reading.get("switches", math.nan))
+        row["ms_per_frame"] = float(reading.get("ms_per_frame", math.nan))
         rows.append(row)
     return rows
 
@@ -138,8 +140,8 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
     floor), then per bank the judged columns and, in brackets, their share of the agreement (gains: their ratio)."""
     lines = [f"clips: {settings['clips']}; K = {settings['k']}; model `{settings['weights']}`; judged frames per "
              f"driver: {settings['frames']}", "",
-             "| pair | eyes from | eye r | eye gain | mouth r | mouth gain | gaze r | realism ↓ (x floor) | switches |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| pair | eyes from | eye r | eye gain | mouth r | mouth gain | gaze r | realism ↓ (x floor) | switches "
+             "| ms / frame |", "|---|---|---|---|---|---|---|---|---|---|"]
 
     def share(value: float, of: float) -> str:
         return f"{value:.2f} ({value / of:.2f})" if math.isfinite(value) and math.isfinite(of) and of else f"{value:.2f}"
@@ -149,19 +151,21 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
         if row["row"] == "agreement":
             agreement = row
             cells = [f"{row[c]:.2f}" for c in ("eye_r", "eye_gain", "mouth_r", "mouth_gain", "gaze_r")]
-            lines.append(f"| {row['pair']} | agreement / floor | {' | '.join(cells)} | {row['realism']:.3f} | |")
+            lines.append(f"| {row['pair']} | agreement / floor | {' | '.join(cells)} | {row['realism']:.3f} | | |")
             continue
         cells = [share(row[c], agreement.get(c, math.nan)) for c in ("eye_r", "eye_gain", "mouth_r", "mouth_gain",
                                                                       "gaze_r")]
         realism = share(row["realism"], agreement.get("realism", math.nan)).replace(f"{row['realism']:.2f}",
                                                                                    f"{row['realism']:.3f}", 1)
         switches = "" if not math.isfinite(row["switches"]) else f"{row['switches']:.0f}"
-        lines.append(f"| | {row['row']} | {' | '.join(cells)} | {realism} | {switches} |")
+        speed = "" if not math.isfinite(row.get("ms_per_frame", math.nan)) else f"{row['ms_per_frame']:.0f}"
+        lines.append(f"| | {row['row']} | {' | '.join(cells)} | {realism} | {switches} | {speed} |")
     lines += ["", "agreement: the face mesh's reading of the driver's frames against dlib's (the judge); each bank's "
               "row: the output against the driver, both read by dlib, and in brackets its share of the agreement. "
               "realism: the median distance of the output's eyes to the nearest of the source's real eyes "
               "(1 - NCC), the floor that of the source's real frames to its frames at least "
-              f"{FLOOR_GAP} frames away; switches: how often the bank's entry changed.", "", machine]
+              f"{FLOOR_GAP} frames away; switches: how often the bank's eye entry changed; ms / frame: the "
+              "re-enactment's wall time per driver frame (the banks built before, once per source).", "", machine]
     return "\n".join(lines)
 
 
@@ -225,12 +229,17 @@ def run_bench_eyes(cfg: BenchEyesConfig) -> list[dict[str, Any]]:
             reenactor.bank, reenactor.bank_parts = bank.split("+")[0], "both" if bank.endswith("+mouth") else "eyes"
             track = []
             frames = []
+            if reenactor.bank != "none":
+                reenactor.subject.part_banks(reenactor.bank, reenactor.detector)  # built once per source, untimed
+            started = time.perf_counter()
             for frame in reenactor.reenact(driver):
                 if frame.index in wanted:
                     frames.append(frame if frame.has_face else None)
                 choice = frame.eye_choice
                 track.append(None if choice is None else choice.entry)
+            seconds = time.perf_counter() - started  # the re-enactment alone (the bank built before, on encoding)
             outputs[bank] = output_readings(frames, judge, real)
+            outputs[bank]["ms_per_frame"] = 1e3 * seconds / max(1, len(track))
             outputs[bank]["switches"] = (sum(a != b and a is not None and b is not None for a, b in zip(track, track[1:]))
                                          if bank != "none" else math.nan)
             kept_frames[bank] = frames
