@@ -243,7 +243,7 @@ def run_bench_eyes(cfg: BenchEyesConfig) -> list[dict[str, Any]]:
             outputs[bank]["switches"] = (sum(a != b and a is not None and b is not None for a, b in zip(track, track[1:]))
                                          if bank != "none" else math.nan)
             kept_frames[bank] = frames
-        pair = f"{source.stem[:24]} ← {driver.stem[:24]}"
+        pair = f"{_short(source.stem)} ← {_short(driver.stem)}"
         rows += pair_rows(pair, driver_read, outputs, floor)
         if cfg.figure is not None:
             figure += _moments(driver, keep, driver_read, kept_frames)
@@ -258,6 +258,12 @@ def run_bench_eyes(cfg: BenchEyesConfig) -> list[dict[str, Any]]:
         write_image(cfg.figure, np.vstack([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in figure]))
         print(f"figure written to {cfg.figure}")
     return rows
+
+
+def _short(name: str, keep: int = 30) -> str:
+    """A clip's name for the table: whole, or its start and its end around an ellipsis (the ends tell clips of one
+    repository apart)."""
+    return name if len(name) <= keep else f"{name[:keep // 2 - 1]}…{name[-(keep // 2):]}"
 
 
 def _moments(driver: Path, keep: np.ndarray, read: dict[str, np.ndarray], frames: dict[str, list]) -> list[np.ndarray]:

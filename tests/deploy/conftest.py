@@ -100,6 +100,8 @@ def python_session(site):
     matte = np.frombuffer((person / "matte.u8").read_bytes(), np.uint8).reshape(shapes["matte"])
     plate = np.frombuffer((person / "plate.u8").read_bytes(), np.uint8).reshape(shapes["plate"])
 
+    reenactor.bank = "none"  # the web page has no part banks yet: its reference is the synthesis' own eyes
+
     def session() -> LiveSession:
         live = LiveSession(reenactor, subject, paste_back=True, smooth=True, with_layout=False, watermark=False)
         live.scene.layers = SceneLayers(matte.astype(np.float32) / 255, plate)

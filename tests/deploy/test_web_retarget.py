@@ -71,6 +71,9 @@ class _Reenactor:
     def network_inputs(self, target, subject=None, gaze=None):
         return None, {}
 
+    def part_tracks(self, subject, relative):
+        return None  # no part banks: the retargeting alone
+
 
 def live_targets(points: np.ndarray, shots, *, smooth: bool, recentre_at: tuple[int, ...] = ()) -> np.ndarray:
     """LiveSession.prepare over the recorded points -> (T, 68, 2) targets (NaN where it had no face)."""
