@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from landmarks.bank.eye_bank import (PATCH, RANGE, EyeBank, EyeBankTrack, EyeChoice, build_eye_bank, head_turn,
+from landmarks.bank.eye_bank import (PATCH, STRETCH, EyeBank, EyeBankTrack, EyeChoice, build_eye_bank, head_turn,
                                      paste_bank_eyes, state_cost)
 from landmarks.bank.hysteresis import FADE, SWITCH
 from landmarks.bank.realism import eye_realism, realism_patches
@@ -304,8 +304,8 @@ def test_a_target_shut_beyond_a_bank_of_open_eyes_takes_none_and_its_lids_stand(
     assert track.entries.current is None  # the next frame chooses afresh
     # a bounded stretch: a little below the bank's least aperture still takes its least open entry
     assert EyeBankTrack(bank)(_points(0.95 * least)).entry == 1
-    assert EyeBankTrack(bank)(_points(1.05 * least / RANGE)).entry == 1
-    assert EyeBankTrack(bank)(_points(0.95 * least / RANGE)) is None
+    assert EyeBankTrack(bank)(_points(1.05 * least / STRETCH)).entry == 1
+    assert EyeBankTrack(bank)(_points(0.95 * least / STRETCH)) is None
     # one eye shut: that eye keeps the synthesis' (drawn) lids, the other takes the bank's
     winking = _points((0.1, 0.3))
     choice = EyeBankTrack(bank)(winking)
