@@ -8,7 +8,8 @@ import numpy as np
 
 class BankRows:
     """Rows of a bank being built (any tuples). ``add`` keeps at most 4 x ``max_entries`` (every other one when
-    full); ``spread`` gives at most ``max_entries`` of them, evenly spread, in order."""
+    full; a None row, a frame that gave none, is skipped); ``spread`` gives at most ``max_entries`` of them, evenly
+    spread, in order."""
 
     def __init__(self, max_entries: int) -> None:
         if max_entries < 1:
@@ -16,7 +17,9 @@ class BankRows:
         self.max_entries = int(max_entries)
         self.rows: list[tuple] = []
 
-    def add(self, row: tuple) -> None:
+    def add(self, row: tuple | None) -> None:
+        if row is None:
+            return
         self.rows.append(row)
         if len(self.rows) >= 4 * self.max_entries:  # a long video: every other row, so memory stays bounded
             self.rows = self.rows[::2]

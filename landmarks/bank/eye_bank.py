@@ -35,7 +35,7 @@ import numpy as np
 from landmarks.bank.entries import BankRows, usable_face
 from landmarks.bank.hysteresis import EntryTrack
 from landmarks.driver_eyes import FEATHER, RING, ellipse_mask
-from landmarks.iris import eye_apertures, eye_axes, gaze_offsets
+from landmarks.iris import EYES, eye_apertures, eye_axes, gaze_offsets
 from landmarks.mouth_interior import finite_points, match_light
 from landmarks.pose import estimate_head_pose
 from landmarks.smooth import inter_ocular_distance
@@ -109,11 +109,8 @@ def eye_affine(corners: np.ndarray, size: tuple[int, int] = PATCH, stretch: floa
 
 
 def eye_corners(landmarks: np.ndarray) -> np.ndarray:
-    """(2, 2, 2): each eye's two corners (image left first) of (68, 2) points."""
-    return np.stack([np.asarray(landmarks, np.float64)[[first, last]] for first, last, _ in _EYE_CORNERS])
-
-
-_EYE_CORNERS = ((36, 39, 0), (42, 45, 1))
+    """(2, 2, 2): each eye's two corners (image left first, ``landmarks.iris.EYES``) of (68, 2) points."""
+    return np.stack([np.asarray(landmarks, np.float64)[[first, last]] for first, last, _ in EYES])
 
 
 def cut_eyes(frame: np.ndarray, landmarks: np.ndarray, size: tuple[int, int] = PATCH) -> np.ndarray:
@@ -149,24 +146,33 @@ def eye_state(landmarks: np.ndarray, irises: np.ndarray | None = None) -> tuple[
     return eye_apertures(points), gazes, head_turn(points)
 
 
+def eye_row(frame: np.ndarray, points: np.ndarray | None, irises: np.ndarray | None) -> tuple | None:
+    """One frame's entry of an eye bank: (patches, apertures, gazes, head turn), or None where it has no face or an
+    eye is under 4 pixels wide (``build_eye_bank``)."""
+    face = usable_face(frame, points)
+    if face is None or min(_width(c) for c in eye_corners(face[1])) < 4.0:
+        return None
+    return (cut_eyes(*face), *eye_state(face[1], irises))
+
+
+def eye_bank_of(rows: list[tuple]) -> EyeBank | None:
+    """``eye_row``s -> ``EyeBank`` (None for no rows)."""
+    if not rows:
+        return None
+    patches, apertures, gazes, poses = (np.stack(column) for column in zip(*rows))
+    return EyeBank(patches, apertures, gazes, poses)
+
+
 def build_eye_bank(faces: Iterable[tuple[np.ndarray, np.ndarray | None, np.ndarray | None]], max_entries: int = 600
                    ) -> EyeBank | None:
     """The eye bank of a person's frames, read one at a time: (frame (H, W, 3) uint8 RGB, its 68 points (frame
     pixels; None or NaN: no face, skipped), its irises ((2, 4) ``landmarks.iris.find_irises`` rows, or None)) ->
     ``EyeBank``, or None when no frame has a face whose eyes are at least 4 pixels wide. At most ``max_entries``
     entries, evenly spread over the frames."""
-    bank_rows = BankRows(max_entries)
-    for frame, points, found in faces:
-        face = usable_face(frame, points)
-        if face is None or min(_width(c) for c in eye_corners(face[1])) < 4.0:
-            continue
-        frame, points = face
-        bank_rows.add((cut_eyes(frame, points), *eye_state(points, found)))
-    rows = bank_rows.spread()
-    if not rows:
-        return None
-    patches, apertures, gazes, poses = (np.stack(column) for column in zip(*rows))
-    return EyeBank(patches, apertures, gazes, poses)
+    rows = BankRows(max_entries)
+    for frame, points, irises in faces:
+        rows.add(eye_row(frame, points, irises))
+    return eye_bank_of(rows.spread())
 
 
 def state_cost(bank: EyeBank, apertures: np.ndarray, gazes: np.ndarray | None, pose: np.ndarray) -> np.ndarray:

@@ -30,6 +30,7 @@ import numpy as np
 from landmarks.bank.eye_bank import head_turn
 from landmarks.bank.entries import BankRows, usable_face
 from landmarks.bank.hysteresis import EntryTrack
+from landmarks.driver_eyes import similarity
 from landmarks.expression import mouth_opening
 from landmarks.mouth_interior import LIPS, finite_points, lip_affine, match_light
 from landmarks.nearest_mouth import mouth_weight
@@ -86,17 +87,12 @@ class MouthBank:
 
 def mouth_affine(landmarks: np.ndarray) -> np.ndarray:
     """The (2, 3) similarity taking image pixels to the mouth's own frame: the corners (``CORNERS``) of (68, 2)
-    points level, ``CANON_WIDTH`` apart, around the centre of a ``PATCH``."""
-    points = np.asarray(landmarks, np.float64)
-    start, end = points[CORNERS[0]], points[CORNERS[1]]
-    along = end - start
-    width = float(np.hypot(*along))
-    if not width > 0:
+    points level, ``CANON_WIDTH`` apart, around the centre of a ``PATCH`` (``landmarks.driver_eyes.similarity``)."""
+    corners = np.asarray(landmarks, np.float64)[list(CORNERS)]
+    if not np.hypot(*(corners[1] - corners[0])) > 0:
         raise ValueError("the mouth's corners must be apart")
-    unit = along / width * (CANON_WIDTH / width)
-    linear = np.array([[unit[0], unit[1]], [-unit[1], unit[0]]])  # rotate the corner line level, then scale
-    shift = np.array([PATCH[0] / 2.0, PATCH[1] / 2.0]) - linear @ ((start + end) / 2.0)
-    return np.hstack([linear, shift[:, None]])
+    centre = np.array([PATCH[0] / 2.0, PATCH[1] / 2.0])
+    return similarity(corners, centre + [[-CANON_WIDTH / 2.0, 0.0], [CANON_WIDTH / 2.0, 0.0]])
 
 
 def own_lips(landmarks: np.ndarray) -> np.ndarray:
@@ -106,25 +102,34 @@ def own_lips(landmarks: np.ndarray) -> np.ndarray:
     return points[LIPS] @ matrix[:, :2].T + matrix[:, 2]
 
 
+def mouth_row(frame: np.ndarray, points: np.ndarray | None) -> tuple | None:
+    """One frame's entry of a mouth bank: (patch, own lips, opening, head turn), or None where it has no face or its
+    mouth is narrower than ``MIN_WIDTH`` (``build_mouth_bank``)."""
+    face = usable_face(frame, points)
+    if face is None or np.hypot(*(face[1][CORNERS[1]] - face[1][CORNERS[0]])) < MIN_WIDTH:
+        return None
+    frame, points = face
+    patch = cv2.warpAffine(frame, mouth_affine(points), PATCH, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return patch, own_lips(points), float(mouth_opening(points)), head_turn(points)
+
+
+def mouth_bank_of(rows: list[tuple]) -> MouthBank | None:
+    """``mouth_row``s -> ``MouthBank`` (None for no rows)."""
+    if not rows:
+        return None
+    patches, lips, openings, poses = zip(*rows)
+    return MouthBank(np.stack(patches), np.stack(lips), np.asarray(openings, np.float64), np.stack(poses))
+
+
 def build_mouth_bank(faces: Iterable[tuple[np.ndarray, np.ndarray | None]], max_entries: int = 600
                      ) -> MouthBank | None:
     """The mouth bank of a person's frames, read one at a time: (frame (H, W, 3) uint8 RGB, its 68 points (frame
     pixels; None or NaN: no face, skipped)) -> ``MouthBank``, or None when no frame has a mouth at least
     ``MIN_WIDTH`` pixels wide. At most ``max_entries`` entries, evenly spread over the frames."""
-    bank_rows = BankRows(max_entries)
+    rows = BankRows(max_entries)
     for frame, points in faces:
-        face = usable_face(frame, points)
-        if face is None or np.hypot(*(face[1][CORNERS[1]] - face[1][CORNERS[0]])) < MIN_WIDTH:
-            continue
-        frame, points = face
-        patch = cv2.warpAffine(frame, mouth_affine(points), PATCH, flags=cv2.INTER_LINEAR,
-                               borderMode=cv2.BORDER_REPLICATE)
-        bank_rows.add((patch, own_lips(points), float(mouth_opening(points)), head_turn(points)))
-    rows = bank_rows.spread()
-    if not rows:
-        return None
-    patches, lips, openings, poses = zip(*rows)
-    return MouthBank(np.stack(patches), np.stack(lips), np.asarray(openings, np.float64), np.stack(poses))
+        rows.add(mouth_row(frame, points))
+    return mouth_bank_of(rows.spread())
 
 
 def shape_cost(bank: MouthBank, lips: np.ndarray, opening: float, pose: np.ndarray) -> np.ndarray:

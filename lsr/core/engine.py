@@ -6,16 +6,13 @@ pasted back into the driver frame, face-less frames passed through. A runtime su
 ``SynthesisBackend`` (two numpy functions): ``lsr.pipeline.Reenactor`` runs them with torch,
 ``deploy.runtime.OnnxReenactor`` with onnxruntime. Same code, same numbers, one API.
 
-Why here: the generic image operations (crop, rasterise, paste-back, retarget, One-Euro) already live in
-``landmarks``; this loop only composes them. It sits in ``deploy`` because ``deploy`` may import only
-``landmarks`` (+ onnxruntime) and must stay torch-free; ``lsr`` reaches ``deploy`` anyway
-(``lsr reenact --runtime onnx``), so ``lsr.pipeline`` importing this module adds no new dependency edge.
+Why here: the image operations (crop, rasterise, paste-back, retarget, One-Euro) live in ``landmarks``; this
+loop only composes them, torch-free, for both runtimes.
 
-Coordinates: the synthesis happens in a training-framed crop of side S (thesis §4.4 VoxCeleb2 framing),
-one crop transform per driver frame computed from its (smoothed) landmarks, so pasting back uses the exact
-inverse of the crop warp. Relative mode (default when source and driver differ) moves the source's own
-landmarks by the driver's motion relative to the driver's first valid frame (``retarget_relative``), both in
-crop coordinates; absolute mode uses the driver's crop landmarks as they are.
+Coordinates: the synthesis happens in a training-framed crop of side S (thesis §4.4), one crop transform per
+driver frame from its (smoothed) landmarks, so pasting back uses the exact inverse of the crop warp. Relative mode
+(default when source and driver differ) moves the source's own face by the driver's motion since its first face
+(``landmarks.mesh_retarget.retarget_face``), in crop coordinates; absolute mode uses the driver's crop landmarks.
 """
 
 from __future__ import annotations
@@ -26,7 +23,6 @@ import functools
 import os
 import time
 from collections.abc import Callable, Iterator
-from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -49,13 +45,14 @@ from landmarks.driver_eyes import DriverEyes, cut_driver_eyes, paste_eyes
 from landmarks.drawn_lids import draw_lids
 from landmarks.errors import InputFileError, NoFaceError
 from landmarks.expression_gain import EXPRESSION_GAIN, GAIN_RANGE
-from landmarks.bank.eye_bank import EyeBankTrack, EyeChoice, paste_bank_eyes
-from landmarks.bank.mouth_bank import MouthBankTrack, MouthChoice, paste_bank_mouth
+from landmarks.bank.eye_bank import EyeChoice, paste_bank_eyes
+from landmarks.bank.mouth_bank import MouthChoice, paste_bank_mouth
 from landmarks.eyelids import LOOK_AHEAD
 from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
 from landmarks.mouth_interior import DriverMouth, cut_driver_mouth, paste_interior
 from lsr.core.backend import SynthesisBackend
 from lsr.core.overlap import finish_behind, prefetch
+from lsr.core.part_tracks import PartTracks, part_tracks
 from lsr.core.scene_source import paste_into_driver, paste_into_scene
 from lsr.core.subject import Subject
 from lsr.core.images import from_network, square_resize, to_network
@@ -94,9 +91,8 @@ class ReenactedFrame:
     driver_eyes: DriverEyes | None = None
     """The driver frame's shut eyes, which the synthesis takes (``lids`` "driver")."""
     eye_choice: EyeChoice | None = None
-    """The subject's own eyes the frame takes from its eye bank (``bank``; ``landmarks.bank.eye_bank``)."""
     mouth_choice: MouthChoice | None = None
-    """The subject's own mouth the frame takes from its mouth bank (``bank``; ``landmarks.bank.mouth_bank``)."""
+    """The subject's own eyes and mouth the frame takes from its part banks (``bank``; ``landmarks.bank``)."""
 
 
 @dataclasses.dataclass
@@ -124,23 +120,6 @@ class _Prepared:
     frame: ReenactedFrame
     inputs: dict[str, np.ndarray]
     finish: Callable[[ReenactedFrame], ReenactedFrame] | None
-
-
-@dataclasses.dataclass
-class PartTracks:
-    """A driven sequence's choice of bank parts (``landmarks.bank``): the eyes' and the mouth's, either None."""
-
-    eyes: EyeBankTrack | None
-    mouth: MouthBankTrack | None
-
-    def __call__(self, landmarks: np.ndarray, gaze: np.ndarray | None) -> tuple[EyeChoice | None, MouthChoice | None]:
-        return (None if self.eyes is None else self.eyes(landmarks, gaze),
-                None if self.mouth is None else self.mouth(landmarks))
-
-    def reset(self) -> None:
-        for track in (self.eyes, self.mouth):
-            if track is not None:
-                track.reset()
 
 
 class ReenactorBase:
@@ -285,8 +264,7 @@ class ReenactorBase:
         gaze: the target's (2, 2) ``landmarks.iris.gaze_offsets``, for ``eyes`` "drawn" or "warped".
         driver_mouth: the driver frame's mouth (``landmarks.mouth_interior.cut_driver_mouth``), for
         ``mouth_interior`` "driver". driver_eyes: the driver frame's shut eyes (``landmarks.driver_eyes.cut_driver_eyes``),
-        for ``lids`` "driver". eye_choice, mouth_choice: the subject's own parts from its banks (``part_tracks``).
-        """
+        for ``lids`` "driver". eye_choice, mouth_choice: the subject's own parts from its banks (``part_tracks``)."""
         landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject, crop_mesh, gaze)
         image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks, subject, gaze, driver_mouth,
                                                driver_eyes, eye_choice, mouth_choice)
@@ -470,22 +448,14 @@ class ReenactorBase:
                                         driver_mouth, driver_eyes), inputs, finish)
 
     def part_tracks(self, subject: Subject, relative: bool) -> PartTracks | None:
-        """A new driven sequence's choice of ``subject``'s bank parts (``landmarks.bank``), or None where ``bank`` is
-        "none". Builds the banks on first use (``Subject.part_banks``). relative: the targets' lids were retargeted
-        from a driver's onto the subject's anchor."""
-        if self.bank == "none":
-            return None
-        eye_bank, mouth_bank = subject.part_banks(self.bank, self.detector)
-        eyes = (EyeBankTrack(eye_bank, subject.reference_landmarks if relative else None)
-                if eye_bank is not None and self.bank_parts in ("eyes", "both") else None)
-        mouth = MouthBankTrack(mouth_bank) if mouth_bank is not None and self.bank_parts in ("mouth", "both") else None
-        return PartTracks(eyes, mouth)
+        """``lsr.core.part_tracks.part_tracks`` as this reenactor's ``bank`` and ``bank_parts`` say."""
+        return part_tracks(subject, self.bank, self.bank_parts, self.detector, relative)
 
     def _synthesized(self, items, with_layout: bool, stats: ReenactStats, tracks: PartTracks | None = None
                      ) -> Iterator[ReenactedFrame | Callable]:
         """The network on each prepared frame, here (the items come from the preparing thread); the frames, or their
-        finishers (``lsr.core.overlap.finish_behind``), in order. decode = what the network waited for. tracks: the
-        sequence's bank parts, chosen here frame by frame in order (``PartTracks``)."""
+        finishers (``lsr.core.overlap.finish_behind``), in order. decode = what the network waited for. tracks:
+        the bank parts, chosen here in order."""
         with contextlib.closing(items):  # stopped early: the preparing threads stop too
             while True:
                 started = time.perf_counter()

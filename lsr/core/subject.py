@@ -10,8 +10,9 @@ import functools
 import numpy as np
 
 from landmarks.drawn_lids import shot_lid_gaps
-from landmarks.bank.eye_bank import EyeBank, build_eye_bank
-from landmarks.bank.mouth_bank import MouthBank, build_mouth_bank
+from landmarks.bank.entries import BankRows
+from landmarks.bank.eye_bank import EyeBank, build_eye_bank, eye_bank_of, eye_row
+from landmarks.bank.mouth_bank import MouthBank, build_mouth_bank, mouth_bank_of, mouth_row
 from landmarks.iris import gaze_offsets, iris_donor
 from lsr.core.parts import found_irises, shot_irises
 from lsr.core.sources import SubjectShots
@@ -90,8 +91,9 @@ class Subject:
         return meshes[self.shots.anchor]
 
 
-def video_part_banks(video, detector=None) -> tuple[EyeBank | None, MouthBank | None]:
-    """The eye and mouth banks of every frame of a video (``landmarks.bank``), in one pass: tracked with
+def video_part_banks(video, detector=None, max_entries: int = 600) -> tuple[EyeBank | None, MouthBank | None]:
+    """The eye and mouth banks of every frame of a video (``landmarks.bank``), in one pass, each frame cut into both
+    banks' rows as it is decoded (memory bounded by ``landmarks.bank.entries.BankRows``): tracked with
     ``detector``'s tracker (``landmarks.detectors.make_tracker``), whose iris net's irises come with its faces (the
     mesh tracker); other trackers' irises are found per frame (``landmarks.iris.find_irises``)."""
     from landmarks.detectors import make_tracker
@@ -99,27 +101,13 @@ def video_part_banks(video, detector=None) -> tuple[EyeBank | None, MouthBank | 
     from landmarks.video import iter_frames
 
     tracker = make_tracker(detector)
-    mouths: list[tuple[np.ndarray, np.ndarray]] = []
-
-    def faces():
-        for frame in iter_frames(video):
-            points = tracker.update(frame)
-            if points is None or not np.isfinite(points).all():
-                continue
-            points = np.asarray(points, np.float64)
-            irises = getattr(tracker, "irises", None)
-            mouths.append(_mouth_crop(frame, points))
-            yield frame, points, irises if irises is not None else find_irises(frame, points)
-
-    eyes = build_eye_bank(faces())
-    return eyes, build_mouth_bank(mouths)
-
-
-def _mouth_crop(frame: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The frame around the mouth (the box of the lower face grown by half its size) and the points in it: a small
-    copy, so that a long video's frames are not all kept."""
-    lower = points[2:15]
-    reach = 0.5 * float(np.ptp(lower, axis=0).max())
-    x0, y0 = np.maximum(np.floor(lower.min(axis=0) - reach), 0).astype(int)
-    x1, y1 = np.minimum(np.ceil(lower.max(axis=0) + reach) + 1, (frame.shape[1], frame.shape[0])).astype(int)
-    return frame[y0:y1, x0:x1].copy(), points - (x0, y0)
+    eyes, mouths = BankRows(max_entries), BankRows(max_entries)
+    for frame in iter_frames(video):
+        points = tracker.update(frame)
+        if points is None or not np.isfinite(points).all():
+            continue
+        points = np.asarray(points, np.float64)
+        irises = getattr(tracker, "irises", None)
+        eyes.add(eye_row(frame, points, irises if irises is not None else find_irises(frame, points)))
+        mouths.add(mouth_row(frame, points))
+    return eye_bank_of(eyes.spread()), mouth_bank_of(mouths.spread())

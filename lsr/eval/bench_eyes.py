@@ -246,7 +246,7 @@ def run_bench_eyes(cfg: BenchEyesConfig) -> list[dict[str, Any]]:
         pair = f"{_short(source.stem)} ← {_short(driver.stem)}"
         rows += pair_rows(pair, driver_read, outputs, floor)
         if cfg.figure is not None:
-            figure += _moments(driver, keep, driver_read, kept_frames)
+            figure += _moments(driver_read, kept_frames)
     settings = {"clips": ", ".join(shown_path(c) for c in clips[:1]) + (f" and {len(clips) - 1} more" if len(clips) > 1
                                                                         else ""),
                 "k": cfg.k, "weights": shown_path(weights), "frames": f"{min(frames_judged)}-{max(frames_judged)}"}
@@ -266,10 +266,9 @@ def _short(name: str, keep: int = 30) -> str:
     return name if len(name) <= keep else f"{name[:keep // 2 - 1]}…{name[-(keep // 2):]}"
 
 
-def _moments(driver: Path, keep: np.ndarray, read: dict[str, np.ndarray], frames: dict[str, list]) -> list[np.ndarray]:
-    """The driver's widest and most shut eyes, its most aside gaze and its widest mouth: one figure row each."""
-    from landmarks.video import iter_frames
-
+def _moments(read: dict[str, np.ndarray], frames: dict[str, list]) -> list[np.ndarray]:
+    """The driver's widest and most shut eyes, its most aside gaze and its widest mouth: one figure row each, the
+    driver frame the re-enactment carried (``ReenactedFrame.driver_frame``) beside each bank's output."""
     picks = []
     for name, pick in (("judge_eye", np.nanargmax), ("judge_eye", np.nanargmin), ("judge_gaze", None),
                        ("judge_mouth", np.nanargmax)):
@@ -280,7 +279,5 @@ def _moments(driver: Path, keep: np.ndarray, read: dict[str, np.ndarray], frames
             continue
         values = np.where(usable, values, np.nan)
         picks.append(int(np.nanargmax(np.abs(values - np.nanmedian(values))) if pick is None else pick(values)))
-    wanted = {int(keep[p]): p for p in picks}
-    driver_frames = {i: frame for i, frame in enumerate(iter_frames(driver)) if i in wanted}
-    return [figure_row(driver_frames[int(keep[p])], [f[p] for f in frames.values()]) for p in picks
-            if int(keep[p]) in driver_frames]
+    first = next(iter(frames.values()))
+    return [figure_row(first[p].driver_frame, [f[p] for f in frames.values()]) for p in picks]
