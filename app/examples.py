@@ -93,9 +93,9 @@ def write_clip_with_tone(path: Path, frames: np.ndarray, fps: int = EXAMPLE_FPS,
 
 
 def _generate(folder: Path) -> None:
-    from landmarks.detectors import make_detector
-    from landmarks.imageio import write_image
-    from landmarks.video import iter_frames
+    from landmarks.detect.registry import make_detector
+    from landmarks.io.image_files import write_image
+    from landmarks.io.video import iter_frames
     from lsr.examples import REAL_DRIVER, REAL_SOURCE, example_shots
 
     layout = _layout(folder)

@@ -97,7 +97,7 @@ class ModelStore:
     def detector(self):
         with self._lock:
             if self._detector is None:
-                from landmarks.detectors import make_detector
+                from landmarks.detect.registry import make_detector
 
                 self._detector = make_detector()
             return self._detector
@@ -117,7 +117,7 @@ class ModelStore:
             if runtime == "onnx":
                 if self._onnx is None:
                     from deploy.runtime import OnnxReenactor
-                    from lsr.reenact import onnx_bundle_folder
+                    from lsr.export.find_bundle import onnx_bundle_folder
 
                     self._onnx = OnnxReenactor(onnx_bundle_folder(weights), detector=detector)
                 return self._onnx
@@ -136,7 +136,7 @@ class ModelStore:
         with self._lock:
             if self._live is None:
                 from deploy.runtime import OnnxReenactor
-                from lsr.reenact import onnx_bundle_folder
+                from lsr.export.find_bundle import onnx_bundle_folder
 
                 self._live = OnnxReenactor(onnx_bundle_folder(weights), detector=detector, threads=LIVE_NETWORK_THREADS)
             return self._live
@@ -193,7 +193,7 @@ def readable_errors(what: str) -> Iterator[None]:
     """Typed library errors -> ``gr.Error`` with their message; anything else -> a short message + a server log."""
     import gradio as gr
 
-    from landmarks.errors import LandmarksError, NoFaceError
+    from landmarks.exceptions import LandmarksError, NoFaceError
     from lsr.errors import LsrError
 
     try:
@@ -232,7 +232,7 @@ def upload_paths(files) -> list[Path]:
 
 
 def check_upload_size(path: Path, limits: Limits) -> None:
-    from landmarks.errors import InputFileError
+    from landmarks.exceptions import InputFileError
 
     megabytes = path.stat().st_size / 1e6
     if megabytes > limits.max_upload_mb:
@@ -242,8 +242,8 @@ def check_upload_size(path: Path, limits: Limits) -> None:
 
 def check_driver(driving: Path, limits: Limits):
     """``describe_driver`` plus the app's length limits; returns the ``DriverInfo``."""
-    from lsr.core.sources import describe_driver
-    from landmarks.errors import InputFileError
+    from lsr.core.inputs import describe_driver
+    from landmarks.exceptions import InputFileError
 
     check_upload_size(driving, limits)
     info = describe_driver(driving)
@@ -262,11 +262,11 @@ def load_shots(files: Sequence, k: int, size: int, detector, limits: Limits):
 
     Images without a face are skipped and named in the notes (an error only when none has a face).
     """
-    from lsr.core.sources import (DEFAULT_K, SubjectShots, load_subject_shots, of_the_person, set_anchor,
+    from lsr.core.inputs import (DEFAULT_K, SubjectShots, load_subject_shots, of_the_person, set_anchor,
                                   cover_shots)
-    from landmarks.errors import InputFileError, NoFaceError
-    from landmarks.imageio import IMAGE_SUFFIXES
-    from landmarks.video import VIDEO_SUFFIXES, probe_video
+    from landmarks.exceptions import InputFileError, NoFaceError
+    from landmarks.io.image_files import IMAGE_SUFFIXES
+    from landmarks.io.video import VIDEO_SUFFIXES, probe_video
 
     paths = upload_paths(files)
     if not paths:
@@ -342,7 +342,7 @@ def enlarge(image: np.ndarray, side: int = DISPLAY_SIDE) -> np.ndarray:
 
 def shot_gallery(shots) -> list[tuple[np.ndarray, str]]:
     """Each shot enlarged with its detected landmarks drawn over it, captioned with its file."""
-    from landmarks.annotate import draw_overlay
+    from landmarks.io.annotate import draw_overlay
 
     items = []
     for frame, points, name in zip(shots.frames, shots.landmarks, shots.names):
@@ -372,8 +372,8 @@ def latent_averaging(reenactor, shots, target_landmarks: np.ndarray) -> list[tup
     nearest shots for every panel, so the panels differ by the latents only.
     """
     from lsr.core.engine import to_network
-    from lsr.core.sources import resize_shots
-    from landmarks.raster import draw_landmarks
+    from lsr.core.inputs import resize_shots
+    from landmarks.shape.raster import draw_landmarks
 
     size = reenactor.resolution
     small = resize_shots(shots, size)
@@ -407,7 +407,7 @@ class RunResult:
     timing: str
     summary: str
     coverage: np.ndarray | None = None
-    """(H, W, 3) uint8: what the shots cover of the driven frames (``landmarks.coverage.coverage_picture``); None
+    """(H, W, 3) uint8: what the shots cover of the driven frames (``landmarks.parts.coverage.coverage_picture``); None
     when no frame had a face."""
 
 
@@ -419,10 +419,10 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
                     motion: str = "relative", smooth: bool = True, paste_back: bool = False, finetune_steps: int = 0,
                     runtime: str = "torch", watermark: bool = True) -> RunResult:
     """Shots -> subject latents (K-shot average) -> one output frame per driver frame, written as the app shows them."""
-    from landmarks.coverage import coverage_picture
-    from landmarks.errors import InputFileError
-    from landmarks.imageio import write_image
-    from lsr.reenact import stage_table, write_reenactment
+    from landmarks.parts.coverage import coverage_picture
+    from landmarks.exceptions import InputFileError
+    from landmarks.io.image_files import write_image
+    from lsr.writer import stage_table, write_reenactment
 
     reenactor = store.reenactor(runtime)  # first: without a model nothing else matters
     driving_paths = upload_paths(driving)

@@ -1,7 +1,7 @@
 """Recording a person's own shots with the webcam (the first tab): the best frame of each moment a recording asks for.
 
 Frames stream from the browser's camera; each frame's face is found (the app's detector) and given to a
-``landmarks.coverage.MomentKeeper``, which keeps the best frame of each of ``landmarks.coverage.MOMENTS``
+``landmarks.parts.coverage.MomentKeeper``, which keeps the best frame of each of ``landmarks.parts.coverage.MOMENTS``
 (straight ahead, mouth wide open, "O", eyes closed, glances and turns each way, a smile). The kept shots show in a
 gallery as they change, with the moments still missing; "Use these shots" writes them as PNGs under the app's
 examples folder (which the app serves) and makes them the source person, like an upload.
@@ -22,7 +22,7 @@ then press *Use these shots*."""
 
 
 def record_help() -> str:
-    from landmarks.coverage import MOMENTS
+    from landmarks.parts.coverage import MOMENTS
 
     return RECORD_HELP.format(moments="; ".join(f"**{name}** ({what})" for name, what in MOMENTS))
 
@@ -30,8 +30,8 @@ def record_help() -> str:
 def record_frame(store: ModelStore, keeper, frame: np.ndarray | None):
     """One camera frame -> (keeper, the gallery's shots or a skip, the status line or a skip): the gallery and the
     line change only when a moment gets a better frame."""
-    from app.live import gr_skip
-    from landmarks.coverage import MomentKeeper
+    from app.live_tab import gr_skip
+    from landmarks.parts.coverage import MomentKeeper
 
     keeper = keeper if keeper is not None else MomentKeeper()
     if frame is None:
@@ -54,7 +54,7 @@ def recorded_files(keeper, examples_dir: Path) -> list[str]:
     a ``gradio.Error``)."""
     import gradio as gr
 
-    from landmarks.imageio import write_image
+    from landmarks.io.image_files import write_image
 
     shots = [] if keeper is None else keeper.shots()
     if not shots:

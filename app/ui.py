@@ -19,7 +19,8 @@ from pathlib import Path
 import gradio as gr
 
 from app import examples as ex
-from app import handlers, live, record
+from app import handlers, record
+from app import live_tab as live
 from lsr.config import DEFAULT_FINETUNE_STEPS
 from lsr.config import AppConfig
 
@@ -168,7 +169,7 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
         path = handlers.panel_path(panels_dir, int(index or 0))
         if not path.is_file():
             return None
-        from landmarks.imageio import read_image
+        from landmarks.io.image_files import read_image
 
         return handlers.labelled_panel(read_image(path))
 

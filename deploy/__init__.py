@@ -2,5 +2,5 @@
 
 ``deploy.runtime.OnnxReenactor`` (numpy + onnxruntime + OpenCV via ``landmarks``; no dlib by default) has the same API as
 ``lsr.pipeline.Reenactor``; both run the frame loop of the inference core ``lsr.core`` (``lsr.core.engine``,
-inputs from ``lsr.core.sources``). Nothing heavy is imported here.
+inputs from ``lsr.core.inputs``). Nothing heavy is imported here.
 """

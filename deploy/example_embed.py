@@ -14,9 +14,9 @@ from pathlib import Path
 from lsr.core.overlap import single_blas_thread
 from lsr.core.provenance import draw_watermark, provenance_metadata
 from deploy.runtime import OnnxReenactor
-from lsr.core.sources import describe_driver
-from landmarks.imageio import write_image
-from landmarks.video import VideoWriter
+from lsr.core.inputs import describe_driver
+from landmarks.io.image_files import write_image
+from landmarks.io.video import VideoWriter
 
 
 def reenact_to(bundle: str, source: str, driving: str, out: str) -> int:

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from lsr.core.engine import ReenactorBase
-from landmarks.errors import InputFileError
+from landmarks.exceptions import InputFileError
 
 SUBJECT_ENCODER_FILE = "subject_encoder.onnx"
 FRAME_GENERATOR_FILE = "frame_generator.onnx"

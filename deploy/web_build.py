@@ -10,7 +10,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from landmarks.errors import LandmarksError
+from landmarks.exceptions import LandmarksError
 
 WEB = Path(__file__).resolve().parent / "web"
 DIST = WEB / "dist"

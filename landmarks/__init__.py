@@ -3,5 +3,5 @@ default, dlib's as an option), iBUG-68 points, smoothing, head pose, crop/paste-
 retargeting.
 
 numpy + OpenCV + onnxruntime (dlib only when asked for); no torch. Import the submodules you need
-(``landmarks.detectors``, ``landmarks.raster``, ...): nothing heavy loads here.
+(``landmarks.detect.registry``, ``landmarks.shape.raster``, ...): nothing heavy loads here.
 """

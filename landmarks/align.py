@@ -25,7 +25,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from landmarks.parts import LEFT_EYE, NUM_LANDMARKS, RIGHT_EYE
+from landmarks.shape.ibug68 import LEFT_EYE, NUM_LANDMARKS, RIGHT_EYE
 
 # Framing measured on the VoxCeleb2 (FSTH evaluation) frames; see the module docstring.
 IOD_FRACTION = 0.2184

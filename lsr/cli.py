@@ -16,7 +16,7 @@ from lsr import config
 
 
 def _run_landmarks(cfg: config.LandmarksConfig) -> None:
-    from landmarks.annotate import annotate_path
+    from landmarks.io.annotate import annotate_path
 
     annotate_path(
         cfg.input,
@@ -31,7 +31,7 @@ def _run_landmarks(cfg: config.LandmarksConfig) -> None:
 
 
 def _run_demo(cfg: config.DemoConfig) -> None:
-    from lsr.demo import run_demo
+    from lsr.commands.demo import run_demo
 
     run_demo(cfg.out, weights=cfg.weights, frames=cfg.frames, k=cfg.k, finetune_steps=cfg.finetune_steps, synthetic=cfg.synthetic,
              threads=cfg.threads, progress=cfg.progress)
@@ -99,46 +99,46 @@ COMMANDS: dict[str, tuple[type, Runner]] = {
     "prepare": (config.PrepareConfig, _run_prepare),
     "eval": (config.EvalConfig, "lsr.eval.report:run_eval"),
     "synth": (config.SynthConfig, _run_synth),
-    "reenact": (config.ReenactConfig, "lsr.reenact:run_reenact"),
-    "export": (config.ExportConfig, "lsr.export_web:run_export"),
+    "reenact": (config.ReenactConfig, "lsr.commands.reenact:run_reenact"),
+    "export": (config.ExportConfig, "lsr.export.web_site:run_export"),
     "app": (config.AppConfig, "app.ui:run_app"),
     "ship": (config.ShipConfig, "lsr.weights.ship:run_ship"),
     "curves": (config.CurvesConfig, "lsr.train.visualize:run_curves"),
 }
 GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
     "bench": {
-        "landmarks": (config.BenchLandmarksConfig, "lsr.eval.bench_landmarks:run_bench_landmarks"),
-        "train": (config.BenchTrainConfig, "lsr.train.bench:run_bench_train"),
-        "reenact": (config.BenchReenactConfig, "lsr.eval.bench_reenact:run_bench_reenact"),
-        "live": (config.BenchLiveConfig, "app.bench_live:run_bench_live"),
-        "web": (config.BenchWebConfig, "app.bench_web:run_bench_web"),
-        "soak": (config.BenchSoakConfig, "app.bench_soak:run_bench_soak"),
-        "models": (config.BenchModelsConfig, "lsr.eval.bench_models:run_bench_models"),
-        "speed": (config.BenchSpeedConfig, "lsr.eval.bench_speed:run_bench_speed"),
-        "finetune": (config.BenchFinetuneConfig, "lsr.eval.bench_finetune:run_bench_finetune"),
-        "hard": (config.BenchHardConfig, "lsr.eval.bench_hard:run_bench_hard"),
-        "lids": (config.BenchLidsConfig, "lsr.eval.bench_lids:run_bench_lids"),
-        "plate": (config.BenchPlateConfig, "lsr.eval.bench_plate:run_bench_plate"),
-        "eyes": (config.BenchEyesConfig, "lsr.eval.bench_eyes:run_bench_eyes"),
-        "ablation": (config.BenchAblationConfig, "lsr.eval.bench_ablation:run_bench_ablation"),
+        "landmarks": (config.BenchLandmarksConfig, "lsr.bench.bench_landmarks:run_bench_landmarks"),
+        "train": (config.BenchTrainConfig, "lsr.bench.bench_train:run_bench_train"),
+        "reenact": (config.BenchReenactConfig, "lsr.bench.bench_reenact:run_bench_reenact"),
+        "live": (config.BenchLiveConfig, "lsr.bench.bench_live:run_bench_live"),
+        "web": (config.BenchWebConfig, "lsr.bench.bench_web:run_bench_web"),
+        "soak": (config.BenchSoakConfig, "lsr.bench.bench_soak:run_bench_soak"),
+        "models": (config.BenchModelsConfig, "lsr.bench.bench_models:run_bench_models"),
+        "speed": (config.BenchSpeedConfig, "lsr.bench.bench_speed:run_bench_speed"),
+        "finetune": (config.BenchFinetuneConfig, "lsr.bench.bench_finetune:run_bench_finetune"),
+        "hard": (config.BenchHardConfig, "lsr.bench.bench_hard:run_bench_hard"),
+        "lids": (config.BenchLidsConfig, "lsr.bench.bench_lids:run_bench_lids"),
+        "plate": (config.BenchPlateConfig, "lsr.bench.bench_plate:run_bench_plate"),
+        "eyes": (config.BenchEyesConfig, "lsr.bench.bench_eyes:run_bench_eyes"),
+        "ablation": (config.BenchAblationConfig, "lsr.bench.bench_ablation:run_bench_ablation"),
         "synth": (config.BenchSynthConfig, _run_bench_synth),
         "oracle-seg": (config.BenchOracleSegConfig, "lsr.data.oracle_seg:run_bench_oracle_seg"),
-        "layout-legend": (config.BenchLayoutLegendConfig, "lsr.eval.layout_legend:run_bench_layout_legend"),
+        "layout-legend": (config.BenchLayoutLegendConfig, "lsr.bench.layout_legend:run_bench_layout_legend"),
     },
     "parts": {
-        "pairs": (config.PartPairsConfig, "lsr.train.parts:run_pairs"),
-        "train": (config.PartTrainConfig, "lsr.train.parts:run_train"),
+        "pairs": (config.PartPairsConfig, "lsr.train.part_training:run_pairs"),
+        "train": (config.PartTrainConfig, "lsr.train.part_training:run_train"),
     },
     "face-models": {
-        "convert": (config.FaceModelsConvertConfig, "landmarks.convert_mediapipe:run_convert"),
-        "fit": (config.FaceModelsFitConfig, "landmarks.mesh68:run_fit"),
-        "lids": (config.FaceModelsLidsConfig, "landmarks.eyelids_survey:run_survey"),
+        "convert": (config.FaceModelsConvertConfig, "landmarks.detect.rebuild_mediapipe:run_convert"),
+        "fit": (config.FaceModelsFitConfig, "landmarks.shape.mesh68:run_fit"),
+        "lids": (config.FaceModelsLidsConfig, "landmarks.parts.eyes.lids_survey:run_survey"),
     },
 }
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
-    from landmarks.errors import LandmarksError
+    from landmarks.exceptions import LandmarksError
     from lsr.errors import LsrError
 
     return (LsrError, LandmarksError)

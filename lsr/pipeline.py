@@ -28,9 +28,9 @@ import torch
 from lsr.core.backend import LayoutKind
 from lsr.core.engine import ReenactorBase
 from lsr.core.subject import Subject
-from lsr.core.sources import SubjectShots
+from lsr.core.inputs import SubjectShots
 from lsr.errors import ConfigError, WeightsError
-from lsr.export import FrameGeneratorGraph
+from lsr.export.graphs import FrameGeneratorGraph
 from models_def import LSRModel
 from models_def.part_generator import PartGenerator, load_mouth_generator
 
@@ -198,7 +198,7 @@ class Reenactor(ReenactorBase):
     weights: model folder (config.json + model.safetensors). device: "cpu", "cuda", ... precision: "fp32"
     (default) or "bf16". detector: "mesh" (the default) | "hog" | "cnn" (dlib), or a detector, for the source shots and the driver. crop_size: the
     crop and output side (``lsr.core.engine.default_crop_size``: 2x the model resolution for warp-guided models).
-    mouth_generator: a part generator that redraws the mouth (``lsr.core.parts``); default: the weights folder's
+    mouth_generator: a part generator that redraws the mouth (``lsr.core.finish``); default: the weights folder's
     ``mouth/``, when it has one.
     """
 

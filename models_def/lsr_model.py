@@ -152,7 +152,7 @@ class FrameGenerator(nn.Module):
         if references is None or reference_masks is None:
             raise ValueError(
                 f"variant 'warp_guided' needs references (B, {self.config.warp_references}, 3, H, W) and "
-                "reference_masks (B, N, 1, H, W): the nearest shots warped onto the target (landmarks.tps.warp_references)"
+                "reference_masks (B, N, 1, H, W): the nearest shots warped onto the target (landmarks.warp.tps.warp_references)"
             )
         count = self.config.warp_references
         dims = check_shape("references", references, (batch, count, 3, "H", "W"))

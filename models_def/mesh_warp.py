@@ -1,8 +1,8 @@
 """Piecewise-affine warp maps over a triangulated face mesh, batched in torch: the torch version of
-``landmarks.mesh_warp.mesh_warp_map`` (same triangles, same inside test, same feathering; tested against it).
+``landmarks.warp.piecewise_affine.mesh_warp_map`` (same triangles, same inside test, same feathering; tested against it).
 
 The triangles and the map outside the face (the 68-point TPS there) come in as tensors: this package imports
-nothing else of ours. ``landmarks.mesh_warp.triangulation()`` is the triangle list the numpy map uses.
+nothing else of ours. ``landmarks.warp.piecewise_affine.triangulation()`` is the triangle list the numpy map uses.
 
 Shapes: meshes (B, V, 2) x, y pixels; triangles (T, 3) int64, positively oriented (x right, y down) on a frontal
 face; maps (B, H, W, 2) source pixel coordinates x, y per output pixel (backward maps, like ``cv2.remap``'s).
@@ -18,9 +18,9 @@ import torch.nn.functional as F
 
 from models_def.shapes import check_shape
 
-MIN_AREA = 1e-3  # = landmarks.mesh_warp.MIN_AREA
-FEATHER = 3.0  # = landmarks.mesh_warp.FEATHER
-WEIGHT_SNAP = 1e-5  # = landmarks.mesh_warp.WEIGHT_SNAP
+MIN_AREA = 1e-3  # = landmarks.warp.piecewise_affine.MIN_AREA
+FEATHER = 3.0  # = landmarks.warp.piecewise_affine.FEATHER
+WEIGHT_SNAP = 1e-5  # = landmarks.warp.piecewise_affine.WEIGHT_SNAP
 
 
 def signed_areas(vertices: torch.Tensor, triangles: torch.Tensor) -> torch.Tensor:
@@ -64,7 +64,7 @@ def rasterise_triangles(vertices: torch.Tensor, triangles: torch.Tensor, usable:
                         priority: torch.Tensor | None = None, chunk: int = 32) -> torch.Tensor:
     """Which triangle holds each pixel centre: (B, V, 2), (T, 3), (B, T) bool -> (B, H, W) int64, -1 = none. A pixel
     under several triangles gets the one of highest priority ((B, T) float, ties by index; None = the index), as
-    ``landmarks.mesh_warp.rasterise_triangles``. Every pixel is tested against ``chunk`` triangles at a time, in
+    ``landmarks.warp.piecewise_affine.rasterise_triangles``. Every pixel is tested against ``chunk`` triangles at a time, in
     float64 whatever the vertices' dtype (a float32 test moves pixel centres near an edge across it)."""
     vertices = vertices.double()
     batch, count = vertices.shape[0], len(triangles)

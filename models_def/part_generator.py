@@ -2,7 +2,7 @@
 
 The frame generator blends warped shots; where the shots' mouths disagree or none shows the target's mouth, the
 blend hedges (lips stretched over where the cavity should be, two sets of teeth). This network sees the
-window of that synthesis (``landmarks.part_window``: the mouth's square, level with the eyes, at the part's own
+window of that synthesis (``landmarks.parts.part_window``: the mouth's square, level with the eyes, at the part's own
 resolution) with the open mouth blanked out (``PartGeneratorConfig.hole``) and the target's lips as two masks (the
 outer-lip polygon, the open mouth inside the inner lips), and returns the window redrawn: a residual over that
 input, so the skin and lips the blend got right pass through and the inside of the mouth is drawn. An interior
@@ -11,7 +11,7 @@ generator (``PartGeneratorConfig.interior``) changes the open mouth alone.
 forward(window: (B, 3, P, P) in [-1, 1], masks: (B, 2, P, P) in [0, 1]) -> (B, 3, P, P) in [-1, 1].
 
 A UNet of plain convolutions (no normalisation: one frame at a time, ONNX-friendly), P divisible by 8.
-Trained by ``lsr.train.parts`` on the frame generator's own outputs for held-out frames of the training clips.
+Trained by ``lsr.train.part_training`` on the frame generator's own outputs for held-out frames of the training clips.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ MOUTH_FOLDER = "mouth"
 
 @dataclasses.dataclass(frozen=True)
 class PartGeneratorConfig:
-    """Sizes of a part generator. ``part`` names its window (``landmarks.part_window``), ``size`` its side."""
+    """Sizes of a part generator. ``part`` names its window (``landmarks.parts.part_window``), ``size`` its side."""
 
     part: str = "mouth"
     size: int = 80

@@ -43,8 +43,8 @@ def _drawn_face(iris_at=(0.0,), mouth: float = 0.0, eyes: float = 1.0, inside=(3
     """A drawn face whose answers are known: skin, white eyes whose irises sit at ``iris_at`` (eye widths from the
     corners' midpoint along the eye; several = a doubled iris, each drawn at 1/len of full darkness), the lids'
     gaps times ``eyes``, and a mouth opened to ``mouth`` whose inside is ``inside`` -> (image, its 68 points)."""
-    from landmarks.expression import set_mouth_opening
-    from landmarks.pose import project_canonical
+    from landmarks.shape.expression import set_mouth_opening
+    from landmarks.motion.head_pose import project_canonical
 
     points = set_mouth_opening(project_canonical(0.0, 0.0, 0.0, DRAWN_SIZE).astype(np.float64), mouth)
     for upper, lower in ((37, 41), (38, 40), (43, 47), (44, 46)):

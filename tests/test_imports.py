@@ -88,11 +88,13 @@ def test_lower_floors_do_not_import_upper_ones():
             assert not outside, f"{name} imports {sorted(outside)}"
 
 
-FLOORS = ("landmarks", "models_def", "lsr.core", "deploy", "lsr", "app")  # README's order: imports flow rightwards
+# README's order: imports flow rightwards. lsr.bench is the top floor: its commands run the app and the web page.
+FLOORS = ("landmarks", "models_def", "lsr.core", "deploy", "lsr", "app", "lsr.bench")
 
 
 def floor_of(module: str) -> str:
-    return next(f for f in FLOORS if module == f or module.startswith(f + "."))  # lsr.core before lsr
+    """The floor of a module: the longest floor it sits in (lsr.core and lsr.bench before lsr)."""
+    return max((f for f in FLOORS if module == f or module.startswith(f + ".")), key=len)
 
 
 def floor_imports() -> dict[str, set[str]]:
@@ -126,11 +128,11 @@ def test_the_inference_core_needs_no_torch():
     import subprocess
     import sys
 
-    code = "import sys, lsr.core.engine, lsr.core.sources; assert 'torch' not in sys.modules, 'torch imported'"
+    code = "import sys, lsr.core.engine, lsr.core.inputs; assert 'torch' not in sys.modules, 'torch imported'"
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
 
 
-INFERENCE_PATH = ("lsr.core", "deploy", "lsr.pipeline", "lsr.export", "lsr.export_bundle", "lsr.layout_view")
+INFERENCE_PATH = ("lsr.core", "deploy", "lsr.pipeline", "lsr.export.graphs", "lsr.export.bundle", "lsr.layout_view")
 
 
 def reachable(graph: dict[str, set[str]], starts: list[str]) -> set[str]:
@@ -151,6 +153,29 @@ def test_the_per_frame_inference_path_never_imports_training():
     assert "lsr.pipeline" in starts and "lsr.core.engine" in starts
     training = sorted(name for name in reachable(graph, starts) if name.startswith("lsr.train"))
     assert training == [], f"the inference path reaches {training}"
+
+
+def test_training_never_imports_evaluation():
+    """Data flows one way: training (and fine-tuning) reaches no module of lsr.eval or lsr.bench."""
+    modules = project_modules()
+    graph = import_graph(modules)
+    starts = [name for name in modules if name.startswith("lsr.train")]
+    reached = sorted(name for name in reachable(graph, starts) if name.startswith(("lsr.eval", "lsr.bench")))
+    assert reached == [], f"training reaches {reached}"
+
+
+def test_landmarks_keeps_at_most_ten_modules_at_its_top():
+    top = sorted(path.name for path in (ROOT / "landmarks").glob("*.py") if path.name != "__init__.py")
+    assert len(top) <= 10, top
+
+
+def test_no_two_modules_share_a_file_name():
+    """A file's name says what it does, once: grep and tracebacks find one file."""
+    names: dict[str, list[str]] = {}
+    for name, path in project_modules().items():
+        if path.name not in ("__init__.py", "__main__.py"):
+            names.setdefault(path.name, []).append(name)
+    assert {file: found for file, found in names.items() if len(found) > 1} == {}
 
 
 def test_every_cli_runner_resolves_to_a_function():

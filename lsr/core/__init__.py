@@ -1,6 +1,6 @@
 """The torch-free inference core: the frame loop shared by the torch pipeline and the ONNX runtime.
 
-``lsr.core.sources`` loads subject shots and drivers (images, folders, videos, landmark files);
+``lsr.core.inputs`` loads subject shots and drivers (images, folders, videos, landmark files);
 ``lsr.core.engine`` runs decode -> landmarks -> crop -> synthesise through a backend -> paste back;
 ``lsr.core.provenance`` marks its outputs as synthetic. They import numpy, OpenCV and ``landmarks`` only (no torch),
 so ``deploy``'s ONNX runtime and ``lsr.pipeline``'s torch backend share them. Nothing heavy is imported here.

@@ -12,7 +12,7 @@ loop only composes them, torch-free, for both runtimes.
 Coordinates: the synthesis happens in a training-framed crop of side S (thesis §4.4), one crop transform per
 driver frame from its (smoothed) landmarks, so pasting back uses the exact inverse of the crop warp. Relative mode
 (default when source and driver differ) moves the source's own face by the driver's motion since its first face
-(``landmarks.mesh_retarget.retarget_face``), in crop coordinates; absolute mode uses the driver's crop landmarks.
+(``landmarks.motion.retarget_mesh.retarget_face``), in crop coordinates; absolute mode uses the driver's crop landmarks.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from typing import Literal
 
 import numpy as np
 
-from lsr.core.sources import (
+from lsr.core.inputs import (
     DriverInfo,
     LandmarkSpace,
     SourceInput,
@@ -41,22 +41,22 @@ from lsr.core.sources import (
     source_key,
     track_driver,
 )
-from landmarks.driver_eyes import DriverEyes, cut_driver_eyes, paste_eyes
-from landmarks.drawn_lids import draw_lids
-from landmarks.errors import InputFileError, NoFaceError
-from landmarks.expression_gain import EXPRESSION_GAIN, GAIN_RANGE
-from landmarks.bank.eye_bank import EyeChoice, paste_bank_eyes
-from landmarks.bank.mouth_bank import MouthChoice, paste_bank_mouth
-from landmarks.eyelids import LOOK_AHEAD
-from landmarks.mesh_retarget import RETARGET_MODES, DriverReference
-from landmarks.mouth_interior import DriverMouth, cut_driver_mouth, paste_interior
+from landmarks.parts.eyes.driver_lids import DriverEyes, cut_driver_eyes, paste_eyes
+from landmarks.parts.eyes.drawn_lids import draw_lids
+from landmarks.exceptions import InputFileError, NoFaceError
+from landmarks.parts.mouth.opening_gain import EXPRESSION_GAIN, GAIN_RANGE
+from landmarks.parts.eyes.eye_bank import EyeChoice, paste_bank_eyes
+from landmarks.parts.mouth.mouth_bank import MouthChoice, paste_bank_mouth
+from landmarks.parts.eyes.lids import LOOK_AHEAD
+from landmarks.motion.retarget_mesh import RETARGET_MODES, DriverReference
+from landmarks.parts.mouth.interior import DriverMouth, cut_driver_mouth, paste_interior
 from lsr.core.backend import SynthesisBackend
 from lsr.core.overlap import finish_behind, prefetch
 from lsr.core.part_tracks import PartTracks, part_tracks
-from lsr.core.scene_source import paste_into_driver, paste_into_scene
+from lsr.core.scene import paste_into_driver, paste_into_scene
 from lsr.core.subject import Subject
 from lsr.core.images import from_network, square_resize, to_network
-from lsr.core.parts import (BANK_PARTS, BANKS, EYES, LIDS, MOUTH_INTERIORS, MOUTHS, Choice, DriverGaze, draws_mouth,
+from lsr.core.finish import (BANK_PARTS, BANKS, EYES, LIDS, MOUTH_INTERIORS, MOUTHS, Choice, DriverGaze, draws_mouth,
                              finish_eyes, finish_mouth)
 
 Mode = Literal["auto", "relative", "absolute"]
@@ -85,14 +85,14 @@ class ReenactedFrame:
     landmarks: np.ndarray | None = None
     """(68, 2) float64: the target landmarks in crop pixels (after retargeting; None without a face)."""
     gaze: np.ndarray | None = None
-    """(2, 2) float64: the target's gaze (``landmarks.iris.gaze_offsets``), when the eyes are drawn."""
+    """(2, 2) float64: the target's gaze (``landmarks.parts.eyes.iris.gaze_offsets``), when the eyes are drawn."""
     driver_mouth: DriverMouth | None = None
     """The driver frame's open mouth, whose interior the synthesis takes (``mouth_interior`` "driver")."""
     driver_eyes: DriverEyes | None = None
     """The driver frame's shut eyes, which the synthesis takes (``lids`` "driver")."""
     eye_choice: EyeChoice | None = None
     mouth_choice: MouthChoice | None = None
-    """The subject's own eyes and mouth the frame takes from its part banks (``bank``; ``landmarks.bank``)."""
+    """The subject's own eyes and mouth the frame takes from its part banks (``bank``; ``landmarks.parts``)."""
 
 
 @dataclasses.dataclass
@@ -125,7 +125,7 @@ class _Prepared:
 class ReenactorBase:
     """Subject encoding once, then one synthesised frame per driver frame (thesis §4.3). See the module docstring.
 
-    backend: a ``SynthesisBackend``. detector: "mesh" | "hog" | "cnn" or a ``landmarks.detect.FaceDetector``.
+    backend: a ``SynthesisBackend``. detector: "mesh" | "hog" | "cnn" or a ``landmarks.detect.face_detector.FaceDetector``.
     """
 
     def __init__(self, backend: SynthesisBackend, *, detector: str | object = "mesh", crop_size: int | None = None) -> None:
@@ -144,7 +144,7 @@ class ReenactorBase:
     @property
     def mouth(self) -> str:
         """A warp-guided model's mouth: "drawn" (the nearest warped shot's where the target opens it wider than the
-        shots, ``landmarks.nearest_mouth``, then redrawn by the model's mouth generator, ``lsr.core.parts``; the
+        shots, ``landmarks.parts.mouth.nearest_mouth``, then redrawn by the model's mouth generator, ``lsr.core.finish``; the
         default when the model has one), "nearest" (without the redrawing; the default otherwise) or "blend" (the
         network's blend alone)."""
         return self._mouth
@@ -161,7 +161,7 @@ class ReenactorBase:
     @property
     def expression_gain(self) -> float:
         """How many times, at most, mesh-warped references carry a shot's mouth toward a target that opens it wider
-        (``landmarks.expression_gain``; 1 = exactly onto the target's points: the lips beyond the shots land where
+        (``landmarks.parts.mouth.opening_gain``; 1 = exactly onto the target's points: the lips beyond the shots land where
         they should, but read as less open; MODEL_CARD.md)."""
         return self._expression_gain
 
@@ -172,11 +172,11 @@ class ReenactorBase:
             raise ValueError(f"expression_gain must be in [{low:g}, {high:g}], got {gain!r}")
         self._expression_gain = float(gain)
 
-    mouth_interior = Choice(MOUTH_INTERIORS, "driver", "Inside an open mouth (``lsr.core.parts.MOUTH_INTERIORS``).")
-    lids = Choice(LIDS, "drawn", "Where the target shuts its eyes (``lsr.core.parts.LIDS``).")
-    eyes = Choice(EYES, "warped", "The eyes' irises (``lsr.core.parts.EYES``).")
-    bank = Choice(BANKS, "all", "Which of the subject's frames its own parts come from (``lsr.core.parts.BANKS``).")
-    bank_parts = Choice(BANK_PARTS, "eyes", "Which parts come from the banks (``lsr.core.parts.BANK_PARTS``).")
+    mouth_interior = Choice(MOUTH_INTERIORS, "driver", "Inside an open mouth (``lsr.core.finish.MOUTH_INTERIORS``).")
+    lids = Choice(LIDS, "drawn", "Where the target shuts its eyes (``lsr.core.finish.LIDS``).")
+    eyes = Choice(EYES, "warped", "The eyes' irises (``lsr.core.finish.EYES``).")
+    bank = Choice(BANKS, "all", "Which of the subject's frames its own parts come from (``lsr.core.finish.BANKS``).")
+    bank_parts = Choice(BANK_PARTS, "eyes", "Which parts come from the banks (``lsr.core.finish.BANK_PARTS``).")
 
     @property
     def resolution(self) -> int:
@@ -205,7 +205,7 @@ class ReenactorBase:
     @property
     def detector(self):
         if self._detector is None:  # face models load on first use, not at construction
-            from landmarks.detectors import make_detector
+            from landmarks.detect.registry import make_detector
 
             spec = self._detector_spec
             self._detector = make_detector(spec) if isinstance(spec, str) else spec
@@ -214,12 +214,12 @@ class ReenactorBase:
     # ---- subject ---------------------------------------------------------------------------------------
     def encode_subject(self, source: SourceInput | SubjectShots, k: int | None = None, face_index: int = 0,
                        anchor: int | None = None, cache: bool = True) -> Subject:
-        """Load the K shots of ``source`` (images, a folder, a video or arrays; see ``lsr.core.sources``), encode and cache.
+        """Load the K shots of ``source`` (images, a folder, a video or arrays; see ``lsr.core.inputs``), encode and cache.
 
         k: shots to average (1..32); None = min(8, usable shots). face_index: which face of a frame with several
         (0 = the largest). anchor: which shot is the neutral face and the scene (None: the most frontal one with
         a closed mouth). Returns the cached ``Subject`` (``subject.shots.notes``: what the loader skipped or chose).
-        cache: False returns the subject without replacing the cached one (a live stream's own, ``lsr.core.live``,
+        cache: False returns the subject without replacing the cached one (a live stream's own, ``lsr.core.live_session``,
         while batch runs use the cache).
         """
         started = time.perf_counter()
@@ -234,7 +234,7 @@ class ReenactorBase:
         return self.subject
 
     def _encode(self, shots: SubjectShots, source_key: str | None) -> Subject:
-        from landmarks.raster import draw_landmarks
+        from landmarks.shape.raster import draw_landmarks
 
         size, crop = self.resolution, self.crop_size
         if shots.frames.ndim != 4 or shots.frames.shape[1:] != (crop, crop, 3):
@@ -258,12 +258,12 @@ class ReenactorBase:
         C is ``crop_size``, S the model resolution. A warp-guided model also gets the nearest shots warped onto the
         target at C and blends them with its own image at C: over the face mesh when ``reference_warp`` is "mesh"
         and both the target (``crop_mesh``, (468, 3) crop pixels) and the shots have meshes
-        (``landmarks.mesh_warp.warp_references_mesh``), else by the 68-point TPS (``landmarks.tps.warp_references``).
+        (``landmarks.warp.piecewise_affine.warp_references_mesh``), else by the 68-point TPS (``landmarks.warp.tps.warp_references``).
         latents: (layout_latent, style_latent), (1, D) each, in place of the subject's (e.g. one shot's alone).
-        subject: an encoded subject other than the cached one (a live stream's own, ``lsr.core.live``).
-        gaze: the target's (2, 2) ``landmarks.iris.gaze_offsets``, for ``eyes`` "drawn" or "warped".
-        driver_mouth: the driver frame's mouth (``landmarks.mouth_interior.cut_driver_mouth``), for
-        ``mouth_interior`` "driver". driver_eyes: the driver frame's shut eyes (``landmarks.driver_eyes.cut_driver_eyes``),
+        subject: an encoded subject other than the cached one (a live stream's own, ``lsr.core.live_session``).
+        gaze: the target's (2, 2) ``landmarks.parts.eyes.iris.gaze_offsets``, for ``eyes`` "drawn" or "warped".
+        driver_mouth: the driver frame's mouth (``landmarks.parts.mouth.interior.cut_driver_mouth``), for
+        ``mouth_interior`` "driver". driver_eyes: the driver frame's shut eyes (``landmarks.parts.eyes.driver_lids.cut_driver_eyes``),
         for ``lids`` "driver". eye_choice, mouth_choice: the subject's own parts from its banks (``part_tracks``)."""
         landmark_image, inputs = self.network_inputs(crop_landmarks, latents, subject, crop_mesh, gaze)
         image, layout = self.synthesize_inputs(inputs, with_layout, crop_landmarks, subject, gaze, driver_mouth,
@@ -277,10 +277,10 @@ class ReenactorBase:
                           mouth_choice: MouthChoice | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """``network_inputs``' dict -> (synthesis (C, C, 3) uint8, layout (C_l, S, S) float32 or None). ``crop_landmarks``
         given, ``mouth`` "nearest" or "drawn": the mouth of ``subject``'s nearest warped shot as
-        ``landmarks.nearest_mouth`` says; "drawn": then redrawn by the mouth generator (``lsr.core.parts``); and with
+        ``landmarks.parts.mouth.nearest_mouth`` says; "drawn": then redrawn by the mouth generator (``lsr.core.finish``); and with
         a ``gaze``, the eyes as ``eyes`` says; with a ``driver_mouth``, the interior as ``mouth_interior`` says; the
         shut lids as ``lids`` says (the driver's with ``driver_eyes``, else drawn); with an ``eye_choice`` and a
-        ``mouth_choice``, the subject's own eyes and mouth from its part banks over all that (``landmarks.bank``)."""
+        ``mouth_choice``, the subject's own eyes and mouth from its part banks over all that (``landmarks.parts``)."""
         image, layout = self.backend.synthesize(
             inputs["landmark_image"], inputs["layout_latent"], inputs["style_latent"], with_layout,
             *((inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()),
@@ -309,8 +309,8 @@ class ReenactorBase:
         """What the frame network gets for target landmarks (68, 2) in crop pixels: (landmark image (S, S, 3) uint8,
         the named inputs of the frame graph: landmark_image (1, 3, S, S), layout_latent and style_latent (1, D), and
         for a warp-guided model references (1, N, 3, C, C) and reference_masks (1, N, 1, C, C)). With ``eyes``
-        "warped", the references' irises move to ``gaze`` (2, 2) (``landmarks.iris_warp``)."""
-        from landmarks.raster import draw_landmarks
+        "warped", the references' irises move to ``gaze`` (2, 2) (``landmarks.parts.eyes.iris_shift``)."""
+        from landmarks.shape.raster import draw_landmarks
 
         subject = subject if subject is not None else self._require_subject()
         landmark_image = draw_landmarks(scale_points(crop_landmarks, self.resolution / self.crop_size), self.resolution)
@@ -321,13 +321,13 @@ class ReenactorBase:
             shots = subject.shots
             irises = subject.shot_irises if self.eyes == "warped" else None
             if self.reference_warp == "mesh" and crop_mesh is not None and shots.meshes is not None:
-                from landmarks.mesh_warp import warp_references_mesh
+                from landmarks.warp.piecewise_affine import warp_references_mesh
 
                 warped, valid, _ = warp_references_mesh(shots.frames, shots.meshes, shots.landmarks, crop_mesh,
                                                         crop_landmarks, self.warp_references, irises=irises, gaze=gaze,
                                                         expression_gain=self.expression_gain)
             else:
-                from landmarks.tps import warp_references
+                from landmarks.warp.tps import warp_references
 
                 warped, valid, _ = warp_references(shots.frames, shots.landmarks, crop_landmarks, self.warp_references,
                                                    irises=irises, gaze=gaze)
@@ -350,16 +350,16 @@ class ReenactorBase:
     ) -> Iterator[ReenactedFrame]:
         """Stream re-enacted frames, one per driver frame, in order (a generator: nothing is held but one frame).
 
-        driver: a video, a folder of images, a .npy/.json landmark file or an (N, 68, 2) array (``lsr.core.sources``).
+        driver: a video, a folder of images, a .npy/.json landmark file or an (N, 68, 2) array (``lsr.core.inputs``).
         mode: "relative" (driver motion on the source's face shape), "absolute" (the driver's landmarks), or
             "auto": absolute when the driver is the source file itself, else relative.
         smooth: One-Euro smoothing of the driver landmarks (and so of the crop framing).
-        paste_back: composite the face into full frames (``landmarks.scene.composite_face``: background and body
+        paste_back: composite the face into full frames (``landmarks.scene.compositing.composite_face``: background and body
             stay, hair follows the head rigidly); otherwise the output is the (C, C) synthesis.
-        scene: what paste_back composites into: "source", the source's scene (``lsr.core.scene_source``: the
+        scene: what paste_back composites into: "source", the source's scene (``lsr.core.scene``: the
             anchor shot's frame, or the source video's frames back and forth), at its size; "driver", the driver's
             frames (dubbing; a face swap across people; raw landmark drivers have none: the crop).
-        retarget: how relative motion moves the source (``landmarks.mesh_retarget.retarget_face``): "2d", the 68
+        retarget: how relative motion moves the source (``landmarks.motion.retarget_mesh.retarget_face``): "2d", the 68
             points' relative motion; "3d", the source's own face mesh turned by the driver's head rotation, the
             expression moved in the canonical head frame (needs meshes of both faces: the mesh detector, a video or
             image driver; elsewhere "2d").
@@ -380,7 +380,7 @@ class ReenactorBase:
         into_source = paste_back and scene == "source" and not same_input(subject.source, driver)
         scenes = None
         if into_source:
-            from lsr.core.scene_source import SourceScene
+            from lsr.core.scene import SourceScene
 
             scenes = SourceScene(subject.shots, self.crop_size, detector=self.detector, fps=info.fps, smooth=smooth)
         if info.kind == "landmarks":
@@ -407,7 +407,7 @@ class ReenactorBase:
                 or self._require_subject().shots.meshes is None or not np.isfinite(mesh).all()):
             return None
         from landmarks.align import transform_mesh
-        from landmarks.mesh_retarget import spreading_weights
+        from landmarks.motion.retarget_mesh import spreading_weights
 
         mesh = np.asarray(mesh, np.float64).copy()
         # the One-Euro filter moved the 68 points: carry that shift onto the vertices near them
@@ -419,9 +419,9 @@ class ReenactorBase:
                ) -> tuple[np.ndarray, np.ndarray | None]:
         """What the source is driven with: (68 points, mesh for the references or None). Relative motion: the
         driver's since its first face (``reference``; ``lids``: its reference lid gaps, ``DriverReference.lids``)
-        on the source's face (``landmarks.mesh_retarget.retarget_face`` in mode ``retarget``; FOMM / LivePortrait
+        on the source's face (``landmarks.motion.retarget_mesh.retarget_face`` in mode ``retarget``; FOMM / LivePortrait
         style, the mouth exactly as open as the driver's); absolute: the driver's own."""
-        from landmarks.mesh_retarget import retarget_face
+        from landmarks.motion.retarget_mesh import retarget_face
 
         if not relative:
             return crop_landmarks, crop_mesh if self._uses_mesh_references() else None
@@ -496,7 +496,7 @@ class ReenactorBase:
     def _landmark_driver(self, driver, info: DriverInfo, relative: bool, smooth: bool, landmark_space, landmark_size,
                          stats: ReenactStats, scenes=None) -> Iterator[ReenactedFrame | _Prepared]:
         from landmarks.align import crop_transform, transform_landmarks
-        from landmarks.smooth import OneEuroFilter, driving_cutoffs
+        from landmarks.motion.smooth import OneEuroFilter, driving_cutoffs
 
         array, space, size = read_landmark_array(driver, landmark_space=landmark_space, landmark_size=landmark_size)
         one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
@@ -522,8 +522,8 @@ class ReenactorBase:
                       scenes=None, retarget: str = "2d") -> Iterator[ReenactedFrame | _Prepared]:
         """paste_back: into the driver's frames; scenes: a ``SourceScene`` to composite into instead."""
         from landmarks.align import crop_transform, transform_landmarks
-        from landmarks.smooth import OneEuroFilter, driving_cutoffs
-        from landmarks.detectors import make_tracker
+        from landmarks.motion.smooth import OneEuroFilter, driving_cutoffs
+        from landmarks.detect.registry import make_tracker
         from lsr.core.overlap import prefetch
 
         size = self.crop_size

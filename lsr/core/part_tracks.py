@@ -1,6 +1,6 @@
-"""A driven sequence's choice of the subject's own parts from its banks (issue 63; ``landmarks.bank``): one track
+"""A driven sequence's choice of the subject's own parts from its banks (issue 63; ``landmarks.parts``): one track
 per banked part, fed the frames' targets in order by the frame loop (``lsr.core.engine``) or the live session
-(``lsr.core.live``), so that hysteresis holds. Torch-free."""
+(``lsr.core.live_session``), so that hysteresis holds. Torch-free."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import dataclasses
 
 import numpy as np
 
-from landmarks.bank.eye_bank import EyeBankTrack, EyeChoice
-from landmarks.bank.mouth_bank import MouthBankTrack, MouthChoice
+from landmarks.parts.eyes.eye_bank import EyeBankTrack, EyeChoice
+from landmarks.parts.mouth.mouth_bank import MouthBankTrack, MouthChoice
 from lsr.core.subject import Subject
 
 
@@ -31,8 +31,8 @@ class PartTracks:
 
 
 def part_tracks(subject: Subject, bank: str, parts: str, detector, relative: bool) -> PartTracks | None:
-    """A new sequence's tracks over ``subject``'s banks of scope ``bank`` (``lsr.core.parts.BANKS``; "none": None) for
-    ``parts`` (``lsr.core.parts.BANK_PARTS``), built on first use with ``detector`` (``Subject.part_banks``).
+    """A new sequence's tracks over ``subject``'s banks of scope ``bank`` (``lsr.core.finish.BANKS``; "none": None) for
+    ``parts`` (``lsr.core.finish.BANK_PARTS``), built on first use with ``detector`` (``Subject.part_banks``).
     relative: the targets' lids were retargeted from a driver's onto the subject's anchor."""
     if bank == "none":
         return None

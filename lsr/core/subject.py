@@ -9,13 +9,13 @@ import functools
 
 import numpy as np
 
-from landmarks.drawn_lids import shot_lid_gaps
-from landmarks.bank.entries import BankRows
-from landmarks.bank.eye_bank import EyeBank, build_eye_bank, eye_bank_of, eye_row
-from landmarks.bank.mouth_bank import MouthBank, build_mouth_bank, mouth_bank_of, mouth_row
-from landmarks.iris import gaze_offsets, iris_donor
-from lsr.core.parts import found_irises, shot_irises
-from lsr.core.sources import SubjectShots
+from landmarks.parts.eyes.drawn_lids import shot_lid_gaps
+from landmarks.parts.bank_rows import BankRows
+from landmarks.parts.eyes.eye_bank import EyeBank, build_eye_bank, eye_bank_of, eye_row
+from landmarks.parts.mouth.mouth_bank import MouthBank, build_mouth_bank, mouth_bank_of, mouth_row
+from landmarks.parts.eyes.iris import gaze_offsets, iris_donor
+from lsr.core.finish import found_irises, shot_irises
+from lsr.core.inputs import SubjectShots
 
 
 @dataclasses.dataclass
@@ -30,10 +30,10 @@ class Subject:
     source: str | None
     """Resolved source path when the source was one file or folder (decides the default mode)."""
     banks: dict[str, tuple[EyeBank | None, MouthBank | None]] = dataclasses.field(default_factory=dict, repr=False)
-    """Its part banks, by ``lsr.core.parts.BANKS`` scope, built on first use (``part_banks``)."""
+    """Its part banks, by ``lsr.core.finish.BANKS`` scope, built on first use (``part_banks``)."""
 
     def part_banks(self, scope: str, detector=None) -> tuple[EyeBank | None, MouthBank | None]:
-        """Its eyes and mouths, indexed (``landmarks.bank``): scope "shots", its K shots; "all", every frame of a
+        """Its eyes and mouths, indexed (``landmarks.parts``): scope "shots", its K shots; "all", every frame of a
         video source (tracked with ``detector``'s tracker; the shots for other sources). None where none shows a
         face."""
         if scope not in ("all", "shots"):
@@ -49,31 +49,31 @@ class Subject:
 
     @functools.cached_property
     def lid_gaps(self) -> np.ndarray:
-        """(2,) its lids at rest, the median lid gaps of its shots (``landmarks.drawn_lids.shot_lid_gaps``)."""
+        """(2,) its lids at rest, the median lid gaps of its shots (``landmarks.parts.eyes.drawn_lids.shot_lid_gaps``)."""
         return shot_lid_gaps(self.shots.landmarks)
 
     @functools.cached_property
     def found_irises(self) -> tuple[np.ndarray, np.ndarray | None]:
-        """Its shots' irises (K, 2, 4) and their eyes' median open apertures (``lsr.core.parts.found_irises``): the
+        """Its shots' irises (K, 2, 4) and their eyes' median open apertures (``lsr.core.finish.found_irises``): the
         iris net runs on its shots once, on first use."""
         return found_irises(self.shots.frames, self.shots.landmarks)
 
     @functools.cached_property
     def shot_irises(self) -> np.ndarray:
-        """(K, 2, 2) each shot's iris centres in its crop pixels (``lsr.core.parts.shot_irises``), for ``eyes``
+        """(K, 2, 2) each shot's iris centres in its crop pixels (``lsr.core.finish.shot_irises``), for ``eyes``
         "warped"."""
         return shot_irises(self.shots.frames, self.shots.landmarks, self.found_irises)
 
     @functools.cached_property
     def anchor_gaze(self) -> np.ndarray:
-        """(2, 2) the anchor shot's gaze (``landmarks.iris.gaze_offsets``, NaN where not found): where relative
+        """(2, 2) the anchor shot's gaze (``landmarks.parts.eyes.iris.gaze_offsets``, NaN where not found): where relative
         motion starts the gaze from."""
         anchor = self.shots.anchor
         return gaze_offsets(self.found_irises[0][anchor], self.shots.landmarks[anchor])
 
     @functools.cached_property
     def irises(self) -> tuple:
-        """(the irises drawn into its frames, ``landmarks.iris.iris_donor``, or None; ``anchor_gaze``), found on
+        """(the irises drawn into its frames, ``landmarks.parts.eyes.iris.iris_donor``, or None; ``anchor_gaze``), found on
         first use."""
         return iris_donor(self.shots.frames, self.shots.landmarks, self.found_irises[0]), self.anchor_gaze
 
@@ -92,13 +92,13 @@ class Subject:
 
 
 def video_part_banks(video, detector=None, max_entries: int = 600) -> tuple[EyeBank | None, MouthBank | None]:
-    """The eye and mouth banks of every frame of a video (``landmarks.bank``), in one pass, each frame cut into both
-    banks' rows as it is decoded (memory bounded by ``landmarks.bank.entries.BankRows``): tracked with
-    ``detector``'s tracker (``landmarks.detectors.make_tracker``), whose iris net's irises come with its faces (the
-    mesh tracker); other trackers' irises are found per frame (``landmarks.iris.find_irises``)."""
-    from landmarks.detectors import make_tracker
-    from landmarks.iris import find_irises
-    from landmarks.video import iter_frames
+    """The eye and mouth banks of every frame of a video (``landmarks.parts``), in one pass, each frame cut into both
+    banks' rows as it is decoded (memory bounded by ``landmarks.parts.bank_rows.BankRows``): tracked with
+    ``detector``'s tracker (``landmarks.detect.registry.make_tracker``), whose iris net's irises come with its faces (the
+    mesh tracker); other trackers' irises are found per frame (``landmarks.parts.eyes.iris.find_irises``)."""
+    from landmarks.detect.registry import make_tracker
+    from landmarks.parts.eyes.iris import find_irises
+    from landmarks.io.video import iter_frames
 
     tracker = make_tracker(detector)
     eyes, mouths = BankRows(max_entries), BankRows(max_entries)

@@ -10,14 +10,14 @@ Conventions (shape contracts of every item):
 
 * ``shots`` (K, 3, S, S), ``target`` (3, S, S): float32 RGB in [-1, 1].
 * ``shot_landmark_images`` (K, 3, S, S), ``target_landmark_image`` (3, S, S): float32 in [-1, 1]
-  (black background = -1): ``landmarks.raster.draw_landmarks`` at S, drawn on the fly after
+  (black background = -1): ``landmarks.shape.raster.draw_landmarks`` at S, drawn on the fly after
   augmentation, normalised like the frames so the networks see one input range.
 * ``target_segmentation`` (S, S) int64 class ids of ``SEG_CLASSES``; ``SEGMENTATION_IGNORE_INDEX``
   (-1) everywhere when the clip has no maps (use ``cross_entropy(..., ignore_index=-1)``).
 * ``shot_landmarks`` (K, 68, 2), ``target_landmarks`` (68, 2): float32 x, y pixels at S.
 * ``identity``: int64 index into ``dataset.identities``; ``index``: the episode index.
 * with ``warp_references = N > 0`` (the warp-guided generator): ``references`` (N, 3, S, S) in [-1, 1], the
-  N shots nearest to the target TPS-warped onto its landmarks (``landmarks.tps.warp_references``, after
+  N shots nearest to the target TPS-warped onto its landmarks (``landmarks.warp.tps.warp_references``, after
   augmentation), and ``reference_masks`` (N, 1, S, S) in {0, 1}, where each warp sampled inside its shot.
 
 Sampling: frames with NaN landmarks are never chosen. ``shots_from="identity"`` (default) draws the
@@ -29,7 +29,7 @@ when fewer than K other frames exist the shots are drawn with replacement.
 
 Expression episodes (``expression_episodes = p > 0``): a fraction p of episodes takes a target whose mouth is open
 wider than most of its pool's (the top ``OPEN_MOUTH_QUANTILE``) and shots whose mouths are closed (the pool's lower
-half by mouth opening, ``landmarks.expression.mouth_opening``). No shot then shows the target's mouth: the network
+half by mouth opening, ``landmarks.shape.expression.mouth_opening``). No shot then shows the target's mouth: the network
 must draw the mouth's interior itself, which is what another person's driving asks of it (a yawn, an "O").
 
 Determinism: episode ``i`` of a dataset with seed ``s`` (and epoch ``e``, see ``set_epoch``) is drawn
@@ -118,7 +118,7 @@ def _to_unit(frames: np.ndarray) -> torch.Tensor:
 
 def landmark_images(landmarks: torch.Tensor, size: int) -> torch.Tensor:
     """(N, 68, 2) float pixels -> (N, 3, S, S) float32 in [-1, 1] (``draw_landmarks``; black = -1)."""
-    from landmarks.raster import draw_landmarks
+    from landmarks.shape.raster import draw_landmarks
 
     drawn = np.stack([draw_landmarks(points.numpy(), size) for points in landmarks])  # (N, S, S, 3) uint8
     return _to_unit(drawn) * 2.0 - 1.0
@@ -198,7 +198,7 @@ class EpisodeDataset(Dataset):
 
     def _index_mouths(self) -> None:
         """Per pool: the frames with the widest mouths (expression targets) and the closed half (their shots)."""
-        from landmarks.expression import mouth_opening
+        from landmarks.shape.expression import mouth_opening
 
         for key, refs in self._pools.items():
             opening = mouth_opening(np.stack([self.index.clips[r.clip].landmarks[r.frame] for r in refs]))
@@ -282,12 +282,12 @@ class EpisodeDataset(Dataset):
 
 def reference_tensors(shots: torch.Tensor, shot_landmarks: torch.Tensor, target_landmarks: torch.Tensor,
                       count: int) -> dict[str, torch.Tensor]:
-    """The ``count`` nearest shots warped onto the target (``landmarks.tps.warp_references``) as network inputs.
+    """The ``count`` nearest shots warped onto the target (``landmarks.warp.tps.warp_references``) as network inputs.
 
     shots: (K, 3, S, S) in [-1, 1]; shot_landmarks: (K, 68, 2); target_landmarks: (68, 2)
     -> {"references": (count, 3, S, S) in [-1, 1], "reference_masks": (count, 1, S, S) in {0, 1}}.
     """
-    from landmarks.tps import warp_references
+    from landmarks.warp.tps import warp_references
 
     frames = ((shots.permute(0, 2, 3, 1) + 1.0) * 127.5).round().clamp(0, 255).to(torch.uint8).numpy()  # (K, S, S, 3)
     warped, masks, _ = warp_references(frames, shot_landmarks.numpy(), target_landmarks.numpy(), count)

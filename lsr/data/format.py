@@ -10,7 +10,7 @@ Layout (``root/<identity>/<video>/`` is one *clip*)::
         landmarks.npy               (N, 68, 2) float32, x, y in crop pixels (pixel centres at
                                     integers, iBUG-68 order); NaN rows = frames without landmarks
         pose.npy                    (N, 3) float32 yaw, pitch, roll in degrees (conventions of
-                                    ``landmarks.pose``: yaw > 0 nose towards image right, pitch > 0
+                                    ``landmarks.motion.head_pose``: yaw > 0 nose towards image right, pitch > 0
                                     nose up, roll > 0 clockwise on screen); NaN rows = missing
         segmentation/00000.png ...  optional; (S, S) uint8 class maps in the 19-class CelebAMask-HQ
                                     order of ``lsr.data.classes.SEG_CLASSES`` (ids < 19)
@@ -47,8 +47,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from landmarks.imageio import atomic_output, make_readable
-from landmarks.parts import NUM_LANDMARKS
+from landmarks.io.image_files import atomic_output, make_readable
+from landmarks.shape.ibug68 import NUM_LANDMARKS
 from lsr.data.classes import NUM_SEG_CLASSES
 from lsr.errors import DatasetError
 

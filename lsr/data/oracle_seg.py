@@ -328,11 +328,11 @@ def format_iou_table(iou: np.ndarray, reference_share: np.ndarray | None = None)
 def compare_with_official(frames_dirs: Sequence[Path], detector: str = "hog") -> tuple[np.ndarray, np.ndarray, int]:
     """Run the oracle on every ``NNNNN_rgb.png`` that has an official ``NNNNN_segmap_merged.png`` beside it.
 
-    Landmarks come from ``landmarks.detect``. Returns (iou (19,), reference pixel share (19,), frames used).
+    Landmarks come from ``landmarks.detect.face_detector``. Returns (iou (19,), reference pixel share (19,), frames used).
     """
-    from landmarks.detectors import make_detector
-    from landmarks.errors import NoFaceError
-    from landmarks.imageio import read_image
+    from landmarks.detect.registry import make_detector
+    from landmarks.exceptions import NoFaceError
+    from landmarks.io.image_files import read_image
 
     face_detector = make_detector(detector)
     predicted_maps, reference_maps = [], []

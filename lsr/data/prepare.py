@@ -15,7 +15,7 @@ Inputs found under the input folder (or one file):
 
 Per clip: frames are sampled uniformly (``frames_per_clip``, 0 = all). Sampled frames get per-frame
 detection, and frames without a face are dropped (counted, logged). With all frames the video is
-tracked (``landmarks.track``) and One-Euro smoothed; frames without a face are kept with NaN
+tracked (``landmarks.detect.dlib_tracker``) and One-Euro smoothed; frames without a face are kept with NaN
 landmarks (the format allows it) and cropped like the nearest frame with a face, so the clip stays
 aligned with the video. Framing: ``align`` crops and aligns each frame (``landmarks.align.crop``);
 ``keep`` centre-crops to a square and resizes (the LSR release frames are already aligned 224^2
@@ -177,8 +177,8 @@ def sample_indices(total: int, count: int) -> np.ndarray:
 
 def _read_source_frames(source: ClipSource, frames_per_clip: int) -> tuple[list[np.ndarray], list[int], float, list[Path]]:
     """Sampled frames (H, W, 3) uint8 RGB, their source indices, fps, and their files (images only)."""
-    from landmarks.imageio import read_image
-    from landmarks.video import iter_frames, probe_video
+    from landmarks.io.image_files import read_image
+    from landmarks.io.video import iter_frames, probe_video
 
     if source.kind == "video":
         info = probe_video(source.path)
@@ -201,8 +201,8 @@ def _read_source_frames(source: ClipSource, frames_per_clip: int) -> tuple[list[
 
 def _detect_landmarks(frames: list[np.ndarray], detector_kind: str, track: bool, fps: float, smooth: bool) -> np.ndarray:
     """(N, 68, 2) float32 landmarks, NaN rows where no face was found."""
-    from landmarks.detectors import make_detector, make_tracker
-    from landmarks.smooth import smooth_sequence
+    from landmarks.detect.registry import make_detector, make_tracker
+    from landmarks.motion.smooth import smooth_sequence
 
     detector = make_detector(detector_kind)
     if track:
@@ -234,7 +234,7 @@ def _apply(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def prepare_clip(source: ClipSource, out_root: Path, options: PrepareOptions) -> ClipOutcome:
     """Prepare one clip into ``out_root/<identity>/<video>``. Raises on failure (see ``_run_one``)."""
-    from landmarks.pose import estimate_head_pose
+    from landmarks.motion.head_pose import estimate_head_pose
 
     from lsr.data.oracle_seg import oracle_segmentation, read_official_segmap
 

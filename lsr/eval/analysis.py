@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from landmarks.identity import DESCRIPTOR_SIZE, judged, same_person
+from landmarks.detect.same_person import DESCRIPTOR_SIZE, judged, same_person
 from lsr.eval import idsim
 
 
@@ -37,7 +37,7 @@ class FaceAnalysis:
         return self._landmarks[key]
 
     def descriptor(self, image: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """dlib's raw 128-D descriptor (``landmarks.identity``), memoised."""
+        """dlib's raw 128-D descriptor (``landmarks.detect.same_person``), memoised."""
         key = self.key(image, np.asarray(points, np.float32).tobytes())
         if key not in self._embeddings:
             self._embeddings[key] = idsim.face_descriptor(image, points)
@@ -48,7 +48,7 @@ class FaceAnalysis:
         return idsim.unit(self.descriptor(image, points))
 
     def same_person(self, images: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
-        """Which frames (N, S, S, 3) show the majority's person (``landmarks.identity.same_person``; faces turned
+        """Which frames (N, S, S, 3) show the majority's person (``landmarks.detect.same_person.same_person``; faces turned
         too far to judge count as the person's, NaN landmark rows as not) -> (N,) bool."""
         found = np.isfinite(landmarks).all(axis=(1, 2))
         descriptors = np.full((len(images), DESCRIPTOR_SIZE), np.nan)

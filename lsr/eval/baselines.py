@@ -2,20 +2,20 @@
 (``lsr.eval.protocol.Method``) as a trained model.
 
 nearest_shot  copies the source shot whose landmarks are closest to the target's. Distance:
-              ``landmarks.tps.landmark_distance``, the NMKE of the raw landmarks (no alignment; mean
-              point distance over the target's eye distance); the choice is ``landmarks.tps.nearest_shots``,
+              ``landmarks.warp.tps.landmark_distance``, the NMKE of the raw landmarks (no alignment; mean
+              point distance over the target's eye distance); the choice is ``landmarks.warp.tps.nearest_shots``,
               the one the warp-guided generator's references use. Raw, because the copied pixels keep
               their position: a shot whose head sits elsewhere in the frame is a worse copy even if the
               pose matches.
 tps           warps that nearest shot onto the target landmarks with a regularised thin-plate
-              spline (``landmarks.tps``), frame corners and edge midpoints fixed. Counts how often
+              spline (``landmarks.warp.tps``), frame corners and edge midpoints fixed. Counts how often
               each warp method (tps / tps_stronger / similarity / identity) was used.
 tps_mean3     the per-pixel mean of the 3 nearest shots (fewer when K < 3; no shot twice), each warped
               as by ``tps``, rounded to uint8. Averaging buys PSNR/SSIM at the cost of blur (the
               ``sharpness`` metric shows it): the bar a warp-guided model must clear without blurring.
 mesh          warps the same nearest shot from its 468-point face mesh onto the target's, piecewise affine over
               the mesh triangles inside the face and the ``tps`` warp (the same map) outside, feathered across the
-              outline and around folded triangles (``landmarks.mesh_warp``). Needs meshes (``needs_meshes``: the
+              outline and around folded triangles (``landmarks.warp.piecewise_affine``). Needs meshes (``needs_meshes``: the
               runner passes ``shot_meshes`` and ``target_meshes``); a frame whose shot or target has no mesh is
               warped by ``tps`` alone (counted as ``without_mesh``). ``warp_counts`` counts the method of the TPS
               used outside the face.
@@ -28,7 +28,8 @@ import collections
 
 import numpy as np
 
-from landmarks import mesh_warp, tps
+from landmarks.warp import piecewise_affine as mesh_warp
+from landmarks.warp import tps
 
 
 def check_method_inputs(shots: list[np.ndarray], shot_landmarks: np.ndarray, target_landmarks: np.ndarray) -> None:
@@ -55,7 +56,7 @@ def check_mesh_inputs(shot_meshes: np.ndarray, target_meshes: np.ndarray, shots:
 
 
 def nearest_shot_indices(shot_landmarks: np.ndarray, target_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per target, the shot ``landmarks.tps.nearest_shots`` picks first, and its raw-landmark NMKE.
+    """Per target, the shot ``landmarks.warp.tps.nearest_shots`` picks first, and its raw-landmark NMKE.
 
     shot_landmarks: (K, 68, 2) (NaN rows = shot without a face; never chosen unless all are);
     target_landmarks: (T, 68, 2). Returns (T,) int indices, (T,) float distances (NaN when the

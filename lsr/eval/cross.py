@@ -1,23 +1,23 @@
 """Cross-identity re-enactment metrics of ``lsr eval`` (thesis §4.4.3, extended to see the re-enactment itself).
 
 Identity i is driven by identity i+1's hold-out landmarks the way ``lsr reenact`` drives it: retargeted
-(``landmarks.mesh_retarget.retarget_face`` in the mode of ``--retarget``, the driver's first frame mapped onto the
-anchor shot's face; the anchor is ``landmarks.expression.pick_anchor`` of the K shots), and every method's output
-composited into the anchor shot (``landmarks.scene.composite_face``, what ``lsr reenact --paste-back`` delivers).
+(``landmarks.motion.retarget_mesh.retarget_face`` in the mode of ``--retarget``, the driver's first frame mapped onto the
+anchor shot's face; the anchor is ``landmarks.shape.expression.pick_anchor`` of the K shots), and every method's output
+composited into the anchor shot (``landmarks.scene.compositing.composite_face``, what ``lsr reenact --paste-back`` delivers).
 All metrics are on the composited frame; its landmarks are detected once per frame.
 
 Per frame (``evaluate_method`` -> one record each):
-  * ``output_mouth`` / ``output_eye``: ``landmarks.expression`` openings of the detected landmarks (NaN: no face);
+  * ``output_mouth`` / ``output_eye``: ``landmarks.shape.expression`` openings of the detected landmarks (NaN: no face);
     ``driver_mouth`` / ``driver_eye``: those of the *real* driver landmarks (not the targets);
   * ``yaw_error`` / ``pitch_error`` / ``roll_error``: |pose(detected) - pose(target)| in degrees
-    (``landmarks.pose.estimate_head_pose`` on ``RIGID_INDEX``, so that a dropped jaw does not read as pitch;
+    (``landmarks.motion.head_pose.estimate_head_pose`` on ``RIGID_INDEX``, so that a dropped jaw does not read as pitch;
     wrapped to [0, 180]);
   * ``nmke``: detected vs target landmarks (``lsr.eval.metrics.nmke``);
   * ``idsim_source``: ID-SIM of the frame to the mean embedding of i's K shots;
   * ``sharpness_face``: Laplacian variance inside the face region (``metrics.face_mask`` of the target
     landmarks) over that inside the anchor's face region on the anchor shot (1 = as sharp as the real face);
   * ``scene_mse`` / ``scene_psnr``: against the anchor shot over the pixels outside
-    ``landmarks.scene.head_region([anchor, target], person=True)``, the region a composite with the scene's matte
+    ``landmarks.scene.compositing.head_region([anchor, target], person=True)``, the region a composite with the scene's matte
     must leave as it was;
   * ``scene_flicker``: mean |frame_t - frame_t-1| (grey levels, RGB mean) over the pixels outside both frames'
     head regions (NaN for the first frame).
@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from landmarks.eyelids import LOOK_AHEAD
+from landmarks.parts.eyes.lids import LOOK_AHEAD
 from lsr.eval import idsim, metrics
 
 MIN_FRAMES = 3  # fewer paired frames than this: no correlation or gain (NaN)
@@ -43,10 +43,10 @@ MIN_FRAMES = 3  # fewer paired frames than this: no correlation or gain (NaN)
 CONVENTION = (
     "identity i driven by identity i+1's hold-out landmarks (--cross-drivers N: by each of i+1 ... i+N) as "
     "`lsr reenact` drives it: retargeted "
-    "(landmarks.mesh_retarget.retarget_face, --retarget: 2d = retarget_driving's relative motion of the 68 "
+    "(landmarks.motion.retarget_mesh.retarget_face, --retarget: 2d = retarget_driving's relative motion of the 68 "
     "points, 3d = the anchor's own mesh turned by the driver's head rotation, expression in the canonical head "
     "frame; either way the mouth as open as the driver's and the eyes as far closed, against the median of the "
-    f"driver's lid gaps (landmarks.eyelids.LidReference, as lsr reenact reads a driver's first {LOOK_AHEAD} faces "
+    f"driver's lid gaps (landmarks.parts.eyes.lids.LidReference, as lsr reenact reads a driver's first {LOOK_AHEAD} faces "
     "ahead); "
     "the driver's first frame mapped onto the anchor shot = "
     "pick_anchor of the K shots: most "
@@ -65,7 +65,7 @@ CONVENTION = (
     "sharpness (face) = Laplacian variance inside the target's face region (68-point hull dilated by "
     f"{metrics.FACE_DILATION:g} x inter-ocular distance) over that inside the anchor's face on the anchor shot; "
     "median over frames. scene PSNR = PSNR against the anchor shot over the pixels outside the head regions "
-    "(landmarks.scene.head_region of the anchor and target faces, grown as the person-matte composite grows it: "
+    "(landmarks.scene.compositing.head_region of the anchor and target faces, grown as the person-matte composite grows it: "
     "hair beyond the head ellipse moves with the head), which a composite must leave as they were: "
     "mean over frames with finite PSNR, '(+N inf)' counts bit-identical scenes, 'inf' = all identical. scene "
     "flicker = mean |difference| of consecutive composited frames (grey levels, RGB mean) outside both frames' "
@@ -162,8 +162,8 @@ def figure_frames(driver_landmarks: np.ndarray, image_size: tuple[int, int],
     horizontal iris offsets, NaN unknown) and its largest |yaw| relative to its first frame ("turn").
     driver_landmarks: (T, 68, 2) finite -> up to 5 (label, index), one per distinct frame (labels of a frame
     chosen twice are joined by '+')."""
-    from landmarks.expression import eye_opening, mouth_opening
-    from landmarks.pose import estimate_head_pose
+    from landmarks.shape.expression import eye_opening, mouth_opening
+    from landmarks.motion.head_pose import estimate_head_pose
 
     points = metrics.check_landmarks(driver_landmarks)
     if points.ndim != 3 or not np.isfinite(points).all():
@@ -220,17 +220,17 @@ def prepare_sequence(k: int, identity: str, driver: str, driver_rows: np.ndarray
                      source_embedding: np.ndarray, *, shot_meshes: np.ndarray | None = None,
                      driver_meshes: np.ndarray | None = None, retarget: str = "2d") -> CrossSequence:
     """Pick the anchor, retarget the driver onto it (its first frame as the reference, its lids' reference the
-    running median, as ``lsr reenact`` does: ``landmarks.mesh_retarget.retarget_face`` in mode ``retarget``) and
+    running median, as ``lsr reenact`` does: ``landmarks.motion.retarget_mesh.retarget_face`` in mode ``retarget``) and
     precompute what every method's frames are
     measured against. shots: K x (S, S, 3) uint8; shot_landmarks: (K, 68, 2) finite; driver_landmarks: (T, 68, 2)
     finite, T >= 1; shot_meshes (K, 468, 3) and driver_meshes (T, 468, 3): face meshes (NaN rows: none), or None.
     target_meshes: the retargeted meshes (T, 468, 3) (NaN rows: none) when both are given."""
-    from landmarks.eyelids import running_reference_gaps
-    from landmarks.expression import pick_anchor
-    from landmarks.mesh_retarget import retarget_face
-    from landmarks.pose import estimate_head_pose
-    from landmarks.retarget import RIGID_INDEX
-    from landmarks.scene import head_region
+    from landmarks.parts.eyes.lids import running_reference_gaps
+    from landmarks.shape.expression import pick_anchor
+    from landmarks.motion.retarget_mesh import retarget_face
+    from landmarks.motion.head_pose import estimate_head_pose
+    from landmarks.motion.retarget_points import RIGID_INDEX
+    from landmarks.scene.compositing import head_region
 
     driver_landmarks = metrics.check_landmarks(driver_landmarks)
     if driver_landmarks.ndim != 3 or not len(driver_landmarks) or not np.isfinite(driver_landmarks).all():
@@ -252,8 +252,8 @@ def prepare_sequence(k: int, identity: str, driver: str, driver_rows: np.ndarray
 
 def composite(sequence: CrossSequence, outputs: np.ndarray) -> np.ndarray:
     """Each output frame composited into the anchor shot at its target: (T, S, S, 3) uint8 -> (T, S, S, 3) uint8."""
-    from landmarks.scene import composite_face
-    from landmarks.segment import scene_layers
+    from landmarks.scene.compositing import composite_face
+    from landmarks.scene.person_matte import scene_layers
 
     identity_crop = np.eye(2, 3)  # outputs are already in the shots' pixel frame
     layers = scene_layers(sequence.anchor_shot, sequence.anchor_landmarks)
@@ -266,9 +266,9 @@ def composite(sequence: CrossSequence, outputs: np.ndarray) -> np.ndarray:
 def evaluate_method(sequence: CrossSequence, name: str, composited: np.ndarray, analysis: Any) -> list[dict[str, Any]]:
     """One record per composited frame (module docstring). composited: (T, S, S, 3) uint8 from ``composite``;
     analysis: ``lsr.eval.protocol.FaceAnalysis`` (one detection per frame, memoised)."""
-    from landmarks.expression import eye_opening, mouth_opening
-    from landmarks.pose import estimate_head_pose
-    from landmarks.retarget import RIGID_INDEX
+    from landmarks.shape.expression import eye_opening, mouth_opening
+    from landmarks.motion.head_pose import estimate_head_pose
+    from landmarks.motion.retarget_points import RIGID_INDEX
 
     size = composited.shape[1:3]
     driver_mouth, driver_eye = mouth_opening(sequence.driver_landmarks), eye_opening(sequence.driver_landmarks)

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from landmarks import identity
-from landmarks.errors import ModelFilesError
+from landmarks.detect import same_person as identity
+from landmarks.exceptions import ModelFilesError
 from lsr.errors import WeightsError
 from lsr.eval.metrics import check_landmarks
 
@@ -21,7 +21,7 @@ EMBEDDER_NAME = "dlib ResNet face recognition v1 (128-D), stands in for the thes
 
 
 def face_descriptor(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
-    """dlib's raw 128-D descriptor (``landmarks.identity.face_descriptor``); ``WeightsError`` without dlib's model."""
+    """dlib's raw 128-D descriptor (``landmarks.detect.same_person.face_descriptor``); ``WeightsError`` without dlib's model."""
     try:
         return identity.face_descriptor(image, check_landmarks(landmarks))
     except ModelFilesError as exc:

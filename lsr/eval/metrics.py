@@ -32,7 +32,7 @@ import math
 import cv2
 import numpy as np
 
-from landmarks.parts import NUM_LANDMARKS
+from landmarks.shape.ibug68 import NUM_LANDMARKS
 from lsr.errors import ConfigError
 
 SSIM_WINDOW = 11

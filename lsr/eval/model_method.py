@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from lsr.core import DEFAULT_FINETUNE_LR
-from lsr.core.sources import scale_mesh, scale_points
+from lsr.core.inputs import scale_mesh, scale_points
 from lsr.errors import ConfigError, WeightsError
 from lsr.eval.baselines import check_method_inputs
 
@@ -84,7 +84,7 @@ class LsrModelMethod:
         "driver" (the driver frame's shut eyes: cross-identity, the protocol then passes ``driver_eyes``) or "shots"
         (None: the model's default). expression_gain: how far mesh-warped references carry a shot's mouth toward a
         wider one (``ReenactorBase.expression_gain``; None: the model's default). bank: where its eyes and mouth
-        come from ("shots": one real exemplar of the K shots per part and frame, ``landmarks.bank``; "none": the
+        come from ("shots": one real exemplar of the K shots per part and frame, ``landmarks.parts``; "none": the
         synthesis'; None: the model's default)."""
         self.weights = Path(weights)
         self.device = device
@@ -153,9 +153,9 @@ class LsrModelMethod:
         target_segmentations: (T, S, S) uint8 class ids, ground truth of the targets (``oracle_seg`` only);
         shot_meshes (K, 468, 3), target_meshes (T, 468, 3): face meshes for the references' mesh warp (NaN rows:
         none; that target's references are TPS-warped); target_gazes (T, 2, 2): where each target looks
-        (``landmarks.iris.gaze_offsets``; NaN: not found), for drawn eyes; driver_mouths: T x
-        ``landmarks.mouth_interior.DriverMouth`` or None, the driving frames' mouths (cross-identity); driver_eyes: T x
-        ``landmarks.driver_eyes.DriverEyes`` or None, the driving frames' shut eyes (cross-identity) -> (T, S, S, 3)
+        (``landmarks.parts.eyes.iris.gaze_offsets``; NaN: not found), for drawn eyes; driver_mouths: T x
+        ``landmarks.parts.mouth.interior.DriverMouth`` or None, the driving frames' mouths (cross-identity); driver_eyes: T x
+        ``landmarks.parts.eyes.driver_lids.DriverEyes`` or None, the driving frames' shut eyes (cross-identity) -> (T, S, S, 3)
         uint8."""
         check_method_inputs(shots, shot_landmarks, target_landmarks)
         scale = self._encode(shots, shot_landmarks, shot_meshes)
@@ -190,7 +190,7 @@ class LsrModelMethod:
                              scale: float, size: int) -> np.ndarray:
         """Table 4.2's upper bound: G^s conditioned on the targets' one-hot ground-truth segmentation."""
         from lsr.core.engine import from_network, to_network
-        from landmarks.raster import draw_landmarks
+        from landmarks.shape.raster import draw_landmarks
         from models_def.config import NUM_SEG_CLASSES
 
         if target_segmentations is None:

@@ -7,9 +7,9 @@ them. Metrics are computed on the hold-out frames, driven by their ground-truth 
 
 Data sources (``load_identities``):
   * the LSR release / FSTH layout ``{train,test}/<id>/<video>/combined/NNNNN_rgb.png``:
-    ``train`` = inputs, ``test`` = hold-outs; landmarks detected with ``landmarks.detect`` and
+    ``train`` = inputs, ``test`` = hold-outs; landmarks detected with ``landmarks.detect.face_detector`` and
     cached as ``<cache_dir>/landmarks_<split>_<id>.npz``; with a mesh detector (one with ``meshes``,
-    ``landmarks.mesh_track.MeshDetector``) the 468-point meshes of the same detections too (the 68 points are
+    ``landmarks.detect.mediapipe_tracker.MeshDetector``) the 468-point meshes of the same detections too (the 68 points are
     ``mesh_to_68`` of them);
   * an ``lsr.data.format`` dataset (manifest + clips): for each identity of the split, its
     clips' frames in clip-name order, first ``inputs`` frames = inputs, next ``holdouts`` =
@@ -46,11 +46,13 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from landmarks.coverage import spread
-from landmarks.expression import eye_opening, mouth_opening
+from landmarks.parts.coverage import spread
+from landmarks.shape.expression import eye_opening, mouth_opening
+from landmarks.detect.registry import detect_faces, gives_meshes  # noqa: F401 - protocol.detect_faces
 from lsr.errors import ConfigError, DatasetError
 from lsr.eval.analysis import FaceAnalysis
-from lsr.eval import cross, idsim, parts
+from lsr.eval import cross, idsim
+from lsr.eval import part_regions as parts
 from lsr.eval.baselines import check_method_inputs, nearest_shot_indices
 from lsr.eval.metrics import face_mask, mse, nmke, psnr_from_mse, sharpness, ssim
 
@@ -107,52 +109,20 @@ def takes_meshes(method: Any) -> bool:
 
 
 def takes_gazes(method: Any) -> bool:
-    """The method is passed ``target_gazes=`` (T, 2, 2), where each target looks (``landmarks.iris.gaze_offsets``
+    """The method is passed ``target_gazes=`` (T, 2, 2), where each target looks (``landmarks.parts.eyes.iris.gaze_offsets``
     of the hold-out or, cross-identity, the driver's relative gaze): it ``uses_gazes`` (warped or drawn eyes)."""
     return bool(getattr(method, "uses_gazes", False))
 
 
 DRIVER_FRAME_INPUTS = {"uses_driver_mouths": parts.driver_mouth_inputs, "uses_driver_eyes": parts.driver_eye_inputs}
 """What a method is passed cross-identity from the driving frames, by the attribute that asks for it: ``driver_mouths=``,
-the open mouths (``landmarks.mouth_interior.DriverMouth``: the driver's mouth interior), and ``driver_eyes=``, the
-shut eyes (``landmarks.driver_eyes.DriverEyes``: the driver's shut lids); each cut once per driver."""
-
-
-def gives_meshes(detector: Any) -> bool:
-    """Whether ``detector`` finds face meshes (``landmarks.mesh_track.MeshDetector`` has ``meshes``)."""
-    return callable(getattr(detector, "meshes", None))
+the open mouths (``landmarks.parts.mouth.interior.DriverMouth``: the driver's mouth interior), and ``driver_eyes=``, the
+shut eyes (``landmarks.parts.eyes.driver_lids.DriverEyes``: the driver's shut lids); each cut once per driver."""
 
 
 def detect_landmarks(frames: Sequence[np.ndarray], detector: Any) -> np.ndarray:
     """Largest face's 68 landmarks per frame. frames: N x (H, W, 3) uint8 -> (N, 68, 2) float32, NaN = no face."""
     return detect_faces(frames, detector)[0]
-
-
-def detect_faces(frames: Sequence[np.ndarray], detector: Any) -> tuple[np.ndarray, np.ndarray | None]:
-    """Largest face's 68 landmarks per frame, and its mesh when the detector gives meshes (``gives_meshes``).
-
-    frames: N x (H, W, 3) uint8 -> ((N, 68, 2) float32, (N, 468, 3) float32 or None), NaN rows = no face. A mesh
-    detector's 68 points are ``mesh_to_68`` of the mesh, as its ``detect`` gives them."""
-    from landmarks.mesh68 import mesh_to_68
-    from landmarks.mesh_warp import MESH_POINTS
-
-    with_meshes = gives_meshes(detector)
-    landmarks = np.full((len(frames), 68, 2), np.nan, np.float32)
-    meshes = np.full((len(frames), MESH_POINTS, 3), np.nan, np.float32) if with_meshes else None
-    retry = None
-    for index, frame in enumerate(frames):
-        faces = detector.meshes(frame) if with_meshes else detector.detect(frame)
-        if not faces:  # ground truth should not lose a face to a cheap detection setting: retry a finer one
-            if retry is None:
-                retry = detector.more_sensitive() or detector
-            if retry is not detector:
-                faces = retry.meshes(frame) if with_meshes else retry.detect(frame)
-        if faces and meshes is not None:
-            meshes[index] = faces[0][1].mesh
-            landmarks[index] = mesh_to_68(faces[0][1].mesh)
-        elif faces:
-            landmarks[index] = faces[0].landmarks
-    return landmarks, meshes
 
 
 def _cached_faces(names: np.ndarray, frames: Sequence[np.ndarray], detector: Any,
@@ -161,7 +131,7 @@ def _cached_faces(names: np.ndarray, frames: Sequence[np.ndarray], detector: Any
     with_meshes = gives_meshes(detector)
     settings = f"{detector.settings}/retry"
     if with_meshes:  # the 68 points are mapped from the meshes: a refitted mapping invalidates them
-        from landmarks.mesh68 import MAPPING_FILE
+        from landmarks.shape.mesh68 import MAPPING_FILE
 
         settings += "/mesh68:" + hashlib.blake2b(MAPPING_FILE.read_bytes(), digest_size=8).hexdigest()
     if cache is not None and cache.is_file():
@@ -171,7 +141,7 @@ def _cached_faces(names: np.ndarray, frames: Sequence[np.ndarray], detector: Any
                 return stored["landmarks"], (stored["meshes"] if with_meshes else None)
     landmarks, meshes = detect_faces(frames, detector)
     if cache is not None:
-        from landmarks.imageio import atomic_output
+        from landmarks.io.image_files import atomic_output
 
         extra = {} if meshes is None else {"meshes": meshes}
         with atomic_output(cache) as temp, open(temp, "wb") as handle:
@@ -189,7 +159,7 @@ def load_fsth_sample(root: Path, detector: Any, cache_dir: Path | None = None, p
     """Identities of the LSR release / FSTH layout (see the module docstring), sorted by name."""
     from tqdm import tqdm
 
-    from landmarks.imageio import read_image
+    from landmarks.io.image_files import read_image
 
     root = Path(root)
     names = sorted(p.name for p in (root / "train").iterdir() if p.is_dir() and (root / "test" / p.name).is_dir())
@@ -382,12 +352,12 @@ def run_protocol(
     {key: metric(outputs, targets) -> (T,)}, each value
     stored per frame in the records under its key (e.g. LPIPS). A method with ``finetune`` is also evaluated fine-tuned,
     as "<name>+ft", when ``finetune`` is true. retarget: how the cross-identity driver is moved onto the anchor
-    (``landmarks.mesh_retarget.retarget_face``'s mode; "3d" needs the identities' meshes, "2d" elsewhere).
+    (``landmarks.motion.retarget_mesh.retarget_face``'s mode; "3d" needs the identities' meshes, "2d" elsewhere).
     cross_drivers: each identity is driven by the next this many identities (i+1, i+2, ...; at most all others).
     shot_choice: "random" (the protocol's: ``sample_shots``), "spread" (evenly over the inputs in time) or "cover" (as
     ``lsr reenact`` chooses them from many:
-    ``lsr.core.sources.choose_shots``: spread, with the person's extreme moments swapped in). judge: also read the
-    moving parts with dlib's 68 points, a detector that did not drive them (``lsr.eval.parts``; needs dlib).
+    ``lsr.core.inputs.choose_shots``: spread, with the person's extreme moments swapped in). judge: also read the
+    moving parts with dlib's 68 points, a detector that did not drive them (``lsr.eval.part_regions``; needs dlib).
     """
     from tqdm import tqdm
 
@@ -426,7 +396,7 @@ def run_protocol(
             if k > len(candidates):  # fewer input frames with a face than K: use them all, and say so
                 counts.setdefault("k_capped", {})[f"K={k} {identity.name}"] = int(len(candidates))
             if shot_choice == "cover":  # input frames only, as lsr reenact would choose them
-                from lsr.core.sources import choose_shots
+                from lsr.core.inputs import choose_shots
 
                 shot_indices = candidates[choose_shots([identity.input_frames[i] for i in candidates],
                                                        [identity.input_landmarks[i] for i in candidates],

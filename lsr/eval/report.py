@@ -19,12 +19,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from landmarks.appearance import gazes
-from landmarks.identity import SAME_PERSON_RADIUS
+from landmarks.parts.appearance import gazes
+from landmarks.detect.same_person import SAME_PERSON_RADIUS
 from lsr.errors import ConfigError
-from lsr.eval import cross, idsim, metrics, parts
+from lsr.eval import cross, idsim, metrics
+from lsr.eval import part_regions as parts
 from lsr.eval.protocol import BUCKETS, EvalIdentity, EvalRun
-from lsr.machine import shown_path
+from lsr.eval.machine import shown_path
 
 if TYPE_CHECKING:
     from lsr.config import EvalConfig
@@ -262,7 +263,7 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
         lines.append(f"- images where dlib's detector found no face and the judge's shape predictor used the primary "
                      f"detector's box: {summary['counts']['judge_boxed']}")
     if settings.get("shot_choice") == "cover":
-        lines.append("- shots: chosen to cover each person's mouth, eyes, pose and gaze (lsr.core.sources.choose_shots, "
+        lines.append("- shots: chosen to cover each person's mouth, eyes, pose and gaze (lsr.core.inputs.choose_shots, "
                      "as lsr reenact chooses them), not drawn at random")
     elif settings.get("shot_choice") == "spread":
         lines.append("- shots: spread evenly over each person's input frames in time, not drawn at random")
@@ -276,7 +277,7 @@ def markdown(summary: dict[str, Any], machine: str) -> str:
 
 def write_report(out_dir: Path, summary: dict[str, Any], text: str) -> tuple[Path, Path]:
     """Atomically write OUT/eval_report.md and OUT/eval_report.json; returns both paths."""
-    from landmarks.imageio import atomic_output, write_json
+    from landmarks.io.image_files import atomic_output, write_json
 
     out_dir = Path(out_dir)
     markdown_path, json_path = out_dir / "eval_report.md", out_dir / "eval_report.json"
@@ -308,7 +309,7 @@ class ExampleWriter:
         self.first: dict[tuple[str, int, str], tuple[np.ndarray, np.ndarray]] = {}
 
     def __call__(self, name: str, k: int, identity: EvalIdentity, outputs: np.ndarray, targets: np.ndarray) -> None:
-        from landmarks.imageio import write_image
+        from landmarks.io.image_files import write_image
 
         if not len(outputs):
             return
@@ -445,12 +446,12 @@ def label_by_variant(models: Sequence[Any], folders: Sequence[Any]) -> list[Any]
 
 def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     """Run ``lsr eval`` (cfg: lsr.config.EvalConfig): load, evaluate the baselines, write and print the report."""
-    from landmarks.detectors import make_detector
+    from landmarks.detect.registry import make_detector
     from lsr.eval.baselines import MeshMean3, MeshWarp, NearestShot, TpsMean3, TpsWarp
     from lsr.eval.analysis import FaceAnalysis
     from lsr.eval.protocol import (takes_meshes, attach_meshes, detect_layout, gives_meshes,
                                    load_fsth_sample, load_lsr_split, run_protocol)
-    from lsr.machine import machine_markdown
+    from lsr.eval.machine import machine_markdown
 
     data = cfg.resolved_data()
     detector = make_detector(cfg.detector, **({"upsample": cfg.detector_upsample} if cfg.detector != "mesh" else {}))
@@ -539,7 +540,7 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
                          "tps_regularization": cfg.tps_regularization, "retarget": cfg.retarget})
     summary = summarise(run, fid=fid_results, backbones=backbones)
     if cfg.figure is not None:
-        from landmarks.imageio import write_image
+        from landmarks.io.image_files import write_image
 
         write_image(cfg.figure, examples.comparison(cfg.figure_k))
         print(f"comparison figure (K={cfg.figure_k}: one hold-out frame per identity, methods side by side) written to {cfg.figure}")

@@ -55,7 +55,7 @@ def section_text(name: str, title: str, command: str, body: str, note: str | Non
 def replace_section(path: Path, section: str, start: str, end: str) -> Path:
     """Put ``section`` (markers included) into ``path`` between the markers ``start`` / ``end``, replacing the old
     one in place and keeping every other line; appended when the file has none. Atomic."""
-    from landmarks.imageio import atomic_output
+    from landmarks.io.image_files import atomic_output
 
     path = Path(path)
     text = path.read_text() if path.is_file() else HEADER

@@ -27,7 +27,7 @@ def example_shots(count: int = EXAMPLE_SHOTS) -> list:
     clip, so that head pose and expression differ between them."""
     import numpy as np
 
-    from landmarks.video import iter_frames
+    from landmarks.io.video import iter_frames
 
     frames = list(iter_frames(REAL_SOURCE))
     return [frames[index] for index in np.linspace(0, len(frames) - 1, count).round().astype(int)]

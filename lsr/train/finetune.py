@@ -3,7 +3,7 @@
 z^l and z^s are computed once from the K shots and kept fixed; G^l, G^s and D are fine-tuned by
 reconstructing the shots from their own landmarks with the objective of eq. 4.4 (the same
 generator/discriminator steps as ``lsr train``). A warp-guided model reconstructs each shot from the other
-shots warped onto it (``landmarks.tps.leave_one_out_references``; with one shot, a jittered copy of it).
+shots warped onto it (``landmarks.warp.tps.leave_one_out_references``; with one shot, a jittered copy of it).
 Output: the subject's model folder (safetensors + config.json) and ``latents.safetensors`` (layout_latent,
 style_latent), ready for the pipeline.
 """
@@ -24,7 +24,7 @@ import torch
 from torch import Tensor
 
 from lsr.core import DEFAULT_FINETUNE_LR
-from lsr.core.sources import SubjectShots, load_subject_shots  # one source loader for reenact, app and finetune
+from lsr.core.inputs import SubjectShots, load_subject_shots  # one source loader for reenact, app and finetune
 from lsr.errors import DatasetError, WeightsError
 from lsr.train.checkpoint import DISCRIMINATOR_NAME, nonfinite_entries
 from lsr.train.optim import make_adam
@@ -86,7 +86,7 @@ def shot_references(shots: SubjectShots, count: int, seed: int = 0) -> tuple[Ten
     """Warp-guided fine-tuning inputs: per shot, the nearest other shots warped onto it.
 
     -> (references (K, count, 3, S, S) in [-1, 1], reference_masks (K, count, 1, S, S) in {0, 1})."""
-    from landmarks.tps import leave_one_out_references
+    from landmarks.warp.tps import leave_one_out_references
 
     warped, masks = leave_one_out_references(shots.frames, shots.landmarks, count, seed)
     references = torch.from_numpy(warped).permute(0, 1, 4, 2, 3).float() / 127.5 - 1
@@ -191,7 +191,7 @@ def finetune_reenactor(reenactor, steps: int, *, lr: float = DEFAULT_FINETUNE_LR
     The latents stay those of ``encode_subject`` (fixed during fine-tuning, as in the thesis); D comes from beside
     the weights (``lsr train`` saves it) or starts fresh. Inference knows nothing of training: fine-tuning is
     composed on top of it here, by ``lsr reenact``, the app and ``lsr eval``. Returns the ``FinetuneResult``."""
-    from lsr.core.sources import resize_shots
+    from lsr.core.inputs import resize_shots
     from lsr.errors import ConfigError
 
     model = getattr(reenactor.backend, "model", None)
@@ -230,7 +230,7 @@ def save_subject(result: FinetuneResult, out: Path, extra: dict | None = None) -
     """Write the subject model (safetensors + config.json), latents.safetensors and finetune.json. Never non-finite."""
     from safetensors.torch import save_file
 
-    from landmarks.imageio import atomic_output
+    from landmarks.io.image_files import atomic_output
 
     out = Path(out)
     bad = nonfinite_entries(result.model.state_dict()) + nonfinite_entries(
@@ -264,7 +264,7 @@ def run_finetune(cfg: FinetuneConfig) -> FinetuneResult:
     discriminator, found = load_discriminator(weights, model)
     if not found:
         print(f"lsr finetune: no {DISCRIMINATOR_NAME} in {weights}; fine-tuning with a fresh discriminator")
-    from landmarks.detectors import make_detector
+    from landmarks.detect.registry import make_detector
 
     shots = load_subject_shots(cfg.shots, model.config.resolution, k=cfg.k, detector=make_detector(cfg.detector))
     for note in shots.notes:

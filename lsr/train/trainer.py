@@ -240,7 +240,7 @@ class Trainer:
         if self.context.is_main:
             from safetensors.torch import save_file
 
-            from landmarks.imageio import atomic_output
+            from landmarks.io.image_files import atomic_output
 
             self.ema.module.save_pretrained(folder)
             # D beside the generators so that `lsr finetune` can fine-tune it too (§4.3.5).

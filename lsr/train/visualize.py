@@ -115,7 +115,7 @@ def tensorboard_to_png(log_dir: Path, png_path: Path, tags: Sequence[str] | None
 
 def run_curves(cfg: CurvesConfig) -> Path:
     """Entry point of ``lsr curves RUN --out PNG`` (``lsr.config.CurvesConfig``)."""
-    from landmarks.imageio import check_output_path
+    from landmarks.io.image_files import check_output_path
     from lsr.errors import ConfigError
 
     check_output_path(cfg.out)

@@ -16,7 +16,7 @@ import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from landmarks.imageio import atomic_folder
+from landmarks.io.image_files import atomic_folder
 from lsr.weights import DEFAULT_WEIGHTS, MissingWeightsError, is_model_folder
 
 if TYPE_CHECKING:

@@ -23,7 +23,7 @@ def free_port() -> int:
 def app_inputs(tmp_path_factory) -> dict[str, Path]:
     """source.png (synthetic person A), driving.mp4 (person B, 5 frames, with audio), no_face.png (a gradient)."""
     from app.examples import write_clip_with_tone
-    from landmarks.imageio import write_image
+    from landmarks.io.image_files import write_image
     from lsr.data.synth import render_video
 
     folder = tmp_path_factory.mktemp("app_inputs")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from app.bench_live import CHROMIUM, HEADLESS_ARGS
+from lsr.bench.bench_live import CHROMIUM, HEADLESS_ARGS
 
 pytestmark = pytest.mark.slow
 

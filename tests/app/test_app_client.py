@@ -34,7 +34,7 @@ def decode(path):
 def test_reenact_returns_playable_video_with_every_frame(app_server, app_server_weights, app_inputs):
     import json
 
-    from landmarks.video import probe_video
+    from landmarks.io.video import probe_video
 
     driver_frames = probe_video(app_inputs["driving"]).frames
     # gr.State outputs are not part of the API: video, summary, shots, averaging, panel, scrubber, timing, coverage.
@@ -53,14 +53,14 @@ def test_reenact_returns_playable_video_with_every_frame(app_server, app_server_
     assert f"{driver_frames} frame(s)" in summary and "audio kept" in summary
     assert len(shots) == 1 and len(averaging) == 2  # one shot alone + the K-shot average
     assert panel is not None and "synthesis" in timing
-    assert coverage is not None  # the picture of what the shots cover (landmarks.coverage.coverage_picture)
+    assert coverage is not None  # the picture of what the shots cover (landmarks.parts.coverage.coverage_picture)
 
 
 def test_paste_back_puts_the_result_into_the_source_scene(app_server, app_inputs, tmp_path):
     """The result has the source photo's size (wider than the 128^2 driver) and, far from the head, its pixels."""
     import numpy as np
 
-    from landmarks.imageio import read_image, write_image
+    from landmarks.io.image_files import read_image, write_image
 
     source = read_image(app_inputs["source"])
     wide = np.pad(source, ((0, 0), (32, 32), (0, 0)), mode="edge")

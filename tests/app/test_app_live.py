@@ -20,7 +20,7 @@ STREAM_SECONDS = 6.0
 
 @pytest.fixture(scope="module")
 def camera_file(tmp_path_factory):
-    from app.bench_live import camera_frames, write_y4m
+    from lsr.bench.bench_live import camera_frames, write_y4m
 
     root = Path(__file__).resolve().parents[2]
     clip = Path(os.environ.get("LSR_SHARED_DATA", root.parent / "shared" / "data")) / "clips" / "tpsmm_driving.mp4"
@@ -32,9 +32,9 @@ def test_the_webcam_drives_the_person_live(app_server, camera_file, tmp_path):
     if not CHROMIUM.is_file():
         pytest.skip(f"{CHROMIUM} not found: install Debian's chromium (apt-get install chromium) to run browser tests")
     pytest.importorskip("playwright.sync_api", reason="the playwright package is not installed")
-    from app.bench_live import run_live
-    from landmarks.detect import DlibDetector
-    from landmarks.imageio import read_image
+    from lsr.bench.bench_live import run_live
+    from landmarks.detect.face_detector import DlibDetector
+    from landmarks.io.image_files import read_image
 
     shot = tmp_path / "live.png"
     result = run_live(app_server, camera_file, STREAM_SECONDS, 1.0, shot)

@@ -20,7 +20,7 @@ def test_shots_recorded_with_the_webcam_reenact_and_show_their_coverage(app_serv
     if not CHROMIUM.is_file():
         pytest.skip(f"{CHROMIUM} not found: install Debian's chromium (apt-get install chromium) to run browser tests")
     sync_api = pytest.importorskip("playwright.sync_api", reason="the playwright package is not installed")
-    from app.bench_live import CHROMIUM_ARGS, camera_frames, start_stream, write_y4m
+    from lsr.bench.bench_live import CHROMIUM_ARGS, camera_frames, start_stream, write_y4m
     from lsr.examples import REAL_SOURCE
 
     camera = write_y4m(tmp_path / "camera.y4m", camera_frames(REAL_SOURCE, 75))

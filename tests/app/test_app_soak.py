@@ -16,8 +16,8 @@ def test_live_stream_and_batch_runs_are_served_together(app_server, app_inputs, 
     if not CHROMIUM.is_file():
         pytest.skip(f"{CHROMIUM} not found: install Debian's chromium (apt-get install chromium) to run browser tests")
     pytest.importorskip("playwright.sync_api", reason="the playwright package is not installed")
-    from app.bench_live import camera_frames, write_y4m
-    from app.bench_soak import soak, soak_markdown
+    from lsr.bench.bench_live import camera_frames, write_y4m
+    from lsr.bench.bench_soak import soak, soak_markdown
 
     y4m = write_y4m(tmp_path / "camera.y4m", camera_frames(None, 25))
     result = soak(app_server, y4m, minutes=0.35, runs=1, warmup_minutes=0.1, source=app_inputs["source"],

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from app import handlers
-from landmarks.errors import InputFileError, NoFaceError
+from landmarks.exceptions import InputFileError, NoFaceError
 from lsr.errors import WeightsError
 
 
@@ -23,7 +23,7 @@ def test_driver_limits_are_enforced_with_a_message(app_inputs):
 
 
 def test_faceless_images_are_skipped_and_named(app_inputs):
-    from landmarks.detectors import make_detector
+    from landmarks.detect.registry import make_detector
 
     detector = make_detector()
     shots, notes = handlers.load_shots([app_inputs["source"], app_inputs["no_face"]], 4, 64, detector, handlers.Limits())
@@ -89,7 +89,7 @@ def test_cli_rejects_a_missing_weights_folder(tmp_path, capsys):
 @pytest.mark.slow
 def test_examples_are_generated_once_and_usable(tmp_path):
     from app import examples
-    from landmarks.video import probe_video
+    from landmarks.io.video import probe_video
 
     made = examples.ensure_examples(tmp_path)
     stamp = made.driving_video.stat().st_mtime_ns
@@ -135,7 +135,7 @@ def test_model_summary_names_the_model_and_says_what_a_warp_guided_one_does(tmp_
 def test_errors_name_the_uploaded_file_not_the_server_temp_path(app_inputs, tmp_path):
     import gradio as gr
 
-    from landmarks.detectors import make_detector
+    from landmarks.detect.registry import make_detector
 
     upload = tmp_path / "gradio" / "4f1c9e" / "holiday photo.png"  # where gradio keeps an upload
     upload.parent.mkdir(parents=True)
@@ -151,7 +151,7 @@ def test_the_app_and_lsr_reenact_write_the_same_video(tiny_app_weights, app_inpu
     """One writer for both: the same shots, driver and options give the same frames, audio and provenance."""
     import av
 
-    from landmarks.video import iter_frames
+    from landmarks.io.video import iter_frames
     from lsr.cli import main
 
     store = handlers.ModelStore(tiny_app_weights, "cpu")
@@ -164,7 +164,7 @@ def test_the_app_and_lsr_reenact_write_the_same_video(tiny_app_weights, app_inpu
                  "--watermark", "--out", str(cli_out), "--no-progress"]) == 0
     app_frames, cli_frames = list(iter_frames(result.video)), list(iter_frames(cli_out))
     assert len(app_frames) == len(cli_frames) == 5
-    # the app says what the driver asks beyond the shots, as lsr reenact does (landmarks.coverage)
+    # the app says what the driver asks beyond the shots, as lsr reenact does (landmarks.parts.coverage)
     assert re.search(r"- (the driver .* would help|the shots cover the driver)", result.summary)
     for app_frame, cli_frame in zip(app_frames, cli_frames):
         np.testing.assert_array_equal(app_frame, cli_frame)
@@ -176,8 +176,8 @@ def test_the_app_and_lsr_reenact_write_the_same_video(tiny_app_weights, app_inpu
 def test_sliders_edit_the_person_and_the_saved_pose_drives_lsr_reenact(tiny_app_weights, tmp_path):
     """The expression tab: neutral sliders draw the anchor's own face, the mouth slider opens it, and the saved pose
     (neutral, then the edit) is a landmark driver `lsr reenact` accepts."""
-    from app import live
-    from landmarks.video import iter_frames
+    from app import live_tab as live
+    from landmarks.io.video import iter_frames
     from lsr.cli import main
 
     store = handlers.ModelStore(tiny_app_weights, "cpu")
@@ -207,9 +207,9 @@ def test_sliders_edit_the_person_and_the_saved_pose_drives_lsr_reenact(tiny_app_
 
 
 def test_photos_of_another_person_are_left_out_and_named(app_inputs, tmp_path, monkeypatch):
-    from landmarks import identity
-    from landmarks.detectors import make_detector
-    from landmarks.imageio import read_image, write_image
+    from landmarks.detect import same_person as identity
+    from landmarks.detect.registry import make_detector
+    from landmarks.io.image_files import read_image, write_image
 
     # descriptors that read a blue tint as another person (dlib's do not separate the synthetic people)
     monkeypatch.setattr(identity, "available", lambda: True)

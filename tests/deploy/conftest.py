@@ -78,7 +78,7 @@ def web() -> WebLibrary:
 @pytest.fixture(scope="module")
 def site(tmp_path_factory, web):
     """``lsr export --web``'s site of the shipped default, in a temp folder."""
-    from lsr.export_web import write_site
+    from lsr.export.web_site import write_site
     from lsr.weights import resolve_weights
 
     return write_site(resolve_weights(None), tmp_path_factory.mktemp("web") / "site")
@@ -86,12 +86,12 @@ def site(tmp_path_factory, web):
 
 @pytest.fixture(scope="module")
 def python_session(site):
-    """A factory of Python live sessions (``lsr.core.live.LiveSession``, the live tab's) on the site's person and
+    """A factory of Python live sessions (``lsr.core.live_session.LiveSession``, the live tab's) on the site's person and
     scene layers (its 8-bit matte), unmarked: the reference of the browser's output."""
-    from landmarks.scene import SceneLayers
-    from lsr.core.live import LiveSession
-    from lsr.export_bundle import cached_bundle
-    from lsr.export_web import example_subject
+    from landmarks.scene.compositing import SceneLayers
+    from lsr.core.live_session import LiveSession
+    from lsr.export.bundle import cached_bundle
+    from lsr.export.web_site import example_subject
     from lsr.weights import resolve_weights
 
     reenactor, subject, _ = example_subject(cached_bundle(resolve_weights(None)), site.k)
@@ -115,8 +115,8 @@ def real_shots() -> tuple[np.ndarray, np.ndarray]:
     """10 crops (256 x 256) of frames of the bundled real video (lsr.examples.REAL_SOURCE, every 7th frame) and their
     68 points in crop pixels (the default detector): shots and targets of the reference warps."""
     from landmarks.align import crop_transform, transform_landmarks, warp_to_crop
-    from landmarks.detectors import make_detector
-    from landmarks.video import iter_frames
+    from landmarks.detect.registry import make_detector
+    from landmarks.io.video import iter_frames
     from lsr.examples import REAL_SOURCE
 
     detector = make_detector()
@@ -133,7 +133,7 @@ def real_shots() -> tuple[np.ndarray, np.ndarray]:
 @pytest.fixture(scope="session")
 def driver_frames():
     """count -> the first ``count`` frames (count, H, W, 3) of the bundled driver (lsr.examples.REAL_DRIVER)."""
-    from landmarks.video import iter_frames
+    from landmarks.io.video import iter_frames
     from lsr.examples import REAL_DRIVER
 
     return lambda count: np.stack([frame for _, frame in zip(range(count), iter_frames(REAL_DRIVER))])
@@ -145,11 +145,11 @@ def bundled_drive():
     target retargeted onto the anchor in crop pixels)] at those frames of the bundled driver), as the live session
     drives it, unsmoothed."""
     from landmarks.align import crop_transform, transform_landmarks
-    from landmarks.detectors import make_tracker
-    from landmarks.mesh_retarget import DriverReference
-    from landmarks.retarget import retarget_driving
-    from landmarks.video import iter_frames
-    from lsr.core.sources import load_subject_shots
+    from landmarks.detect.registry import make_tracker
+    from landmarks.motion.retarget_mesh import DriverReference
+    from landmarks.motion.retarget_points import retarget_driving
+    from landmarks.io.video import iter_frames
+    from lsr.core.inputs import load_subject_shots
     from lsr.examples import REAL_DRIVER, REAL_SOURCE
 
     def drive(indices: tuple[int, ...], crop: int = 256):

@@ -23,7 +23,7 @@ def bundle(tmp_path_factory):
     """A tiny random model (latent_layout variant, so the frame graph has the layout output) and its ONNX bundle."""
     import torch
 
-    from lsr.export_bundle import export_graphs
+    from lsr.export.bundle import export_graphs
     from models_def import LSRModel, preset_config
 
     torch.manual_seed(0)
@@ -89,7 +89,7 @@ import numpy as np
 from deploy.runtime import OnnxReenactor
 
 bundle, image_path, driver_path = sys.argv[1:4]
-from landmarks.imageio import read_image
+from landmarks.io.image_files import read_image
 reenactor = OnnxReenactor(bundle)
 subject = reenactor.encode_subject(read_image(image_path))
 frames = list(reenactor(driver_path, landmark_space="crop", mode="absolute", smooth=False))
@@ -101,7 +101,7 @@ print(json.dumps({"frames": len(frames), "shape": list(frames[0].image.shape), "
 
 
 def test_runtime_runs_where_torch_cannot_be_imported(bundle, tmp_path):
-    from landmarks.imageio import write_image
+    from landmarks.io.image_files import write_image
     from lsr.pipeline import Reenactor
 
     image = tmp_path / "face.png"
@@ -125,7 +125,7 @@ def test_runtime_runs_where_torch_cannot_be_imported(bundle, tmp_path):
 
 
 def test_example_embed_runs_without_torch(bundle, tmp_path):
-    from landmarks.imageio import write_image
+    from landmarks.io.image_files import write_image
 
     sys_path_runner = r"""
 import importlib.abc, runpy, sys
@@ -157,8 +157,8 @@ def test_int8_static_qdq_bundle_runs_and_reports_error(bundle, tmp_path):
 
     from lsr.core.engine import to_network
     from deploy.runtime import OnnxReenactor
-    from landmarks.raster import draw_landmarks
-    from lsr.export_bundle import graph_error, quantize_frame_generator
+    from landmarks.shape.raster import draw_landmarks
+    from lsr.export.bundle import graph_error, quantize_frame_generator
     from lsr.pipeline import Reenactor
 
     folder = tmp_path / "onnx"
@@ -183,7 +183,7 @@ def test_warp_guided_torch_and_onnx_give_the_same_frames(tmp_path):
     import torch
 
     from deploy.runtime import OnnxReenactor
-    from lsr.export_bundle import export_graphs
+    from lsr.export.bundle import export_graphs
     from lsr.pipeline import Reenactor
     from models_def import LSRModel, preset_config
 

@@ -9,7 +9,7 @@ import base64
 import numpy as np
 import pytest
 
-from app.bench_live import CHROMIUM, CHROMIUM_ARGS, camera_frames, write_y4m
+from lsr.bench.bench_live import CHROMIUM, CHROMIUM_ARGS, camera_frames, write_y4m
 from lsr.eval.metrics import psnr
 
 pytestmark = pytest.mark.slow
@@ -75,7 +75,7 @@ def test_the_fake_camera_drives_the_person_live_with_the_mark_and_the_layout(pag
 
 
 def test_your_own_photos_become_the_person(page, tmp_path):
-    from landmarks.imageio import write_image
+    from landmarks.io.image_files import write_image
     from lsr.examples import example_shots
 
     paths = []

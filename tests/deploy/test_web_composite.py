@@ -1,4 +1,4 @@
-"""The web runtime's scene composite (deploy/web/src/composite.ts) against landmarks.scene.composite_face."""
+"""The web runtime's scene composite (deploy/web/src/composite.ts) against landmarks.scene.compositing.composite_face."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from landmarks import scene as scene_module
+from landmarks.scene import compositing as scene_module
 from landmarks.align import crop_transform, warp_to_crop
 
 
@@ -18,8 +18,8 @@ def _psnr(first: np.ndarray, second: np.ndarray) -> float:
 @pytest.fixture(scope="module")
 def real_frames() -> tuple[np.ndarray, np.ndarray]:
     """Two frames of the bundled real video (360 x 288) and their 68 points (the default detector)."""
-    from landmarks.detectors import make_detector
-    from landmarks.video import iter_frames
+    from landmarks.detect.registry import make_detector
+    from landmarks.io.video import iter_frames
     from lsr.examples import REAL_SOURCE
 
     detector = make_detector()
@@ -130,7 +130,7 @@ def test_bad_landmarks_raise(web, real_frames):
 def test_a_close_up_moving_far_composites_as_python(web, real_frames):
     """A head cut by the frame's top that moves down and aside further than its ramp is wide: the head layer fades
     to none at the edges it would reach past and starts its ramp further in where it would fold
-    (landmarks.scene._fold_free_weight), in the web page as in Python."""
+    (landmarks.scene.compositing._fold_free_weight), in the web page as in Python."""
     frames, landmarks = real_frames
     scene, points = frames[0][90:, 40:-40].copy(), landmarks[0] - [40.0, 90.0]
     target = _moved(points, 8.0, (0.15 * scene_module.face_side(points), 14.0), 0.9)

@@ -1,9 +1,9 @@
 """A user's own photos encoded in the browser (issue 42): deploy/web/src/encode.ts (with pose.ts and segment.ts), in
 Node, against what Python makes of the same photos: ``lsr.core.engine.ReenactorBase.encode_subject`` (the shots, their
-68 points, the anchor, the latents; ``lsr.export_web.example_subject``), the anchor's scene
-(``lsr.core.scene_source.SourceScene``) and its layers (``landmarks.segment.person_matte``,
-``landmarks.scene.background_plate``), and the live session drawing the person encoded in the page against
-``lsr.core.live.LiveSession`` on the person encoded in Python."""
+68 points, the anchor, the latents; ``lsr.export.web_site.example_subject``), the anchor's scene
+(``lsr.core.scene.SourceScene``) and its layers (``landmarks.scene.person_matte.person_matte``,
+``landmarks.scene.compositing.background_plate``), and the live session drawing the person encoded in the page against
+``lsr.core.live_session.LiveSession`` on the person encoded in Python."""
 
 from __future__ import annotations
 
@@ -25,10 +25,10 @@ def photos():
 @pytest.fixture(scope="module")
 def python_person(site):
     """(the Python subject, its scene, its person matte and its layers) for the example person's photos."""
-    from landmarks.scene import background_plate
-    from landmarks.segment import person_matte
-    from lsr.export_bundle import cached_bundle
-    from lsr.export_web import example_subject
+    from landmarks.scene.compositing import background_plate
+    from landmarks.scene.person_matte import person_matte
+    from lsr.export.bundle import cached_bundle
+    from lsr.export.web_site import example_subject
     from lsr.weights import resolve_weights
 
     _, subject, scene = example_subject(cached_bundle(resolve_weights(None)), site.k)
@@ -98,8 +98,8 @@ def test_the_layers_of_larger_and_smaller_photos(site, web, python_person, scale
     smaller one (the segmenter's input enlarged): the uint8 resizes are OpenCV's up to a grey level here and there."""
     import cv2
 
-    from landmarks.scene import background_plate
-    from landmarks.segment import person_matte
+    from landmarks.scene.compositing import background_plate
+    from landmarks.scene.person_matte import person_matte
 
     _, scene, _, _ = python_person
     image = cv2.resize(scene.image, None, fx=scale[0], fy=scale[1], interpolation=cv2.INTER_CUBIC)
@@ -117,13 +117,13 @@ def test_the_layers_of_larger_and_smaller_photos(site, web, python_person, scale
 
 def test_the_crop_and_the_head_pose_are_pythons(web, photos):
     """The ports under the shots on the same points: landmarks.align.crop (also where a large face is area-averaged
-    first) and landmarks.pose.estimate_head_pose / landmarks.expression.pick_anchor."""
+    first) and landmarks.motion.head_pose.estimate_head_pose / landmarks.shape.expression.pick_anchor."""
     import cv2
 
     from landmarks.align import crop
-    from landmarks.detectors import make_detector
-    from landmarks.expression import pick_anchor
-    from landmarks.pose import estimate_head_pose, project_canonical
+    from landmarks.detect.registry import make_detector
+    from landmarks.shape.expression import pick_anchor
+    from landmarks.motion.head_pose import estimate_head_pose, project_canonical
 
     frame = photos[0]
     large = cv2.resize(frame, None, fx=3, fy=3, interpolation=cv2.INTER_CUBIC)  # a 650-px face: shrunk > 2x
@@ -160,7 +160,7 @@ def test_photos_without_a_face_are_left_out_and_k_takes_the_first(site, web, pho
 def test_the_person_encoded_in_the_page_is_drawn_as_python_draws_it(site, web, photos, python_session):
     """End to end: the live session on the person encoded in the page (renderEncodedTargets) against Python's live
     session on the person encoded in Python, at the same landmarks."""
-    from landmarks.expression import set_mouth_opening
+    from landmarks.shape.expression import set_mouth_opening
 
     session = python_session()
     reference = session.subject.reference_landmarks.astype(np.float64)

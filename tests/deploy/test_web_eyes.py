@@ -1,4 +1,4 @@
-"""The web runtime's shut eyes (deploy/web/src/eyes.ts) against landmarks.driver_eyes: the bundled driver's frames
+"""The web runtime's shut eyes (deploy/web/src/eyes.ts) against landmarks.parts.eyes.driver_lids: the bundled driver's frames
 and tracked points cut around its eyes, laid over the bundled source's anchor shot at targets retargeted from the
 driver (as the live session does, unsmoothed). The bundled driver never shuts its eyes, so its lids at rest are
 given as wider than they are, from not at all to wholly shut."""
@@ -18,7 +18,7 @@ WIDER = (1.0, 1.9, 2.5, 4.0)  # the lids at rest as this many times the frame's 
 @pytest.fixture(scope="module")
 def driven(bundled_drive):
     """(the source's anchor crop, [(driver frame, its points, the target in crop pixels, lids at rest)] at FRAMES)."""
-    from landmarks.eyelids import lid_gaps
+    from landmarks.parts.eyes.lids import lid_gaps
 
     image, frames = bundled_drive(FRAMES, CROP)
     return image, [(frame, points, target, wider * lid_gaps(points))
@@ -26,7 +26,7 @@ def driven(bundled_drive):
 
 
 def test_the_driver_eyes_are_cut_and_read_as_python_does(web, driven):
-    from landmarks.driver_eyes import aperture_share, cut_driver_eyes
+    from landmarks.parts.eyes.driver_lids import aperture_share, cut_driver_eyes
 
     _, frames = driven
     got = web.calls(*[("cutDriverEyes", [frame, points, wider]) for frame, points, _, wider in frames],
@@ -48,7 +48,7 @@ def test_the_driver_eyes_are_cut_and_read_as_python_does(web, driven):
 
 
 def test_the_shut_eyes_are_laid_in_as_python_lays_them(web, driven):
-    from landmarks.driver_eyes import cut_driver_eyes, paste_eyes, similarity
+    from landmarks.parts.eyes.driver_lids import cut_driver_eyes, paste_eyes, similarity
 
     image, frames = driven
     cut = [cut_driver_eyes(frame, points, wider) for frame, points, _, wider in frames]

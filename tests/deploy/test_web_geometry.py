@@ -1,12 +1,12 @@
-"""The web runtime's geometry (deploy/web/src/geometry.ts) against landmarks.align and landmarks.retarget."""
+"""The web runtime's geometry (deploy/web/src/geometry.ts) against landmarks.align and landmarks.motion.retarget_points."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from landmarks.align import crop_transform, invert_affine, transform_landmarks
-from landmarks.pose import project_canonical
-from landmarks.retarget import similarity_procrustes
+from landmarks.motion.head_pose import project_canonical
+from landmarks.motion.retarget_points import similarity_procrustes
 
 
 def test_crop_transform_points_and_inverse_match_python(web, rng):

@@ -1,4 +1,4 @@
-"""The web runtime's mouth interior (deploy/web/src/interior.ts) against landmarks.mouth_interior: the bundled
+"""The web runtime's mouth interior (deploy/web/src/interior.ts) against landmarks.parts.mouth.interior: the bundled
 driver's frames and tracked points cut into its mouth, laid into the bundled source's anchor shot at targets
 retargeted from the driver (as the live session does, unsmoothed)."""
 
@@ -20,7 +20,7 @@ def driven(bundled_drive):
 
 
 def test_the_driver_mouth_is_cut_as_python_cuts_it(web, driven):
-    from landmarks.mouth_interior import cut_driver_mouth
+    from landmarks.parts.mouth.interior import cut_driver_mouth
 
     _, frames = driven
     got = web.calls(*[("cutDriverMouth", [frame, points]) for frame, points, _ in frames])
@@ -37,7 +37,7 @@ def test_the_driver_mouth_is_cut_as_python_cuts_it(web, driven):
 
 
 def test_the_interior_is_laid_in_as_python_lays_it(web, driven):
-    from landmarks.mouth_interior import cut_driver_mouth, lip_affine, paste_interior
+    from landmarks.parts.mouth.interior import cut_driver_mouth, lip_affine, paste_interior
 
     image, frames = driven
     mouths = [cut_driver_mouth(frame, points) for frame, points, _ in frames]

@@ -1,5 +1,5 @@
-"""The web runtime's warped eyes (deploy/web/src/iris_warp.ts, gaze.ts, references.ts) against landmarks.iris_warp,
-landmarks.iris, lsr.core.parts and landmarks.tps.warp_references; the site's eyes (lsr.export_web)."""
+"""The web runtime's warped eyes (deploy/web/src/iris_warp.ts, gaze.ts, references.ts) against landmarks.parts.eyes.iris_shift,
+landmarks.parts.eyes.iris, lsr.core.finish and landmarks.warp.tps.warp_references; the site's eyes (lsr.export.web_site)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ import json
 import numpy as np
 import pytest
 
-from landmarks import tps
-from landmarks.iris import eye_axes, find_irises, gaze_offsets, retarget_gaze
-from landmarks.iris_warp import _eye_box, align_irises, iris_along
-from landmarks.mesh68 import MAPPING_FILE
-from lsr.core import parts
+from landmarks.warp import tps
+from landmarks.parts.eyes.iris import eye_axes, find_irises, gaze_offsets, retarget_gaze
+from landmarks.parts.eyes.iris_shift import _eye_box, align_irises, iris_along
+from landmarks.shape.mesh68 import MAPPING_FILE
+from lsr.core import finish as parts
 
 SIDE = 256  # the side of conftest.py's real_shots
 ASSETS = str(MAPPING_FILE.parent)  # landmarks/assets: the iris net the page's tracker runs
@@ -25,7 +25,7 @@ def _psnr(first: np.ndarray, second: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def irises_of_shots(real_shots) -> np.ndarray:
-    """The first 8 real shots' iris centres (K, 2, 2) as the engine finds them (lsr.core.parts.shot_irises)."""
+    """The first 8 real shots' iris centres (K, 2, 2) as the engine finds them (lsr.core.finish.shot_irises)."""
     crops, points = real_shots
     return parts.shot_irises(crops[:8], points[:8])
 
@@ -157,7 +157,7 @@ def test_gaze_and_driver_gaze_match_python(web, real_shots, monkeypatch):
 
 
 def test_shot_irises_match_python(web, real_shots, monkeypatch):
-    """Each shot's irises by the page's iris net (as encode.ts finds them) against lsr.core.parts.shot_irises, and
+    """Each shot's irises by the page's iris net (as encode.ts finds them) against lsr.core.finish.shot_irises, and
     the closing rule against the median aperture on given irises."""
     crops, points = real_shots
     got = web.call("shotIrisesFromAssets", ASSETS, crops[:8], points[:8])

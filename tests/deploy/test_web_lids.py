@@ -1,4 +1,4 @@
-"""The web runtime's drawn lids (deploy/web/src/lids.ts) against landmarks.drawn_lids: over the bundled source's
+"""The web runtime's drawn lids (deploy/web/src/lids.ts) against landmarks.parts.eyes.drawn_lids: over the bundled source's
 anchor shot at targets retargeted from the bundled driver. Its eyes stay open, so the subject's lids at rest are
 given as wider than the target's, from not at all to wholly shut."""
 
@@ -15,8 +15,8 @@ WIDER = (1.0, 1.9, 2.5, 4.0)  # the lids at rest as this many times the target's
 
 
 def test_the_lids_are_read_and_drawn_as_python_draws_them(web, bundled_drive):
-    from landmarks.drawn_lids import draw_lids, lash_line, lid_strength, shot_lid_gaps
-    from landmarks.eyelids import lid_gaps
+    from landmarks.parts.eyes.drawn_lids import draw_lids, lash_line, lid_strength, shot_lid_gaps
+    from landmarks.parts.eyes.lids import lid_gaps
 
     image, frames = bundled_drive(FRAMES, CROP)
     targets = [target for _, _, target in frames]

@@ -1,5 +1,5 @@
-"""The web runtime's nearest mouth (deploy/web/src/mouth.ts) against lsr.core.parts.finish_mouth in mode "nearest"
-(landmarks.nearest_mouth): K = 8 shots of the bundled source, TPS-warped onto targets retargeted from the bundled
+"""The web runtime's nearest mouth (deploy/web/src/mouth.ts) against lsr.core.finish.finish_mouth in mode "nearest"
+(landmarks.parts.mouth.nearest_mouth): K = 8 shots of the bundled source, TPS-warped onto targets retargeted from the bundled
 driver (some with the mouth opened wider than any shot's), a blend of the warped shots standing in for the network's
 synthesis."""
 
@@ -17,7 +17,7 @@ OPENINGS = (None, None, 0.2, 0.3, 0.45, None, 0.6)  # None: the driver's own mou
 
 @pytest.fixture(scope="module")
 def shots():
-    from lsr.core.sources import load_subject_shots
+    from lsr.core.inputs import load_subject_shots
     from lsr.examples import REAL_SOURCE
 
     return load_subject_shots(REAL_SOURCE, CROP, k=8)
@@ -26,13 +26,13 @@ def shots():
 @pytest.fixture(scope="module")
 def targets(shots) -> np.ndarray:
     """(len(OPENINGS), 68, 2) crop-pixel targets: the bundled driver's faces retargeted onto the anchor as the live
-    session does it (unsmoothed), some with the mouth set wider (landmarks.expression.set_mouth_opening)."""
+    session does it (unsmoothed), some with the mouth set wider (landmarks.shape.expression.set_mouth_opening)."""
     from landmarks.align import crop_transform, transform_landmarks
-    from landmarks.detectors import make_tracker
-    from landmarks.expression import set_mouth_opening
-    from landmarks.mesh_retarget import DriverReference
-    from landmarks.retarget import retarget_driving
-    from landmarks.video import iter_frames
+    from landmarks.detect.registry import make_tracker
+    from landmarks.shape.expression import set_mouth_opening
+    from landmarks.motion.retarget_mesh import DriverReference
+    from landmarks.motion.retarget_points import retarget_driving
+    from landmarks.io.video import iter_frames
     from lsr.examples import REAL_DRIVER
 
     tracker, reference, out = make_tracker("mesh"), DriverReference(), []
@@ -53,7 +53,7 @@ def targets(shots) -> np.ndarray:
 
 def warped_inputs(shots, target: np.ndarray):
     """The TPS warp's references for one target, and a synthesis like the network's: their masked mean."""
-    from landmarks.tps import warp_references
+    from landmarks.warp.tps import warp_references
 
     warped, masks, indices = warp_references(shots.frames, shots.landmarks, target, COUNT)
     weights = masks[..., None]
@@ -62,8 +62,8 @@ def warped_inputs(shots, target: np.ndarray):
 
 
 def test_mouth_weight_and_strength_match_python(web, shots, targets):
-    from landmarks.nearest_mouth import mouth_strength, mouth_weight
-    from landmarks.tps import nearest_shots
+    from landmarks.parts.mouth.nearest_mouth import mouth_strength, mouth_weight
+    from landmarks.warp.tps import nearest_shots
 
     faces = np.concatenate([targets, targets * 2.0])  # also at a 512 crop
     sides = [CROP] * len(targets) + [2 * CROP] * len(targets)
@@ -85,9 +85,9 @@ def test_mouth_weight_and_strength_match_python(web, shots, targets):
 
 
 def test_finish_mouth_nearest_matches_python(web, shots, targets):
-    from landmarks.nearest_mouth import mouth_strength
+    from landmarks.parts.mouth.nearest_mouth import mouth_strength
     from lsr.core.images import from_network, to_network
-    from lsr.core.parts import finish_mouth
+    from lsr.core.finish import finish_mouth
 
     acted = 0
     for target in targets:

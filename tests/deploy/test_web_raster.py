@@ -1,4 +1,4 @@
-"""The web runtime's landmark image (deploy/web/src/raster.ts) against landmarks.raster.draw_landmarks."""
+"""The web runtime's landmark image (deploy/web/src/raster.ts) against landmarks.shape.raster.draw_landmarks."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from landmarks.pose import project_canonical
-from landmarks.raster import draw_landmarks
+from landmarks.motion.head_pose import project_canonical
+from landmarks.shape.raster import draw_landmarks
 
 
 @pytest.mark.parametrize("size", [64, 256])

@@ -1,6 +1,6 @@
 """The web runtime's live path between the tracker and the network (deploy/web/src/smooth.ts and retarget.ts)
-against lsr.core.live.LiveSession.prepare itself (its One-Euro smoothing at the frames' spacing, the driver
-reference and its lid gaps, the crop, landmarks.retarget.retarget_driving), on the bundled driver's tracked
+against lsr.core.live_session.LiveSession.prepare itself (its One-Euro smoothing at the frames' spacing, the driver
+reference and its lid gaps, the crop, landmarks.motion.retarget_points.retarget_driving), on the bundled driver's tracked
 landmarks driving K = 8 shots of the bundled source."""
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ TOLERANCE = 1e-6  # crop pixels
 @pytest.fixture(scope="module")
 def driver() -> np.ndarray:
     """(T, 68, 2) float32: the bundled driver's first FRAMES faces as the live tracker reads them, frame GAP lost."""
-    from landmarks.detectors import make_tracker
-    from landmarks.video import iter_frames
+    from landmarks.detect.registry import make_tracker
+    from landmarks.io.video import iter_frames
     from lsr.examples import REAL_DRIVER
 
     tracker, points = make_tracker("mesh"), []
@@ -37,7 +37,7 @@ def driver() -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def shots():
-    from lsr.core.sources import load_subject_shots
+    from lsr.core.inputs import load_subject_shots
     from lsr.examples import REAL_SOURCE
 
     return load_subject_shots(REAL_SOURCE, CROP, k=8)
@@ -77,7 +77,7 @@ class _Reenactor:
 
 def live_targets(points: np.ndarray, shots, *, smooth: bool, recentre_at: tuple[int, ...] = ()) -> np.ndarray:
     """LiveSession.prepare over the recorded points -> (T, 68, 2) targets (NaN where it had no face)."""
-    from lsr.core.live import LiveSession, Prepared
+    from lsr.core.live_session import LiveSession, Prepared
 
     subject = types.SimpleNamespace(shots=shots, reference_landmarks=shots.landmarks[shots.anchor])
     session = LiveSession(_Reenactor(), subject, paste_back=False, smooth=smooth, watermark=False)
@@ -94,8 +94,8 @@ def live_targets(points: np.ndarray, shots, *, smooth: bool, recentre_at: tuple[
 
 def live_smoothing(points: np.ndarray) -> np.ndarray:
     """The smoothed points LiveSession.prepare crops (its own steps: rate from the spacing, reset on a gap)."""
-    from lsr.core.live import MAX_FPS, MIN_FPS
-    from landmarks.smooth import OneEuroFilter, driving_cutoffs
+    from lsr.core.live_session import MAX_FPS, MIN_FPS
+    from landmarks.motion.smooth import OneEuroFilter, driving_cutoffs
 
     one_euro, last, out = OneEuroFilter(25.0, driving_cutoffs()), None, np.full(points.shape, np.nan)
     for index, now in enumerate(timestamps()[: len(points)]):
@@ -111,7 +111,7 @@ def live_smoothing(points: np.ndarray) -> np.ndarray:
 
 
 def test_smoothing_matches_the_live_session_and_the_filter(web, driver):
-    from landmarks.smooth import OneEuroFilter, driving_cutoffs
+    from landmarks.motion.smooth import OneEuroFilter, driving_cutoffs
 
     live, fixed = web.calls(("smoothSequence", [driver.astype(np.float64), timestamps()]),
                             ("smoothSequence", [driver.astype(np.float64), 30.0]))
@@ -153,9 +153,9 @@ def test_smoothed_retargeting_matches_live_prepare(web, driver, shots):
 def test_eyelids_and_mouth_follow_the_driver(web, driver, shots):
     """The pieces retarget_driving is made of, each against its Python function, on frames whose mouth and lids are
     moved further than the recording's (a blink, a wide mouth, a wide stare)."""
-    from landmarks.expression import mouth_opening, set_mouth_opening
-    from landmarks.eyelids import LidReference, lid_gaps, set_lid_gaps
-    from landmarks.retarget import retarget_driving
+    from landmarks.shape.expression import mouth_opening, set_mouth_opening
+    from landmarks.parts.eyes.lids import LidReference, lid_gaps, set_lid_gaps
+    from landmarks.motion.retarget_points import retarget_driving
 
     reference = shots.landmarks[shots.anchor].astype(np.float64)
     frames = driver[np.isfinite(driver).all(axis=(1, 2))].astype(np.float64)

@@ -1,5 +1,5 @@
 """``lsr export --web``: the static site, and its per-frame path (deploy/web, in Node) against the Python live
-session (lsr.core.live.LiveSession) on the same camera frames and on the same landmarks (issue 42's parity)."""
+session (lsr.core.live_session.LiveSession) on the same camera frames and on the same landmarks (issue 42's parity)."""
 
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ def test_the_browser_path_re_enacts_camera_frames_as_the_python_live_session(sit
 
 
 def test_the_browser_path_draws_given_landmarks_as_python(site, python_session, web):
-    from landmarks.expression import set_mouth_opening
+    from landmarks.shape.expression import set_mouth_opening
 
     session = python_session()
     reference = session.subject.reference_landmarks.astype(np.float64)

@@ -1,4 +1,4 @@
-"""The web runtime's TPS reference warps (deploy/web/src/tps.ts, remap.ts) against landmarks.tps and OpenCV."""
+"""The web runtime's TPS reference warps (deploy/web/src/tps.ts, remap.ts) against landmarks.warp.tps and OpenCV."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from landmarks import tps
-from landmarks.pose import project_canonical
+from landmarks.warp import tps
+from landmarks.motion.head_pose import project_canonical
 
 SIDE = 256  # the side of conftest.py's real_shots
 
@@ -108,7 +108,7 @@ def test_the_spline_and_the_grid_map_match_python(web, real_shots):
     fixed = tps.border_points(SIDE, SIDE)
     control, values = tps.merge_close_points(np.concatenate([points[9], fixed]), np.concatenate([points[0], fixed]), 1.0)
     expected = tps.fit_tps(control, values)
-    # a head-like region: not square, another grid step (landmarks.scene's use of tps_grid_map)
+    # a head-like region: not square, another grid step (landmarks.scene.compositing's use of tps_grid_map)
     source, target = points[0][:40] * 0.8 + [5, 9], points[3][:40] * 0.8 + [2, 7]
     grid = tps.tps_grid_map(source, target, 190, 170, grid_step=5)
     got, got_grid = web.calls(("fitTps", [control, values]), ("tpsGridMap", [source, target, 190, 170, {"gridStep": 5}]))

@@ -1,5 +1,5 @@
 """The web runtime's face tracker (deploy/web/src/tracker.ts, facedetect.ts, facemesh.ts on onnxruntime-web) against
-``landmarks.detectors.make_tracker("mesh")`` (landmarks.mesh_track, landmarks.mesh, landmarks.mesh68) on the same
+``landmarks.detect.registry.make_tracker("mesh")`` (landmarks.detect.mediapipe_tracker, landmarks.detect.mediapipe_mesh, landmarks.shape.mesh68) on the same
 frames: the same frames with and without a face, the same detections, the 68 points, meshes and irises within a
 small fraction of a pixel (the crops are resampled by the TypeScript's own bilinear sampler, not OpenCV's)."""
 
@@ -11,9 +11,9 @@ import time
 import numpy as np
 import pytest
 
-from landmarks.detectors import make_tracker
-from landmarks.mesh68 import MAPPING_FILE, mesh_to_68
-from landmarks.video import iter_frames
+from landmarks.detect.registry import make_tracker
+from landmarks.shape.mesh68 import MAPPING_FILE, mesh_to_68
+from landmarks.io.video import iter_frames
 
 ASSETS = str(MAPPING_FILE.parent)  # landmarks/assets: mediapipe/*.onnx, mesh68.json, mesh_canonical.json
 BLACK_AT = 12  # a face-less frame in the middle of the sequence: the face is lost, then detected again
@@ -94,7 +94,7 @@ def test_mesh_to_68_matches_python_on_turned_heads(web, source_runs):
     turned about the vertical axis so that the yaw term matters (and is clipped at 45 degrees)."""
     import json
 
-    from landmarks.mesh_pose import CANONICAL_FILE
+    from landmarks.motion.mesh_rotation import CANONICAL_FILE
 
     mesh = source_runs[0]["meshes"][0].astype(np.float64)
     centre = mesh.mean(0)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import skimage.data
 
-from landmarks.detect import DlibDetector
-from landmarks.mesh_track import MeshDetector
+from landmarks.detect.face_detector import DlibDetector
+from landmarks.detect.mediapipe_tracker import MeshDetector
 
 
 @pytest.fixture(scope="session")
@@ -18,7 +18,7 @@ def astronaut() -> np.ndarray:
 
 @pytest.fixture(scope="session")
 def detector() -> DlibDetector:
-    """dlib's HOG detector (the tests of landmarks.detect and landmarks.track are about it)."""
+    """dlib's HOG detector (the tests of landmarks.detect.face_detector and landmarks.detect.dlib_tracker are about it)."""
     return DlibDetector()
 
 

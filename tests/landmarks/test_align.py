@@ -15,7 +15,7 @@ from landmarks.align import (
     smooth_transforms,
     transform_landmarks,
 )
-from landmarks.pose import project_canonical
+from landmarks.motion.head_pose import project_canonical
 
 
 def smooth_frame(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
@@ -185,7 +185,7 @@ class TestSmoothTransforms:
 @pytest.mark.slow
 def test_calibration_on_voxceleb_frames(shared_data):
     """On the 224x224 VoxCeleb2 frames themselves the crop is close to the identity."""
-    from landmarks.detectors import make_detector
+    from landmarks.detect.registry import make_detector
 
     files = sorted((shared_data / "fsth_eval_sample").glob("*/*/*/combined/*_rgb.png"))[::16]
     if not files:

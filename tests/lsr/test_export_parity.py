@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from lsr.export import SUBJECT_GRAPH_IO, FrameGeneratorGraph, export_onnx, frame_graph_io
+from lsr.export.graphs import SUBJECT_GRAPH_IO, FrameGeneratorGraph, export_onnx, frame_graph_io
 from models_def import LSRModel, preset_config
 
 ort = pytest.importorskip("onnxruntime")
@@ -84,7 +84,7 @@ def test_layout_output_needs_a_layout_variant():
 def test_int8_export_of_a_warp_guided_model_calibrates_with_its_warped_shots(tmp_path):
     """`lsr export --int8` feeds the calibration the references a warp-guided frame graph needs (it failed on
     'references' missing from the feed before)."""
-    from landmarks.video import VideoWriter
+    from landmarks.io.video import VideoWriter
     from lsr.cli import main
     from lsr.data.synth import render_video
 

@@ -49,7 +49,7 @@ def test_layout_parts_keep_a_colour_per_channel_and_the_legend_names_what_is_sho
 
 def test_legend_names_say_which_parts_a_channel_covers_and_where_skin_lies():
     from lsr.data.classes import SEG_CLASS_ID, SEG_CLASSES
-    from lsr.eval.layout_legend import legend_names
+    from lsr.bench.layout_legend import legend_names
 
     counts = np.zeros((3, len(SEG_CLASSES)), np.int64)
     counts[0, SEG_CLASS_ID["u_lip"]], counts[0, SEG_CLASS_ID["l_lip"]], counts[0, SEG_CLASS_ID["skin"]] = 40, 35, 25

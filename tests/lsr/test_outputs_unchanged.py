@@ -33,7 +33,8 @@ def frame_digests(source: Path, driver: Path, *, side_by_side: bool, frames: int
     """Re-enact ``frames`` frames as ``lsr reenact --paste-back`` (and the demo) do, one thread; each frame's
     sha256 and its (mean, std) per channel, and the side-by-side panels' when asked."""
     from lsr.config import ReenactConfig
-    from lsr.reenact import make_reenactor, side_by_side_frame
+    from lsr.commands.reenact import make_reenactor
+    from lsr.writer import side_by_side_frame
     from lsr.weights import resolve_weights
 
     cfg = ReenactConfig(weights=resolve_weights(None), source=source, driving=driver, out=Path("unused.mp4"),

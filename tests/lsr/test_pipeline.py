@@ -1,4 +1,4 @@
-"""lsr.pipeline.Reenactor and the shared frame loop (lsr.core.engine / lsr.core.sources) on a tiny random model."""
+"""lsr.pipeline.Reenactor and the shared frame loop (lsr.core.engine / lsr.core.inputs) on a tiny random model."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from lsr.core.engine import from_network, to_network
-from lsr.core.sources import SubjectShots, describe_driver, read_landmark_array
-from landmarks.errors import InputFileError, NoFaceError
+from lsr.core.inputs import SubjectShots, describe_driver, read_landmark_array
+from landmarks.exceptions import InputFileError, NoFaceError
 from lsr.errors import WeightsError
 
 skimage_data = pytest.importorskip("skimage.data")
@@ -78,7 +78,7 @@ def test_k_shot_average_matches_model(reenactor):
     """The cached latents are the model's K-shot average of exactly these crops (thesis eq. 4.3)."""
     import torch
 
-    from landmarks.raster import draw_landmarks
+    from landmarks.shape.raster import draw_landmarks
 
     shots = reenactor.subject.shots
     landmark_images = np.stack([draw_landmarks(p, 64) for p in shots.landmarks])
@@ -99,7 +99,7 @@ def test_network_conversions_round_trip(rng):
 
 def test_crop_landmark_driver_absolute_reproduces_target(reenactor):
     """Absolute crop-space landmarks go straight to the rasteriser: the landmark image equals draw_landmarks."""
-    from landmarks.raster import draw_landmarks
+    from landmarks.shape.raster import draw_landmarks
 
     points = reenactor.subject.shots.landmarks
     frames = list(reenactor(points, landmark_space="crop", mode="absolute", smooth=False, with_layout=True))
@@ -112,10 +112,10 @@ def test_relative_mode_first_frame_is_source_shape(reenactor):
     """Relative motion: the driver's first frame maps onto the source's own (anchor) landmarks, the mouth opened as
     wide as the driver's and the lids as far as the driver's from its reference lids, the median of the faces it
     sees ahead (retarget_driving)."""
-    from landmarks.eyelids import lid_gaps, running_reference_gaps, set_lid_gaps
-    from landmarks.expression import mouth_opening, set_mouth_opening
-    from landmarks.raster import draw_landmarks
-    from landmarks.retarget import retarget_driving
+    from landmarks.parts.eyes.lids import lid_gaps, running_reference_gaps, set_lid_gaps
+    from landmarks.shape.expression import mouth_opening, set_mouth_opening
+    from landmarks.shape.raster import draw_landmarks
+    from landmarks.motion.retarget_points import retarget_driving
 
     driver = reenactor.subject.shots.landmarks[::-1] * 1.1 + 3  # another face shape and place
     assert reenactor.crop_size == 64  # the driver's crop pixels are the shots'
@@ -146,7 +146,7 @@ def test_a_video_driver_gives_each_open_mouth_frame_its_interior(reenactor, tmp_
 
     clip = write_clip(tmp_path / "talk.mp4", list(render_video(44, 5, 256).frames), audio=False)  # opens at frame 4
     out = list(reenactor(clip))
-    assert out[4].driver_mouth is not None and out[4].driver_mouth.patch.ndim == 3  # landmarks.mouth_interior
+    assert out[4].driver_mouth is not None and out[4].driver_mouth.patch.ndim == 3  # landmarks.parts.mouth.interior
     reenactor.mouth_interior = "shots"
     try:
         assert all(frame.driver_mouth is None for frame in reenactor(clip))
@@ -164,7 +164,7 @@ def test_a_video_driver_gives_its_blink_its_shut_lids(reenactor, tmp_path):
         reenactor.lids = "driver"
         out = list(reenactor(clip))
         assert out[0].driver_eyes is None and out[7].driver_eyes is None  # open: nothing cut
-        assert out[2].driver_eyes is not None and out[2].driver_eyes.patch.ndim == 3  # landmarks.driver_eyes
+        assert out[2].driver_eyes is not None and out[2].driver_eyes.patch.ndim == 3  # landmarks.parts.eyes.driver_lids
         absolute = list(reenactor(clip, mode="absolute"))  # the driver's own lids, and still its shut eyes
         assert absolute[2].driver_eyes is not None and absolute[0].driver_eyes is None
         reenactor.lids = "shots"
@@ -188,7 +188,7 @@ def test_bf16_error_is_reported(reenactor, capsys):
 
 
 def test_source_without_face_is_a_clear_error(reenactor, tmp_path):
-    from landmarks.imageio import write_image
+    from landmarks.io.image_files import write_image
 
     blank = tmp_path / "blank.png"
     write_image(blank, np.full((128, 128, 3), 90, np.uint8))

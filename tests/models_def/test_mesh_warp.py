@@ -1,4 +1,4 @@
-"""The torch mesh warp (models_def.mesh_warp) against the numpy one (landmarks.mesh_warp)."""
+"""The torch mesh warp (models_def.mesh_warp) against the numpy one (landmarks.warp.piecewise_affine)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from landmarks import mesh_warp as numpy_warp
+from landmarks.warp import piecewise_affine as numpy_warp
 from models_def import mesh_warp
 
 HEIGHT, WIDTH = 72, 64

@@ -77,7 +77,7 @@ def test_save_and_load_round_trip(tmp_path):
 @pytest.mark.parametrize("interior", [False, True])
 def test_onnx_export_matches_torch(tmp_path, interior):
     ort = pytest.importorskip("onnxruntime")
-    from lsr.export import export_onnx
+    from lsr.export.graphs import export_onnx
 
     model = PartGenerator(PartGeneratorConfig(size=40, widths=(8, 16, 16), interior=interior)).eval()
     torch.nn.init.normal_(model.out.weight, std=0.1)

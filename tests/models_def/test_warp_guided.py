@@ -261,7 +261,7 @@ def test_reference_detail_is_off_by_default_and_checked():
 def test_onnx_frame_graph_matches_torch(tmp_path, reference_flow, reference_detail):
     pytest.importorskip("onnxruntime")
     from deploy.runtime import OnnxBackend
-    from lsr.export_bundle import export_graphs
+    from lsr.export.bundle import export_graphs
 
     torch.manual_seed(0)
     config = preset_config("tiny", variant="warp_guided", reference_flow=reference_flow, reference_detail=reference_detail)
@@ -323,7 +323,7 @@ def test_crop_scale_sets_the_crop_side_of_every_runtime_and_is_checked(tmp_path)
     import json
 
     from lsr.core.engine import default_crop_size
-    from lsr.export_bundle import bundle_metadata
+    from lsr.export.bundle import bundle_metadata
     from lsr.pipeline import TorchBackend
 
     config = preset_config("tiny", variant="warp_guided", crop_scale=4)

@@ -1,4 +1,4 @@
-// Composite a re-enacted face into a scene frame: landmarks/scene.py (composite_face, with its SceneLayers path
+// Composite a re-enacted face into a scene frame: landmarks/scene/compositing.py (composite_face, with its SceneLayers path
 // _keep_background, the head layer's rigid + TPS field made on a grid, _inside_heads, _within_head, the face
 // layer's feathered hull alpha and the colour match with blur), with the OpenCV pieces it calls ported to give
 // the same pixels: cv2.ellipse and cv2.fillConvexPoly (drawing.cpp: ellipse2Poly, FillConvexPoly, Line, Line2),
@@ -13,7 +13,7 @@ import { RIGID_INDEX } from "./retarget.js";
 import { Affine, Tensor, checkPoints, tensor } from "./tensor.js";
 import { foldedFraction, tpsGridMap } from "./tps.js";
 
-// landmarks/scene.py
+// landmarks/scene/compositing.py
 const HEAD_CENTRE_UP = 0.08;
 const HEAD_SEMI_AXES = [0.36, 0.46];
 const HEAD_INNER = 0.7;
@@ -36,11 +36,11 @@ const EDGE_REACH = 0.5;
 const EDGE_CELLS = 3;
 const f32 = Math.fround;
 
-/** The scene split into what moves with the head and what stays (landmarks.scene.SceneLayers, made in Python by
+/** The scene split into what moves with the head and what stays (landmarks.scene.compositing.SceneLayers, made in Python by
  * background_plate). matte: (H, W) float32 in [0, 1]; plate: (H, W, 3) uint8. */
 export interface SceneLayers { matte: Tensor<Float32Array>; plate: Tensor<Uint8Array> }
 
-/** What compositeFace made (landmarks.scene.Composite). */
+/** What compositeFace made (landmarks.scene.compositing.Composite). */
 export interface Composite {
   frame: Tensor<Uint8Array>;  // (H, W, 3): the scene with the re-enacted head
   box: Box | null;  // (x0, y0, x1, y1): the only region that differs from the scene
@@ -52,7 +52,7 @@ interface Ellipse { cx: number; cy: number; ax: number; ay: number }
 /** (x0, y0, x1, y1) frame pixels. */
 export type Box = [number, number, number, number];
 
-/** The face's crop side in frame pixels (landmarks.scene.face_side). */
+/** The face's crop side in frame pixels (landmarks.scene.compositing.face_side). */
 export function faceSide(landmarks: Tensor): number {
   const m = cropTransform(landmarks, 1024);
   return 1024 / Math.sqrt(Math.abs(m[0] * m[4] - m[1] * m[3]));
@@ -64,7 +64,7 @@ function headEllipse(points: Tensor): Ellipse {
   return { cx, cy: cy - HEAD_CENTRE_UP * side, ax: HEAD_SEMI_AXES[0] * side, ay: HEAD_SEMI_AXES[1] * side };
 }
 
-/** A head ellipse's radius at frame pixel (x, y), float32 as numpy has it (landmarks.scene._radius_at). */
+/** A head ellipse's radius at frame pixel (x, y), float32 as numpy has it (landmarks.scene.compositing._radius_at). */
 function radiusAt(e: Ellipse, x: number, y: number): number {
   const across = f32(f32(f32(x) - f32(e.cx)) / f32(e.ax)), down = f32(f32(f32(y) - f32(e.cy)) / f32(e.ay));
   return f32(Math.sqrt(f32(f32(across * across) + f32(down * down))));
@@ -81,12 +81,12 @@ function personEllipse(points: Tensor): Ellipse {
   return { ...e, ax: e.ax * PERSON_SCALE, ay: e.ay * PERSON_SCALE };
 }
 
-/** 1 above the chin row, falling to 0 NECK_FADE face sides below it (landmarks.scene._neck), at frame row y. */
+/** 1 above the chin row, falling to 0 NECK_FADE face sides below it (landmarks.scene.compositing._neck), at frame row y. */
 function neck(y: number, chin: number, side: number): number {
   return Math.min(Math.max(f32(f32(f32(chin + NECK_FADE * side) - f32(y)) / f32(NECK_FADE * side)), 0), 1);
 }
 
-/** With the matte, how much the point (x, y) moves with the head (landmarks.scene._person_weight). */
+/** With the matte, how much the point (x, y) moves with the head (landmarks.scene.compositing._person_weight). */
 function personWeight(ellipses: Ellipse[], x: number, y: number, chin: number, side: number,
                       inner = PERSON_INNER): number {
   let radius = Infinity;
@@ -95,7 +95,7 @@ function personWeight(ellipses: Ellipse[], x: number, y: number, chin: number, s
   return f32(ramp * ramp * (3 - 2 * ramp));
 }
 
-/** Whether grid + shift folds somewhere (landmarks.scene._folds: the TPS's own foldedFraction, in grid steps). */
+/** Whether grid + shift folds somewhere (landmarks.scene.compositing._folds: the TPS's own foldedFraction, in grid steps). */
 function folds(gridX: Float64Array, gridY: Float64Array, shiftX: Float64Array, shiftY: Float64Array): boolean {
   const rows = gridY.length, cols = gridX.length;
   if (rows < 2 || cols < 2) return false;
@@ -107,7 +107,7 @@ function folds(gridX: Float64Array, gridY: Float64Array, shiftX: Float64Array, s
 }
 
 /** Where the head layer would show pixels from beyond a frame edge, a factor fading it to none at that edge over
- * EDGE_RAMP times its largest reach beyond it, at least EDGE_CELLS grid steps (landmarks.scene._edge_fade); null
+ * EDGE_RAMP times its largest reach beyond it, at least EDGE_CELLS grid steps (landmarks.scene.compositing._edge_fade); null
  * where no edge is reached EDGE_REACH pixels or more. */
 function edgeFade(gridX: Float64Array, gridY: Float64Array, shiftX: Float64Array, shiftY: Float64Array,
                   height: number, width: number, step: number): Float32Array | null {
@@ -138,7 +138,7 @@ function edgeFade(gridX: Float64Array, gridY: Float64Array, shiftX: Float64Array
 
 /** How much of its motion each grid point of the head layer takes: the head weight, faded toward the frame edges
  * it would reach past, its ramp starting further in (INNER_RETRIES) until it does not fold
- * (landmarks.scene._fold_free_weight). */
+ * (landmarks.scene.compositing._fold_free_weight). */
 function foldFreeWeight(ellipses: Ellipse[], gridX: Float64Array, gridY: Float64Array, shiftX: Float64Array,
                         shiftY: Float64Array, chin: number, side: number, person: boolean, box: Box, height: number,
                         width: number): Float32Array {
@@ -176,7 +176,7 @@ function boxOf(ellipses: Ellipse[], height: number, width: number, margin = 2): 
 }
 
 /** (x0, y0, x1, y1) bounding every given face's head region, clipped to the frame; null if outside it
- * (landmarks.scene.head_box). */
+ * (landmarks.scene.compositing.head_box). */
 export function headBox(landmarksList: Tensor[], height: number, width: number, margin = 2): Box | null {
   return boxOf(landmarksList.map(headEllipse), height, width, margin);
 }
@@ -357,7 +357,7 @@ function fillEllipse(img: Uint8Array, width: number, height: number, cx16: numbe
 }
 
 /** (h, w) uint8 of a region at (x0, y0): 1 inside any head ellipse shrunk by 1.5 pixels
- * (landmarks.scene._inside_heads). */
+ * (landmarks.scene.compositing._inside_heads). */
 function insideHeads(ellipses: Ellipse[], height: number, width: number, x0: number, y0: number): Uint8Array {
   const mask = new Uint8Array(height * width);
   for (const e of ellipses) {
@@ -388,7 +388,7 @@ function convexHull(points: number[]): number[][] {
   return [...lower.slice(0, -1), ...upper.slice(0, -1)];
 }
 
-// ---- distance transform and blur (landmarks.scene.blur) ----------------------------------------------------
+// ---- distance transform and blur (landmarks.scene.compositing.blur) ----------------------------------------------------
 
 /** cv2.distanceTransform(mask, cv2.DIST_L2, 3): for each nonzero pixel its 3x3-chamfer distance (0.955, 1.3693) to
  * the nearest zero pixel; (h, w) float32. */
@@ -412,7 +412,7 @@ function distanceTransform(mask: Uint8Array, width: number, height: number, inve
   return out;
 }
 
-/** Gaussian blur at any sigma, large sigmas on a shrunk copy (landmarks.scene.blur): (h, w, channels) float32. */
+/** Gaussian blur at any sigma, large sigmas on a shrunk copy (landmarks.scene.compositing.blur): (h, w, channels) float32. */
 function blur(image: Float32Array, width: number, height: number, channels: number, sigma: number): Float32Array {
   if (sigma <= 6) return gaussianBlurF32(image, width, height, channels, Math.max(sigma, 0.1));
   const factor = sigma / 3;
@@ -422,7 +422,7 @@ function blur(image: Float32Array, width: number, height: number, channels: numb
   return resizeLinear({ data: blurred, width: smallW, height: smallH, channels }, width, height);
 }
 
-/** landmarks.scene.blur on a tensor: (h, w[, c]) float32 (the tests compare it with OpenCV's). */
+/** landmarks.scene.compositing.blur on a tensor: (h, w[, c]) float32 (the tests compare it with OpenCV's). */
 export function sceneBlur(image: Tensor<Float32Array>, sigma: number): Tensor<Float32Array> {
   const [height, width, channels = 1] = image.shape;
   return tensor(blur(Float32Array.from(image.data), width, height, channels, sigma), [...image.shape]);
@@ -467,7 +467,7 @@ function rows(points: Tensor, indices: number[], dx: number, dy: number): Tensor
 /** The head layer, in place in `output` (the box only): the scene moved by the head's rigid motion plus a TPS that
  * lands its outline on the target's, fading to none at the head ellipses' edge; with layers, only the person moves
  * (down to the chin, fading below it, out to the grown ellipses) and the background plate fills what it uncovers
- * (landmarks.scene.composite_face's head layer, _person_weight, _keep_background). */
+ * (landmarks.scene.compositing.composite_face's head layer, _person_weight, _keep_background). */
 function headLayer(scene: Tensor<Uint8Array>, output: Uint8Array, scenePoints: Tensor, targetPoints: Tensor,
                    motion: Affine, ellipses: Ellipse[], box: Box, side: number, layers: SceneLayers | null): void {
   const [x0, y0, x1, y1] = box, w = x1 - x0, h = y1 - y0, [height, width] = scene.shape;
@@ -531,7 +531,7 @@ function headLayer(scene: Tensor<Uint8Array>, output: Uint8Array, scenePoints: T
   }
 }
 
-/** Put a synthesised face into a scene frame, the head (hair) following it (landmarks.scene.composite_face).
+/** Put a synthesised face into a scene frame, the head (hair) following it (landmarks.scene.compositing.composite_face).
  * scene: (H, W, 3) uint8; sceneLandmarks: (68, 2) the scene's own face; targetLandmarks: (68, 2) where the face is
  * drawn; faceCrop: (C, C, 3) uint8 the synthesis, a crop of the frame under cropMatrix (frame -> crop); layers: the
  * scene's person matte and background plate (only the person moves), or null (the whole head region moves). */
@@ -648,7 +648,7 @@ export function compositeFace(scene: Tensor<Uint8Array>, sceneLandmarks: Tensor,
 }
 
 /** 1 inside the head regions, ramping to 0 over their outermost 5 %; null when the whole box lies inside one of
- * them (landmarks.scene._within_head). */
+ * them (landmarks.scene.compositing._within_head). */
 function withinHead(ellipses: Ellipse[], width: number, height: number, x0: number, y0: number): Float32Array | null {
   const corners = [[x0, y0], [x0 + width - 1, y0], [x0, y0 + height - 1], [x0 + width - 1, y0 + height - 1]];
   if (ellipses.some((e) => corners.every(([x, y]) => radiusAt(e, x, y) <= f32(0.95)))) return null;

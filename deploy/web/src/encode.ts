@@ -1,22 +1,22 @@
 // A user's own photos encoded in the page (issue 42): what Python does between "K photos of a person" and the
 // encoded subject with its scene, so that the live session re-enacts them instead of the example person.
 //
-//   lsr/core/sources.py load_subject_shots (image sources): each photo's faces with the default mesh detector
-//     (landmarks.mesh_track.MeshDetector: tracker.ts MeshTracker.meshes), the largest (or faceIndex-th) one's 68
+//   lsr/core/inputs.py load_subject_shots (image sources): each photo's faces with the default mesh detector
+//     (landmarks.detect.mediapipe_tracker.MeshDetector: tracker.ts MeshTracker.meshes), the largest (or faceIndex-th) one's 68
 //     points, cut out at the crop side C like the training data (landmarks.align.crop: cv2.warpAffine, INTER_CUBIC,
 //     replicated border, INTER_AREA first when the face shrinks more than 2x), its points in crop pixels (float32);
-//   landmarks/expression.py pick_anchor (pose.ts): the anchor shot, its photo the scene (lsr.core.sources.set_anchor);
+//   landmarks/shape/expression.py pick_anchor (pose.ts): the anchor shot, its photo the scene (lsr.core.inputs.set_anchor);
 //   lsr/core/engine.py ReenactorBase._encode: the shots at the model resolution S (resize_shots: INTER_AREA, points
 //     (p + 0.5) S / C - 0.5), their landmark images (raster.ts), both to [-1, 1], through subject_encoder.onnx
 //     (deploy/runtime.py OnnxBackend.encode_subject) -> the layout and style latents;
-//   lsr/core/scene_source.py SourceScene (an image source): the anchor's photo, its 68 points and crop transform;
-//   landmarks/segment.py person_matte and landmarks/scene.py background_plate (segment.ts): the scene's layers,
-//     the matte kept at 8 bits as `lsr export --web` writes it (lsr/export_web.py write_person);
-//   lsr/core/parts.py shot_irises and subject_irises' anchor gaze (gaze.ts): each shot's irises by the tracker's iris
+//   lsr/core/scene.py SourceScene (an image source): the anchor's photo, its 68 points and crop transform;
+//   landmarks/scene/person_matte.py person_matte and landmarks/scene/compositing.py background_plate (segment.ts): the scene's layers,
+//     the matte kept at 8 bits as `lsr export --web` writes it (lsr/export/web_site.py write_person);
+//   lsr/core/finish.py shot_irises and subject_irises' anchor gaze (gaze.ts): each shot's irises by the tracker's iris
 //     net, which eyes "warped" carries to the driver's gaze (iris_warp.ts).
 //
-// Left out: the identity filter (landmarks.identity, dlib's face descriptor) that drops shots of another person's
-// face; with more usable photos than K (default 8), Python's covering choice (landmarks.coverage.choose_covering,
+// Left out: the identity filter (landmarks.detect.same_person, dlib's face descriptor) that drops shots of another person's
+// face; with more usable photos than K (default 8), Python's covering choice (landmarks.parts.coverage.choose_covering,
 // with an image-based gaze measure) is replaced by the first K photos with a face (a note says so).
 //
 // In a page: const models = await loadPersonModels(read); const person = await encodePerson(photos, models,
@@ -40,7 +40,7 @@ import { Affine, Tensor, median, tensor } from "./tensor.js";
 import { MeshTracker, TrackerAssets, createTracker, loadTrackerAssets, meshTo68 } from "./tracker.js";
 
 export const SUBJECT_ENCODER_FILE = "subject_encoder.onnx"; // deploy.runtime.SUBJECT_ENCODER_FILE, under models/
-export const DEFAULT_K = 8; // lsr.core.sources.DEFAULT_K
+export const DEFAULT_K = 8; // lsr.core.inputs.DEFAULT_K
 export const MAX_K = 32; // lsr.core.MAX_K
 
 /** What encoding a person needs: the face tracker (its assets, or one made already), the subject encoder and the
@@ -145,7 +145,7 @@ function f32(values: ArrayLike<number>): Float64Array {
   return Float64Array.from(values, (v) => Math.fround(v));
 }
 
-/** The face's crop side in frame pixels (landmarks.scene.face_side). */
+/** The face's crop side in frame pixels (landmarks.scene.compositing.face_side). */
 function faceSide(landmarks: Tensor): number {
   const m = cropTransform(landmarks, 1024);
   return 1024 / Math.sqrt(Math.abs(m[0] * m[4] - m[1] * m[3]));
@@ -163,7 +163,7 @@ export async function encodeShots(encoder: ort.InferenceSession, shots: Tensor<U
     const shot = tensor(shots.data.slice(k * crop * crop * 3, (k + 1) * crop * crop * 3), [crop, crop, 3]);
     small.set(crop === s ? shot.data : resizeUint8(shot, s, s, crop > s ? "area" : "linear").data, k * s * s * 3);
     const points = shotLandmarks.data.subarray(k * 136, (k + 1) * 136);
-    // lsr.core.sources.scale_points, then float32 as resize_shots keeps them
+    // lsr.core.inputs.scale_points, then float32 as resize_shots keeps them
     const scaled = scale === 1 ? f32(points) : Float64Array.from(points, (v) => Math.fround((v + 0.5) * scale - 0.5));
     drawn.set(drawLandmarks(tensor(scaled, [68, 2]), s).data, k * s * s * 3);
   }
@@ -208,7 +208,7 @@ export async function encodePerson(photos: Tensor<Uint8Array>[], models: PersonM
     if (faces.length === 0) { faceless += 1; continue; }
     crowded += faces.length > 1 ? 1 : 0;
     if (faceIndex >= faces.length) { tooFew += 1; continue; }
-    // landmarks.mesh68.mesh_to_68 gives float32 points
+    // landmarks.shape.mesh68.mesh_to_68 gives float32 points
     const frameLandmarks = f32(meshTo68(tensor(faces[faceIndex].mesh, [MESH_POINTS, 3]), tracker.mapping).data);
     const points = tensor(frameLandmarks, [68, 2]);
     const { crop: image, matrix } = cropFace(photo, points, crop);

@@ -1,4 +1,4 @@
-// Shut eyes from the driver's own frame: landmarks/driver_eyes.py (aperture_share, shut_strength, cut_driver_eyes,
+// Shut eyes from the driver's own frame: landmarks/parts/eyes/driver_lids.py (aperture_share, shut_strength, cut_driver_eyes,
 // similarity, ellipse_mask, paste_eyes), as the live session finishes a frame with lids "driver". The driver's frame
 // around its eyes is cut where the frame is (cutEyePatch: the tracker's worker, or this thread); how shut they are is
 // read here, against the driver's lids at rest (shutEyes: the session keeps that reference). Each eye is mapped onto
@@ -33,7 +33,7 @@ export interface EyePatch {
   frameSize: [number, number];
 }
 
-/** A driver frame's shut eyes (landmarks.driver_eyes.DriverEyes): the patch and how much of it to lay in. */
+/** A driver frame's shut eyes (landmarks.parts.eyes.driver_lids.DriverEyes): the patch and how much of it to lay in. */
 export interface DriverEyes extends EyePatch {
   /** In (0, 1]. */
   strength: number;

@@ -1,4 +1,4 @@
-// MediaPipe's short-range face detector (BlazeFace) around its ONNX graph: landmarks/mesh.py (ssd_anchors,
+// MediaPipe's short-range face detector (BlazeFace) around its ONNX graph: landmarks/detect/mediapipe_mesh.py (ssd_anchors,
 // _letterbox, detector_input, decode_detections, weighted_nms, detect_faces, detect_tiled). Same constants, same
 // conventions: boxes x0, y0, x1, y1 and keypoints (6, 2) in frame pixels (float32 values, as the Python keeps them).
 
@@ -10,7 +10,7 @@ export const NMS_THRESHOLD = 0.3;
 export const TILE_LEVELS = 2; // tiles of 1/2, then 1/4 of the shorter side
 export const MIN_TILE = 160; // px: below this a tile adds nothing the whole frame did not see
 
-/** One detection in frame pixels (landmarks.mesh.Detection). box: x0, y0, x1, y1; keypoints: (6, 2) flat, x, y of
+/** One detection in frame pixels (landmarks.detect.mediapipe_mesh.Detection). box: x0, y0, x1, y1; keypoints: (6, 2) flat, x, y of
  * the image-left eye, image-right eye, nose tip, mouth centre, image-left ear, image-right ear. */
 export interface Detection {
   box: Float32Array;
@@ -23,7 +23,7 @@ interface View { image: Tensor<Uint8Array>; left: number; top: number; width: nu
 
 let anchorCache: Float32Array | null = null;
 
-/** (896, 2) flat anchor centres in [0, 1] (landmarks.mesh.ssd_anchors): strides 8 (2 per cell) and 16 (6). */
+/** (896, 2) flat anchor centres in [0, 1] (landmarks.detect.mediapipe_mesh.ssd_anchors): strides 8 (2 per cell) and 16 (6). */
 export function ssdAnchors(): Float32Array {
   if (anchorCache) return anchorCache;
   const out = new Float32Array(896 * 2);
@@ -71,7 +71,7 @@ function linearTable(source: number, target: number): { start: Int32Array; count
   return { start, count, weight, width: 2 };
 }
 
-/** The view letterboxed into size x size, scaled to [-1, 1] into out (landmarks.mesh.detector_input and _letterbox:
+/** The view letterboxed into size x size, scaled to [-1, 1] into out (landmarks.detect.mediapipe_mesh.detector_input and _letterbox:
  * INTER_AREA when shrinking, INTER_LINEAR when enlarging, black bars). Returns scale and offset: frame = (input -
  * offset) / scale. */
 function letterbox(view: View, size: number, out: Float32Array): { scale: number; offset: [number, number] } {
@@ -113,7 +113,7 @@ function clampByte(v: number): number {
   return r < 0 ? 0 : r > 255 ? 255 : r;
 }
 
-/** The nets' logits -> probabilities, logits clipped at +-100 (landmarks.mesh.sigmoid). */
+/** The nets' logits -> probabilities, logits clipped at +-100 (landmarks.detect.mediapipe_mesh.sigmoid). */
 export function sigmoid(logit: number): number {
   return 1 / (1 + Math.exp(-Math.min(100, Math.max(-100, logit))));
 }
@@ -127,7 +127,7 @@ function iou(boxes: Float32Array, a: number, b: number): number {
   return inter / Math.max(areaA + areaB - inter, 1e-9);
 }
 
-/** MediaPipe's WEIGHTED suppression (landmarks.mesh.weighted_nms): each cluster (IoU > threshold with its best box)
+/** MediaPipe's WEIGHTED suppression (landmarks.detect.mediapipe_mesh.weighted_nms): each cluster (IoU > threshold with its best box)
  * becomes the score-weighted mean of its boxes and keypoints, with the best score. boxes (n, 4), keypoints (n, 6, 2)
  * flat. (The best box always joins its own cluster, so a zero-area box cannot stall the loop.) */
 export function weightedNms(boxes: Float32Array, keypoints: Float32Array, scores: ArrayLike<number>,
@@ -154,7 +154,7 @@ export function weightedNms(boxes: Float32Array, keypoints: Float32Array, scores
   return kept;
 }
 
-/** The detector's outputs -> detections in frame pixels, best first (landmarks.mesh.decode_detections).
+/** The detector's outputs -> detections in frame pixels, best first (landmarks.detect.mediapipe_mesh.decode_detections).
  * regressors: (896 * 16) flat; logits: (896) flat. */
 export function decodeDetections(regressors: Float32Array, logits: Float32Array, scale: number, offset: [number, number],
                                  minScore = 0.5): Detection[] {
@@ -190,7 +190,7 @@ export class FaceDetector {
 
   constructor(readonly session: ort.InferenceSession, readonly minScore = 0.5) {}
 
-  /** BlazeFace on a rectangle of the frame (landmarks.mesh.detect_faces; the whole frame when left, top, width,
+  /** BlazeFace on a rectangle of the frame (landmarks.detect.mediapipe_mesh.detect_faces; the whole frame when left, top, width,
    * height are omitted): detections in frame pixels, best first. */
   async detectFaces(image: Tensor<Uint8Array>, left = 0, top = 0, width = image.shape[1], height = image.shape[0]):
       Promise<Detection[]> {
@@ -212,7 +212,7 @@ export class FaceDetector {
   }
 
   /** Whole-frame detection, then, when nothing is found, overlapping square tiles of half, then a quarter of the
-   * shorter side (landmarks.mesh.detect_tiled). Detections in frame pixels, best first. */
+   * shorter side (landmarks.detect.mediapipe_mesh.detect_tiled). Detections in frame pixels, best first. */
   async detectTiled(image: Tensor<Uint8Array>): Promise<Detection[]> {
     const found = await this.detectFaces(image);
     if (found.length > 0) return found;
@@ -233,7 +233,7 @@ export class FaceDetector {
   }
 }
 
-/** Top-left corners [top, left] of side x side tiles overlapping by half, covering the frame (landmarks.mesh._tiles). */
+/** Top-left corners [top, left] of side x side tiles overlapping by half, covering the frame (landmarks.detect.mediapipe_mesh._tiles). */
 function tiles(height: number, width: number, side: number): [number, number][] {
   const step = Math.max(1, Math.floor(side / 2));
   const starts = (extent: number) => {

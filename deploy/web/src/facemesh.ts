@@ -1,4 +1,4 @@
-// MediaPipe's 468-point face mesh and its iris-net eye refinement around their ONNX graphs: landmarks/mesh.py
+// MediaPipe's 468-point face mesh and its iris-net eye refinement around their ONNX graphs: landmarks/detect/mediapipe_mesh.py
 // (Region.to_crop, region_from_detection, region_from_mesh, predict_mesh, to_frame, eye_region, eye_crop, eye_input,
 // iris_outputs, eye_iris, refine_eyes). Meshes are (468, 3) float32 flat: x, y in frame pixels, z at the same scale.
 // The crops are sampled like cv2.warpAffine with INTER_LINEAR (bilinear, pixel centres on integers).
@@ -14,18 +14,18 @@ export const ROI_SCALE = 1.5;
 export const IRIS_SIZE = 64;
 export const EYE_ROI_SCALE = 2.3;
 /** Per eye (image left first): the corners levelling its square, the mesh vertices the iris net's first 16 points
- * replace, and whether the crop is mirrored (landmarks.mesh.EYE_CONTOURS). */
+ * replace, and whether the crop is mirrored (landmarks.detect.mediapipe_mesh.EYE_CONTOURS). */
 export const EYE_CONTOURS: { corners: [number, number]; contour: number[]; mirrored: boolean }[] = [
   { corners: [33, 133], contour: [33, 7, 163, 144, 145, 153, 154, 155, 133, 246, 161, 160, 159, 158, 157, 173], mirrored: false },
   { corners: [362, 263], contour: [263, 249, 390, 373, 374, 380, 381, 382, 362, 466, 388, 387, 386, 385, 384, 398], mirrored: true },
 ];
 export const EYE_CORNERS: [number, number] = [33, 263];
 
-/** A rotated square in the frame (landmarks.mesh.Region): centre, side, rotation (radians, the eye line's angle,
+/** A rotated square in the frame (landmarks.detect.mediapipe_mesh.Region): centre, side, rotation (radians, the eye line's angle,
  * clockwise on screen). */
 export interface Region { centre: [number, number]; side: number; rotation: number }
 
-/** The affine frame pixels -> size x size crop of a region (landmarks.mesh.Region.to_crop). */
+/** The affine frame pixels -> size x size crop of a region (landmarks.detect.mediapipe_mesh.Region.to_crop). */
 export function regionToCrop(region: Region, size: number): Affine {
   const cos = Math.cos(region.rotation), sin = Math.sin(region.rotation), scale = size / region.side;
   const a = cos * scale, b = sin * scale, d = -sin * scale, e = cos * scale;
@@ -37,7 +37,7 @@ function levelAngle(sx: number, sy: number, ex: number, ey: number): number {
   return -Math.atan2(-(ey - sy), ex - sx);
 }
 
-/** The mesh region of a detection (landmarks.mesh.region_from_detection): the box's longer side x 1.5, levelled on
+/** The mesh region of a detection (landmarks.detect.mediapipe_mesh.region_from_detection): the box's longer side x 1.5, levelled on
  * the eye keypoints. */
 export function regionFromDetection(detection: Detection): Region {
   const { box, keypoints: k } = detection;
@@ -48,7 +48,7 @@ export function regionFromDetection(detection: Detection): Region {
   };
 }
 
-/** The next frame's region from this frame's mesh (landmarks.mesh.region_from_mesh): the points' extent in the
+/** The next frame's region from this frame's mesh (landmarks.detect.mediapipe_mesh.region_from_mesh): the points' extent in the
  * face's levelled axes (outer eye corners), 1.5x its longer side. mesh: (468, 3) flat. */
 export function regionFromMesh(mesh: Float32Array): Region {
   const [s, e] = EYE_CORNERS;
@@ -111,25 +111,25 @@ function clamp(v: number, n: number): number {
   return v < 0 ? 0 : v >= n ? n - 1 : v;
 }
 
-/** (x, y) of a crop's pixels -> frame pixels through the inverse of the frame-to-crop affine (landmarks.mesh.to_frame). */
+/** (x, y) of a crop's pixels -> frame pixels through the inverse of the frame-to-crop affine (landmarks.detect.mediapipe_mesh.to_frame). */
 function toFrame(inverse: Affine, x: number, y: number): [number, number] {
   return [inverse[0] * x + inverse[1] * y + inverse[2], inverse[3] * x + inverse[4] * y + inverse[5]];
 }
 
-/** The iris net's square around one eye (landmarks.mesh.eye_region). */
+/** The iris net's square around one eye (landmarks.detect.mediapipe_mesh.eye_region). */
 export function eyeRegion(mesh: Float32Array, corners: [number, number]): Region {
   const sx = mesh[3 * corners[0]], sy = mesh[3 * corners[0] + 1], ex = mesh[3 * corners[1]], ey = mesh[3 * corners[1] + 1];
   return { centre: [(sx + ex) / 2, (sy + ey) / 2], side: Math.hypot(ex - sx, ey - sy) * EYE_ROI_SCALE, rotation: levelAngle(sx, sy, ex, ey) };
 }
 
-/** The affine into the iris net's 64x64 crop, the region's centre at 31.5 (landmarks.mesh.eye_crop). */
+/** The affine into the iris net's 64x64 crop, the region's centre at 31.5 (landmarks.detect.mediapipe_mesh.eye_crop). */
 export function eyeCrop(region: Region): Affine {
   const m = regionToCrop(region, IRIS_SIZE);
   m[2] -= 0.5; m[5] -= 0.5;
   return m;
 }
 
-/** One mesh prediction (landmarks.mesh.MeshResult): mesh (468, 3) flat float32, presence in [0, 1], the region, and
+/** One mesh prediction (landmarks.detect.mediapipe_mesh.MeshResult): mesh (468, 3) flat float32, presence in [0, 1], the region, and
  * the irises (2, 4) flat [x, y, radius, aperture] per eye (NaN where not run), null when the eyes were not refined. */
 export interface MeshResult { mesh: Float32Array; presence: number; region: Region; irises: Float64Array | null }
 
@@ -141,14 +141,14 @@ function outputBySize(outputs: ort.InferenceSession.OnnxValueMapType, names: rea
   throw new Error(`no output of ${size} values among ${names.join(", ")}`);
 }
 
-/** The face-mesh and iris nets' sessions with their input buffers (landmarks.mesh's predict_mesh and refine_eyes). */
+/** The face-mesh and iris nets' sessions with their input buffers (landmarks.detect.mediapipe_mesh's predict_mesh and refine_eyes). */
 export class FaceMesh {
   private readonly meshInput = new Float32Array(MESH_SIZE * MESH_SIZE * 3);
   private readonly eyeInput = new Float32Array(IRIS_SIZE * IRIS_SIZE * 3);
 
   constructor(readonly meshSession: ort.InferenceSession, readonly irisSession: ort.InferenceSession) {}
 
-  /** The face-mesh net inside a region of the image (landmarks.mesh.predict_mesh); eyes: then refine both eyes'
+  /** The face-mesh net inside a region of the image (landmarks.detect.mediapipe_mesh.predict_mesh); eyes: then refine both eyes'
    * contours with the iris net and keep its irises. */
   async predictMesh(image: Tensor<Uint8Array>, region: Region, eyes = true): Promise<MeshResult> {
     const matrix = regionToCrop(region, MESH_SIZE);
@@ -169,7 +169,7 @@ export class FaceMesh {
     return { mesh, presence, region, irises };
   }
 
-  /** The iris net on one eye's square (landmarks.mesh.eye_input + iris_outputs): its 71 eye points and 5 iris points
+  /** The iris net on one eye's square (landmarks.detect.mediapipe_mesh.eye_input + iris_outputs): its 71 eye points and 5 iris points
    * (x, y, z flat) in its 64x64 crop (mirrored for the image-right eye). */
   async irisOutputs(image: Tensor<Uint8Array>, region: Region, mirrored: boolean): Promise<{ eye: Float32Array; iris: Float32Array }> {
     warpAffineInto(image, eyeCrop(region), IRIS_SIZE, true, mirrored, this.eyeInput);
@@ -179,7 +179,7 @@ export class FaceMesh {
   }
 
   /** The mesh (a copy) with both eyes' 16 contour vertices (x, y) from the iris net, and the irises it found
-   * (landmarks.mesh.refine_eyes; the two eyes run one after the other here). Unchanged when the mesh is not finite
+   * (landmarks.detect.mediapipe_mesh.refine_eyes; the two eyes run one after the other here). Unchanged when the mesh is not finite
    * or an eye's corners coincide. */
   async refineEyes(image: Tensor<Uint8Array>, mesh: Float32Array): Promise<{ mesh: Float32Array; irises: Float64Array }> {
     const refined = Float32Array.from(mesh);
@@ -203,7 +203,7 @@ export class FaceMesh {
   }
 }
 
-/** One eye's iris net outputs -> [x, y, radius, aperture] (landmarks.mesh.eye_iris): the iris centre and radius in
+/** One eye's iris net outputs -> [x, y, radius, aperture] (landmarks.detect.mediapipe_mesh.eye_iris): the iris centre and radius in
  * frame pixels, the lid gap of the net's contour (the middle three pairs) over the eye's corner distance. inverse:
  * crop -> frame of the eye's crop. */
 export function eyeIris(points: Float32Array, iris: Float32Array, inverse: Affine, mirrored: boolean): [number, number, number, number] {

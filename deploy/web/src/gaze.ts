@@ -1,6 +1,6 @@
-// The irises as a gaze (issue 40: one iris, where the driver looks): landmarks/iris.py (EYES, CLOSED, eye_axes,
-// find_irises, gaze_offsets, retarget_gaze) and lsr/core/parts.py (shot_irises, DriverGaze). The iris net is the
-// tracker's (facemesh.ts FaceMesh, landmarks.mesh's), on the same 64x64 eye squares, here levelled on each eye's
+// The irises as a gaze (issue 40: one iris, where the driver looks): landmarks/parts/eyes/iris.py (EYES, CLOSED, eye_axes,
+// find_irises, gaze_offsets, retarget_gaze) and lsr/core/finish.py (shot_irises, DriverGaze). The iris net is the
+// tracker's (facemesh.ts FaceMesh, landmarks.detect.mediapipe_mesh's), on the same 64x64 eye squares, here levelled on each eye's
 // corners of the 68 points. Irises travel as (2, 4) flat rows [x, y, radius, aperture], image-left eye first (the
 // tracker's `irises`); a gaze as (2, 2) flat [along the corner line, across it (down)] in eye widths, NaN where none.
 
@@ -10,16 +10,16 @@ import { Tensor, median, tensor } from "./tensor.js";
 import { createTracker, readTrackerAssets } from "./tracker.js";
 
 /** Per eye of the 68 points, image left first: its corners and whether the iris net sees it mirrored
- * (landmarks.iris.EYES). */
+ * (landmarks.parts.eyes.iris.EYES). */
 export const IRIS_EYES: [number, number, boolean][] = [[36, 39, false], [42, 45, true]];
 /** A driver's eye whose lid gap by the iris net is below this fraction of its gap when open is closing: no gaze
- * (landmarks.iris.CLOSED). */
+ * (landmarks.parts.eyes.iris.CLOSED). */
 export const CLOSED = 0.8;
 
 export interface EyeAxes { centre: [number, number]; axis: [number, number]; width: number }
 
 /** Centre, unit axis along the corners and width of eye `eye` (0 = image left) of (68, 2) points, flat
- * (landmarks.iris.eye_axes). */
+ * (landmarks.parts.eyes.iris.eye_axes). */
 export function eyeAxes(landmarks: ArrayLike<number>, eye: number): EyeAxes {
   const [first, last] = IRIS_EYES[eye];
   const sx = landmarks[2 * first], sy = landmarks[2 * first + 1];
@@ -32,7 +32,7 @@ function values(array: Tensor | ArrayLike<number>): ArrayLike<number> {
   return "data" in array && "shape" in array ? (array as Tensor).data : (array as ArrayLike<number>);
 }
 
-/** Irises (2, 4) and 68 points -> the gaze (2, 2) flat float64 (landmarks.iris.gaze_offsets): each iris centre from
+/** Irises (2, 4) and 68 points -> the gaze (2, 2) flat float64 (landmarks.parts.eyes.iris.gaze_offsets): each iris centre from
  * its eye's centre, along and across the corner line, in eye widths; NaN where not found, or where the eye is closing
  * (its aperture below CLOSED x openApertures (2,), e.g. the median over the person's frames). */
 export function gazeOffsets(irises: Tensor | ArrayLike<number>, landmarks: Tensor | ArrayLike<number>,
@@ -52,7 +52,7 @@ export function gazeOffsets(irises: Tensor | ArrayLike<number>, landmarks: Tenso
   return offsets;
 }
 
-/** Relative gaze (landmarks.iris.retarget_gaze): the source's own (its anchor shot's gaze) moved by the driver's
+/** Relative gaze (landmarks.parts.eyes.iris.retarget_gaze): the source's own (its anchor shot's gaze) moved by the driver's
  * since its reference frame, (2, 2) flat each; where the reference or the source has no gaze (NaN), the driver's own
  * (absolute) offsets are kept. */
 export function retargetGaze(driver: Tensor | ArrayLike<number>, driverReference: Tensor | ArrayLike<number>,
@@ -64,7 +64,7 @@ export function retargetGaze(driver: Tensor | ArrayLike<number>, driverReference
   });
 }
 
-/** A driver's gaze, frame by frame, as the target's (lsr.core.parts.DriverGaze): `source` null, its own (absolute);
+/** A driver's gaze, frame by frame, as the target's (lsr.core.finish.DriverGaze): `source` null, its own (absolute);
  * else `source` (2, 2) flat (the subject's anchor gaze) moved by the driver's since its first frame whose irises were
  * found (retargetGaze), as relative motion moves the 68 points. An eye is closing (no gaze) against the median of its
  * last HISTORY apertures. */
@@ -95,7 +95,7 @@ export class DriverGaze {
 // ---- the iris net on the 68 points' eyes -----------------------------------------------------------------------
 
 /** Each eye's iris in `image` ((H, W, 3) uint8 RGB) with 68 points `landmarks` in its pixels -> (2, 4) flat float64
- * [x, y, radius, aperture] by the iris net (landmarks.iris.find_irises; the two eyes one after the other here); NaN
+ * [x, y, radius, aperture] by the iris net (landmarks.parts.eyes.iris.find_irises; the two eyes one after the other here); NaN
  * rows where the points are not finite or an eye has no width. */
 export async function findIrises(faceMesh: FaceMesh, image: Tensor<Uint8Array>, landmarks: Tensor | ArrayLike<number>
                                  ): Promise<Float64Array> {
@@ -112,7 +112,7 @@ export async function findIrises(faceMesh: FaceMesh, image: Tensor<Uint8Array>, 
 }
 
 /** The irises DriverGaze reads for a tracked frame: the tracker's own (the mesh tracker runs the iris net on the same
- * eyes), else found with its iris net (findIrises), as lsr.core.parts.DriverGaze does; null without either. */
+ * eyes), else found with its iris net (findIrises), as lsr.core.finish.DriverGaze does; null without either. */
 export async function trackedIrises(tracker: { irises?: Float64Array | null; faceMesh?: FaceMesh },
                                     frame: Tensor<Uint8Array>, points: Tensor): Promise<Float64Array | null> {
   const own = tracker.irises ?? null;
@@ -121,7 +121,7 @@ export async function trackedIrises(tracker: { irises?: Float64Array | null; fac
 }
 
 /** Each shot's iris centres (K, 2, 2) flat from their irises (K, 2, 4) flat: NaN where not found or where the eye is
- * closing against its median aperture over the shots (CLOSED) (lsr.core.parts.shot_irises, after find_irises). */
+ * closing against its median aperture over the shots (CLOSED) (lsr.core.finish.shot_irises, after find_irises). */
 export function shotIrisCentres(irises: Tensor | ArrayLike<number>): Float64Array {
   const rows = values(irises), count = rows.length / 8, centres = new Float64Array(count * 4);
   for (let k = 0; k < count; k++) {

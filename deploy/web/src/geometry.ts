@@ -1,5 +1,5 @@
 // Crop framing and 2-D transforms: landmarks/align.py (crop_transform, transform_landmarks, invert_affine) and
-// landmarks/retarget.py (similarity_procrustes, apply_similarity). Same constants, same conventions.
+// landmarks/motion/retarget_points.py (similarity_procrustes, apply_similarity). Same constants, same conventions.
 
 import { Affine, Tensor, checkPoints, tensor } from "./tensor.js";
 
@@ -67,7 +67,7 @@ export function composeAffine(b: Affine, a: Affine): Affine {
 export interface Similarity { scale: number; rotation: [number, number, number, number]; translation: [number, number] }
 
 /** Least-squares similarity taking source (N, 2) onto target (N, 2), no reflection (Umeyama; in 2-D closed form)
- * (landmarks.retarget.similarity_procrustes). indices: the rows to fit on (all when omitted). */
+ * (landmarks.motion.retarget_points.similarity_procrustes). indices: the rows to fit on (all when omitted). */
 export function similarityProcrustes(source: Tensor, target: Tensor, indices?: number[]): Similarity {
   const rows = indices ?? Array.from({ length: source.shape[0] }, (_, i) => i);
   if (rows.length < 2) throw new Error("a similarity needs at least 2 points");
@@ -93,7 +93,7 @@ export function similarityAffine(s: Similarity): Affine {
   return [s.scale * r00, s.scale * r01, s.translation[0], s.scale * r10, s.scale * r11, s.translation[1]];
 }
 
-/** scale * R p + t for points (N, 2) (landmarks.retarget.apply_similarity). */
+/** scale * R p + t for points (N, 2) (landmarks.motion.retarget_points.apply_similarity). */
 export function applySimilarity(points: Tensor, s: Similarity): Tensor<Float64Array> {
   return transformPoints(points, similarityAffine(s));
 }

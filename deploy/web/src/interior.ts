@@ -1,4 +1,4 @@
-// The inside of an open mouth from the driver's own frame: landmarks/mouth_interior.py (cut_driver_mouth,
+// The inside of an open mouth from the driver's own frame: landmarks/parts/mouth/interior.py (cut_driver_mouth,
 // interior_strength, lip_affine, paste_interior), as the live session finishes a frame with mouth_interior "driver".
 // The driver's frame around its lips is cut where the frame is (the tracker's worker, or this thread), mapped onto
 // the target by the affine fit of the target's 20 lip points to the driver's (bicubic, as cv2.warpAffine with
@@ -22,7 +22,7 @@ export const FADE = 2.0;
 
 const f32 = Math.fround;
 
-/** A driver frame's mouth (landmarks.mouth_interior.DriverMouth). */
+/** A driver frame's mouth (landmarks.parts.mouth.interior.DriverMouth). */
 export interface DriverMouth {
   /** (h, w, 3) uint8 RGB: the driver frame around its lips. */
   patch: Tensor<Uint8Array>;

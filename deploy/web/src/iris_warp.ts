@@ -1,5 +1,5 @@
 // The shots' irises warped to where the target looks (issue 40: one iris, where the driver looks):
-// landmarks/iris_warp.py (landed, _eye_box, iris_along, shift_iris, align_irises) on dense backward maps (output
+// landmarks/parts/eyes/iris_shift.py (landed, _eye_box, iris_along, shift_iris, align_irises) on dense backward maps (output
 // pixel p samples the source at map(p)), each (H, W) float32 flat.
 //
 // Before the shots are sampled, each reference's warp is bent inside each eye of the target (its 68 points'
@@ -29,7 +29,7 @@ export interface DenseMaps { mapX: Tensor<Float32Array>; mapY: Tensor<Float32Arr
 
 type Box = [number, number, number, number];
 
-/** Where a backward map puts source `point` (landmarks.iris_warp.landed): the output pixel whose map is nearest it
+/** Where a backward map puts source `point` (landmarks.parts.eyes.iris_shift.landed): the output pixel whose map is nearest it
  * (searched within `box` (x0, y0, x1, y1) when given), refined by one Newton step on the map's local Jacobian ->
  * [x, y], NaN when the map never comes within 2 pixels of it there. */
 export function landed(maps: DenseMaps, point: ArrayLike<number>, box: Box | null = null): [number, number] {
@@ -70,7 +70,7 @@ function solve2(a: number, b: number, c: number, d: number, e: number, g: number
 }
 
 /** (x0, y0, x1, y1) integer pixel bounds of the region shiftIris may change around an eye
- * (landmarks.iris_warp._eye_box). */
+ * (landmarks.parts.eyes.iris_shift._eye_box). */
 export function eyeBox(centre: [number, number], axis: [number, number], width: number): Box {
   const across = [-axis[1], axis[0]];
   let lowX = Infinity, lowY = Infinity, highX = -Infinity, highY = -Infinity;
@@ -85,7 +85,7 @@ export function eyeBox(centre: [number, number], axis: [number, number], width: 
 }
 
 /** Where a shot's iris centre (`iris` [x, y], shot pixels) lands along the target's eye `eye` (its 68 points
- * `landmarks`), in eye widths from the eye's centre (landmarks.iris_warp.iris_along); NaN when it does not land in
+ * `landmarks`), in eye widths from the eye's centre (landmarks.parts.eyes.iris_shift.iris_along); NaN when it does not land in
  * the eye's region. */
 export function irisAlong(maps: DenseMaps, iris: ArrayLike<number>, landmarks: Tensor, eye: number): number {
   if (!(Number.isFinite(iris[0]) && Number.isFinite(iris[1]))) return NaN;
@@ -108,7 +108,7 @@ function interp(x: number, xp: number[], fp: number[]): number {
 }
 
 /** The maps with eye `eye` of the target's 68 points `landmarks` bent so that what they showed at `start` along the
- * corner line (eye widths from the eye's centre) shows at `end` (landmarks.iris_warp.shift_iris); in place (only the
+ * corner line (eye widths from the eye's centre) shows at `end` (landmarks.parts.eyes.iris_shift.shift_iris); in place (only the
  * eye's box changes). Returns whether they changed. */
 export function shiftIris(maps: DenseMaps, landmarks: Tensor, eye: number, start: number, end: number): boolean {
   const { centre, axis, width } = eyeAxes(landmarks.data, eye);
@@ -149,7 +149,7 @@ export function shiftIris(maps: DenseMaps, landmarks: Tensor, eye: number, start
 /** The references' backward maps, nearest first, each bent so that its shot's iris (`irises` (N, 2, 2) shot pixels,
  * image-left eye first, NaN where not found) lands where the target looks: `gaze` (2, 2) (gaze.ts gazeOffsets of the
  * target's 68 points `landmarks`, first coordinate), or, where an eye's is NaN or no gaze is given, where the first
- * reference's iris lands (landmarks.iris_warp.align_irises). Unlike Python's, in place: returns `maps` themselves. */
+ * reference's iris lands (landmarks.parts.eyes.iris_shift.align_irises). Unlike Python's, in place: returns `maps` themselves. */
 export function alignIrises(maps: DenseMaps[], irises: Tensor, landmarks: Tensor, gaze: Tensor | null = null
                             ): DenseMaps[] {
   if (irises.data.length !== maps.length * 4) {

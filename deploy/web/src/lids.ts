@@ -1,4 +1,4 @@
-// The subject's own lids drawn down where the target shuts its eyes: landmarks/drawn_lids.py (shot_lid_gaps,
+// The subject's own lids drawn down where the target shuts its eyes: landmarks/parts/eyes/drawn_lids.py (shot_lid_gaps,
 // lid_strength, lash_line, lid_normal, draw_lids), as the live session finishes a frame with lids "drawn", or
 // "driver" where the camera gave no shut eyes to lay in. Between the eye as the shots show it open (the target's
 // lids at the shots' gaps, grown) and the drawn lid's margin (the target's upper lid lowered by the strength), the

@@ -1,5 +1,5 @@
 // The mouth from the nearest warped shot over the synthesis, as the live session finishes a frame with mouth
-// "nearest": lsr/core/parts.py (finish_mouth) and landmarks/nearest_mouth.py (mouth_weight, mouth_strength, mismatch,
+// "nearest": lsr/core/finish.py (finish_mouth) and landmarks/parts/mouth/nearest_mouth.py (mouth_weight, mouth_strength, mismatch,
 // keep_nearest_mouth). The region's mask is drawn as OpenCV draws it (cv2.fillPoly, LINE_AA, shift 2: its LineAA
 // edges and scan-line fill, ported from imgproc/src/drawing.cpp), grown by cv2.dilate with cv2's elliptic element and
 // feathered by cv2.GaussianBlur (float32, reflect-101 border); the blend in float32 as numpy computes it.
@@ -219,7 +219,7 @@ export function polygonMask(p: ArrayLike<number>, from: number, to: number, x0: 
 
 // ---------------------------------------------------------------------------------------------- nearest mouth
 
-/** The mouth region's weight over its box (landmarks.nearest_mouth.mouth_weight). */
+/** The mouth region's weight over its box (landmarks.parts.mouth.nearest_mouth.mouth_weight). */
 export interface MouthRegion {
   /** (y1 - y0, x1 - x0) float32 in [0, 1]. */
   weight: Tensor<Float32Array>;
@@ -228,7 +228,7 @@ export interface MouthRegion {
 }
 
 /** The mouth region: the target's outer-lip polygon grown by MOUTH_MARGIN and feathered by MOUTH_FEATHER (of its
- * eye distance) over its bounding box (landmarks.nearest_mouth.mouth_weight). landmarks (68, 2) pixels of an image
+ * eye distance) over its bounding box (landmarks.parts.mouth.nearest_mouth.mouth_weight). landmarks (68, 2) pixels of an image
  * height x width -> the region, or null when the landmarks are not finite or the region lies outside the image. */
 export function mouthWeight(landmarks: Tensor, height: number, width: number): MouthRegion | null {
   const p = landmarks.data;
@@ -256,7 +256,7 @@ function checkImage(image: Tensor, name: string): [number, number] {
   return [image.shape[0], image.shape[1]];
 }
 
-/** Indices of the `count` shots nearest the target (landmarks.tps.nearest_shots: mean point distance over the
+/** Indices of the `count` shots nearest the target (landmarks.warp.tps.nearest_shots: mean point distance over the
  * target's eye-centre distance, ties by index, shots without a face last), repeated to `count` (np.resize). */
 function nearestShots(shotLandmarks: Tensor, target: ArrayLike<number>, count: number): number[] {
   const k = shotLandmarks.shape[0], s = shotLandmarks.data, eyes = interOcularDistance(target);
@@ -275,7 +275,7 @@ function nearestShots(shotLandmarks: Tensor, target: ArrayLike<number>, count: n
   return Array.from({ length: count }, (_, i) => chosen[i % chosen.length]);
 }
 
-/** How much of the nearest shot's mouth to take (landmarks.nearest_mouth.mouth_strength): (the target's mouth
+/** How much of the nearest shot's mouth to take (landmarks.parts.mouth.nearest_mouth.mouth_strength): (the target's mouth
  * opening - the median of the references' shots') / CLOSED_MOUTH, clipped to [0, 1] (0 when not finite).
  * landmarks (68, 2); shotLandmarks (K, 68, 2), the same pixels; indices: the shots the references came from (the
  * warp's, nearest first), or a count to choose them here as the warp does. */
@@ -296,7 +296,7 @@ export function mouthStrength(landmarks: Tensor, shotLandmarks: Tensor, indices:
 }
 
 /** How unlike the synthesis the nearest shot is around the mouth: the mean absolute difference in grey levels over
- * the region's feathered edge (weight 0.02-0.5) where the shot's warp is valid (landmarks.nearest_mouth.mismatch). */
+ * the region's feathered edge (weight 0.02-0.5) where the shot's warp is valid (landmarks.parts.mouth.nearest_mouth.mismatch). */
 function mismatch(image: ArrayLike<number>, nearest: ArrayLike<number>, valid: ArrayLike<number>, width: number,
                   region: MouthRegion): number {
   const [x0, y0, x1, y1] = region.box, w = x1 - x0, weight = region.weight.data;
@@ -315,7 +315,7 @@ function mismatch(image: ArrayLike<number>, nearest: ArrayLike<number>, valid: A
 }
 
 /** `image` with the mouth region taken from `nearest` where its warp is valid, at `strength`, less where the shot is
- * unlike the synthesis around the mouth (landmarks.nearest_mouth.keep_nearest_mouth). image, nearest: (S, S, 3)
+ * unlike the synthesis around the mouth (landmarks.parts.mouth.nearest_mouth.keep_nearest_mouth). image, nearest: (S, S, 3)
  * uint8 data; nearestValid: (S, S) in [0, 1]; landmarks: (68, 2) target pixels. Returns `image` itself when nothing
  * is taken, else a new image (or `image` written in place when inPlace). */
 export function keepNearestMouth(image: Tensor, nearest: Uint8Array, nearestValid: ArrayLike<number>, landmarks: Tensor,
@@ -343,7 +343,7 @@ export function keepNearestMouth(image: Tensor, nearest: Uint8Array, nearestVali
   return out;
 }
 
-/** The synthesis with the nearest warped shot's mouth, mouth mode "nearest" (lsr.core.parts.finish_mouth):
+/** The synthesis with the nearest warped shot's mouth, mouth mode "nearest" (lsr.core.finish.finish_mouth):
  * as far as mouthStrength says, keepNearestMouth of the first reference.
  * image: (C, C, 3) uint8 synthesis; warped: (N, C, C, 3) uint8 the references the network got (the TPS warp's,
  * nearest first), masks: (N, C, C) their validity; indices: (N,) the shots they came from; cropLandmarks: (68, 2)

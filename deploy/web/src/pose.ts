@@ -1,5 +1,5 @@
-// The head pose of 68 points and the anchor shot of a subject: landmarks/pose.py (build_canonical_face,
-// estimate_head_pose, angles_from_rotation) and landmarks/expression.py (mouth_opening, eye_opening, pick_anchor).
+// The head pose of 68 points and the anchor shot of a subject: landmarks/motion/head_pose.py (build_canonical_face,
+// estimate_head_pose, angles_from_rotation) and landmarks/shape/expression.py (mouth_opening, eye_opening, pick_anchor).
 //
 // estimate_head_pose is cv2.solvePnP (EPnP, then Levenberg-Marquardt on the reprojection error) of the project's
 // canonical 3-D face under a pinhole camera (focal = image width, principal point at the centre). Here the same
@@ -10,11 +10,11 @@
 import { Tensor, checkPoints, median } from "./tensor.js";
 
 export const NUM_POINTS = 68;
-const CLOSED_MOUTH = 0.05; // landmarks.expression.CLOSED_MOUTH (mouth.ts exports the same)
+const CLOSED_MOUTH = 0.05; // landmarks.shape.expression.CLOSED_MOUTH (mouth.ts exports the same)
 const INNER_LIP_PAIRS: [number, number][] = [[61, 67], [62, 66], [63, 65]];
 const EYE_LID_PAIRS: [number, number][] = [[37, 41], [38, 40], [43, 47], [44, 46]];
 
-/** The canonical 3-D 68-point face (landmarks.pose.build_canonical_face): (68, 3) flat, model units, centred. */
+/** The canonical 3-D 68-point face (landmarks.motion.head_pose.build_canonical_face): (68, 3) flat, model units, centred. */
 export function canonicalFace(): Float64Array {
   const p = new Float64Array(NUM_POINTS * 3);
   const set = (i: number, x: number, y: number) => { p[3 * i] = x; p[3 * i + 1] = y; };
@@ -224,7 +224,7 @@ export function solvePnP(model: Float64Array, image: Float64Array, focal: number
   return pose;
 }
 
-/** (yaw, pitch, roll) degrees of a model -> camera rotation (landmarks.pose.angles_from_rotation). */
+/** (yaw, pitch, roll) degrees of a model -> camera rotation (landmarks.motion.head_pose.angles_from_rotation). */
 export function anglesFromRotation(r: ArrayLike<number>): [number, number, number] {
   const b = Math.asin(Math.min(Math.max(r[7], -1), 1));
   const a = Math.atan2(-r[6], r[8]);
@@ -233,7 +233,7 @@ export function anglesFromRotation(r: ArrayLike<number>): [number, number, numbe
   return [-a * degrees, -b * degrees, c * degrees];
 }
 
-/** Yaw, pitch, roll in degrees of one face (landmarks.pose.estimate_head_pose): landmarks (68, 2) pixels of an image
+/** Yaw, pitch, roll in degrees of one face (landmarks.motion.head_pose.estimate_head_pose): landmarks (68, 2) pixels of an image
  * of (height, width); NaN when they are not finite or no pose is found. */
 export function estimateHeadPose(landmarks: Tensor, height: number, width: number): [number, number, number] {
   if (landmarks.shape[0] !== NUM_POINTS || landmarks.shape[1] !== 2) checkPoints(landmarks, NUM_POINTS, "landmarks");
@@ -258,20 +258,20 @@ function interOcular(p: ArrayLike<number>, offset: number): number {
 }
 
 /** Mouth opening (inner-lip gap / inter-ocular distance) of face `index` of (K, 68, 2) points
- * (landmarks.expression.mouth_opening). */
+ * (landmarks.shape.expression.mouth_opening). */
 export function mouthOpeningAt(points: ArrayLike<number>, index = 0): number {
   const offset = index * NUM_POINTS * 2;
   return gap(points, offset, INNER_LIP_PAIRS) / interOcular(points, offset);
 }
 
-/** Eye opening (mean lid gap / inter-ocular distance) of face `index` (landmarks.expression.eye_opening). */
+/** Eye opening (mean lid gap / inter-ocular distance) of face `index` (landmarks.shape.expression.eye_opening). */
 export function eyeOpeningAt(points: ArrayLike<number>, index = 0): number {
   const offset = index * NUM_POINTS * 2;
   return gap(points, offset, EYE_LID_PAIRS) / interOcular(points, offset);
 }
 
 
-/** The most frontal shot with a closed mouth and open eyes (landmarks.expression.pick_anchor): landmarks (K, 68, 2)
+/** The most frontal shot with a closed mouth and open eyes (landmarks.shape.expression.pick_anchor): landmarks (K, 68, 2)
  * in images of (height, width) -> its index. Score, lower is better: hypot(yaw, pitch) / 10 degrees, plus the mouth
  * opening above CLOSED_MOUTH in units of it, plus the eyes closed more than 0.7 of the shots' median. */
 export function pickAnchor(landmarks: Tensor, height: number, width: number): number {

@@ -1,5 +1,5 @@
 // The landmark image the network is conditioned on: the 68 points as coloured open polylines on black
-// (landmarks/raster.py draw_landmarks: the LSR release's contour images, 2.78 px per 224 px wide, parts in order,
+// (landmarks/shape/raster.py draw_landmarks: the LSR release's contour images, 2.78 px per 224 px wide, parts in order,
 // later on top). Drawn here from each part's distance field (round joins, projecting end caps, a one-pixel
 // anti-aliased edge) instead of OpenCV's anti-aliased quads: the pictures differ only along the strokes' edges, and
 // the frame generator's output moves by less than 1/500 of a grey level's worth of PSNR (55 dB apart on the bundled
@@ -7,7 +7,7 @@
 
 import { Tensor, checkPoints, tensor } from "./tensor.js";
 
-/** [first, stop) of each part (landmarks/parts.py PARTS), in drawing order, with its colour (matplotlib's). */
+/** [first, stop) of each part (landmarks/shape/ibug68.py PARTS), in drawing order, with its colour (matplotlib's). */
 export const PARTS: [number, number, [number, number, number]][] = [
   [0, 17, [0, 128, 0]], // jaw: green
   [17, 22, [255, 165, 0]], // brows: orange
@@ -30,7 +30,7 @@ export function drawLandmarks(points: Tensor, size: number, thickness?: number):
   const image = new Uint8Array(size * size * 3);
   if (points.shape[0] !== 68 || points.shape[1] !== 2) checkPoints(points, 68, "landmarks");
   for (const value of points.data) if (!Number.isFinite(value)) return tensor(image, [size, size, 3]);
-  // OpenCV's anti-aliased strokes never ink less than about 1.5 px across (landmarks/raster.py): neither do these
+  // OpenCV's anti-aliased strokes never ink less than about 1.5 px across (landmarks/shape/raster.py): neither do these
   const half = Math.max(thickness ?? (REFERENCE_STROKE_PX * size) / REFERENCE_SIZE, MIN_STROKE_PX) / 2;
   const distance = new Float32Array(size * size);
   for (const [first, stop, colour] of PARTS) {

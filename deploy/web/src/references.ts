@@ -1,5 +1,5 @@
 // The warp-guided generator's references: the N shots nearest the target, each TPS-warped onto it with a mask of
-// where the warp is valid (landmarks/tps.py nearest_shots, landmark_distance, warp_references), and with the shots'
+// where the warp is valid (landmarks/warp/tps.py nearest_shots, landmark_distance, warp_references), and with the shots'
 // irises, each warp bent to carry its shot's iris to where the target looks (iris_warp.ts).
 
 import { LEFT_EYE, RIGHT_EYE } from "./geometry.js";
@@ -11,7 +11,7 @@ import { GridMap, WarpMethod, tpsGridMaps, warpValidMask } from "./tps.js";
 
 // ---- references for the warp-guided generator ---------------------------------------------------------------
 
-/** Mean point distance over `second`'s eye-centre distance (landmarks.tps.landmark_distance): (68, 2), (68, 2) ->
+/** Mean point distance over `second`'s eye-centre distance (landmarks.warp.tps.landmark_distance): (68, 2), (68, 2) ->
  * number; NaN where either has NaN rows or `second` has no eye distance. */
 export function landmarkDistance(first: Tensor, second: Tensor, firstOffset = 0): number {
   const a = first.data, b = second.data, count = second.shape[0];
@@ -25,7 +25,7 @@ export function landmarkDistance(first: Tensor, second: Tensor, firstOffset = 0)
 }
 
 /** Indices of the `count` shots nearest the target (landmarkDistance, ties by index; shots with NaN last)
- * (landmarks.tps.nearest_shots). shotLandmarks: (K, 68, 2); targetLandmarks: (68, 2) -> min(count, K) indices. */
+ * (landmarks.warp.tps.nearest_shots). shotLandmarks: (K, 68, 2); targetLandmarks: (68, 2) -> min(count, K) indices. */
 export function nearestShots(shotLandmarks: Tensor, targetLandmarks: Tensor, count: number): number[] {
   const shots = shotLandmarks.shape[0], stride = targetLandmarks.data.length;
   const distances = Array.from({ length: shots }, (_, k) => {
@@ -55,7 +55,7 @@ export interface References {
 }
 
 /** The `count` nearest shots, each TPS-warped onto the target landmarks, with validity masks
- * (landmarks.tps.warp_references). shots: (K, S, S, 3) uint8; shotLandmarks: (K, 68, 2); targetLandmarks: (68, 2),
+ * (landmarks.warp.tps.warp_references). shots: (K, S, S, 3) uint8; shotLandmarks: (K, 68, 2); targetLandmarks: (68, 2),
  * all in the shots' pixels. With fewer than `count` shots the nearest ones repeat. With `irises` ((K, 2, 2) each
  * shot's iris centres, NaN where not found), the warps carry every iris to where the target looks (`gaze` (2, 2),
  * gaze.ts gazeOffsets; null or NaN: where the nearest shot's lands) by iris_warp.ts alignIrises. The shots stay in
@@ -119,7 +119,7 @@ export function warpReferences(shots: Tensor<Uint8Array>, shotLandmarks: Tensor,
 let irisMaps: Float32Array[] = [];  // bentMaps' dense maps, kept from frame to frame
 
 /** Each shot's dense maps (warps[i] of shot unique[i]; the identity map, exact, for an "identity" warp, as
- * landmarks.tps.warp_references makes it for the irises to bend) bent by alignIrises, `nearestFirst` (the unique
+ * landmarks.warp.tps.warp_references makes it for the irises to bend) bent by alignIrises, `nearestFirst` (the unique
  * shots nearest first, as Python orders them: dict.fromkeys(indices)) -> shot index -> its maps. */
 function bentMaps(warps: GridMap[], unique: number[], nearestFirst: number[], irises: Tensor, target: Tensor,
                   gaze: Tensor | null): Map<number, DenseMaps> {

@@ -2,7 +2,7 @@
 // INTER_LINEAR on float32 (OpenCV 5 samples both at the exact float position with float weights, rounded to nearest),
 // cv2.resize (INTER_AREA to shrink, INTER_LINEAR to enlarge, float32), cv2.GaussianBlur (float32), the border rules
 // (cv2.borderInterpolate), and the coarse grids smooth maps are made on, then densified bilinearly
-// (landmarks.tps._Grid). Used by tps.ts (landmarks/tps.py: _remap, _Grid) and composite.ts (landmarks/scene.py).
+// (landmarks.warp.tps._Grid). Used by tps.ts (landmarks/warp/tps.py: _remap, _Grid) and composite.ts (landmarks/scene/compositing.py).
 
 import { Affine, Tensor, tensor } from "./tensor.js";
 
@@ -317,10 +317,10 @@ export function gaussianBlurF32(src: Float32Array, width: number, height: number
   return out;
 }
 
-// ---- coarse grids (landmarks.tps._Grid) ---------------------------------------------------------------------
+// ---- coarse grids (landmarks.warp.tps._Grid) ---------------------------------------------------------------------
 
 /** Where a map is evaluated: every pixel (step 1), or every `step` pixels with the last row and column included
- * (landmarks.tps._Grid). points: (rows * cols, 2) flat (x, y), row-major. */
+ * (landmarks.warp.tps._Grid). points: (rows * cols, 2) flat (x, y), row-major. */
 export interface CoarseGrid {
   height: number;
   width: number;
@@ -351,7 +351,7 @@ export interface Interpolation { lower: Int32Array; w0: Float32Array; w1: Float3
 const interpolations = new Map<string, Interpolation>();
 
 /** Linear interpolation from samples at `coarse` to 0..size-1, float32 weights
- * (landmarks.tps._interpolation_matrix). */
+ * (landmarks.warp.tps._interpolation_matrix). */
 function interpolation(size: number, coarse: Float64Array): Interpolation {
   const key = `${size}:${coarse.length}:${coarse[1]}`;
   const cached = interpolations.get(key);

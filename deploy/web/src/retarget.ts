@@ -1,18 +1,18 @@
 // The live path between the tracker and the network: the driver's motion moved onto the subject's anchor face.
-// Ports of landmarks/retarget.py (retarget_relative, retarget_driving), landmarks/expression.py (mouth_opening,
-// signed_mouth_gap, set_mouth_opening), landmarks/eyelids.py (lid_gaps, set_lid_gaps, closed_gaps, lid_share,
-// lids_as_driver, LidReference), landmarks/mesh_retarget.py (DriverReference, 68 points only: the web path has no
-// mesh) and the per-frame steps of lsr/core/live.py (LiveSession.prepare). Same constants, same order of operations.
+// Ports of landmarks/motion/retarget_points.py (retarget_relative, retarget_driving), landmarks/shape/expression.py (mouth_opening,
+// signed_mouth_gap, set_mouth_opening), landmarks/parts/eyes/lids.py (lid_gaps, set_lid_gaps, closed_gaps, lid_share,
+// lids_as_driver, LidReference), landmarks/motion/retarget_mesh.py (DriverReference, 68 points only: the web path has no
+// mesh) and the per-frame steps of lsr/core/live_session.py (LiveSession.prepare). Same constants, same order of operations.
 // Points are (68, 2) float64 in row-major (x, y).
 
 import { Similarity, cropTransform, similarityProcrustes, transformPoints } from "./geometry.js";
 import { Tensor, checkPoints, median, tensor } from "./tensor.js";
 
-/** Points barely moved by expressions: upper jaw, nose, eye corners and lids (landmarks.retarget.RIGID_INDEX). */
+/** Points barely moved by expressions: upper jaw, nose, eye corners and lids (landmarks.motion.retarget_points.RIGID_INDEX). */
 export const RIGID_INDEX: number[] = [0, 1, 2, 14, 15, 16, 27, 28, 29, 30, 31, 32, 33, 34, 35,
   36, 37, 38, 39, 40, 41, 42, 43, 44, 45, 46, 47];
 
-// landmarks/eyelids.py
+// landmarks/parts/eyes/lids.py
 export const LID_CLOSED = 0.04;
 export const CLOSED_SHARE = 0.3;
 export const MAX_APERTURE = 1.5;
@@ -21,7 +21,7 @@ export const SMALL_LID_GAIN = 3.0;
 export const SMALL_LID_SPAN = 0.35;
 export const REFERENCE_FRAMES = 250;
 
-// landmarks/expression.py
+// landmarks/shape/expression.py
 const INNER_LIP_PAIRS: [number, number][] = [[61, 67], [62, 66], [63, 65]];
 const JAW_DROP: [number, number][] = [[65, 1.0], [66, 1.0], [67, 1.0], [55, 1.0], [56, 1.0], [57, 1.0], [58, 1.0],
   [59, 1.0], [60, 0.5], [64, 0.5], [48, 0.4], [54, 0.4], [6, 0.9], [7, 1.0], [8, 1.0], [9, 1.0], [10, 0.9], [5, 0.7],
@@ -49,7 +49,7 @@ function eyeCentre(p: ArrayLike<number>, first: number): [number, number] {
 }
 
 /** Distance between the two eye centres (points 36-41 and 42-47) of (68, 2) points
- * (landmarks.smooth.inter_ocular_distance). */
+ * (landmarks.motion.smooth.inter_ocular_distance). */
 export function interOcularDistance(landmarks: Tensor | ArrayLike<number>): number {
   const points = flat(landmarks);
   const [lx, ly] = eyeCentre(points, 36), [rx, ry] = eyeCentre(points, 42);
@@ -57,7 +57,7 @@ export function interOcularDistance(landmarks: Tensor | ArrayLike<number>): numb
   return Math.sqrt(dx * dx + dy * dy);
 }
 
-/** Inner-lip gap over the inter-ocular distance (landmarks.expression.mouth_opening) of (68, 2) points. */
+/** Inner-lip gap over the inter-ocular distance (landmarks.shape.expression.mouth_opening) of (68, 2) points. */
 export function mouthOpening(landmarks: Tensor | ArrayLike<number>): number {
   const points = flat(landmarks);
   let sum = 0;
@@ -68,7 +68,7 @@ export function mouthOpening(landmarks: Tensor | ArrayLike<number>): number {
   return sum / 3 / interOcularDistance(points);
 }
 
-/** landmarks.expression.signed_mouth_gap: the lower inner lip's mean height below the upper along `down`. */
+/** landmarks.shape.expression.signed_mouth_gap: the lower inner lip's mean height below the upper along `down`. */
 function signedMouthGap(p: ArrayLike<number>, downX: number, downY: number): number {
   let sum = 0;
   for (const [upper, lower] of INNER_LIP_PAIRS) {
@@ -85,7 +85,7 @@ function nanToNum(value: number): number {
 }
 
 /** The face's mouth opened or closed to `opening` (a mouth_opening), the lower lip and jaw moved along the face's
- * down direction as a jaw drop does (landmarks.expression.set_mouth_opening). (68, 2) -> a new (68, 2). */
+ * down direction as a jaw drop does (landmarks.shape.expression.set_mouth_opening). (68, 2) -> a new (68, 2). */
 export function setMouthOpening(landmarks: Tensor, opening: number): Tensor<Float64Array> {
   const p = Float64Array.from(landmarks.data);
   const distance = interOcularDistance(p);
@@ -131,7 +131,7 @@ function interp(x: number, xp: number[], fp: number[]): number {
 
 interface EyeMeasure { acrossX: number; acrossY: number; opening: number[]; gap: number }
 
-/** landmarks.eyelids._measure on (68, 2) points: per eye (across, lower minus upper lid heights at the upper points,
+/** landmarks.parts.eyes.lids._measure on (68, 2) points: per eye (across, lower minus upper lid heights at the upper points,
  * gap in inter-ocular distances). */
 function measureLids(p: ArrayLike<number>): EyeMeasure[] {
   const [o0, i0] = LIDS_68[0], [o1, i1] = LIDS_68[1];
@@ -165,7 +165,7 @@ function measureLids(p: ArrayLike<number>): EyeMeasure[] {
   return measured;
 }
 
-/** Each eye's lid gap over the inter-ocular distance (landmarks.eyelids.lid_gaps) of (68, 2) points -> (2,) (NaN when
+/** Each eye's lid gap over the inter-ocular distance (landmarks.parts.eyes.lids.lid_gaps) of (68, 2) points -> (2,) (NaN when
  * the face is not finite). */
 export function lidGaps(landmarks: Tensor | ArrayLike<number>): Float64Array {
   const points = flat(landmarks);
@@ -175,7 +175,7 @@ export function lidGaps(landmarks: Tensor | ArrayLike<number>): Float64Array {
 }
 
 /** The face with each upper lid moved across its eye's corner line so that lidGaps reads `gaps`
- * (landmarks.eyelids.set_lid_gaps): in place on p (68, 2) values. */
+ * (landmarks.parts.eyes.lids.set_lid_gaps): in place on p (68, 2) values. */
 function setLidGapsInPlace(p: Float64Array, gaps: ArrayLike<number>): void {
   if (!finite(p)) return;
   const measured = measureLids(p);
@@ -191,21 +191,21 @@ function setLidGapsInPlace(p: Float64Array, gaps: ArrayLike<number>): void {
   }
 }
 
-/** landmarks.eyelids.set_lid_gaps on (68, 2) points -> a new (68, 2). */
+/** landmarks.parts.eyes.lids.set_lid_gaps on (68, 2) points -> a new (68, 2). */
 export function setLidGaps(points: Tensor, gaps: Tensor | ArrayLike<number>): Tensor<Float64Array> {
   const p = Float64Array.from(points.data);
   setLidGapsInPlace(p, flat(gaps));
   return tensor(p, [68, 2]);
 }
 
-/** A closed eye's lid gap from its open gap (landmarks.eyelids.closed_gaps). */
+/** A closed eye's lid gap from its open gap (landmarks.parts.eyes.lids.closed_gaps). */
 export function closedGap(open: number, closed = LID_CLOSED): number {
   const share = CLOSED_SHARE * open;
   return Number.isNaN(share) ? NaN : Math.min(closed, share);
 }
 
 /** The share of the source's aperture its lids take for a driver at `share` of its reference's
- * (landmarks.eyelids.lid_share). */
+ * (landmarks.parts.eyes.lids.lid_share). */
 export function lidShare(share: number, gain = SMALL_LID_GAIN, span = SMALL_LID_SPAN): number {
   let change = share - 1.0;
   if (span > 0) {
@@ -217,7 +217,7 @@ export function lidShare(share: number, gain = SMALL_LID_GAIN, span = SMALL_LID_
 }
 
 /** A retargeted face (68, 2) with its lids as closed as its driver's, in proportion
- * (landmarks.eyelids.lids_as_driver, one frame): in place on `face`. */
+ * (landmarks.parts.eyes.lids.lids_as_driver, one frame): in place on `face`. */
 function lidsAsDriverInPlace(face: Float64Array, driver: ArrayLike<number>, referenceGaps: ArrayLike<number>,
                              source: ArrayLike<number>, closed = LID_CLOSED): void {
   const sourceGaps = lidGaps(source);
@@ -234,7 +234,7 @@ function lidsAsDriverInPlace(face: Float64Array, driver: ArrayLike<number>, refe
 
 
 /** The driver's reference lid gaps, robust to a blink: the median lidGaps of its last `frames` faces (and those seen
- * ahead) (landmarks.eyelids.LidReference). Call on each driver face in order -> (2,), NaN before the first. */
+ * ahead) (landmarks.parts.eyes.lids.LidReference). Call on each driver face in order -> (2,), NaN before the first. */
 export class LidReference {
   private readonly gaps: Float64Array[] = [];
   private ahead = 0;
@@ -269,7 +269,7 @@ export class LidReference {
   }
 }
 
-/** A stream's driver reference (landmarks.mesh_retarget.DriverReference, 68 points only): the first face in crop
+/** A stream's driver reference (landmarks.motion.retarget_mesh.DriverReference, 68 points only): the first face in crop
  * pixels, which relative motion is measured from, and the reference lid gaps. `lids` on each driver face as
  * detected, then `start` on the first one; `reset` for a new driver (LiveSession.recentre). */
 export class DriverReference {
@@ -306,7 +306,7 @@ function applySim(points: ArrayLike<number>, s: Similarity): Float64Array {
   return out;
 }
 
-/** (scale, R, t) -> (1 / scale, R^T, -R^T t / scale) (landmarks.retarget.invert_similarity). */
+/** (scale, R, t) -> (1 / scale, R^T, -R^T t / scale) (landmarks.motion.retarget_points.invert_similarity). */
 export function invertSimilarity(s: Similarity): Similarity {
   const [r00, r01, r10, r11] = s.rotation, [tx, ty] = s.translation;
   return { scale: 1.0 / s.scale, rotation: [r00, r10, r01, r11],
@@ -314,7 +314,7 @@ export function invertSimilarity(s: Similarity): Similarity {
 }
 
 /** The driver's motion relative to its reference frame moved onto the source's face, one frame
- * (landmarks.retarget.retarget_relative): driver, driverReference, source (68, 2) -> (68, 2) (NaN when the driver
+ * (landmarks.motion.retarget_points.retarget_relative): driver, driverReference, source (68, 2) -> (68, 2) (NaN when the driver
  * frame is not finite). */
 export function retargetRelative(driver: Tensor, driverReference: Tensor, source: Tensor): Tensor<Float64Array> {
   checkPoints(driverReference, 68, "driver_reference");
@@ -338,7 +338,7 @@ export function retargetRelative(driver: Tensor, driverReference: Tensor, source
   return tensor(moved, [68, 2]);
 }
 
-/** What a live stream drives the subject with, one frame (landmarks.retarget.retarget_driving): retargetRelative,
+/** What a live stream drives the subject with, one frame (landmarks.motion.retarget_points.retarget_driving): retargetRelative,
  * then the mouth as open as the driver's, then the lids as closed as the driver's in proportion, against
  * `referenceGaps` (2,) (DriverReference.lids; null: lidGaps of driverReference). (68, 2) each -> (68, 2). */
 export function retargetDriving(driver: Tensor, driverReference: Tensor, source: Tensor,

@@ -1,5 +1,5 @@
-// The scene's layers for the composite: the person matte (landmarks/segment.py person_matte: MediaPipe's selfie
-// segmenter, selfie_segmentation.onnx) and the background plate (landmarks/scene.py background_plate, fill_in), with
+// The scene's layers for the composite: the person matte (landmarks/scene/person_matte.py person_matte: MediaPipe's selfie
+// segmenter, selfie_segmentation.onnx) and the background plate (landmarks/scene/compositing.py background_plate, fill_in), with
 // the OpenCV steps they use on uint8 pictures: cv2.resize (INTER_AREA, INTER_LINEAR), cv2.pyrDown, cv2.dilate with
 // an elliptic structuring element.
 //
@@ -12,14 +12,14 @@ import { cropTransform } from "./geometry.js";
 import { dilateEllipse, reflect101, resizeImage, roundHalfEven } from "./remap.js";
 import { Tensor, tensor } from "./tensor.js";
 
-export const SEGMENTER_FILE = "mediapipe/selfie_segmentation.onnx"; // landmarks.segment.SEGMENTER_FILE, under models/
+export const SEGMENTER_FILE = "mediapipe/selfie_segmentation.onnx"; // landmarks.scene.person_matte.SEGMENTER_FILE, under models/
 export const SEGMENTER_SIZE = 256;
-export const PERSON_LEVEL = 0.1; // landmarks.scene.PERSON_LEVEL
-export const PERSON_REACH = 0.03; // landmarks.scene.PERSON_REACH
-export const PLATE_SIDE = 384; // landmarks.scene.PLATE_SIDE
-export const PLATE_TRUST = 16; // landmarks.scene.PLATE_TRUST
+export const PERSON_LEVEL = 0.1; // landmarks.scene.compositing.PERSON_LEVEL
+export const PERSON_REACH = 0.03; // landmarks.scene.compositing.PERSON_REACH
+export const PLATE_SIDE = 384; // landmarks.scene.compositing.PLATE_SIDE
+export const PLATE_TRUST = 16; // landmarks.scene.compositing.PLATE_TRUST
 
-/** The face's crop side in frame pixels (landmarks.scene.face_side). */
+/** The face's crop side in frame pixels (landmarks.scene.compositing.face_side). */
 function faceSide(landmarks: Tensor): number {
   const m = cropTransform(landmarks, 1024);
   return 1024 / Math.sqrt(Math.abs(m[0] * m[4] - m[1] * m[3]));
@@ -49,7 +49,7 @@ export async function createSegmenter(model: Uint8Array): Promise<ort.InferenceS
   return ort.InferenceSession.create(model, { executionProviders: ["wasm"], graphOptimizationLevel: "all" });
 }
 
-/** How much each pixel is a person, hair and clothes too (landmarks.segment.person_matte): the whole frame squashed
+/** How much each pixel is a person, hair and clothes too (landmarks.scene.person_matte.person_matte): the whole frame squashed
  * to 256 x 256 (INTER_AREA when both sides are larger, else INTER_LINEAR), RGB in [0, 1], through the net, its
  * probability resized back (INTER_LINEAR) and clipped. (H, W, 3) uint8 -> (H, W) float32 in [0, 1]. */
 export async function personMatte(segmenter: ort.InferenceSession, image: Tensor<Uint8Array>): Promise<Tensor<Float32Array>> {
@@ -100,7 +100,7 @@ export function pyrDown(src: Float32Array, height: number, width: number, channe
   return { data: out, height: h, width: w };
 }
 
-/** Fill an image where it is unknown from the known pixels around (landmarks.scene.fill_in: push-pull, a pyramid of
+/** Fill an image where it is unknown from the known pixels around (landmarks.scene.compositing.fill_in: push-pull, a pyramid of
  * weighted means, each level's holes taken from the next coarser level). image (h, w, C) float32, known (h, w)
  * float32 weights in [0, 1] -> (h, w, C) float32. trust: a level's mean is taken fully where at least 1 / trust of
  * its footprint is known. */
@@ -143,7 +143,7 @@ export function fillIn(image: Tensor<Float32Array>, known: Tensor<Float32Array>,
   return tensor(filled, [height, width, channels]);
 }
 
-/** The scene's layers (landmarks.scene.background_plate): its person matte, clipped, and the background with the
+/** The scene's layers (landmarks.scene.compositing.background_plate): its person matte, clipped, and the background with the
  * person (and PERSON_REACH of the face side around the matte's edge) filled in from around (its nearest colours
  * carried in: PLATE_TRUST), the fill made at most PLATE_SIDE pixels wide and high, then enlarged. scene (H, W, 3)
  * uint8; landmarks (68, 2) its face, frame pixels; matte (H, W) float32. */

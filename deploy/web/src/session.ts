@@ -1,4 +1,4 @@
-// The live path end to end: lsr/core/live.py LiveSession, on the site `lsr export --web` writes (lsr/export_web.py).
+// The live path end to end: lsr/core/live_session.py LiveSession, on the site `lsr export --web` writes (lsr/export/web_site.py).
 // Per frame: camera frame -> track 68 points (and the irises: the gaze, gaze.ts) -> smooth -> crop -> retarget onto
 // the person's anchor shot -> landmark image -> warp the nearest shots (their irises carried to the gaze with eyes
 // "warped", iris_warp.ts) -> frame generator -> the nearest mouth -> the camera's mouth interior (interior.ts)
@@ -22,7 +22,7 @@ import { LiveSmoother } from "./smooth.js";
 import { References, warpReferences } from "./references.js";
 import { TrackerAssets, createTracker, loadTrackerAssets } from "./tracker.js";
 
-/** site.json (lsr/export_web.py write_site). */
+/** site.json (lsr/export/web_site.py write_site). */
 export interface SiteConfig {
   resolution: number;
   crop_size: number;
@@ -34,7 +34,7 @@ export interface SiteConfig {
   mouth: string;
   mouth_interior: string;
   lids: string;
-  eyes?: string;  // lsr.core.parts.EYES: "warped" carries the shots' irises to the gaze; the page draws none (a site
+  eyes?: string;  // lsr.core.finish.EYES: "warped" carries the shots' irises to the gaze; the page draws none (a site
                   // written before it has none: "blend")
   k: number;
 }
@@ -144,7 +144,7 @@ export class LiveSession {
   /** The subject's lids at rest (shotLidGaps), which the drawn lids are read against. */
   private readonly lidGaps: Float64Array;
   private readonly cropToScene: Affine;
-  /** The target's gaze with eyes "warped" (lsr.core.live.LiveSession.gazes), relative to the anchor shot's. */
+  /** The target's gaze with eyes "warped" (lsr.core.live_session.LiveSession.gazes), relative to the anchor shot's. */
   private readonly gazes: DriverGaze | null;
   last: LiveFrame | null = null;
   frames = 0;

@@ -1,5 +1,5 @@
-// One-Euro smoothing of the driver's landmarks, as the live session runs it: landmarks/smooth.py (OneEuroFilter,
-// driving_cutoffs) and lsr/core/live.py (LiveSession.prepare: the filter's rate follows the frames' spacing, within
+// One-Euro smoothing of the driver's landmarks, as the live session runs it: landmarks/motion/smooth.py (OneEuroFilter,
+// driving_cutoffs) and lsr/core/live_session.py (LiveSession.prepare: the filter's rate follows the frames' spacing, within
 // MIN_FPS..MAX_FPS, and a frame without a face resets it). Same constants, same float32 output.
 
 import { Tensor, tensor } from "./tensor.js";
@@ -10,20 +10,20 @@ export const LIVE_MAX_FPS = 60.0;
 const LIVE_START_FPS = 25.0; // LiveSession's OneEuroFilter(25.0, ...) before the first spacing is known
 
 /** Per-point min_cutoff for driving landmarks (68,) Hz: the head steady, eyes and lips quick
- * (landmarks.smooth.driving_cutoffs). */
+ * (landmarks.motion.smooth.driving_cutoffs). */
 export function drivingCutoffs(rigid = 1.0, expressive = EXPRESSIVE_CUTOFF): Float64Array {
   const cutoffs = new Float64Array(68).fill(rigid);
   for (let i = 36; i < 68; i++) cutoffs[i] = expressive;
   return cutoffs;
 }
 
-/** Smoothing factor of a first-order low-pass at `cutoff` Hz sampled at `fps` (landmarks.smooth._alpha). */
+/** Smoothing factor of a first-order low-pass at `cutoff` Hz sampled at `fps` (landmarks.motion.smooth._alpha). */
 function alpha(cutoff: number, fps: number): number {
   const tau = 1.0 / (2.0 * Math.PI * cutoff);
   return 1.0 / (1.0 + tau * fps);
 }
 
-/** Stateful One-Euro filter over (P, 2) point sets (landmarks.smooth.OneEuroFilter). minCutoff: one value or one per
+/** Stateful One-Euro filter over (P, 2) point sets (landmarks.motion.smooth.OneEuroFilter). minCutoff: one value or one per
  * point (e.g. drivingCutoffs()). Each call returns the filtered points rounded to float32, as Python's does. */
 export class OneEuroFilter {
   fps: number;
@@ -81,7 +81,7 @@ export class OneEuroFilter {
   }
 }
 
-/** The live session's smoothing (lsr.core.live.LiveSession: its OneEuroFilter(25, driving_cutoffs()), the rate set
+/** The live session's smoothing (lsr.core.live_session.LiveSession: its OneEuroFilter(25, driving_cutoffs()), the rate set
  * from each frame's spacing to the last, clipped to LIVE_MIN_FPS..LIVE_MAX_FPS). `step` on each frame with a face,
  * `gap` on each frame without one (LiveSession.still: the filter is reset, the spacing forgotten). */
 export class LiveSmoother {
@@ -107,7 +107,7 @@ export class LiveSmoother {
 
 /** A whole track through the smoothing, for tests: points (T, 68, 2) (a non-finite frame = no face: a gap, and a NaN
  * row out) -> (T, 68, 2). timing: a number = a fixed rate, one OneEuroFilter(fps, driving_cutoffs()) as
- * landmarks.smooth runs it; a (T,) tensor of capture times in seconds = the live session's LiveSmoother. */
+ * landmarks.motion.smooth runs it; a (T,) tensor of capture times in seconds = the live session's LiveSmoother. */
 export function smoothSequence(points: Tensor, timing: number | Tensor): Tensor<Float64Array> {
   if (points.shape.length !== 3 || points.shape[1] !== 68 || points.shape[2] !== 2) {
     throw new Error(`points must be (T, 68, 2), got [${points.shape}]`);

@@ -1,4 +1,4 @@
-// Regularised thin-plate-spline warps and the warp-guided generator's references: landmarks/tps.py (fit_tps,
+// Regularised thin-plate-spline warps and the warp-guided generator's references: landmarks/warp/tps.py (fit_tps,
 // merge_close_points, border_points, folded_fraction, fit_similarity, tps_grid_map, tps_map, tps_maps,
 // landmark_distance, nearest_shots, warp_references). Same defaults, same merging of close points, fixed border
 // points, regularisation in unit-RMS coordinates, condition check, fold check, retries (10x, 100x lambda) and the
@@ -165,7 +165,7 @@ function solve(a: Float64Array, b: Float64Array, n: number, columns: number): vo
   }
 }
 
-/** The (regularised) TPS with f(control[i]) ~= values[i] (landmarks.tps.fit_tps). control: (N, 2) flat; values:
+/** The (regularised) TPS with f(control[i]) ~= values[i] (landmarks.warp.tps.fit_tps). control: (N, 2) flat; values:
  * (N, columns) flat. Throws DegenerateTpsError (N < 3, no spread, condition number over maxCondition). */
 function solveTps(control: Float64Array, values: Float64Array, columns: number, regularization: number,
                   maxCondition: number): ThinPlateSpline {
@@ -255,7 +255,7 @@ function evaluate(spline: ThinPlateSpline, points: Float64Array): Float64Array {
   return out;
 }
 
-/** landmarks.tps.fit_tps on tensors: control (N, 2), values (N, D) -> the spline's parts and condition number. */
+/** landmarks.warp.tps.fit_tps on tensors: control (N, 2), values (N, D) -> the spline's parts and condition number. */
 export function fitTps(controlPoints: Tensor, values: Tensor, regularization = DEFAULT_REGULARIZATION,
                        maxCondition = DEFAULT_MAX_CONDITION): { weights: Tensor<Float64Array>;
                          affine: Tensor<Float64Array>; condition: number; centre: number[]; scale: number } {
@@ -268,7 +268,7 @@ export function fitTps(controlPoints: Tensor, values: Tensor, regularization = D
 }
 
 /** Greedily merge control points closer than minDistance, their values averaged; first occurrence order kept
- * (landmarks.tps.merge_close_points). control (N, 2), values (N, columns), flat. */
+ * (landmarks.warp.tps.merge_close_points). control (N, 2), values (N, columns), flat. */
 function mergeClosePoints(control: Float64Array, values: Float64Array, columns: number, minDistance: number
                           ): [Float64Array, Float64Array] {
   const count = control.length / 2, limit = minDistance * minDistance;
@@ -298,7 +298,7 @@ function mergeClosePoints(control: Float64Array, values: Float64Array, columns: 
   return [mergedControl, mergedValues];
 }
 
-/** The 4 frame corners and 4 edge midpoints, (8, 2) flat (landmarks.tps.border_points). */
+/** The 4 frame corners and 4 edge midpoints, (8, 2) flat (landmarks.warp.tps.border_points). */
 function borderPoints(height: number, width: number): number[] {
   const right = width - 1, bottom = height - 1;
   return [0, 0, right / 2, 0, right, 0, right, bottom / 2, right, bottom, right / 2, bottom, 0, bottom, 0, bottom / 2];
@@ -325,7 +325,7 @@ export function foldedFraction(mapX: Float64Array, mapY: Float64Array, rows: num
 }
 
 /** Least-squares similarity (no reflection) control -> values: an affine [a, b, c, d, e, f], or null when the
- * control points have no spread (landmarks.tps.fit_similarity). */
+ * control points have no spread (landmarks.warp.tps.fit_similarity). */
 function fitSimilarity(control: Float64Array, values: Float64Array): number[] | null {
   const count = control.length / 2;
   let sx = 0, sy = 0, vx = 0, vy = 0;
@@ -351,7 +351,7 @@ function fitSimilarity(control: Float64Array, values: Float64Array): number[] | 
 
 // ---- maps ---------------------------------------------------------------------------------------------------
 
-/** A backward map on its grid (landmarks.tps.GridMap): output (x, y) samples the source at (mapX, mapY);
+/** A backward map on its grid (landmarks.warp.tps.GridMap): output (x, y) samples the source at (mapX, mapY);
  * mapX, mapY: (grid rows, grid cols) flat; `densifyGrid(grid, ...)` makes per-pixel values. */
 export interface GridMap {
   mapX: Float64Array;
@@ -363,7 +363,7 @@ export interface GridMap {
   grid: CoarseGrid;
 }
 
-/** A dense backward map (landmarks.tps.WarpMap): (H, W) float32 source pixel coordinates. */
+/** A dense backward map (landmarks.warp.tps.WarpMap): (H, W) float32 source pixel coordinates. */
 export interface WarpMap {
   mapX: Float32Array;
   mapY: Float32Array;
@@ -418,7 +418,7 @@ function slotMap(mapped: Float64Array, columns: number, slot: number): [Float64A
   return [mapX, mapY, finite];
 }
 
-/** tps_map on its grid, not yet dense (landmarks.tps.tps_grid_map): the backward map of the warp that moves
+/** tps_map on its grid, not yet dense (landmarks.warp.tps.tps_grid_map): the backward map of the warp that moves
  * sourcePoints (N, 2) onto targetPoints (N, 2) in an (H, W) frame (rows with NaN ignored). Never throws for
  * degenerate point sets: retries with more regularisation, then a similarity, then the identity. */
 export function tpsGridMap(sourcePoints: Tensor, targetPoints: Tensor, height: number, width: number,
@@ -469,14 +469,14 @@ function dense(map: GridMap): WarpMap {
   return { ...rest, mapX: densifyGrid(grid, mapX), mapY: densifyGrid(grid, mapY) };
 }
 
-/** The dense backward map of the warp moving sourcePoints onto targetPoints (landmarks.tps.tps_map). */
+/** The dense backward map of the warp moving sourcePoints onto targetPoints (landmarks.warp.tps.tps_map). */
 export function tpsMap(sourcePoints: Tensor, targetPoints: Tensor, height: number, width: number,
                        settings: TpsSettings = {}): WarpMap {
   return dense(tpsGridMap(sourcePoints, targetPoints, height, width, settings));
 }
 
 /** tps_map of several source point sets onto one target, sharing the merge, one solve and the kernel on the grid
- * (landmarks.tps.tps_maps); a set with other missing points than the target's, or whose first-try map is
+ * (landmarks.warp.tps.tps_maps); a set with other missing points than the target's, or whose first-try map is
  * rejected, goes through tpsMap alone (with its retries and fallbacks). */
 export function tpsMaps(sourceSets: Tensor[], targetPoints: Tensor, height: number, width: number,
                         settings: TpsSettings = {}): WarpMap[] {
@@ -522,7 +522,7 @@ export function tpsGridMaps(sourceSets: Tensor[], targetPoints: Tensor, height: 
   return maps.map((map, index) => map ?? tpsGridMap(sourceSets[index], targetPoints, height, width, o));
 }
 
-/** (H, W) float32 in {0, 1}: the map samples inside the source image (landmarks.tps.WarpMap.valid). */
+/** (H, W) float32 in {0, 1}: the map samples inside the source image (landmarks.warp.tps.WarpMap.valid). */
 export function warpValidMask(map: Pick<WarpMap, "mapX" | "mapY">, sourceHeight: number, sourceWidth: number,
                               out?: Float32Array): Float32Array {
   const f = Math.fround, slack = 1e-3;  // numpy compares the float32 maps with float32 bounds

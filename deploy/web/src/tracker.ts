@@ -1,7 +1,7 @@
-// The default face tracker of the live path: landmarks/mesh_track.py (MeshDetector, MeshTracker, _refined, mesh_box)
-// on landmarks/mesh.py's nets (facedetect.ts, facemesh.ts), and the iBUG-68 points from the mesh: landmarks/mesh68.py
-// (mesh_to_68, its jaw following the head's yaw) with landmarks/mesh_pose.py (mesh_head_pose: Kabsch against the
-// canonical mesh over its rigid vertices) and landmarks/track.py (pick_face, box_iou).
+// The default face tracker of the live path: landmarks/detect/mediapipe_tracker.py (MeshDetector, MeshTracker, _refined, mesh_box)
+// on landmarks/detect/mediapipe_mesh.py's nets (facedetect.ts, facemesh.ts), and the iBUG-68 points from the mesh: landmarks/shape/mesh68.py
+// (mesh_to_68, its jaw following the head's yaw) with landmarks/motion/mesh_rotation.py (mesh_head_pose: Kabsch against the
+// canonical mesh over its rigid vertices) and landmarks/detect/dlib_tracker.py (pick_face, box_iou).
 //
 // Assets, paths relative to the Python's landmarks/assets folder (TRACKER_ASSET_FILES): the three MediaPipe ONNX
 // graphs and the two fitted JSON records. In a browser: loadTrackerAssets((path) => fetch(base + path) as bytes),
@@ -16,11 +16,11 @@ import { fusePRelu } from "./prelu.js";
 import { Tensor, tensor } from "./tensor.js";
 
 export const TRACKER_ASSET_FILES = {
-  detector: "mediapipe/face_detection_short_range.onnx", // landmarks.mesh.DETECTOR_FILE
-  mesh: "mediapipe/face_landmark.onnx", // landmarks.mesh.MESH_FILE
-  iris: "mediapipe/iris_landmark.onnx", // landmarks.mesh.IRIS_FILE
-  mesh68: "mesh68.json", // landmarks.mesh68.MAPPING_FILE
-  canonical: "mesh_canonical.json", // landmarks.mesh_pose.CANONICAL_FILE
+  detector: "mediapipe/face_detection_short_range.onnx", // landmarks.detect.mediapipe_mesh.DETECTOR_FILE
+  mesh: "mediapipe/face_landmark.onnx", // landmarks.detect.mediapipe_mesh.MESH_FILE
+  iris: "mediapipe/iris_landmark.onnx", // landmarks.detect.mediapipe_mesh.IRIS_FILE
+  mesh68: "mesh68.json", // landmarks.shape.mesh68.MAPPING_FILE
+  canonical: "mesh_canonical.json", // landmarks.motion.mesh_rotation.CANONICAL_FILE
 } as const;
 
 /** landmarks/assets/mesh68.json: per iBUG point, [[vertex, weight], ...] at yaw 0 and per 30 degrees of yaw. */
@@ -33,8 +33,8 @@ export interface TrackerAssets {
 }
 
 export const NUM_LANDMARKS = 68;
-export const YAW_SCALE = 30; // landmarks.mesh68.YAW_SCALE
-export const MAX_YAW = 45; // landmarks.mesh68.MAX_YAW
+export const YAW_SCALE = 30; // landmarks.shape.mesh68.YAW_SCALE
+export const MAX_YAW = 45; // landmarks.shape.mesh68.MAX_YAW
 
 /** The 68-from-468 mapping, sparse (CSR) rows, and the canonical mesh's rigid vertices for the yaw. */
 export interface Mesh68Mapping {
@@ -53,7 +53,7 @@ function sparse(rows: [number, number][][]): { start: Int32Array; vertex: Int32A
   return { start, vertex, weight };
 }
 
-/** The mapping of landmarks.mesh68 (mapping, yaw_mapping) and the canonical record of landmarks.mesh_pose. */
+/** The mapping of landmarks.shape.mesh68 (mapping, yaw_mapping) and the canonical record of landmarks.motion.mesh_rotation. */
 export function mesh68Mapping(mesh68: Mesh68Record, canonical: CanonicalRecord): Mesh68Mapping {
   const rows = sparse(mesh68.rows), yaw = sparse(mesh68.yaw_rows);
   const rigid = Int32Array.from(canonical.rigid.flatMap((flag, i) => (flag ? [i] : [])));
@@ -96,9 +96,9 @@ function topEigenvector(a: Float64Array): Float64Array {
   return Float64Array.from([0, 1, 2, 3], (k) => v[4 * k + best]);
 }
 
-/** The head's yaw in degrees from a (468, 3) flat mesh (landmarks.mesh_pose.mesh_head_pose's yaw): the rotation of
+/** The head's yaw in degrees from a (468, 3) flat mesh (landmarks.motion.mesh_rotation.mesh_head_pose's yaw): the rotation of
  * the canonical mesh onto it over the rigid vertices (Kabsch, here in Horn's quaternion form: the same optimal
- * proper rotation), then landmarks.pose.angles_from_rotation. NaN when the mesh is not finite. */
+ * proper rotation), then landmarks.motion.head_pose.angles_from_rotation. NaN when the mesh is not finite. */
 export function meshHeadYaw(mesh: Float32Array | Float64Array, mapping: Mesh68Mapping): number {
   const { rigid, canonical } = mapping, n = rigid.length;
   const mean = [0, 0, 0];
@@ -121,7 +121,7 @@ export function meshHeadYaw(mesh: Float32Array | Float64Array, mapping: Mesh68Ma
   return (-Math.atan2(-r20, r22) * 180) / Math.PI;
 }
 
-/** (468, 3) mesh -> (68, 2) iBUG points (landmarks.mesh68.mesh_to_68): the mapping's rows, plus the jaw's yaw rows
+/** (468, 3) mesh -> (68, 2) iBUG points (landmarks.shape.mesh68.mesh_to_68): the mapping's rows, plus the jaw's yaw rows
  * times clip(yaw, +-45) / 30. */
 export function meshTo68(mesh: Tensor, mapping: Mesh68Mapping): Tensor<Float64Array> {
   if (mesh.data.length !== MESH_POINTS * 3) throw new Error(`mesh must be (468, 3), got [${mesh.shape}]`);
@@ -149,7 +149,7 @@ export function meshTo68Records(mesh: Tensor, mesh68: Mesh68Record, canonical: C
   return meshTo68(mesh, mesh68Mapping(mesh68, canonical));
 }
 
-/** x0, y0, x1, y1 of a (468, 3) flat mesh's x, y (landmarks.mesh_track.mesh_box). */
+/** x0, y0, x1, y1 of a (468, 3) flat mesh's x, y (landmarks.detect.mediapipe_tracker.mesh_box). */
 export function meshBox(mesh: Float32Array): [number, number, number, number] {
   let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
   for (let i = 0; i < MESH_POINTS; i++) {
@@ -163,14 +163,14 @@ function boxArea(box: number[]): number {
   return Math.max(box[2] - box[0], 0) * Math.max(box[3] - box[1], 0);
 }
 
-/** Intersection over union of two boxes (landmarks.track.box_iou). */
+/** Intersection over union of two boxes (landmarks.detect.dlib_tracker.box_iou). */
 export function boxIou(a: number[], b: number[]): number {
   const inter = Math.max(0, Math.min(a[2], b[2]) - Math.max(a[0], b[0])) * Math.max(0, Math.min(a[3], b[3]) - Math.max(a[1], b[1]));
   const union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter;
   return union > 0 ? inter / union : 0;
 }
 
-/** Which face (boxes largest first) to track (landmarks.track.pick_face): after a loss the one overlapping the last
+/** Which face (boxes largest first) to track (landmarks.detect.dlib_tracker.pick_face): after a loss the one overlapping the last
  * tracked box (IoU > 0.3), else the faceIndex-th; null when there are too few. */
 export function pickFace(boxes: number[][], lastBox: number[] | null, faceIndex: number): number | null {
   if (lastBox !== null && boxes.length > 0) {
@@ -189,7 +189,7 @@ export interface TrackerOptions {
   maxShift?: number; // 0.4
 }
 
-/** One face's mesh and 68 points through frames (landmarks.mesh_track.MeshTracker with its MeshDetector): the mesh
+/** One face's mesh and 68 points through frames (landmarks.detect.mediapipe_tracker.MeshTracker with its MeshDetector): the mesh
  * net in the region of the previous frame's mesh; a full detection (then two mesh passes) on the first frame, and
  * whenever the face's presence drops or it jumps. */
 export class MeshTracker {
@@ -212,14 +212,14 @@ export class MeshTracker {
     this.mesh = null; this.irises = null; this.lastBox = null; this.detections = 0;
   }
 
-  /** Mesh from a detection's region, then once more from the mesh's own region (landmarks.mesh_track._refined). */
+  /** Mesh from a detection's region, then once more from the mesh's own region (landmarks.detect.mediapipe_tracker._refined). */
   async refined(image: Tensor<Uint8Array>, detection: Detection): Promise<MeshResult> {
     const first = await this.faceMesh.predictMesh(image, regionFromDetection(detection));
     const second = await this.faceMesh.predictMesh(image, regionFromMesh(first.mesh));
     return second.presence >= first.presence * 0.5 ? second : first;
   }
 
-  /** Every face's detection and mesh, largest first (landmarks.mesh_track.MeshDetector.meshes). */
+  /** Every face's detection and mesh, largest first (landmarks.detect.mediapipe_tracker.MeshDetector.meshes). */
   async meshes(image: Tensor<Uint8Array>): Promise<MeshResult[]> {
     const found: MeshResult[] = [];
     for (const detection of await this.detector.detectTiled(image)) {
@@ -247,7 +247,7 @@ export class MeshTracker {
     return choice === null ? null : found[choice];
   }
 
-  /** Track one frame (landmarks.mesh_track.MeshTracker.update). frame: (H, W, 3) uint8 RGB. Returns (68, 2) frame
+  /** Track one frame (landmarks.detect.mediapipe_tracker.MeshTracker.update). frame: (H, W, 3) uint8 RGB. Returns (68, 2) frame
    * pixels, or null (no face: detection runs again on the next frame). */
   async update(frame: Tensor<Uint8Array>): Promise<Tensor<Float64Array> | null> {
     if (frame.shape.length !== 3 || frame.shape[2] !== 3 || !(frame.data instanceof Uint8Array)) {
@@ -301,7 +301,7 @@ export interface TrackRun {
   landmarks: Tensor<Float64Array>; meshes: Tensor<Float32Array>; irises: Tensor<Float64Array>; detections: number; ms: Float64Array;
 }
 
-/** Node: track (T, H, W, 3) uint8 frames from a fresh start (landmarks.track.FrameTracker.track_frames) with the
+/** Node: track (T, H, W, 3) uint8 frames from a fresh start (landmarks.detect.dlib_tracker.FrameTracker.track_frames) with the
  * assets of a landmarks/assets folder. */
 export async function trackFramesDetailed(assetsFolder: string, frames: Tensor<Uint8Array>, options: TrackerOptions = {}): Promise<TrackRun> {
   const [count, height, width] = frames.shape;

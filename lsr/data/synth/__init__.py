@@ -16,7 +16,7 @@ from lsr.data.synth.generate import (
     render_framed,
     render_video,
 )
-from lsr.data.synth.presets import PRESET_NAMES, PRESETS, Preset, get_preset
+from lsr.data.synth.distributions import PRESET_NAMES, PRESETS, Preset, get_preset
 
 __all__ = [
     "PRESETS",
@@ -35,7 +35,7 @@ __all__ = [
 
 
 def write_preview(*args, **kwargs):
-    """See ``lsr.data.synth.preview.write_preview`` (imported lazily: it needs landmarks.raster)."""
+    """See ``lsr.data.synth.preview.write_preview`` (imported lazily: it needs landmarks.shape.raster)."""
     from lsr.data.synth.preview import write_preview as _write_preview
 
     return _write_preview(*args, **kwargs)

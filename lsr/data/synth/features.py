@@ -7,7 +7,7 @@ points of the same curves lifted onto that surface (``geometry.py``). Because on
 gives both, landmarks sit exactly on the painted borders (eye and lip outlines, brow centre
 lines).
 
-"Left" follows ``landmarks.parts``: the image-left feature of a frontal face (iBUG 17-21, 36-41),
+"Left" follows ``landmarks.shape.ibug68``: the image-left feature of a frontal face (iBUG 17-21, 36-41),
 which gets class ``l_brow`` / ``l_eye`` (see docs/DATA_FORMAT.md).
 """
 
@@ -18,7 +18,7 @@ import dataclasses
 import numpy as np
 
 from lsr.data.classes import SEG_CLASS_ID
-from lsr.data.synth.identity import Identity
+from lsr.data.synth.persons import Identity
 
 SKIN, NOSE, MOUTH, U_LIP, L_LIP = (SEG_CLASS_ID[n] for n in ("skin", "nose", "mouth", "u_lip", "l_lip"))
 L_EYE, R_EYE, L_BROW, R_BROW, GLASSES = (SEG_CLASS_ID[n] for n in ("l_eye", "r_eye", "l_brow", "r_brow", "eyeglasses"))

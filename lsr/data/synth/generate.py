@@ -18,9 +18,9 @@ import numpy as np
 
 from lsr.data.synth import effects
 from lsr.data.synth.geometry import HeadPose, head_landmarks, head_parts, make_camera
-from lsr.data.synth.identity import Identity, sample_identity, sample_scene
+from lsr.data.synth.persons import Identity, sample_identity, sample_scene
 from lsr.data.synth.motion import Motion, sample_motion
-from lsr.data.synth.presets import Preset, get_preset
+from lsr.data.synth.distributions import Preset, get_preset
 from lsr.data.synth.render import background_image, render_head
 from lsr.errors import ConfigError
 

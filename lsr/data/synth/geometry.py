@@ -5,7 +5,7 @@ camera, units ~ the head half-width. Camera: the same axes; a point maps to pixe
 orthographic camera ``px = cx + scale * x``, ``py = cy + scale * y`` (pixel centres at integer
 coordinates, as in dlib/OpenCV), so rays are lines of constant (x, y) along +z.
 A head point p goes to the camera by ``R (p - PIVOT) + PIVOT + shift`` with
-``R = landmarks.pose.rotation_matrix(yaw, pitch, roll)``: the head turns about the top of the
+``R = landmarks.motion.head_pose.rotation_matrix(yaw, pitch, roll)``: the head turns about the top of the
 neck, and the pose recorded in ``pose.npy`` is exactly (yaw, pitch, roll) of that R.
 
 Landmarks (iBUG-68). Brows, eyes, lips and the nose base come from the feature curves of
@@ -24,9 +24,9 @@ import functools
 
 import numpy as np
 
-from landmarks.pose import rotation_matrix
+from landmarks.motion.head_pose import rotation_matrix
 from lsr.data.synth.features import FaceLayout, face_layout, landmarks_uv
-from lsr.data.synth.identity import Identity
+from lsr.data.synth.persons import Identity
 
 PIVOT = np.array([0.0, 0.45, 0.1])  # top of the neck, head-local = camera at rest
 FRAME_CENTRE_Y = 0.45  # camera y = 0 sits at 45% of the image height

@@ -4,7 +4,7 @@ Every signal is a sum of a few random sinusoids (smooth, bounded, deterministic 
 rng) around a per-video mean; the mouth follows a syllable rhythm (3-5 Hz) under a slower
 speech/pause envelope; blinks are short dips of eye openness at random times.
 
-Pose conventions are those of ``landmarks.pose``: yaw > 0 turns the face towards the image
+Pose conventions are those of ``landmarks.motion.head_pose``: yaw > 0 turns the face towards the image
 right (the nose tip moves right), pitch > 0 tilts it up, roll > 0 rotates it clockwise on
 screen. Angles in degrees.
 """
@@ -15,7 +15,7 @@ import dataclasses
 
 import numpy as np
 
-from lsr.data.synth.presets import Preset
+from lsr.data.synth.distributions import Preset
 
 
 @dataclasses.dataclass

@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from landmarks.raster import draw_landmarks
+from landmarks.shape.raster import draw_landmarks
 from lsr.data.classes import colorize_segmentation
 from lsr.data.synth.generate import identity_seed_of, render_video
 
@@ -41,7 +41,7 @@ def contact_sheet(rows: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
 
 def write_preview(path: str | Path, identities: int = 6, size: int = 128, seed: int = 0, preset: str = "default", frames: int = 24) -> Path:
     """Render ``identities`` people (one sampled frame each, spread over the clip) and write the sheet PNG atomically."""
-    from landmarks.imageio import write_image
+    from landmarks.io.image_files import write_image
 
     rows = []
     for i in range(identities):

@@ -17,7 +17,7 @@ import numpy as np
 from lsr.data.classes import SEG_CLASS_ID
 from lsr.data.synth.features import FaceLayout, paint_face
 from lsr.data.synth.geometry import Camera, Ellipsoid, HeadParts, HeadPose, PIVOT, ray_entry_z
-from lsr.data.synth.identity import Identity, Scene
+from lsr.data.synth.persons import Identity, Scene
 
 HAIR, HAT, NECK, CLOTH = (SEG_CLASS_ID[n] for n in ("hair", "hat", "neck", "cloth"))
 L_EAR, R_EAR = SEG_CLASS_ID["l_ear"], SEG_CLASS_ID["r_ear"]

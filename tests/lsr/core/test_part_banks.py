@@ -35,7 +35,7 @@ def reenactor(tmp_path_factory):
 
 
 def _write(path: Path, frames) -> Path:
-    from landmarks.video import VideoWriter
+    from landmarks.io.video import VideoWriter
 
     with VideoWriter(path, 25) as writer:
         for frame in frames:
@@ -60,7 +60,7 @@ class Clips:
 
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory) -> Clips:
-    from landmarks.imageio import write_image
+    from landmarks.io.image_files import write_image
     from lsr.data.synth import render_video
 
     folder = tmp_path_factory.mktemp("clips")
@@ -111,7 +111,7 @@ def _switches(entries: list[int | None]) -> int:
 
 
 def test_a_video_sources_bank_all_holds_every_frame_with_a_face_and_shots_only_its_k_shots(driven):
-    from landmarks.bank.eye_bank import cut_eyes
+    from landmarks.parts.eyes.eye_bank import cut_eyes
 
     subject = driven.subject
     assert subject.shots.video is not None and len(subject.shots.frames) == K
@@ -138,7 +138,7 @@ def test_a_source_frame_without_a_face_is_skipped_by_the_bank_and_a_video_withou
 
 
 def test_the_eye_bank_changes_the_output_around_the_eyes_only(driven):
-    from landmarks.smooth import inter_ocular_distance
+    from landmarks.motion.smooth import inter_ocular_distance
 
     assert [f.has_face for f in driven.frames["all"]] == [True] * DRIVER_FRAMES
     for plain, banked in zip(driven.frames["none"], driven.frames["all"], strict=True):
@@ -158,8 +158,8 @@ def test_the_eye_bank_changes_the_output_around_the_eyes_only(driven):
 
 
 def test_frames_carry_the_banks_choice_which_is_held_rather_than_chosen_afresh_each_frame(driven):
-    from landmarks.bank.eye_bank import EyeBankTrack
-    from landmarks.bank.hysteresis import EntryTrack
+    from landmarks.parts.eyes.eye_bank import EyeBankTrack
+    from landmarks.parts.hysteresis import EntryTrack
 
     assert all(f.eye_choice is None and f.mouth_choice is None for f in driven.frames["none"])
     banked = driven.frames["all"]
@@ -219,7 +219,7 @@ def test_an_unknown_bank_setting_is_a_value_error_that_names_it(reenactor, setti
 
 
 def test_a_live_session_takes_the_banks_eyes_and_chooses_afresh_after_a_face_less_frame(reenactor, driven, clips):
-    from lsr.core.live import LiveSession
+    from lsr.core.live_session import LiveSession
 
     camera = clips.driver_frames
     session = LiveSession(reenactor, driven.subject, paste_back=False, watermark=False)

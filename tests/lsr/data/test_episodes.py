@@ -166,7 +166,7 @@ class TestAugmentation:
 
 
 def test_warp_references_are_the_nearest_shots_warped_onto_the_target(dataset_root: Path):
-    from landmarks.tps import warp_references
+    from landmarks.warp.tps import warp_references
 
     dataset = EpisodeDataset(dataset_root, split=None, shots=4, seed=3, warp_references=2)
     item = dataset[5]
@@ -183,7 +183,7 @@ def test_warp_references_are_the_nearest_shots_warped_onto_the_target(dataset_ro
 
 
 def test_expression_episodes_open_the_mouth_beyond_every_shot(dataset_root: Path):
-    from landmarks.expression import mouth_opening
+    from landmarks.shape.expression import mouth_opening
 
     dataset = EpisodeDataset(dataset_root, shots=2, shots_from="identity", seed=4, episodes=12, expression_episodes=1.0)
     plain = EpisodeDataset(dataset_root, shots=2, shots_from="identity", seed=4, episodes=12)

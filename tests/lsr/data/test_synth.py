@@ -123,8 +123,8 @@ def test_jaw_follows_the_silhouette_at_large_yaw() -> None:
 
 def test_pose_sign_conventions() -> None:
     """yaw > 0: nose tip right of the jaw midpoint; pitch > 0: nose tip up (towards the eyes); roll > 0:
-    clockwise (image-right eye lower); and landmarks.pose's PnP estimate follows the ground-truth yaw."""
-    from landmarks.pose import estimate_head_pose
+    clockwise (image-right eye lower); and landmarks.motion.head_pose's PnP estimate follows the ground-truth yaw."""
+    from landmarks.motion.head_pose import estimate_head_pose
 
     clips = [render_video(identity_seed_of(3, i), 10, 128, "extreme_pose") for i in range(6)]
     pose_truth = np.concatenate([clip.pose for clip in clips])
@@ -205,8 +205,8 @@ def test_dlib_finds_near_frontal_faces() -> None:
     a systematic domain gap (dlib's shape model vs our geometry, e.g. brows on their centre line), far from
     what a mirrored or re-ordered annotation gives (> 0.3, checked below). Gate: median NMKE < 0.15.
     """
-    from landmarks.detect import DlibDetector
-    from landmarks.parts import MIRROR_INDEX
+    from landmarks.detect.face_detector import DlibDetector
+    from landmarks.shape.ibug68 import MIRROR_INDEX
 
     detector = DlibDetector("hog", upsample=2, min_score=0.0)
     hits, errors, mirrored = [], [], []

@@ -46,13 +46,13 @@ def test_load_lsr_split_keeps_holdout_segmentation(ablation_setup):
 
 @pytest.mark.slow
 def test_lsr_eval_scores_every_variant(ablation_setup, tmp_path, monkeypatch, no_face_detector):
-    import landmarks.detectors
+    import landmarks.detect.registry
 
     from lsr.config import EvalConfig
     from lsr.eval import report
 
     data, folders = ablation_setup
-    monkeypatch.setattr(landmarks.detectors, "make_detector", no_face_detector)
+    monkeypatch.setattr(landmarks.detect.registry, "make_detector", no_face_detector)
     cfg = EvalConfig(data=data, out=tmp_path / "out", k=(1,), methods=(), weights=tuple(folders), inputs=4, holdouts=2,
                      progress=False, examples=0)
     cfg.validate()

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from landmarks import tps
-from landmarks.pose import project_canonical
+from landmarks.warp import tps
+from landmarks.motion.head_pose import project_canonical
 from lsr.eval import metrics
 from lsr.eval.baselines import NearestShot, TpsMean3, TpsWarp, nearest_shot_indices
 

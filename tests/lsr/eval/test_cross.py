@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from landmarks.expression import eye_opening, mouth_opening
-from landmarks.pose import project_canonical
-from landmarks.scene import composite_face, head_region
+from landmarks.shape.expression import eye_opening, mouth_opening
+from landmarks.motion.head_pose import project_canonical
+from landmarks.scene.compositing import composite_face, head_region
 from lsr.eval import cross, metrics
 
 SIZE = 128

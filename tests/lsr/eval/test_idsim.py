@@ -17,8 +17,8 @@ def test_cosine_similarity_basics():
 
 @pytest.mark.slow
 def test_same_identity_is_more_similar_than_different(shared_data):
-    from landmarks.detect import DlibDetector
-    from landmarks.imageio import read_image
+    from landmarks.detect.face_detector import DlibDetector
+    from landmarks.io.image_files import read_image
 
     root = shared_data / "fsth_eval_sample"
     if not root.is_dir():

@@ -211,7 +211,7 @@ def test_config_checks_weight_files(tmp_path):
 
 
 def test_report_with_lpips_and_fid(tmp_path, lpips_file, extractor_files, capsys, monkeypatch, no_face_detector):
-    from landmarks import detectors
+    from landmarks.detect import registry as detectors
     from lsr.data.synth.generate import generate_dataset
     from lsr.eval import report
 

@@ -15,7 +15,7 @@ SIZE = 96
 def synthetic_identities() -> list[protocol.EvalIdentity]:
     """Two synthetic people (lsr.data.synth), 5 inputs + 3 hold-outs each at 96 px, with the mesh detector's
     landmarks and meshes (what ``load_fsth_sample`` gives with the default detector)."""
-    from landmarks.mesh_track import MeshDetector
+    from landmarks.detect.mediapipe_tracker import MeshDetector
     from lsr.data.synth import render_video
 
     detector = MeshDetector()
@@ -39,7 +39,7 @@ def _inputs(identity: protocol.EvalIdentity):
 
 
 def test_detected_landmarks_are_the_meshes_68_points(synthetic_identities):
-    from landmarks.mesh68 import mesh_to_68
+    from landmarks.shape.mesh68 import mesh_to_68
 
     for identity in synthetic_identities:
         found = np.isfinite(identity.input_landmarks).all(axis=(1, 2))
@@ -105,7 +105,7 @@ def test_runner_passes_meshes_self_and_cross_and_skips_identities_without(synthe
 
 
 def test_retargeted_meshes_follow_the_sequence_targets(synthetic_identities):
-    from landmarks.mesh68 import mesh_to_68
+    from landmarks.shape.mesh68 import mesh_to_68
     from lsr.eval import cross
 
     source, driver = synthetic_identities
@@ -130,7 +130,7 @@ def test_retargeted_meshes_follow_the_sequence_targets(synthetic_identities):
 
 
 def test_lsr_eval_with_a_detector_without_meshes_skips_the_mesh_baselines(tmp_path, monkeypatch, no_face_detector):
-    import landmarks.detectors
+    import landmarks.detect.registry
 
     from lsr.config import EvalConfig
     from lsr.data.synth.generate import generate_dataset
@@ -138,7 +138,7 @@ def test_lsr_eval_with_a_detector_without_meshes_skips_the_mesh_baselines(tmp_pa
 
     root = tmp_path / "synth"
     generate_dataset(root, identities=2, videos_per_identity=1, frames=6, size=64, test_fraction=0.5, progress=False)
-    monkeypatch.setattr(landmarks.detectors, "make_detector", no_face_detector)  # like dlib's: 68 points, no mesh
+    monkeypatch.setattr(landmarks.detect.registry, "make_detector", no_face_detector)  # like dlib's: 68 points, no mesh
     cfg = EvalConfig(data=root, out=tmp_path / "out", k=(1,), inputs=3, holdouts=2, progress=False, examples=0,
                      cross_identity=False)
     cfg.validate()

@@ -135,7 +135,7 @@ class _FixedFaceDetector:
         self.face_landmarks = landmarks.astype(np.float32)
 
     def detect(self, image):
-        from landmarks.detect import Face
+        from landmarks.detect.face_detector import Face
 
         return [Face(np.array([0, 0, 1, 1], np.float32), self.face_landmarks, 1.0)]
 
@@ -152,7 +152,7 @@ class _TargetSpy:
 
 
 def _posed_identity(rng: np.random.Generator, name: str, size: int = 96, count: int = 5) -> protocol.EvalIdentity:
-    from landmarks.pose import project_canonical
+    from landmarks.motion.head_pose import project_canonical
 
     def face(yaw: float, mouth: float) -> np.ndarray:
         points = project_canonical(yaw, 0.0, 0.0, (size, size)).astype(np.float64)
@@ -166,9 +166,9 @@ def _posed_identity(rng: np.random.Generator, name: str, size: int = 96, count: 
 
 
 def test_cross_identity_is_retargeted_composited_and_measured(rng):
-    from landmarks.eyelids import running_reference_gaps
-    from landmarks.expression import mouth_opening, pick_anchor
-    from landmarks.retarget import retarget_driving
+    from landmarks.parts.eyes.lids import running_reference_gaps
+    from landmarks.shape.expression import mouth_opening, pick_anchor
+    from landmarks.motion.retarget_points import retarget_driving
 
     identities = [_posed_identity(rng, "a"), _posed_identity(rng, "b")]
     first, second = _TargetSpy("first"), _TargetSpy("second")
@@ -222,7 +222,7 @@ class _ReadsTargetDetector:
         self.table = holdout_landmarks.astype(np.float32)
 
     def detect(self, image):
-        from landmarks.detect import Face
+        from landmarks.detect.face_detector import Face
 
         row = int(image[0, 0, 0]) - 10
         return [Face(np.array([0, 0, 1, 1], np.float32), self.table[row], 1.0)] if 0 <= row < len(self.table) else []
@@ -279,7 +279,7 @@ def test_moving_parts_are_scored_and_judged_beside_the_other_metrics(rng):
 
 
 def test_covering_shots_are_the_ones_lsr_reenact_would_choose(rng):
-    from lsr.core.sources import choose_shots
+    from lsr.core.inputs import choose_shots
 
     identity = _posed_identity(rng, "a")
     spy = _SpyMethod()
@@ -311,20 +311,20 @@ class _GazeSpy(_TargetSpy):
 
 
 def test_drawn_eyes_get_the_holdouts_gaze_and_cross_identity_the_drivers_relative_gaze(rng, monkeypatch):
-    import lsr.core.parts
+    import lsr.core.finish
 
     def fake_gazes(frames, landmarks):  # each frame's mean grey as its gaze: distinct per frame, no iris net
         values = np.array([frame.mean() / 255.0 for frame in frames])
         return np.repeat(values[:, None, None], 2, axis=1) * np.array([1.0, 0.5])
 
-    monkeypatch.setattr(lsr.core.parts, "sequence_gazes", fake_gazes)  # read at each call (lsr.eval.parts.gaze_inputs)
+    monkeypatch.setattr(lsr.core.finish, "sequence_gazes", fake_gazes)  # read at each call (lsr.eval.part_regions.gaze_inputs)
     identities = [_posed_identity(rng, "a"), _posed_identity(rng, "b")]
     spy, plain = _GazeSpy("eyes"), _TargetSpy("plain")
     analysis = protocol.FaceAnalysis(_FixedFaceDetector(identities[0].holdout_landmarks[2]))
     protocol.run_protocol([spy, plain], identities, [5], analysis, finetune=False, progress=False)
     self_a, cross_a = spy.gazes[0], spy.gazes[1]  # identity a: self, then driven by b
     np.testing.assert_allclose(self_a, fake_gazes(identities[0].holdout_frames, None))
-    from landmarks.expression import pick_anchor
+    from landmarks.shape.expression import pick_anchor
 
     anchor = pick_anchor(identities[0].input_landmarks.astype(np.float64), (96, 96))
     driver = fake_gazes(identities[1].holdout_frames, None)

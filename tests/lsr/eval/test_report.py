@@ -106,7 +106,7 @@ def test_lsr_eval_on_two_real_identities(shared_data, tmp_path, capsys):
     assert all(np.isfinite(row["sharpness"]) and row["sharpness"] > 0 for row in rows.values())
     assert rows["tps"]["nmke"] < rows["nearest_shot"]["nmke"]  # warping onto the target landmarks fixes the pose
     assert list((tmp_path / "out" / "examples").glob("tps_k1_*.png"))
-    from landmarks.imageio import read_image
+    from landmarks.io.image_files import read_image
 
     figure = read_image(tmp_path / "compare.png")  # 2 identities x (5 methods + ground truth), under a title strip
     assert figure.shape == (28 + 2 * 224, 6 * 224, 3)
@@ -120,7 +120,7 @@ def test_lsr_eval_on_two_real_identities(shared_data, tmp_path, capsys):
 
 
 def test_tables_show_paths_relative_to_the_repository_or_home(tmp_path):
-    from lsr.machine import REPO_ROOT, shown_path
+    from lsr.eval.machine import REPO_ROOT, shown_path
 
     assert shown_path(REPO_ROOT / "lsr" / "weights" / "default") == "lsr/weights/default"
     assert shown_path(REPO_ROOT.parent / "shared" / "data" / "x") == "../shared/data/x"

@@ -1,0 +1,204 @@
+"""The inside of an open mouth, from the driver's own frame (issue 40, item 3: a cavity and teeth as the driver
+shows them).
+
+Where the target opens its mouth wider than the subject's shots, every shot's warp stretches what is inside its
+lips: closed lips, lipstick, a tongue, a row of teeth pulled into vertical stripes. The network and the nearest
+shot's mouth (``landmarks.parts.mouth.nearest_mouth``) cannot draw what no shot shows. The driver's frame shows it: the dark
+cavity, the teeth and the tongue at this very moment, in the lip shape the target was given (retargeting makes
+the target's mouth as open as the driver's). So inside the target's inner lips the synthesis is replaced by the
+driver's mouth interior:
+
+* ``cut_driver_mouth``: the driver frame around its lips (``DriverMouth``), cut on the tracking thread;
+* ``paste_interior``: that patch mapped onto the target by the affine map that best takes the target's 20 lip
+  points onto the driver's (least squares; each target pixel reads the patch there, bicubic), lit as the target
+  is (``match_light``: its brightness and, away from its highlights, half its colour cast taken from the skin
+  around the lips), and laid inside the target's inner-lip polygon, feathered by ``FEATHER`` eye distances, as far
+  as both mouths are open and the driver faces the camera (``interior_strength``).
+
+The lips stay the synthesis' (the subject's), and so does everything outside them. A closed mouth is left as it is.
+What this gives the subject is the driver's teeth and tongue, not the subject's own (MODEL_CARD.md says so).
+numpy + OpenCV only: the torch and ONNX runtimes and the web page (``deploy/web/src/interior.ts``) share it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+
+from landmarks.shape.expression import mouth_opening
+from landmarks.shape.ibug68 import NUM_LANDMARKS
+from landmarks.motion.head_pose import estimate_head_pose
+from landmarks.motion.smooth import inter_ocular_distance
+
+LIPS = slice(48, 68)
+"""The 20 lip points of the 68; of those, the first 12 are the outer lips, the last 8 the inner lips."""
+OUTER, INNER = slice(0, 12), slice(12, 20)
+OPEN = (0.02, 0.04)
+"""Mouth openings (inner-lip gap / eye distance): below the first the interior is the synthesis', from the second
+on wholly the driver's (the lesser of the target's and the driver's opening decides)."""
+REACH = 0.35
+"""The driver's patch: its lips' box grown by this fraction of its eye distance (room for ``RING``)."""
+RING = 0.12
+"""The skin whose brightness is matched: the target's outer-lip polygon grown by this fraction of its eye distance,
+less the lips."""
+GAIN = (0.6, 1.6)
+"""The brightness gain is clipped to this range (a patch of background or hair in the ring). One gain for the three
+channels: a gain per channel matched the skin's tone too, which turned the driver's teeth orange on a ruddier face."""
+FEATHER = 0.012
+"""The inner-lip polygon's edge is feathered by a Gaussian of this fraction of the target's eye distance."""
+TURN = (35.0, 50.0)
+"""Degrees of the driver's head yaw: from the first the interior fades, at the second it is gone. A mouth seen from
+the side shows its teeth edge-on; mapped onto a mouth seen from the front it drew a white blob (on the FSTH sample,
+a driver at 47 degrees)."""
+CAST, FADE = 0.5, 2.0
+"""The share of the colour cast (the skin ring's mean colour less its grey, the synthesis' against the driver's) the
+patch takes on, fading out toward the highlights: a pixel takes ``CAST`` of it up to half the synthesis' brightest
+around the lips (its 99th percentile), none at it (``FADE`` = 1 / that half). The whole cast turned white teeth
+orange on a ruddier face; none left a driver's bluish lips in another video's light; half of it everywhere tinted
+the teeth past what the target's own video shows (on 4 validation pairs re-enacted by ``lsr reenact``, the share
+of teeth-like pixels in the open mouths, ``landmarks.parts.appearance.mouth_interior``, fell from 28% to 18%; with the
+fade 23%)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class DriverMouth:
+    """A driver frame's mouth, cut out for ``paste_interior``."""
+
+    patch: np.ndarray
+    """(h, w, 3) uint8 RGB: the driver frame around its lips."""
+    lips: np.ndarray
+    """(20, 2) float64: the driver's lip points (48-67 of the 68) in the patch's pixels."""
+    opening: float
+    """The driver's mouth opening (``landmarks.shape.expression.mouth_opening``)."""
+    yaw: float = 0.0
+    """The driver's head yaw in degrees (``landmarks.motion.head_pose.estimate_head_pose`` of its 68 points; NaN: not found)."""
+
+
+def finite_points(landmarks: np.ndarray) -> np.ndarray | None:
+    """One face's 68 points as (68, 2) float64, or None where any is not finite (a ValueError for another shape)."""
+    points = np.asarray(landmarks, np.float64)
+    if points.shape != (NUM_LANDMARKS, 2):
+        raise ValueError(f"landmarks must be ({NUM_LANDMARKS}, 2), got {points.shape}")
+    return points if np.isfinite(points).all() else None
+
+
+def cut_around(frame: np.ndarray, points: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The frame (H, W, 3) uint8 RGB around ``points`` (N, 2): their box grown by ``reach`` pixels, clipped to the
+    frame -> (patch (h, w, 3) uint8, a copy; its top-left corner (2,) in the frame's pixels), or None when under 2
+    pixels of the box lie in the frame. The callers check the frame."""
+    x0, y0 = np.maximum(np.floor(points.min(axis=0) - reach), 0).astype(int)
+    x1, y1 = np.minimum(np.ceil(points.max(axis=0) + reach) + 1, (frame.shape[1], frame.shape[0])).astype(int)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    return frame[y0:y1, x0:x1].copy(), np.array([x0, y0])
+
+
+def cut_driver_mouth(frame: np.ndarray, landmarks: np.ndarray) -> DriverMouth | None:
+    """The driver's mouth: frame (H, W, 3) uint8 RGB and its 68 points (frame pixels, as detected) ->
+    ``DriverMouth``, or None when the points are not finite, the mouth is closed (below ``OPEN[0]``) or its box
+    lies outside the frame."""
+    if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+        raise ValueError(f"frame must be (H, W, 3) uint8, got {frame.shape} {frame.dtype}")
+    points = finite_points(landmarks)
+    if points is None:
+        return None
+    opening = float(mouth_opening(points))
+    if not opening >= OPEN[0]:
+        return None
+    cut = cut_around(frame, points[LIPS], REACH * float(inter_ocular_distance(points)))
+    if cut is None:
+        return None
+    yaw = float(estimate_head_pose(points, frame.shape[:2])[0])
+    return DriverMouth(cut[0], points[LIPS] - cut[1], opening, yaw)
+
+
+def interior_strength(landmarks: np.ndarray, mouth: DriverMouth) -> float:
+    """How much of the driver's interior to lay in, in [0, 1]: the lesser of the target's opening (landmarks
+    (68, 2)) and the driver's, from ``OPEN[0]`` (none) to ``OPEN[1]`` (wholly), and less as the driver's head turns
+    from ``TURN[0]`` to ``TURN[1]`` degrees (none where its yaw is unknown)."""
+    opening = min(float(mouth_opening(landmarks)), mouth.opening)
+    if not (np.isfinite(opening) and np.isfinite(mouth.yaw)):
+        return 0.0
+    opened = np.clip((opening - OPEN[0]) / (OPEN[1] - OPEN[0]), 0.0, 1.0)
+    facing = np.clip((TURN[1] - abs(mouth.yaw)) / (TURN[1] - TURN[0]), 0.0, 1.0)
+    return float(opened * facing)
+
+
+def lip_affine(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The (2, 3) affine map that takes the points ``source`` (N, 2) onto ``target`` (N, 2) in least squares."""
+    design = np.hstack([source, np.ones((len(source), 1))])  # (N, 3)
+    solution = np.linalg.lstsq(design, target, rcond=None)[0]  # (3, 2)
+    return solution.T
+
+
+def _polygon(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """A filled polygon's coverage (h, w) float32 in [0, 1], anti-aliased."""
+    mask = np.zeros(shape, np.uint8)
+    cv2.fillPoly(mask, [np.round(points * 4).astype(np.int32)], 255, lineType=cv2.LINE_AA, shift=2)
+    return mask.astype(np.float32) * (1.0 / 255.0)
+
+
+def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: int, cast: float = CAST,
+                fade: float | None = FADE) -> np.ndarray:
+    """The driver's mapped patch ``warped`` (h, w, 3) float32 lit as the target is, against ``region`` (h, w, 3)
+    float32, the synthesis there, whose outer lips cover ``lips`` (h, w) bool with a skin ring ``ring`` pixels wide
+    around them -> a new (h, w, 3) float32: scaled by one gain so that the ring's brightness matches (clipped to
+    ``GAIN``), then shifted by ``cast`` of the difference of the rings' colour casts (mean colour less mean grey),
+    fading out toward the synthesis' brightest there (``fade``; None: no fading, skin laid on skin). The patch as it
+    is where there is no ring.
+
+    Tried and dropped: blurring the patch until no sharper than the synthesis, and softening its highlights above
+    the synthesis' brightest. On a crisp driver's teeth in a dim, soft video (the FSTH sample's id00017) they looked
+    less pasted on, but dlib's 68 points read those mouths less open (on two FSTH pairs' open mouths, the judged
+    opening's slope on the target's 1.00 -> 0.75; in ``lsr eval``'s judged table, mouth correlation 0.65 -> 0.61,
+    gain 0.64 -> 0.55 at K = 8): the synthesis is softer than the video it stands for."""
+    grown = cv2.dilate(lips.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring + 1,) * 2)) > 0
+    skin = grown & ~lips
+    if not skin.any():
+        return warped
+    means = [values[skin].mean(axis=0, dtype=np.float64) for values in (region, warped)]  # (3,) each
+    gain = float(np.clip((means[0].mean() + 1.0) / (means[1].mean() + 1.0), *GAIN))
+    shift = ((means[0] - means[0].mean()) - gain * (means[1] - means[1].mean())) * cast
+    result = warped * np.float32(gain)
+    if fade is None:
+        return (result + shift.astype(np.float32)).astype(np.float32)
+    top = float(np.percentile(region.max(axis=-1)[grown], 99.0))
+    fading = np.clip(fade * (1.0 - result.mean(axis=-1, keepdims=True) / np.float32(max(top, 1.0))), 0.0, 1.0)
+    return (result + fading * shift.astype(np.float32)).astype(np.float32)
+
+
+def paste_interior(image: np.ndarray, landmarks: np.ndarray, mouth: DriverMouth | None) -> np.ndarray:
+    """``image`` (S, S, 3) uint8, the synthesis for the target's 68 points ``landmarks`` (its pixels), with the
+    driver's mouth interior inside the target's inner lips (module docstring): a new array, or ``image`` itself
+    when there is no ``mouth``, the target's points are not finite or either mouth is closed."""
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise ValueError(f"image must be (H, W, 3) uint8, got {image.shape} {image.dtype}")
+    points = finite_points(landmarks)
+    strength = 0.0 if mouth is None or points is None else interior_strength(points, mouth)
+    if strength <= 0:
+        return image
+    eyes = float(inter_ocular_distance(points))
+    ring = max(1, round(RING * eyes))
+    sigma = max(0.4, FEATHER * eyes)
+    lips = points[LIPS]
+    margin = ring + int(np.ceil(3 * sigma)) + 1
+    height, width = image.shape[:2]
+    x0, y0 = np.maximum(np.floor(lips.min(axis=0)) - margin, 0).astype(int)
+    x1, y1 = np.minimum(np.ceil(lips.max(axis=0)) + margin + 1, (width, height)).astype(int)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return image
+    box = (y1 - y0, x1 - x0)
+    local = lips - (x0, y0)
+    # each of the box's pixels reads the patch where the target-to-driver fit puts it (bicubic, as the web page does)
+    warped = cv2.warpAffine(mouth.patch, lip_affine(local, mouth.lips), (box[1], box[0]),
+                            flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
+                            ).astype(np.float32)
+    region = image[y0:y1, x0:x1].astype(np.float32)
+    warped = match_light(warped, region, _polygon(local[OUTER], box) > 0.5, ring)
+    weight = cv2.GaussianBlur(_polygon(local[INNER], box), (0, 0), sigma) * strength
+    result = image.copy()
+    mixed = weight[..., None] * warped + (1.0 - weight[..., None]) * region
+    result[y0:y1, x0:x1] = np.clip(np.rint(mixed), 0, 255).astype(np.uint8)
+    return result

@@ -1,0 +1,174 @@
+"""``lsr export --web OUT``: a static site that re-enacts the example person from the webcam in the browser, with no
+server (issue 42). Any static host serves it; the frames never leave the machine.
+
+What it writes (``OUT``):
+
+* ``index.html``, ``app.js`` (the web runtime, ``deploy/web``, built with npm by ``deploy.web_build``), and
+  onnxruntime-web's module and WASM files;
+* ``models/``: the frame generator and the subject encoder of the model (``lsr export``'s graphs), the face models
+  the tracker runs (MediaPipe's detector, mesh and iris nets, and the 68-from-mesh mapping, as in
+  ``landmarks/assets``) and MediaPipe's selfie segmenter: the page encodes a user's own photos with them
+  (``deploy/web/src/encode.ts``);
+* ``person/``: the example person encoded ahead of time, as ``lsr app``'s live tab encodes it: its K shots
+  (crops) with their 68 points and iris centres (``shot_irises``, for ``eyes`` "warped"), the two latents, the
+  anchor and its gaze (``anchor_gaze``, which the driver's moves; NaN, not found, written as null); its scene (the
+  anchor's frame, its face and crop transform) with the person matte and background plate of the head layer
+  (``landmarks.scene.compositing.background_plate``); pictures as raw uint8 files (``*.u8``, shapes in ``subject.json``);
+* ``site.json``: the sizes and names the page needs; ``NOTICE.md``: where everything comes from.
+
+The site is written into a temporary folder beside ``OUT`` and renamed into place: an interrupted export leaves the
+old site (or none), never half of one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from lsr.config import ExportConfig
+
+# the tracker's assets (deploy/web/src/tracker.ts TRACKER_ASSET_FILES), relative to landmarks/assets
+TRACKER_ASSETS = ("mediapipe/face_detection_short_range.onnx", "mediapipe/face_landmark.onnx",
+                  "mediapipe/iris_landmark.onnx", "mediapipe/LICENSE", "mesh68.json", "mesh_canonical.json")
+# what the page needs to encode a user's own photos (deploy/web/src/encode.ts, segment.ts): the bundle's subject
+# encoder and the selfie segmenter of the person matte (landmarks.scene.person_matte), relative to landmarks/assets
+SUBJECT_ENCODER = "subject_encoder.onnx"
+SEGMENTER = "mediapipe/selfie_segmentation.onnx"
+PAGE = Path(__file__).resolve().parents[2] / "deploy" / "web" / "static"
+
+
+@dataclasses.dataclass
+class WebSite:
+    folder: Path
+    files: list[Path]
+    k: int
+
+
+def _write_json(path: Path, value) -> None:
+    path.write_text(json.dumps(value, separators=(",", ":")))
+
+
+def example_subject(bundle: Path, k: int | None = None):
+    """The example person as the live tab encodes it (``lsr.examples.example_shots``, the shots of the app's example
+    person): (the ``OnnxReenactor`` over ``bundle``, its encoded subject, the scene frame it is composited into)."""
+    from deploy.runtime import OnnxReenactor
+    from lsr.core.scene import SourceScene
+    from lsr.examples import example_shots
+
+    reenactor = OnnxReenactor(bundle, threads=1)
+    shots = example_shots()
+    subject = reenactor.encode_subject(shots, k=k if k is not None else len(shots), cache=False)
+    return reenactor, subject, next(SourceScene(subject.shots, reenactor.crop_size))
+
+
+def _nullable(values) -> list:
+    """An array as nested lists, NaN as None (JSON null: JSON has no NaN; the page reads null back as NaN)."""
+    def convert(item):
+        return [convert(value) for value in item] if isinstance(item, list) else None if np.isnan(item) else item
+
+    return convert(np.asarray(values, np.float64).tolist())
+
+
+def write_person(folder: Path, reenactor, subject, scene) -> dict:
+    """The encoded person and its scene as files under ``folder`` (module docstring); returns subject.json's content."""
+    from landmarks.io.image_files import write_image
+    from landmarks.scene.person_matte import scene_layers
+
+    folder.mkdir(parents=True, exist_ok=True)
+    shots = subject.shots
+    layers = scene_layers(scene.image, scene.landmarks)
+    matte = np.clip(np.rint(layers.matte * 255), 0, 255).astype(np.uint8)  # 8 bits: what the page reads back
+    # raw uint8 (H, W[, 3]) files, their shapes in subject.json: the page and Node read them without a decoder
+    pictures = {"shots": shots.frames, "scene": scene.image, "plate": layers.plate, "matte": matte}
+    for name, picture in pictures.items():
+        (folder / f"{name}.u8").write_bytes(np.ascontiguousarray(picture, np.uint8).tobytes())
+    write_image(folder / "scene.png", scene.image)  # the page's poster before the camera starts
+    person = {
+        "shapes": {name: list(picture.shape) for name, picture in pictures.items()},
+        "k": len(shots.frames), "anchor": int(shots.anchor), "crop_size": int(reenactor.crop_size),
+        "shot_landmarks": np.asarray(shots.landmarks, np.float64).tolist(),
+        "shot_irises": _nullable(subject.shot_irises), "anchor_gaze": _nullable(subject.anchor_gaze),
+        "layout_latent": np.asarray(subject.layout_latent, np.float32).ravel().tolist(),
+        "style_latent": np.asarray(subject.style_latent, np.float32).ravel().tolist(),
+        "scene": {"width": int(scene.image.shape[1]), "height": int(scene.image.shape[0]),
+                  "landmarks": np.asarray(scene.landmarks, np.float64).tolist(),
+                  "matrix": np.asarray(scene.matrix, np.float64).ravel().tolist()},
+    }
+    _write_json(folder / "subject.json", person)
+    return person
+
+
+def write_site(weights: Path, out: Path, k: int | None = None) -> WebSite:
+    """Build the web runtime and write the site for the model folder ``weights`` into ``out`` (module docstring)."""
+    from deploy.web_build import ensure_built, onnxruntime_files
+    from landmarks.io.image_files import atomic_folder
+    from lsr.export.bundle import cached_bundle
+    from lsr.layout_view import LAYOUT_PALETTE, load_layout_legend
+
+    dist = ensure_built()
+    bundle = cached_bundle(weights)
+    reenactor, subject, scene = example_subject(bundle, k)
+    backend = reenactor.backend
+    out = Path(out)
+    with atomic_folder(out) as temp:
+        for path in [*PAGE.iterdir(), *(dist / name for name in ("app.js", "app.js.map", "tracker.worker.js",
+                                                                   "tracker.worker.js.map")), *onnxruntime_files()]:
+            shutil.copy2(path, temp / path.name)
+        models = temp / "models"
+        (models / "mediapipe").mkdir(parents=True)
+        shutil.copy2(bundle / "frame_generator.onnx", models / "frame_generator.onnx")
+        shutil.copy2(bundle / SUBJECT_ENCODER, models / SUBJECT_ENCODER)  # the page encodes a user's own photos
+        assets = Path(__file__).resolve().parents[2] / "landmarks" / "assets"
+        for name in (*TRACKER_ASSETS, SEGMENTER):
+            shutil.copy2(assets / name, models / name)
+        person = write_person(temp / "person", reenactor, subject, scene)
+        legend = load_layout_legend(weights)
+        _write_json(temp / "site.json", {
+            "resolution": int(backend.resolution), "crop_size": int(reenactor.crop_size),
+            "references": int(reenactor.warp_references), "latent_dim": len(person["layout_latent"]),
+            "layout": backend.layout_kind, "layout_palette": LAYOUT_PALETTE.tolist(), "layout_legend": legend,
+            "mouth": reenactor.mouth, "mouth_interior": reenactor.mouth_interior, "lids": reenactor.lids,
+            "eyes": reenactor.eyes, "k": person["k"],
+        })
+        (temp / "NOTICE.md").write_text(_notice())
+        for path in temp.rglob("*"):  # readable by any static server
+            path.chmod(0o755 if path.is_dir() else 0o644)
+    return WebSite(out, sorted(path for path in out.rglob("*") if path.is_file()), person["k"])
+
+
+def run_export(cfg: ExportConfig):
+    """Entry point of ``lsr export``: ``--web OUT`` writes the site, otherwise the bundle
+    (``lsr.export.bundle.run_export``)."""
+    from landmarks.io.image_files import check_output_path
+    from lsr.export.bundle import ExportResult, run_export as export_bundle
+    from lsr.weights import resolve_weights
+
+    if cfg.web is None:
+        return export_bundle(cfg)
+    check_output_path(cfg.web, "--web", folder=True)
+    site = write_site(resolve_weights(cfg.weights), cfg.web)
+    size = sum(path.stat().st_size for path in site.files) / 2**20
+    print(f"wrote the web site to {site.folder} ({len(site.files)} files, {size:.1f} MiB; the example person, K = "
+          f"{site.k}): serve it with any static server, e.g. python -m http.server -d {site.folder}")
+    return ExportResult(site.folder, site.files, {})
+
+
+def _notice() -> str:
+    from lsr.examples import REAL_EXAMPLE
+
+    return (
+        "# What this site holds\n\n"
+        f"- The example person: {REAL_EXAMPLE} (lsr/examples/NOTICE.md).\n"
+        "- The face detector, face mesh, iris and selfie segmentation nets: MediaPipe (Apache-2.0, "
+        "models/mediapipe/LICENSE), converted to ONNX by `lsr face-models convert` "
+        "(landmarks/assets/mediapipe/SOURCES.json).\n"
+        "- onnxruntime-web (MIT, Microsoft): ort.wasm.min.mjs and its WASM build.\n"
+        "- The frame generator and the subject encoder: this project's model (MODEL_CARD.md).\n\n"
+        "Every frame it shows is synthetic and marked so.\n"
+    )
