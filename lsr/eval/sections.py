@@ -1,7 +1,8 @@
 """Sections of BENCHMARKS.md: each is written, between its own markers, by the command it names.
 
 ``section_text`` builds one (heading, timestamp, the command that reproduces it, its body); ``replace_section``
-puts it in place of the old one (or appends it), atomically; ``command_line`` rebuilds the command from a config.
+puts it in place of the old one (or appends it), atomically, then rebuilds the file's summary of headline rows
+(``lsr.eval.summary.write_summary``); ``command_line`` rebuilds the command from a config.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from lsr.errors import ConfigError
+from lsr.eval.summary import write_summary
 
 HEADER = "# Benchmarks\n\nEvery section is written by the command it names.\n"
 
@@ -54,7 +56,8 @@ def section_text(name: str, title: str, command: str, body: str, note: str | Non
 
 def replace_section(path: Path, section: str, start: str, end: str) -> Path:
     """Put ``section`` (markers included) into ``path`` between the markers ``start`` / ``end``, replacing the old
-    one in place and keeping every other line; appended when the file has none. Atomic."""
+    one in place and keeping every other line; appended when the file has none. Atomic. Then the summary at the
+    top is rebuilt from the sections (``write_summary``), so every command that writes a section refreshes it."""
     from landmarks.io.image_files import atomic_output
 
     path = Path(path)
@@ -72,7 +75,8 @@ def replace_section(path: Path, section: str, start: str, end: str) -> Path:
         text = text.rstrip("\n") + "\n\n" + section
     with atomic_output(path) as temp:
         temp.write_text(text)
-    return path
+    # a second write: the section is on disk even if the summary's markers need mending by hand
+    return write_summary(path)
 
 
 def write_section(path: Path, name: str, title: str, command: str, body: str, note: str | None = None) -> Path:
