@@ -177,7 +177,7 @@ def edit_frame(store: ModelStore, limits: Limits, state: EditState | None, sourc
 
 def save_pose(state: EditState | None, run_dir: Path) -> Path:
     """The edited pose as a 2-frame landmark driver (N, 68, 2) .npy in the person's frame pixels: the anchor's own
-    face, then the edit, so ``lsr reenact --driving pose.npy`` (relative motion) puts the edit on any source."""
+    face, then the edit, so ``lsr reenact --driver pose.npy`` (relative motion) puts the edit on any source."""
     from landmarks.exceptions import InputFileError
     from landmarks.io.image_files import atomic_output
 

@@ -55,7 +55,7 @@ switched off in the first tab's options."""
 EDIT_HELP = """**Sliders edit the person's face** (the photos of the first tab, or the example person): head yaw,
 pitch and roll, mouth and eyes open, smile and brows move the landmarks of their most neutral shot, and the model
 draws them in that shot's scene, with the latent layout beside it. *Save the pose* writes a landmark driver
-(the neutral face, then the edit) that `lsr reenact --source SHOTS --driving pose.npy` accepts."""
+(the neutral face, then the edit) that `lsr reenact --source SHOTS --driver pose.npy` accepts."""
 LIVE_STREAM_EVERY = 0.05  # s between camera frames offered (caps the rate at 20 fps); the server keeps only the newest
 LIVE_TIME_LIMIT = 600  # s a stream may run before the camera has to be started again
 LIVE_STREAMS = 2  # live streams served at once (each holds a subject and a tracker)
@@ -290,7 +290,7 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                     with gr.Row():
                         edit_reset = gr.Button("Neutral", size="sm")
                         edit_save = gr.Button("Save the pose (.npy)", size="sm", elem_id="edit-save")
-                    edit_file = gr.File(label="Landmark driver for `lsr reenact --driving`", interactive=False,
+                    edit_file = gr.File(label="Landmark driver for `lsr reenact --driver`", interactive=False,
                                         elem_id="edit-file")
                 edit_output, edit_status, edit_layout = result_columns(
                     "edit", "The person, edited", "Move a slider.", "Latent layout")

@@ -63,9 +63,6 @@ def _run_synth(cfg: config.SynthConfig) -> None:
 
     from lsr.data.synth import generate_dataset, write_preview
 
-    if cfg.bench:  # kept for one release: `lsr bench synth`
-        _run_bench_synth(config.BenchSynthConfig(preset=cfg.preset))
-        return
     if cfg.preview is not None:
         path = write_preview(cfg.preview, size=cfg.resolution, seed=cfg.seed, preset=cfg.preset)
         print(f"preview written to {path}")
@@ -100,6 +97,7 @@ COMMANDS: dict[str, tuple[type, Runner]] = {
     "eval": (config.EvalConfig, "lsr.eval.report:run_eval"),
     "synth": (config.SynthConfig, _run_synth),
     "reenact": (config.ReenactConfig, "lsr.commands.reenact:run_reenact"),
+    "batch": (config.BatchConfig, "lsr.commands.reenact:run_reenact"),
     "export": (config.ExportConfig, "lsr.export.web_site:run_export"),
     "app": (config.AppConfig, "app.ui:run_app"),
     "ship": (config.ShipConfig, "lsr.weights.ship:run_ship"),

@@ -100,7 +100,7 @@ def run_demo(out: Path, *, weights: Path | None = None, frames: int = 100, k: in
         print(f"demo: the real example: {REAL_EXAMPLE}; copied into {out / 'inputs'} ('lsr demo --synthetic': two "
               "procedural people instead)")
     paths = {"video": out / "demo.mp4", "side_by_side": out / "demo_side_by_side.mp4"}
-    cfg = ReenactConfig(weights=weights, source=source, driving=driver, out=paths["video"], k=k,
+    cfg = ReenactConfig(weights=weights, source=source, driver=driver, out=paths["video"], k=k,
                         finetune_steps=finetune_steps, side_by_side=paths["side_by_side"], overwrite=True, paste_back=True,
                         threads=threads, progress=progress)
     cfg.validate()

@@ -1,14 +1,13 @@
-"""``lsr reenact``: re-enact one (source, driving) pair or a batch of them into H.264 videos.
+"""``lsr reenact`` and ``lsr batch``: re-enact one (source, driver) pair, or many, into H.264 videos.
 
-Jobs come from exactly one of
-* ``--source S --driving D --out OUT.mp4`` (one job);
-* ``--jobs jobs.csv`` with a header ``source,driving,output`` (relative paths are relative to the CSV's folder);
-* ``--source-dir A --driving-dir B --out-dir C``: ``--pairing all`` (default) makes every source x driving
-  job, written as ``C/<source stem>__<driving stem>.mp4``; ``--pairing by-name`` pairs files with the same stem
+``lsr reenact --source S --driver D --out OUT.mp4`` runs one job. ``lsr batch`` takes its jobs from exactly one of
+* ``--jobs jobs.csv`` with a header ``source,driver,output`` (relative paths are relative to the CSV's folder);
+* ``--source-dir A --driver-dir B --out-dir C``: ``--pairing all`` (default) makes every source x driver job,
+  written as ``C/<source stem>__<driver stem>.mp4``; ``--pairing by-name`` pairs files with the same stem
   (``A/alice.jpg`` with ``B/alice.mp4``) into ``C/<stem>.mp4``. A source is an image or a video file, or a
-  sub-folder of images; a driving entry is a video, a sub-folder of frames, or a .npy/.json landmark file.
+  sub-folder of images; a driver is a video, a sub-folder of frames, or a .npy/.json landmark file.
 
-Outputs keep the driving video's frame count, fps and audio, and carry container metadata marking them as
+Outputs keep the driver video's frame count, fps and audio, and carry container metadata marking them as
 synthetic (``lsr.core.provenance.provenance_metadata``); ``--watermark`` adds a visible "SYNTHETIC" mark. Each output
 appears only once complete (temp file + rename), so a rerun skips finished jobs (resume) and redoes the rest.
 Output paths and inputs are checked before any model loads: an output that cannot be written (a read-only or
@@ -33,13 +32,15 @@ from landmarks.exceptions import InputFileError, LandmarksError, OutputPathError
 from landmarks.io.image_files import IMAGE_SUFFIXES, check_output_path as check_writable
 from lsr.core.engine import ReenactorBase, ReenactStats
 from lsr.core.inputs import LANDMARK_SUFFIXES, describe_driver
+from lsr.config.inference import ManyJobs, SingleJob
+from lsr.core import DEFAULT_FINETUNE_LR
 from lsr.errors import ConfigError, LsrError
 from lsr.export.find_bundle import onnx_bundle_folder
 from lsr.weights import resolve_weights
 from lsr.writer import stage_table, write_reenactment
 
 if TYPE_CHECKING:
-    from lsr.config import ReenactConfig
+    from lsr.config import BatchConfig, ReenactConfig
 
 
 class ReenactJobsError(LsrError):
@@ -49,7 +50,7 @@ class ReenactJobsError(LsrError):
 @dataclasses.dataclass(frozen=True)
 class Job:
     source: Path
-    driving: Path
+    driver: Path
     output: Path
 
 
@@ -57,15 +58,15 @@ class Job:
 
 
 def jobs_from_csv(path: Path) -> list[Job]:
-    """Rows of a ``source,driving,output`` CSV (paths relative to the CSV's folder)."""
+    """Rows of a ``source,driver,output`` CSV (paths relative to the CSV's folder)."""
     if not path.is_file():
         raise ConfigError(f"jobs file not found: {path}")
     with open(path, newline="") as handle:
         reader = csv.DictReader(handle)
-        if reader.fieldnames is None or not {"source", "driving", "output"} <= set(reader.fieldnames):
-            raise ConfigError(f"{path} needs a header row with the columns source,driving,output")
+        if reader.fieldnames is None or not {"source", "driver", "output"} <= set(reader.fieldnames):
+            raise ConfigError(f"{path} needs a header row with the columns source,driver,output")
         base = path.parent
-        jobs = [Job(*(base / row[key].strip() for key in ("source", "driving", "output"))) for row in reader]
+        jobs = [Job(*(base / row[key].strip() for key in ("source", "driver", "output"))) for row in reader]
     if not jobs:
         raise ConfigError(f"{path} lists no jobs")
     return jobs
@@ -77,19 +78,19 @@ def _entries(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.is_dir() or p.suffix.lower() in suffixes)
 
 
-def jobs_from_dirs(source_dir: Path, driving_dir: Path, out_dir: Path, pairing: str) -> list[Job]:
-    """Every source x driving (``pairing='all'``) or same-stem pairs (``'by-name'``); see the module docstring."""
+def jobs_from_dirs(source_dir: Path, driver_dir: Path, out_dir: Path, pairing: str) -> list[Job]:
+    """Every source x driver (``pairing='all'``) or same-stem pairs (``'by-name'``); see the module docstring."""
     from landmarks.io.video import VIDEO_SUFFIXES
 
     sources = _entries(source_dir, IMAGE_SUFFIXES + VIDEO_SUFFIXES)
-    drivers = _entries(driving_dir, VIDEO_SUFFIXES + LANDMARK_SUFFIXES)
+    drivers = _entries(driver_dir, VIDEO_SUFFIXES + LANDMARK_SUFFIXES)
     if not sources or not drivers:
-        raise ConfigError(f"no sources in {source_dir} or no driving inputs in {driving_dir}")
+        raise ConfigError(f"no sources in {source_dir} or no drivers in {driver_dir}")
     if pairing == "by-name":
         by_stem = {d.stem: d for d in drivers}
         jobs = [Job(s, by_stem[s.stem], out_dir / f"{s.stem}.mp4") for s in sources if s.stem in by_stem]
         if not jobs:
-            raise ConfigError(f"--pairing by-name found no source in {source_dir} with a same-named driver in {driving_dir}")
+            raise ConfigError(f"--pairing by-name found no source in {source_dir} with a same-named driver in {driver_dir}")
         return jobs
     return [Job(s, d, out_dir / f"{s.stem}__{d.stem}.mp4") for s in sources for d in drivers]
 
@@ -111,12 +112,12 @@ def shard_jobs(jobs: list[Job], index: int, count: int) -> list[Job]:
     return sorted(jobs, key=lambda job: str(job.output))[index::count]
 
 
-def collect_jobs(cfg: ReenactConfig) -> list[Job]:
+def collect_jobs(cfg: ReenactConfig | BatchConfig) -> list[Job]:
+    if isinstance(cfg, SingleJob):
+        return [Job(cfg.source, cfg.driver, cfg.out)]
     if cfg.jobs is not None:
         return jobs_from_csv(cfg.jobs)
-    if cfg.source_dir is not None:
-        return jobs_from_dirs(cfg.source_dir, cfg.driving_dir, cfg.out_dir, cfg.pairing)
-    return [Job(cfg.source, cfg.driving, cfg.out)]
+    return jobs_from_dirs(cfg.source_dir, cfg.driver_dir, cfg.out_dir, cfg.pairing)
 
 
 # ---- output paths -----------------------------------------------------------------------------------------
@@ -133,7 +134,7 @@ def check_job_inputs(job: Job) -> None:
     """The job's source exists and its driver can be read (kind, frame count): before any model loads."""
     if not job.source.exists():
         raise InputFileError(f"source not found: {job.source}; give an image, a folder of images or a video")
-    describe_driver(job.driving)  # raises a one-line InputFileError naming the file
+    describe_driver(job.driver)  # raises a one-line InputFileError naming the file
 
 
 def check_job_outputs(job: Job, side_by_side: Path | None, label: str) -> None:
@@ -159,7 +160,7 @@ def make_reenactor(cfg: ReenactConfig) -> ReenactorBase:
     if cfg.runtime == "onnx":
         from deploy.runtime import OnnxReenactor
 
-        reenactor = OnnxReenactor(onnx_bundle_folder(weights), int8=cfg.int8, threads=threads, detector=cfg.detector)
+        reenactor = OnnxReenactor(onnx_bundle_folder(weights), threads=threads, detector=cfg.detector)
     else:
         from lsr.pipeline import Reenactor
 
@@ -169,29 +170,23 @@ def make_reenactor(cfg: ReenactConfig) -> ReenactorBase:
             torch.set_num_threads(threads)  # process-wide: torch has no per-model thread pool
         from lsr.devices import resolve_device
 
-        reenactor = Reenactor(weights, device=resolve_device(cfg.device), precision=cfg.precision, detector=cfg.detector)
-    if cfg.mouth is not None:
-        reenactor.mouth = cfg.mouth
-    reenactor.eyes = cfg.eyes
-    reenactor.mouth_interior = cfg.mouth_interior
-    reenactor.lids = cfg.lids
-    return reenactor
+        reenactor = Reenactor(weights, device=resolve_device("auto"), detector=cfg.detector)
+    return reenactor  # the parts at their best measured defaults (ReenactorBase); lsr eval and lsr bench vary them
 
 
 def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | None = None) -> ReenactStats:
     """Re-enact one job into ``job.output`` (atomic). The subject must already be encoded."""
     written = write_reenactment(
-        reenactor, job.driving, job.output, runtime=cfg.runtime,
-        mode="relative" if cfg.relative else "absolute" if cfg.absolute else "auto", smooth=cfg.smooth,
-        paste_back=cfg.paste_back, scene=cfg.scene, watermark=cfg.watermark, fps=cfg.fps, landmark_space=cfg.landmark_space,
-        landmark_size=cfg.landmark_size, progress=cfg.progress, side_by_side=side_by_side, retarget=cfg.retarget,
+        reenactor, job.driver, job.output, runtime=cfg.runtime,
+        mode=cfg.motion, paste_back=cfg.paste_back, scene=cfg.scene, watermark=cfg.watermark, fps=cfg.fps,
+        landmark_space=cfg.landmark_space, progress=cfg.progress, side_by_side=side_by_side,
     )
     for warning in written.warnings:
         print(f"lsr reenact: {warning}")
     if written.coverage:
-        print(f"lsr reenact: {job.driving}: {written.coverage}")
+        print(f"lsr reenact: {job.driver}: {written.coverage}")
     if written.stats.no_face:
-        print(f"lsr reenact: {job.driving}: {written.stats.no_face} of {written.stats.frames} frame(s) had no face "
+        print(f"lsr reenact: {job.driver}: {written.stats.no_face} of {written.stats.frames} frame(s) had no face "
               "and were passed through")
     return written.stats
 
@@ -215,7 +210,7 @@ def _subject_for(reenactor: ReenactorBase, source: Path, cfg: ReenactConfig, cac
     if steps > 0:
         from lsr.train.finetune import finetune_reenactor  # fine-tuning is composed on top of inference
 
-        result = finetune_reenactor(reenactor, steps, lr=cfg.finetune_lr, progress=cfg.progress)
+        result = finetune_reenactor(reenactor, steps, lr=DEFAULT_FINETUNE_LR, progress=cfg.progress)
         print(f"fine-tuned on {len(subject.shots.frames)} shots of {source} ({steps} steps): "
               f"shot L1 {result.l1_before:.4f} -> {result.l1_after:.4f}")
         cache["backend_model"] = reenactor.backend.model
@@ -233,11 +228,13 @@ def summary_table(done: int, skipped: int, failed: int, stats: ReenactStats, wal
     return "\n".join(rows) + "\n" + stage_table(stats)
 
 
-def run_reenact(cfg: ReenactConfig) -> ReenactStats:
-    """Entry point of ``lsr reenact`` (``lsr.config.ReenactConfig``). Returns the merged stats."""
+def run_reenact(cfg: ReenactConfig | BatchConfig) -> ReenactStats:
+    """Entry point of ``lsr reenact`` (one job, ``lsr.config.ReenactConfig``) and ``lsr batch`` (many,
+    ``lsr.config.BatchConfig``). Returns the merged stats."""
     from tqdm import tqdm
 
-    index, count = parse_shard(cfg.shard)
+    index, count = parse_shard(cfg.shard) if isinstance(cfg, ManyJobs) else (0, 1)
+    side_by_side = cfg.side_by_side if isinstance(cfg, SingleJob) else None
     jobs = shard_jobs(collect_jobs(cfg), index, count)
     pending = [job for job in jobs if cfg.overwrite or not job.output.exists()]
     skipped = len(jobs) - len(pending)
@@ -259,7 +256,7 @@ def run_reenact(cfg: ReenactConfig) -> ReenactStats:
     runnable = []
     for job in pending:  # paths and inputs first: before the model loads, and a bad row does not stop the batch
         try:
-            check_job_outputs(job, cfg.side_by_side, "--out" if cfg.out is not None else "output")
+            check_job_outputs(job, side_by_side, "--out" if isinstance(cfg, SingleJob) else "output")
             check_job_inputs(job)
             runnable.append(job)
         except (LsrError, LandmarksError) as exc:
@@ -276,7 +273,7 @@ def run_reenact(cfg: ReenactConfig) -> ReenactStats:
                     total.add("subject_encoding", cache["seconds"])
                     total.add("finetune", cache["finetune_seconds"])
                     cache["counted"] = cache["key"]
-                total.merge(run_job(reenactor, job, cfg, side_by_side=cfg.side_by_side))
+                total.merge(run_job(reenactor, job, cfg, side_by_side=side_by_side))
             except (LsrError, LandmarksError, OSError) as exc:  # OSError: e.g. the disk filled while writing
                 fail(job, exc)
     wall = time.perf_counter() - started

@@ -79,8 +79,8 @@ class BenchTrainConfig:
     presets: tuple[str, ...] = ("small", "paper")
     resolution: int = 128
     batch_size: int = 2
-    k: Annotated[int, tyro.conf.arg(aliases=("--k-shots",))] = 2
-    """K: shots per episode (--k-shots: the old name, kept for one release)."""
+    k: int = 2
+    """K: shots per episode."""
     steps: int = 5
     """Timed steps per preset and stage (after one warm-up step)."""
     device: Literal["auto", "cpu", "cuda"] = "auto"
@@ -214,16 +214,16 @@ class BenchReenactConfig:
     detectors: tuple[Literal["mesh", "hog", "cnn"], ...] = ("mesh",)
     """Face detectors (the driver's tracking and the source's shots); one row per runtime and detector."""
     mouths: tuple[Literal["drawn", "nearest", "blend"], ...] = ()
-    """A warp-guided model's mouth (as `lsr reenact --mouth`), one row each; e.g. drawn nearest times the mouth
+    """A warp-guided model's mouth (as `lsr eval --mouths`), one row each; e.g. drawn nearest times the mouth
     generator against the per-frame path without it, in the same run. Empty: the model's default."""
     eyes: tuple[Literal["drawn", "warped", "blend"], ...] = ()
-    """The eyes (as `lsr reenact --eyes`), one row each; with blend among them, drawn or warped prints its frame-rate
+    """The eyes (as `lsr eval --eyes`), one row each; with blend among them, drawn or warped prints its frame-rate
     ratio to blend. Empty: the default (warped)."""
     mouth_interiors: tuple[Literal["driver", "shots"], ...] = ()
-    """Inside an open mouth (as `lsr reenact --mouth-interior`), one row each; driver shots prints the driver
+    """Inside an open mouth (as `lsr eval --mouth-interiors`), one row each; driver shots prints the driver
     interior's frame-rate ratio. Empty: the default (driver)."""
     lids: tuple[Literal["drawn", "driver", "shots"], ...] = ()
-    """Where the target shuts its eyes (as `lsr reenact --lids`), one row each; with shots among them each other
+    """Where the target shuts its eyes (as `lsr eval --lids`), one row each; with shots among them each other
     choice's frame-rate ratio is printed (the driver's shut lids are cut and read on every frame, laid in where they
     shut; the drawn ones read from the target). Empty: the default (drawn)."""
     paste_back: bool = True
@@ -308,7 +308,7 @@ class BenchLidsConfig:
     shares: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5)
     """Aperture shares asked for, of the shots' at rest (0 shut, 1 as open as the shots)."""
     lids: tuple[Literal["drawn", "shots"], ...] = ("drawn", "shots")
-    """Where the target shuts its eyes (as `lsr reenact --lids`), one row each."""
+    """Where the target shuts its eyes (as `lsr eval --lids`), one row each."""
     judge: bool = True
     """Also read the outputs and the identities' real frames with dlib's 68 points (the independent judge)."""
     figure: OptionalPath = None

@@ -129,8 +129,8 @@ class SynthConfig:
     """Videos per person (same identity, new background, motion and light)."""
     frames: int = 50
     """Frames per video."""
-    resolution: Annotated[int, tyro.conf.arg(aliases=("--size",))] = 128
-    """Frame side S (S x S); 128 default, 256 supported (--size: the old name, kept for one release)."""
+    resolution: int = 128
+    """Frame side S (S x S); 128 default, 256 supported."""
     seed: int = 0
     """Dataset seed: the same seed gives byte-identical arrays; identity i depends only on (seed, i)."""
     preset: Literal[
@@ -150,8 +150,6 @@ class SynthConfig:
     """Replace clips that already exist under --out."""
     preview: OptionalPath = None
     """Only write a contact sheet PNG here (frame | landmarks | landmark image | classes), no dataset."""
-    bench: bool = False
-    """Deprecated: `lsr bench synth` prints the generator's frames/s table."""
 
     def validate(self) -> None:
         if self.identities < 1 or self.videos_per_identity < 1 or self.frames < 1:
@@ -176,8 +174,8 @@ class PrepareConfig:
     """A video, a folder of videos / image folders, or an LSR release folder ({train,test}/<id>/<video>/combined/)."""
     out: Path = Path("data/prepared")
     """Dataset root to write (clips + manifest.json). Finished clips are skipped, so a run can be resumed."""
-    resolution: Annotated[int, tyro.conf.arg(aliases=("--size",))] = 256
-    """Training resolution S: frames, landmarks and segmentation are S x S (--size: the old name, kept for one release)."""
+    resolution: int = 256
+    """Training resolution S: frames, landmarks and segmentation are S x S."""
     frames_per_clip: int = 10
     """Frames sampled uniformly per clip (frames without a face are dropped); 0 = all frames, tracked (kept with NaN)."""
     framing: Literal["auto", "align", "keep"] = "auto"
@@ -215,106 +213,82 @@ class PrepareConfig:
 
 
 @dataclasses.dataclass
-class ReenactConfig:
-    """Re-enact a source person with a driving video: one job (--source/--driving/--out) or a batch (--jobs or dirs)."""
+class SingleJob:
+    """The inputs and outputs of one re-enactment (``lsr reenact``)."""
+
+    source: OptionalPath = None
+    """Source person: an image, a folder of images, or a video (K frames with a face are sampled)."""
+    driver: OptionalPath = None
+    """Driver: a video, a folder of frames, or landmarks (.npy/.json, N x 68 x 2; see --landmark-space)."""
+    out: OptionalPath = None
+    """Output .mp4."""
+    side_by_side: OptionalPath = None
+    """Also write driver | landmarks | latent layout | output to this .mp4."""
+
+
+@dataclasses.dataclass
+class ManyJobs:
+    """The jobs of a batch (``lsr batch``): a CSV, or every source of one folder with every driver of another."""
+
+    jobs: OptionalPath = None
+    """CSV with columns source,driver,output (paths relative to the CSV)."""
+    source_dir: OptionalPath = None
+    """Folder of sources (images, videos, or sub-folders of images)."""
+    driver_dir: OptionalPath = None
+    """Folder of drivers (videos, landmark files, or sub-folders of frames)."""
+    out_dir: OptionalPath = None
+    """Output folder for --source-dir/--driver-dir."""
+    pairing: Literal["all", "by-name"] = "all"
+    """Folders: every source x driver (<source>__<driver>.mp4), or same-stem pairs (<stem>.mp4)."""
+    shard: OptionalStr = None
+    """Take job share i of n ('i/n'); default RANK/WORLD_SIZE under torchrun, else all jobs."""
+
+
+@dataclasses.dataclass
+class JobOptions:
+    """How every re-enactment job runs: declared once for ``lsr reenact`` and ``lsr batch``. The part ablations
+    (eyes, lids, mouth, its interior, 3D retargeting) are ``lsr eval``'s and ``lsr bench``'s options; a job runs the
+    best measured defaults (MODEL_CARD.md)."""
 
     weights: OptionalPath = None
     """Model folder (config.json + model.safetensors); for --runtime onnx also an `lsr export` bundle (a model
     folder without one is exported on first use and cached). Default: $LSR_WEIGHTS, else the shipped model."""
-    source: OptionalPath = None
-    """Source person: an image, a folder of images, or a video (K frames with a face are sampled)."""
-    driving: OptionalPath = None
-    """Driver: a video, a folder of frames, or landmarks (.npy/.json, N x 68 x 2; see --landmark-space)."""
-    out: OptionalPath = None
-    """Output .mp4 (single job)."""
-    jobs: OptionalPath = None
-    """Batch: CSV with columns source,driving,output (paths relative to the CSV)."""
-    source_dir: OptionalPath = None
-    """Batch: folder of sources (images, videos, or sub-folders of images)."""
-    driving_dir: OptionalPath = None
-    """Batch: folder of drivers (videos, landmark files, or sub-folders of frames)."""
-    out_dir: OptionalPath = None
-    """Batch: output folder for --source-dir/--driving-dir."""
-    pairing: Literal["all", "by-name"] = "all"
-    """Batch dirs: every source x driving (<source>__<driving>.mp4), or same-stem pairs (<stem>.mp4)."""
     k: OptionalInt = None
     """Shots of the source to average (1..32); default min(8, frames with a face). Larger than usable is an error."""
-    face_index: int = 0
-    """Which face of a source frame showing several people (0 = the largest; the output says when there were several)."""
-    relative: bool = False
-    """Force relative motion (driver's motion on the source's face shape). Default: relative unless source == driver."""
-    absolute: bool = False
-    """Force absolute landmarks (the driver's own face shape)."""
-    smooth: bool = True
-    """One-Euro smoothing of the driving landmarks."""
-    retarget: Literal["2d", "3d"] = "2d"
-    """Relative motion: 2d = the driver's 68 points' motion on the source's face; 3d = the source's own face mesh
-    turned by the driver's head rotation, the expression moved in the canonical head frame (needs --detector mesh
-    and a video or image driver; elsewhere 2d). Compared by `lsr eval --retarget`."""
-    mouth: Annotated[Literal["drawn", "nearest", "blend"] | None,
-                     tyro.conf.arg(metavar="{drawn,nearest,blend}", help_behavior_hint="(optional)")] = None
-    """A warp-guided model's mouth: drawn = redrawn by the model's mouth generator from the driven lips (over
-    nearest); nearest = from the nearest shot warped onto the target where the driver opens it wider than the
-    shots; blend = the network's blend of all its shots (smoother, opens less). Default: drawn when the model has
-    a mouth generator, else nearest. Compared by `lsr eval --mouths`."""
-    mouth_interior: Literal["driver", "shots"] = "driver"
-    """Inside an open mouth: driver = the driver frame's own cavity, teeth and tongue, laid inside the target's inner
-    lips, lit and tinted as the skin around them (a video or image driver; the teeth are the driver's);
-    shots = what --mouth gives (the shots' insides, stretched where none is as open). Compared by `lsr eval
-    --mouth-interiors`."""
-    lids: Literal["drawn", "driver", "shots"] = "drawn"
-    """Where the target shuts its eyes: drawn = the subject's own upper lids drawn down over its eyes (the skin
-    around them filled in, a lash line along the lowered lid); driver = the driver's shut lids laid over the
-    subject's eyes, lit as the skin around them (a video or image driver: lids, crease and lash line are the
-    driver's), drawn where the driver gives none (a landmark file); shots = the warped shots' lids lowered alone (an
-    open eye squeezed to a slit). Compared by `lsr eval --lids`."""
-    eyes: Literal["drawn", "warped", "blend"] = "warped"
-    """drawn = one iris per eye, the subject's own (its shot with the most open eyes), laid where the driver looks
-    (MediaPipe's iris net on the driver's frames) inside the driven lids, clipped by them (a video or image driver
-    only); warped = the shots' own irises carried by their warps to where the driver looks (where no gaze is known,
-    to the nearest shot's), so the shots agree before the network blends them; blend = the network's blend of the
-    shots as warped (two irises where they looked two ways). Compared by `lsr eval --eyes`."""
     paste_back: bool = False
     """Composite the re-enacted face into full frames of --scene (background and body stay, hair follows the head);
     otherwise output the crop-sized synthesis."""
     scene: Literal["source", "driver"] = "source"
     """--paste-back into the source's own scene (its anchor shot, or its video's frames back and forth; the output
     has the source's frame size) or into the driver's frames (dubbing; a face swap when the people differ)."""
+    watermark: bool = False
+    """Draw a visible 'SYNTHETIC' mark in the corner (container metadata always marks outputs as synthetic)."""
+    runtime: Literal["torch", "onnx"] = "torch"
+    """torch, or onnx: the exported graphs on onnxruntime, no torch needed."""
+    finetune_steps: OptionalInt = None
+    """Fine-tune the generators on the source shots first (thesis §4.3.5; torch runtime only). Default:
+    DEFAULT_FINETUNE_STEPS (0: it buys nothing measurable on the shipped default; `lsr bench finetune`)."""
+    motion: Literal["auto", "relative", "absolute"] = "auto"
+    """relative = the driver's motion on the source's face shape; absolute = the driver's own landmarks; auto =
+    absolute when the driver is the source itself, else relative."""
+    face_index: int = 0
+    """Which face of a source frame showing several people (0 = the largest; the output says when there were several)."""
     anchor: OptionalInt = None
     """Which of the K source shots is the neutral face and the scene (0..K-1); default the most frontal one with a
     closed mouth."""
-    finetune_steps: OptionalInt = None
-    """Fine-tune the generators on the source shots first (thesis §4.3.5; torch runtime only). Default:
-    DEFAULT_FINETUNE_STEPS (0: it buys nothing measurable on the shipped default; `lsr bench finetune`), and
-    always 0 with --runtime onnx."""
-    finetune_lr: float = DEFAULT_FINETUNE_LR
-    """Adam lr of that fine-tuning (G^l, G^s, D)."""
-    runtime: Literal["torch", "onnx"] = "torch"
-    int8: bool = False
-    """--runtime onnx: use the int8 frame generator (`lsr export --int8`)."""
-    precision: Literal["fp32", "bf16"] = "fp32"
-    """--runtime torch precision (bf16 error vs fp32: `lsr bench reenact`)."""
-    device: Literal["auto", "cpu", "cuda"] = "auto"
-    side_by_side: OptionalPath = None
-    """Single job: also write driver | landmarks | latent layout | output to this .mp4."""
-    watermark: bool = False
-    """Draw a visible 'SYNTHETIC' mark in the corner (container metadata always marks outputs as synthetic)."""
     landmark_space: Annotated[Literal["frame", "crop"] | None,
                               tyro.conf.arg(metavar="{frame,crop}", help_behavior_hint="(optional)")] = None
-    """Landmark drivers: pixel coordinates of the driver's frames (default) or of a training-framed crop."""
-    landmark_size: OptionalInt = None
-    """Landmark drivers in crop space: the crop side the coordinates refer to (default: model resolution)."""
+    """Landmark drivers: pixel coordinates of the driver's frames (default), or of a training-framed crop (of the
+    side a .json file gives, else the model's)."""
     fps: OptionalFloat = None
     """Output fps for landmark / image-folder drivers (default 25; videos keep their own)."""
-    shard: OptionalStr = None
-    """Batch: take job share i of n ('i/n'); default RANK/WORLD_SIZE under torchrun, else all jobs."""
-    overwrite: bool = False
-    """Redo jobs whose output already exists (default: skip them, which makes reruns resume)."""
+    detector: Literal["mesh", "hog", "cnn"] = "mesh"
+    """Face detector and tracker: mesh (MediaPipe, the default) or dlib's hog / cnn."""
     threads: int = 0
     """CPU threads for the networks (torch intra-op / onnxruntime intra-op); 0 = all cores but one, which decoding,
     tracking and encoding use beside the network (lsr.core.overlap.network_threads)."""
-    detector: Literal["mesh", "hog", "cnn"] = "mesh"
-    """Face detector and tracker: mesh (MediaPipe, the default) or dlib's hog / cnn."""
+    overwrite: bool = False
+    """Redo jobs whose output already exists (default: skip them, which makes reruns resume)."""
     progress: bool = True
 
     @property
@@ -324,41 +298,45 @@ class ReenactConfig:
             return self.finetune_steps
         return DEFAULT_FINETUNE_STEPS if self.runtime == "torch" else 0
 
-    def validate(self) -> None:
+    def validate_options(self) -> None:
         if self.threads < 0:
             raise ConfigError(f"--threads must be >= 0, got {self.threads}")
         if self.face_index < 0:
             raise ConfigError(f"--face-index must be >= 0 (0 = the largest face), got {self.face_index}")
         check_weights(self.weights)
-        single = [self.source, self.driving, self.out]
-        dirs = [self.source_dir, self.driving_dir, self.out_dir]
-        modes = sum([any(v is not None for v in single), self.jobs is not None, any(v is not None for v in dirs)])
-        if modes != 1:
-            raise ConfigError("give exactly one of: --source/--driving/--out, --jobs CSV, or --source-dir/--driving-dir/--out-dir")
-        if any(v is not None for v in single) and None in single:
-            raise ConfigError("a single job needs all of --source, --driving and --out")
-        if any(v is not None for v in dirs) and None in dirs:
-            raise ConfigError("batch dirs need all of --source-dir, --driving-dir and --out-dir")
-        if self.out is not None and Path(self.out).suffix.lower() != ".mp4":
-            raise ConfigError(f"--out must be an .mp4 file, got {self.out}")
-        if self.side_by_side is not None and self.out is None:
-            raise ConfigError("--side-by-side is for single jobs (--source/--driving/--out)")
-        if self.relative and self.absolute:
-            raise ConfigError("--relative and --absolute exclude each other")
         if self.k is not None and not 1 <= self.k <= MAX_K:
             raise ConfigError(f"--k must be in 1..{MAX_K}, got {self.k}")
-        if (self.finetune_steps or 0) < 0 or not self.finetune_lr > 0:
-            raise ConfigError(f"--finetune-steps must be >= 0 and --finetune-lr > 0, got {self.finetune_steps}, {self.finetune_lr}")
+        if (self.finetune_steps or 0) < 0:
+            raise ConfigError(f"--finetune-steps must be >= 0, got {self.finetune_steps}")
         if self.finetune_steps and self.runtime != "torch":
             raise ConfigError("--finetune-steps needs --runtime torch (fine-tuning trains the torch model)")
-        if self.int8 and self.runtime != "onnx":
-            raise ConfigError("--int8 needs --runtime onnx")
-        if self.precision != "fp32" and self.runtime != "torch":
-            raise ConfigError("--precision applies to --runtime torch; use --int8 for the onnx runtime")
         if self.fps is not None and not self.fps > 0:
             raise ConfigError(f"--fps must be > 0, got {self.fps}")
-        if self.landmark_size is not None and self.landmark_size < 8:
-            raise ConfigError(f"--landmark-size must be >= 8 pixels, got {self.landmark_size}")
+
+
+@dataclasses.dataclass
+class ReenactConfig(JobOptions, SingleJob):
+    """Re-enact a source person with a driver: one job (--source/--driver/--out); many jobs: `lsr batch`."""
+
+    def validate(self) -> None:
+        self.validate_options()
+        if None in (self.source, self.driver, self.out):
+            raise ConfigError("lsr reenact needs --source, --driver and --out (many jobs: lsr batch)")
+        if Path(self.out).suffix.lower() != ".mp4":
+            raise ConfigError(f"--out must be an .mp4 file, got {self.out}")
+
+
+@dataclasses.dataclass
+class BatchConfig(JobOptions, ManyJobs):
+    """Re-enact many (source, driver) pairs: a jobs CSV, or two folders; resumable and shardable."""
+
+    def validate(self) -> None:
+        self.validate_options()
+        dirs = [self.source_dir, self.driver_dir, self.out_dir]
+        if (self.jobs is not None) == any(v is not None for v in dirs):
+            raise ConfigError("give exactly one of: --jobs CSV, or --source-dir/--driver-dir/--out-dir")
+        if any(v is not None for v in dirs) and None in dirs:
+            raise ConfigError("folders need all of --source-dir, --driver-dir and --out-dir")
 
 
 @dataclasses.dataclass

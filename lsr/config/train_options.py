@@ -130,8 +130,8 @@ class TrainConfig:
     init_from: OptionalPath = None
     """Start from this model folder (same preset) instead of random weights; channels a variant adds start at zero;
     at another --resolution G^s's start grid is resampled and D starts fresh."""
-    k: Annotated[int, tyro.conf.arg(aliases=("--k-shots",))] = 4
-    """K: shots per training episode (--k-shots: the old name, kept for one release)."""
+    k: int = 4
+    """K: shots per training episode."""
     shots_from: Literal["video", "video_apart", "identity"] = "video"
     """Where an episode's K shots come from: the target's video (as the evaluation protocol), the half of its clip
     away from it (video_apart: no neighbour in time), or any video of the identity (lsr.data.episodes)."""

@@ -159,8 +159,8 @@ def test_the_app_and_lsr_reenact_write_the_same_video(tiny_app_weights, app_inpu
     result = handlers.run_reenactment(store, handlers.Limits(), files.new_run("s"), [app_inputs["source"]], 1,
                                       app_inputs["driving"], motion="relative", finetune_steps=0, watermark=True)
     cli_out = tmp_path / "cli.mp4"
-    assert main(["reenact", "--weights", str(tiny_app_weights), "--device", "cpu", "--source", str(app_inputs["source"]),
-                 "--k", "1", "--driving", str(app_inputs["driving"]), "--relative", "--finetune-steps", "0",
+    assert main(["reenact", "--weights", str(tiny_app_weights), "--source", str(app_inputs["source"]),
+                 "--k", "1", "--driver", str(app_inputs["driving"]), "--motion", "relative", "--finetune-steps", "0",
                  "--watermark", "--out", str(cli_out), "--no-progress"]) == 0
     app_frames, cli_frames = list(iter_frames(result.video)), list(iter_frames(cli_out))
     assert len(app_frames) == len(cli_frames) == 5
@@ -196,7 +196,7 @@ def test_sliders_edit_the_person_and_the_saved_pose_drives_lsr_reenact(tiny_app_
     assert frames.shape == (2, 68, 2) and not np.allclose(frames[0], frames[1])
     source = live.live_person(None, 2, examples)[0][0]
     out = tmp_path / "posed.mp4"
-    assert main(["reenact", "--weights", str(tiny_app_weights), "--source", str(source), "--driving", str(pose),
+    assert main(["reenact", "--weights", str(tiny_app_weights), "--source", str(source), "--driver", str(pose),
                  "--out", str(out), "--no-progress"]) == 0
     assert len(list(iter_frames(out))) == 2
     # saving keeps the pose while a new run replaces the previous run's files

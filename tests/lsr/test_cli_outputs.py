@@ -15,7 +15,7 @@ from lsr.cli import main
         ["finetune", "{here}/shot.png"],
         ["export"],
         ["landmarks", "{here}/shot.png"],
-        ["reenact", "--source", "{here}/shot.png", "--driving", "{here}/shot.png"],
+        ["reenact", "--source", "{here}/shot.png", "--driver", "{here}/shot.png"],
         ["curves", "{here}"],
     ],
     ids=lambda command: command[0],

@@ -37,7 +37,7 @@ def frame_digests(source: Path, driver: Path, *, side_by_side: bool, frames: int
     from lsr.writer import side_by_side_frame
     from lsr.weights import resolve_weights
 
-    cfg = ReenactConfig(weights=resolve_weights(None), source=source, driving=driver, out=Path("unused.mp4"),
+    cfg = ReenactConfig(weights=resolve_weights(None), source=source, driver=driver, out=Path("unused.mp4"),
                         k=8, paste_back=True, threads=1, progress=False)
     cfg.validate()
     reenactor = make_reenactor(cfg)

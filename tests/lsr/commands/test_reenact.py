@@ -58,7 +58,7 @@ def probe(path):
 
 def test_single_job_keeps_frames_fps_audio_and_marks_provenance(weights, inputs, tmp_path, capsys):
     out, sbs = tmp_path / "out.mp4", tmp_path / "sbs.mp4"
-    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driver",
                  str(inputs / "drive.mp4"), "--out", str(out), "--paste-back", "--side-by-side", str(sbs),
                  "--watermark", "--no-progress"])
     assert code == 0
@@ -82,7 +82,7 @@ def test_batch_resume_after_interrupted_job(weights, inputs, tmp_path, monkeypat
     jobs = tmp_path / "jobs.csv"
     with open(jobs, "w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["source", "driving", "output"])
+        writer.writerow(["source", "driver", "output"])
         writer.writerow([inputs / "alice.png", inputs / "drive.mp4", "out/a.mp4"])
         writer.writerow([inputs / "alice.png", inputs / "drive.mp4", "out/b.mp4"])
     original = writer_module.draw_watermark
@@ -95,7 +95,7 @@ def test_batch_resume_after_interrupted_job(weights, inputs, tmp_path, monkeypat
         return original(image, text)
 
     monkeypatch.setattr(writer_module, "draw_watermark", crash_in_second_job)
-    args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--jobs", str(jobs), "--watermark", "--no-progress"]
+    args = ["batch", "--finetune-steps", "0", "--weights", str(weights), "--jobs", str(jobs), "--watermark", "--no-progress"]
     assert main(args) == 130
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.mp4"]  # no partial b.mp4, no temp file
     finished = (tmp_path / "out" / "a.mp4").stat().st_mtime_ns
@@ -117,7 +117,7 @@ def test_dirs_pairing_and_shards(tmp_path, monkeypatch):
     every = jobs_from_dirs(tmp_path / "src", tmp_path / "drv", tmp_path / "out", "all")
     assert sorted(j.output.name for j in every) == ["a__a.mp4", "a__c.mp4", "b__a.mp4", "b__c.mp4"]
     by_name = jobs_from_dirs(tmp_path / "src", tmp_path / "drv", tmp_path / "out", "by-name")
-    assert [(j.source.name, j.driving.name, j.output.name) for j in by_name] == [("a.png", "a.mp4", "a.mp4")]
+    assert [(j.source.name, j.driver.name, j.output.name) for j in by_name] == [("a.png", "a.mp4", "a.mp4")]
     shards = [shard_jobs(every, i, 3) for i in range(3)]
     assert sorted(j.output.name for s in shards for j in s) == sorted(j.output.name for j in every)
     assert parse_shard("1/3") == (1, 3)
@@ -173,7 +173,7 @@ def test_bad_input_exits_2_naming_the_problem_without_output(weights, inputs, tm
     if case == "no_weights":  # no --weights and an override that points nowhere: the default is not used
         monkeypatch.setenv("LSR_WEIGHTS", str(tmp_path / "nowhere"))
     out = tmp_path / "result.mp4"
-    code = main(["reenact", "--finetune-steps", "0", *weights_args, "--source", str(source), "--driving", str(driving), "--out", str(out),
+    code = main(["reenact", "--finetune-steps", "0", *weights_args, "--source", str(source), "--driver", str(driving), "--out", str(out),
                  "--no-progress", *extra])
     error = capsys.readouterr().err
     assert code == 2
@@ -188,7 +188,7 @@ def test_phone_portrait_clip_works_as_source_and_driver(weights, tmp_path, capsy
     upright = [np.ascontiguousarray(skimage_data.astronaut()[0:320, 100 - shift : 340 - shift]) for shift in (0, 4, 8)]
     clip = video_tests.write_rotated_clip(tmp_path / "phone.mp4", "phone", 0, upright)
     out = tmp_path / "out.mp4"
-    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(clip), "--driving", str(clip), "--out", str(out),
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(clip), "--driver", str(clip), "--out", str(out),
                  "--paste-back", "--no-progress"])
     assert code == 0, capsys.readouterr().err
     assert "| 1 | 0 | 0 | 3 | 0 |" in capsys.readouterr().out  # 3 frames, none without a face
@@ -232,7 +232,7 @@ def test_unwritable_output_exits_2_with_one_line_before_the_model_loads(weights,
     elif case == "sbs_parent_is_file":
         (tmp_path / "blocker").write_text("a file, not a folder")
         extra, named = ["--side-by-side", str(tmp_path / "blocker" / "sbs.mp4")], tmp_path / "blocker"
-    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driver",
                  str(inputs / "drive.mp4"), "--out", str(out), "--no-progress", *extra])
     error = capsys.readouterr().err
     assert code == 2
@@ -251,10 +251,10 @@ def test_batch_with_bad_output_paths_runs_the_other_jobs_and_lists_the_failures(
     jobs = tmp_path / "jobs.csv"
     with open(jobs, "w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["source", "driving", "output"])
+        writer.writerow(["source", "driver", "output"])
         for output in ["out/a.mp4", *bad]:
             writer.writerow([inputs / "alice.png", inputs / "drive.mp4", output])
-    args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--jobs", str(jobs), "--no-progress"]
+    args = ["batch", "--finetune-steps", "0", "--weights", str(weights), "--jobs", str(jobs), "--no-progress"]
     assert main(args) == 2
     captured = capsys.readouterr()
     assert (tmp_path / "out" / "a.mp4").is_file() and probe(tmp_path / "out" / "a.mp4")[0] == 5
@@ -277,7 +277,7 @@ def test_export_then_onnx_runtime_job(weights, inputs, tmp_path):
     assert all(p.stat().st_mode & 0o044 == 0o044 for p in bundle.iterdir())  # readable by others (mkstemp gives 0600)
     out = tmp_path / "onnx.mp4"
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(bundle), "--runtime", "onnx", "--source", str(inputs / "alice.png"),
-                 "--driving", str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])
+                 "--driver", str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])
     assert code == 0 and probe(out)[:3] == (5, 20.0, True)
 
 
@@ -285,7 +285,7 @@ def test_export_then_onnx_runtime_job(weights, inputs, tmp_path):
 def test_onnx_runtime_exports_a_model_folder_once_into_the_cache(weights, inputs, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--runtime", "onnx", "--source", str(inputs / "alice.png"),
-            "--driving", str(inputs / "drive.mp4"), "--no-progress"]
+            "--driver", str(inputs / "drive.mp4"), "--no-progress"]
     assert main([*args, "--out", str(tmp_path / "a.mp4")]) == 0
     assert "exporting" in capsys.readouterr().out
     bundles = list((tmp_path / "cache" / "lsr" / "onnx").iterdir())
@@ -314,7 +314,7 @@ def test_real_clip_end_to_end(weights, shared_data, tmp_path):
                 break
             writer.write(frame)
     out = tmp_path / "real.mp4"
-    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(short), "--driving", str(short), "--out",
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(short), "--driver", str(short), "--out",
                  str(out), "--k", "2", "--paste-back", "--no-progress"])
     assert code == 0
     frames, fps, has_audio, metadata = probe(out)
@@ -326,7 +326,7 @@ def test_real_clip_end_to_end(weights, shared_data, tmp_path):
 def test_finetune_steps_then_reenact(weights, inputs, tmp_path, capsys):
     """--finetune-steps fine-tunes the generators on the source shots (thesis §4.3.5) before synthesising."""
     out = tmp_path / "ft.mp4"
-    code = main(["reenact", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
+    code = main(["reenact", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driver",
                  str(inputs / "drive.mp4"), "--out", str(out), "--finetune-steps", "2", "--no-progress"])
     assert code == 0 and probe(out)[0] == 5
     printed = capsys.readouterr().out
@@ -357,14 +357,14 @@ def test_default_finetune_steps_follow_the_runtime():
     assert ReenactConfig(runtime="onnx").resolved_finetune_steps == 0
     assert ReenactConfig(finetune_steps=0).resolved_finetune_steps == 0
     with pytest.raises(ConfigError, match="--runtime torch"):
-        ReenactConfig(source=Path("a.png"), driving=Path("b.mp4"), out=Path("c.mp4"), runtime="onnx", finetune_steps=5).validate()
+        ReenactConfig(source=Path("a.png"), driver=Path("b.mp4"), out=Path("c.mp4"), runtime="onnx", finetune_steps=5).validate()
 
 
 def test_existing_single_output_says_skipped(weights, inputs, tmp_path, capsys, monkeypatch):
     out = tmp_path / "out.mp4"
     out.write_bytes(b"an earlier result")
     _forbid_model_load(monkeypatch)
-    code = main(["reenact", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driving",
+    code = main(["reenact", "--weights", str(weights), "--source", str(inputs / "alice.png"), "--driver",
                  str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])
     assert code == 0
     assert f"{out} exists, skipped; --overwrite to redo" in capsys.readouterr().out
@@ -382,7 +382,7 @@ def test_bad_inputs_fail_before_the_model_loads(weights, inputs, tmp_path, capsy
         driving.write_bytes(b"\x00garbage" * 100)
     else:
         driving = tmp_path / "nothing.mp4"
-    code = main(["reenact", "--weights", str(weights), "--source", str(source), "--driving", str(driving), "--out",
+    code = main(["reenact", "--weights", str(weights), "--source", str(source), "--driver", str(driving), "--out",
                  str(tmp_path / "out.mp4"), "--no-progress"])
     error = capsys.readouterr().err
     assert code == 2 and error.count("\n") == 1 and error.startswith("lsr: error:")
@@ -393,7 +393,7 @@ def test_driver_without_any_face_is_an_error_and_writes_nothing(weights, inputs,
     driving = write_clip(tmp_path / "wall.mp4", [np.full((128, 128, 3), 90, np.uint8)] * 3, fps=10, audio=False)
     out = tmp_path / "out.mp4"
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"),
-                 "--driving", str(driving), "--out", str(out), "--no-progress"])
+                 "--driver", str(driving), "--out", str(out), "--no-progress"])
     error = capsys.readouterr().err
     assert code == 2 and "no face found in any of the 3 frame(s) of the driver" in error and str(driving) in error
     assert sorted(p.name for p in tmp_path.iterdir()) == ["wall.mp4"]  # no output, no temp file
@@ -422,7 +422,7 @@ def test_truncated_driver_video_warns_with_decoded_and_declared_counts(weights, 
     assert probe_video(cut).frames == 16 and 0 < decoded < 16  # the fixture is what the test needs
     out = tmp_path / "out.mp4"
     code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(inputs / "alice.png"),
-                 "--driving", str(cut), "--out", str(out), "--no-progress"])
+                 "--driver", str(cut), "--out", str(out), "--no-progress"])
     assert code == 0
     assert f"decoded {decoded} of its 16 declared frames (truncated file?)" in capsys.readouterr().out
     assert probe(out)[0] == decoded
@@ -437,7 +437,7 @@ def test_one_corrupt_image_in_a_source_folder_is_skipped_with_a_note(weights, in
     write_image(folder / "b.png", face_frame(6))
     (folder / "c.jpg").write_bytes(b"\xff\xd8 not really a jpeg")
     out = tmp_path / "out.mp4"
-    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(folder), "--driving",
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(folder), "--driver",
                  str(inputs / "drive.mp4"), "--out", str(out), "--no-progress"])
     assert code == 0, capsys.readouterr().err
     printed = capsys.readouterr().out
@@ -460,7 +460,7 @@ def test_a_source_with_two_faces_uses_the_largest_and_face_index_picks(weights, 
 
     source = tmp_path / "pair.png"
     write_image(source, _two_faces())
-    args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(source), "--driving",
+    args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(source), "--driver",
             str(inputs / "drive.mp4"), "--no-progress"]
     assert main([*args, "--out", str(tmp_path / "a.mp4")]) == 0
     assert "1 source frame(s) show more than one face: used the largest; --face-index picks another" in capsys.readouterr().out
@@ -484,7 +484,7 @@ def test_a_face_too_small_to_detect_says_the_size_needed(weights, inputs, tmp_pa
     photo[1000:1080, 1000:1080] = cv2.resize(face_frame(0), (80, 80), interpolation=cv2.INTER_AREA)
     source = tmp_path / "far.png"
     write_image(source, photo)
-    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(source), "--driving",
+    code = main(["reenact", "--finetune-steps", "0", "--weights", str(weights), "--source", str(source), "--driver",
                  str(inputs / "drive.mp4"), "--out", str(tmp_path / "out.mp4"), "--no-progress"])
     error = capsys.readouterr().err
     assert code == 2 and "at least about 150 px wide" in error and "crop a large photo closer to the face" in error
@@ -508,31 +508,24 @@ def test_export_to_an_unwritable_folder_is_one_line_before_the_model_loads(weigh
         assert err.startswith("lsr: error: --out") and err.count("\n") == 1 and str(tmp_path / "blocker") in err
 
 
-@pytest.mark.parametrize("mouth", ["nearest", "blend"])
-def test_reenact_mouth_option_reaches_the_reenactor(weights, mouth):
+def test_reenact_runs_the_parts_at_their_measured_defaults(weights, capsys):
+    """The part ablations are lsr eval's and lsr bench's options (issue 64): a job runs the best measured parts."""
     from lsr.config import ReenactConfig
     from lsr.commands.reenact import make_reenactor
 
-    assert ReenactConfig().mouth is None  # the model's default: drawn with a mouth generator, else nearest
-    assert make_reenactor(ReenactConfig(weights=weights)).mouth == "nearest"
-    assert make_reenactor(ReenactConfig(weights=weights, mouth=mouth)).mouth == mouth
+    reenactor = make_reenactor(ReenactConfig(weights=weights))
+    assert reenactor.mouth == "nearest"  # the model's default without a mouth generator
+    assert (reenactor.mouth_interior, reenactor.lids, reenactor.eyes) == ("driver", "drawn", "warped")
+    for option in ("--mouth", "--eyes", "--lids", "--mouth-interior", "--retarget"):
+        with pytest.raises(SystemExit):
+            main(["reenact", option, "blend", "--source", "a.png", "--driver", "b.mp4", "--out", "c.mp4"])
+    assert "unrecognized" in capsys.readouterr().err.lower()
 
 
-def test_reenact_mouth_interior_option_reaches_the_reenactor(weights):
-    from lsr.config import ReenactConfig
-    from lsr.commands.reenact import make_reenactor
-
-    assert ReenactConfig().mouth_interior == "driver"
-    assert make_reenactor(ReenactConfig(weights=weights)).mouth_interior == "driver"
-    assert make_reenactor(ReenactConfig(weights=weights, mouth_interior="shots")).mouth_interior == "shots"
-
-
-def test_reenact_lids_option_reaches_the_reenactor(weights):
-    from lsr.config import ReenactConfig
-    from lsr.commands.reenact import make_reenactor
-
-    assert ReenactConfig().lids == "drawn"
-    assert make_reenactor(ReenactConfig(weights=weights)).lids == "drawn"
-    assert make_reenactor(ReenactConfig(weights=weights, lids="driver")).lids == "driver"
-    assert make_reenactor(ReenactConfig(weights=weights, lids="shots")).lids == "shots"
-    assert make_reenactor(ReenactConfig(weights=weights, lids="drawn")).lids == "drawn"
+def test_reenact_help_lists_at_most_20_options(capsys):
+    """Options a user can answer (issue 64): the batch's and the ablations' live in lsr batch, lsr eval and lsr bench."""
+    with pytest.raises(SystemExit):
+        main(["reenact", "--help"])
+    options = re.findall(r"^[│ ] {1,2}(--[\w-]+)", capsys.readouterr().out, flags=re.M)  # rows, not wrapped text
+    assert "--source" in options and "--driver" in options and "--paste-back" in options
+    assert len(options) <= 20, options

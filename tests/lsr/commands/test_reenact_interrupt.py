@@ -29,10 +29,10 @@ def _start_batch(weights, inputs, tmp_path, jobs: int):
     drive = write_clip(tmp_path / "long.mp4", [face_frame(s % 12) for s in range(40)], fps=20, audio=False)
     with open(table, "w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["source", "driving", "output"])
+        writer.writerow(["source", "driver", "output"])
         for index in range(jobs):
             writer.writerow([inputs / "alice.png", drive, f"out/{index}.mp4"])
-    args = ["reenact", "--finetune-steps", "0", "--weights", str(weights), "--jobs", str(table), "--no-progress"]
+    args = ["batch", "--finetune-steps", "0", "--weights", str(weights), "--jobs", str(table), "--no-progress"]
     child = subprocess.Popen([sys.executable, "-m", "lsr.cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                              text=True, cwd=Path(__file__).parents[3])
     while not (tmp_path / "out" / "0.mp4").exists():

@@ -67,7 +67,7 @@ def test_two_synthetic_people_output_is_the_source_scene(weights, tmp_path):
     wide = np.pad(source_clip.frames, ((0, 0), (0, 0), (64, 64), (0, 0)), mode="edge")
     source, driver = _write(tmp_path / "source.mp4", wide), _write(tmp_path / "driver.mp4", driver_clip.frames)
     out = tmp_path / "out.mp4"
-    assert main(["reenact", "--weights", str(weights), "--source", str(source), "--driving", str(driver), "--out",
+    assert main(["reenact", "--weights", str(weights), "--source", str(source), "--driver", str(driver), "--out",
                  str(out), "--paste-back", "--finetune-steps", "0", "--k", "4", "--no-progress"]) == 0
     output, sources = _read(out), _read(source)
     assert output.shape == (DRIVER_FRAMES, 256, 384, 3)
@@ -88,7 +88,7 @@ def test_driver_scene_stays_available(weights, tmp_path):
     driver_clip = render_video(32, 6, 256)
     driver = _write(tmp_path / "driver.mp4", np.pad(driver_clip.frames, ((0, 0), (0, 0), (32, 32), (0, 0)), mode="edge"))
     out = tmp_path / "dub.mp4"
-    assert main(["reenact", "--weights", str(weights), "--source", str(source), "--driving", str(driver), "--out",
+    assert main(["reenact", "--weights", str(weights), "--source", str(source), "--driver", str(driver), "--out",
                  str(out), "--paste-back", "--scene", "driver", "--finetune-steps", "0", "--k", "2", "--no-progress"]) == 0
     output, drivers = _read(out), _read(driver)
     assert output.shape == drivers.shape
@@ -107,7 +107,7 @@ def test_image_source_scene_is_the_anchor_photo_at_its_size(weights, tmp_path):
         write_image(folder / f"{index}.png", np.pad(frame, ((16, 16), (0, 0), (0, 0)), mode="edge"))
     driver = _write(tmp_path / "driver.mp4", render_video(32, 5, 256).frames)
     out = tmp_path / "out.mp4"
-    assert main(["reenact", "--weights", str(weights), "--source", str(folder), "--driving", str(driver), "--out",
+    assert main(["reenact", "--weights", str(weights), "--source", str(folder), "--driver", str(driver), "--out",
                  str(out), "--paste-back", "--anchor", "1", "--finetune-steps", "0", "--k", "3", "--no-progress"]) == 0
     output = _read(out)
     assert output.shape == (5, 288, 256, 3)
@@ -123,7 +123,7 @@ def test_anchor_outside_the_shots_is_one_line(weights, tmp_path, capsys):
     source = tmp_path / "a.png"
     write_image(source, render_video(31, 1, 256).frames[0])
     driver = _write(tmp_path / "driver.mp4", render_video(32, 2, 256).frames)
-    code = main(["reenact", "--weights", str(weights), "--source", str(source), "--driving", str(driver), "--out",
+    code = main(["reenact", "--weights", str(weights), "--source", str(source), "--driver", str(driver), "--out",
                  str(tmp_path / "o.mp4"), "--paste-back", "--anchor", "3", "--finetune-steps", "0", "--no-progress"])
     assert code == 2
     assert "--anchor 3 is not one of the 1 shots" in capsys.readouterr().err
@@ -149,7 +149,7 @@ def test_shared_clips_sun_driven_by_tpsmm(weights, shared_data, tmp_path):
 
     source, driver = trim("musetalk_sun.mp4", 12), trim("tpsmm_driving.mp4", 8)
     out = tmp_path / "out.mp4"
-    assert main(["reenact", "--weights", str(weights), "--source", str(source), "--driving", str(driver), "--out",
+    assert main(["reenact", "--weights", str(weights), "--source", str(source), "--driver", str(driver), "--out",
                  str(out), "--paste-back", "--finetune-steps", "0", "--k", "2", "--no-progress"]) == 0
     output, sources = _read(out), _read(source)
     assert output.shape == (8, *sources.shape[1:])

@@ -116,9 +116,9 @@ def test_every_clip_failing_is_a_clear_error(tmp_path: Path, capsys):
     _bad_inputs(tmp_path / "in")
     with pytest.raises(DatasetError, match="all 3 clip"):
         prepare_dataset(tmp_path / "in", tmp_path / "out", PrepareOptions(size=64, frames_per_clip=2), workers=2, progress=False)
-    assert main(["prepare", str(tmp_path / "in"), "--out", str(tmp_path / "out2"), "--size", "64", "--workers", "1"]) == 2
+    assert main(["prepare", str(tmp_path / "in"), "--out", str(tmp_path / "out2"), "--resolution", "64", "--workers", "1"]) == 2
     assert "all 3 clip(s) failed" in capsys.readouterr().err
-    assert main(["prepare", str(tmp_path / "in"), "--out", str(tmp_path / "out4"), "--size", "64", "--workers", "1",
+    assert main(["prepare", str(tmp_path / "in"), "--out", str(tmp_path / "out4"), "--resolution", "64", "--workers", "1",
                  "--no-progress"]) == 2  # the same clear error, without the bar (lsr eval's and lsr train's flag)
     assert "prepare:" not in (said := capsys.readouterr()).err and "all 3 clip(s) failed" in said.err
     assert main(["prepare", str(tmp_path / "missing"), "--out", str(tmp_path / "out3")]) == 2

@@ -188,10 +188,10 @@ def test_cli_writes_dataset_and_preview(tmp_path: Path) -> None:
     from lsr.data.format import list_clips
 
     out = tmp_path / "ds"
-    assert main(["synth", "--out", str(out), "--identities", "2", "--videos-per-identity", "1", "--frames", "2", "--size", "48"]) == 0
+    assert main(["synth", "--out", str(out), "--identities", "2", "--videos-per-identity", "1", "--frames", "2", "--resolution", "48"]) == 0
     assert len(list_clips(out)) == 2
     preview = tmp_path / "sheet.png"
-    assert main(["synth", "--preview", str(preview), "--size", "48"]) == 0
+    assert main(["synth", "--preview", str(preview), "--resolution", "48"]) == 0
     assert preview.is_file() and preview.stat().st_size > 1000
     assert main(["synth", "--out", str(out), "--frames", "0"]) == 2  # typed error -> exit 2
 
