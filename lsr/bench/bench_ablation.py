@@ -218,7 +218,7 @@ def synthetic_test_split(cfg: BenchAblationConfig, resolution: int) -> Path:
 
 def evaluation_splits(cfg: BenchAblationConfig, resolution: int) -> tuple[dict[str, tuple[str, Path]], list[str]]:
     """{folder name: (title, dataset root)} to score, and one line per split skipped, with the reason."""
-    from lsr.config.bench_options import evaluation_data
+    from lsr.config.shared import evaluation_data
     from lsr.data.format import read_manifest
 
     splits, skipped = {}, []

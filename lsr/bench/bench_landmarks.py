@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from lsr.config import BenchLandmarksConfig
-from lsr.config.bench_options import shared_data_dir
+from lsr.config.shared import shared_data_dir
 from lsr.errors import ConfigError
 
 DEFAULT_CLIP = "clips/tpsmm_driving.mp4"

@@ -21,6 +21,7 @@ import numpy as np
 from lsr.config import BenchReenactConfig
 from landmarks.io.video import trim_clip
 from lsr.bench.bench_landmarks import default_video
+from lsr.core.finish import set_parts
 
 LIDS_SAY = {"drawn": "the drawn lids", "driver": "the driver's shut lids"}
 """How the table names each ``--lids`` choice timed against "shots"."""
@@ -93,14 +94,7 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
 
                 torch.set_num_threads(threads)
                 reenactor = Reenactor(weights, device=device, detector=detector)
-            if mouth is not None:
-                reenactor.mouth = mouth
-            if eyes is not None:
-                reenactor.eyes = eyes
-            if interior is not None:
-                reenactor.mouth_interior = interior
-            if lids is not None:
-                reenactor.lids = lids
+            set_parts(reenactor, mouth=mouth, eyes=eyes, mouth_interior=interior, lids=lids)
             started = time.perf_counter()
             reenactor.encode_subject(clip, k=cfg.k)
             encode_subject_s = time.perf_counter() - started

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from lsr.config.bench_options import check_weights
+from lsr.config.shared import check_weights
 from lsr.errors import ConfigError
 from lsr.eval import sections
 from lsr.bench.bench_models import conv_peak_gflops, count_gflop, frame_inputs, median_ms, time_runtime

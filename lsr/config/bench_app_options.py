@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from lsr.config.bench_options import OptionalPath
+from lsr.config.shared import OptionalPath
 from lsr.errors import ConfigError
 
 

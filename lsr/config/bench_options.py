@@ -13,30 +13,10 @@ from typing import Annotated, Literal
 import tyro
 
 from lsr.core import DEFAULT_FINETUNE_LR
+from lsr.config.shared import (  # noqa: F401 - re-exported for the commands that read them from here
+    OptionalFloat, OptionalInt, OptionalPath, OptionalStr, SplitOptions, check_metric_weights, check_weights,
+    evaluation_data, shared_data_dir)
 from lsr.errors import ConfigError
-
-OptionalPath = Annotated[Path | None, tyro.conf.arg(metavar="PATH", help_behavior_hint="(optional)")]
-"""An optional path option: shown as ``--opt PATH ... (optional)`` in --help, not ``{None}|PATH (default: None)``."""
-
-
-def check_weights(weights: str | os.PathLike | None, label: str = "--weights") -> None:
-    """The one ``--weights`` check of every command: None (the default model) or an existing folder."""
-    if weights is not None and not Path(weights).is_dir():
-        raise ConfigError(f"{label} {weights} is not a folder: give a model folder (config.json + model.safetensors "
-                          "from `lsr train`, or an `lsr export` bundle)")
-
-
-OptionalInt = Annotated[int | None, tyro.conf.arg(metavar="INT", help_behavior_hint="(optional)")]
-OptionalFloat = Annotated[float | None, tyro.conf.arg(metavar="FLOAT", help_behavior_hint="(optional)")]
-OptionalStr = Annotated[str | None, tyro.conf.arg(metavar="STR", help_behavior_hint="(optional)")]
-
-
-def check_metric_weights(lpips_weights: Path | None, fid_weights: Path | None) -> None:
-    """The --lpips-weights / --fid-weights check of `lsr eval` and `lsr bench ablation`: unset or an existing file."""
-    for flag, path in (("--lpips-weights", lpips_weights), ("--fid-weights", fid_weights)):
-        if path is not None and not Path(path).is_file():
-            raise ConfigError(f"{flag} {path} is not a file; pass an existing weights file or leave {flag} unset")
-
 
 @dataclasses.dataclass
 class BenchLandmarksConfig:
@@ -239,21 +219,6 @@ class BenchReenactConfig:
             raise ConfigError("--frames >= 2, --k >= 1 and --resolution >= 32 are required")
 
 
-def shared_data_dir() -> Path:
-    """Real data beside the project: $LSR_SHARED_DATA, default ../shared/data from the repo root."""
-    return Path(os.environ.get("LSR_SHARED_DATA", Path(__file__).resolve().parents[3] / "shared" / "data"))
-
-
-def evaluation_data(data: Path | None) -> Path:
-    """``data``, or the shared FSTH sample (../shared/data/fsth_eval_sample or $LSR_SHARED_DATA/fsth_eval_sample)."""
-    if data is not None:
-        return Path(data)
-    shared = shared_data_dir() / "fsth_eval_sample"
-    if not shared.is_dir():
-        raise ConfigError(f"no --data given and the shared FSTH sample {shared} is absent; pass --data FOLDER")
-    return shared
-
-
 @dataclasses.dataclass
 class BenchFinetuneConfig:
     """Print subject fine-tuning's steps-vs-error curve beside the TPS baselines (lsr.bench.bench_finetune)."""
@@ -335,7 +300,7 @@ class BenchLidsConfig:
 
 
 @dataclasses.dataclass
-class BenchAblationConfig:
+class BenchAblationConfig(SplitOptions):
     """Reproduce the thesis ablation (Table 4.2): train baseline, +SPADE, +learned seg. maps and +latent layout with
     one schedule on one data set (resumable), score each single-shot without fine-tuning with `lsr eval`'s protocol,
     and print each metric's ranks beside the thesis' (lsr.bench.bench_ablation).
@@ -367,14 +332,6 @@ class BenchAblationConfig:
     device: Literal["auto", "cpu", "cuda"] = "auto"
     checkpoint_every: int = 200
     """Full checkpoint every N steps: a run killed by a session limit loses at most this many steps."""
-    inputs: int = 32
-    """Evaluation: the first N frames of a test identity are its inputs (the single shot is drawn from them) ..."""
-    holdouts: int = 32
-    """... and the next N its hold-outs (as `lsr eval --inputs/--holdouts`)."""
-    max_identities: int = 0
-    """Score only the first N identities of each split (0 = all)."""
-    max_holdouts: int = 0
-    """Score only the first N hold-out frames per identity (0 = all)."""
     fsth: bool = True
     """Also score on the FSTH sample (--fsth-root, else ../shared/data/fsth_eval_sample; skipped when absent)."""
     fsth_root: OptionalPath = None

@@ -7,13 +7,13 @@ from pathlib import Path
 from typing import Literal
 
 from landmarks.parts.mouth.opening_gain import GAIN_RANGE
-from lsr.config.bench_options import OptionalPath, check_metric_weights, check_weights, evaluation_data
+from lsr.config.shared import OptionalPath, SplitOptions, check_metric_weights, check_weights, evaluation_data
 from lsr.core import DEFAULT_FINETUNE_LR
 from lsr.errors import ConfigError
 
 
 @dataclasses.dataclass
-class EvalConfig:
+class EvalConfig(SplitOptions):
     """Evaluate re-enactment with the thesis protocol (§4.4): K shots from the inputs, metrics on hold-out frames."""
 
     data: OptionalPath = None
@@ -37,14 +37,6 @@ class EvalConfig:
     """Torch device of the models (cpu, cuda, cuda:1, ...)."""
     split: str = "test"
     """Split of an lsr dataset to evaluate on."""
-    inputs: int = 32
-    """lsr dataset: first N frames of an identity are the inputs ..."""
-    holdouts: int = 32
-    """... and the next N frames the hold-outs."""
-    max_holdouts: int = 0
-    """Use only the first N hold-out frames per identity (0 = all)."""
-    max_identities: int = 0
-    """Use only the first N identities (0 = all)."""
     seed: int = 0
     """Seed of the K-shot sampling."""
     shot_choice: Literal["random", "spread", "cover"] = "random"

@@ -28,14 +28,10 @@ from lsr.config.bench_options import (  # noqa: F401 - re-exported: every sub-co
     BenchAblationConfig,
     BenchOracleSegConfig,
     BenchSynthConfig,
-    OptionalFloat,
-    OptionalInt,
-    OptionalPath,
-    OptionalStr,
-    check_weights,
 )
 from lsr.config.bench_app_options import BenchLiveConfig, BenchSoakConfig, BenchWebConfig  # noqa: F401 - re-exported
 from lsr.config.eval_options import EvalConfig  # noqa: F401 - re-exported
+from lsr.config.shared import OptionalFloat, OptionalInt, OptionalPath, OptionalStr, check_weights
 from lsr.config.train_options import (  # noqa: F401 - re-exported: every sub-command config is lsr.config.*
     FinetuneConfig,
     LossConfig,

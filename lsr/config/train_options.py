@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 
 import tyro
 
-from lsr.config.bench_options import OptionalInt, OptionalPath, check_weights
+from lsr.config.shared import OptionalInt, OptionalPath, check_weights
 from lsr.core import DEFAULT_FINETUNE_LR
 from lsr.errors import ConfigError
 

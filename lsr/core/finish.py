@@ -71,6 +71,17 @@ class Choice:
         instance.__dict__[self.name] = value
 
 
+def set_parts(reenactor: object, **choices: object) -> None:
+    """Set the part settings that are given (not None) on ``reenactor``: ``mouth``, ``eyes``, ``mouth_interior``,
+    ``lids``, ``expression_gain``, ``bank``, ``bank_parts``. The one place lsr eval and lsr bench vary them; an
+    unknown setting is a ValueError naming it (a ``Choice`` checks each value)."""
+    for name, value in choices.items():
+        if not hasattr(type(reenactor), name):
+            raise ValueError(f"a reenactor has no part setting {name!r}")
+        if value is not None:
+            setattr(reenactor, name, value)
+
+
 def draws_mouth(backend: object) -> bool:
     """Whether ``backend`` has a mouth generator (``SynthesisBackend.draw_mouth``, ``mouth_generator_size`` > 0)."""
     return getattr(backend, "mouth_generator_size", 0) > 0

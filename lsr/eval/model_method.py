@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from lsr.core import DEFAULT_FINETUNE_LR
+from lsr.core.finish import set_parts
 from lsr.core.inputs import scale_mesh, scale_points
 from lsr.errors import ConfigError, WeightsError
 from lsr.eval.baselines import check_method_inputs
@@ -101,18 +102,9 @@ class LsrModelMethod:
             self.variant = reenactor.backend.config.get("variant", "")
         self.reenactor = reenactor
         reenactor.reference_warp = reference_warp
-        if mouth is not None:
-            reenactor.mouth = mouth
-        if eyes is not None:
-            reenactor.eyes = eyes
-        if mouth_interior is not None:
-            reenactor.mouth_interior = mouth_interior
-        if lids is not None:
-            reenactor.lids = lids
-        if expression_gain is not None:
-            reenactor.expression_gain = expression_gain
-        if bank is not None:
-            reenactor.bank = bank  # "shots": the K shots are every frame the protocol gives (as "all" is here)
+        # bank "shots": the K shots are every frame the protocol gives (as "all" is here)
+        set_parts(reenactor, mouth=mouth, eyes=eyes, mouth_interior=mouth_interior, lids=lids,
+                  expression_gain=expression_gain, bank=bank)
         self.uses_gazes = reenactor.eyes != "blend"
         self.uses_driver_mouths = reenactor.mouth_interior == "driver"
         self.uses_driver_eyes = reenactor.lids == "driver"

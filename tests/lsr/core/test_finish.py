@@ -221,3 +221,16 @@ def test_with_no_driver_frame_the_subject_lids_are_drawn_where_the_target_shuts_
     drawn_open = reenactor.synthesize_crop(open_target)[0]
     reenactor.lids = "shots"
     np.testing.assert_array_equal(drawn_open, reenactor.synthesize_crop(open_target)[0])
+
+
+def test_set_parts_sets_what_is_given_and_names_what_is_wrong():
+    from lsr.core.engine import ReenactorBase
+    from lsr.core.finish import set_parts
+
+    reenactor = ReenactorBase.__new__(ReenactorBase)  # the settings are class attributes: no backend needed
+    set_parts(reenactor, eyes="blend", lids=None, bank="shots")
+    assert (reenactor.eyes, reenactor.lids, reenactor.bank) == ("blend", "drawn", "shots")
+    with pytest.raises(ValueError, match="lids"):
+        set_parts(reenactor, lids="closed")
+    with pytest.raises(ValueError, match="hair"):
+        set_parts(reenactor, hair="long")
