@@ -45,9 +45,7 @@ from tqdm import tqdm
 
 from landmarks.detect.face_detector import DlibDetector, predict_landmarks
 from landmarks.shape.ibug68 import NUM_LANDMARKS
-from landmarks.motion.smooth import inter_ocular_distance
-
-# Box relation (centre offset / extent, size / extent) of dlib HOG boxes on a frontal face,
+from landmarks.shape.measures import inter_ocular_distance
 # measured on skimage's astronaut; used only until the first detection gives a real one.
 _DEFAULT_RELATION = np.array([0.0, -0.12, 0.98, 1.0], np.float32)
 

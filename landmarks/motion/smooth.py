@@ -13,7 +13,8 @@ import math
 
 import numpy as np
 
-from landmarks.shape.ibug68 import LEFT_EYE, NUM_LANDMARKS, RIGHT_EYE
+from landmarks.shape.measures import inter_ocular_distance
+from landmarks.shape.ibug68 import NUM_LANDMARKS
 
 
 def _alpha(cutoff: np.ndarray | float, fps: float) -> np.ndarray | float:
@@ -83,13 +84,6 @@ def smooth_sequence(
         raise ValueError(f"landmarks must be (N, 68, 2), got {landmarks.shape}")
     one_euro = OneEuroFilter(fps, min_cutoff, beta, d_cutoff)
     return np.stack([one_euro(frame) for frame in landmarks]) if len(landmarks) else landmarks.copy()
-
-
-def inter_ocular_distance(landmarks: np.ndarray) -> np.ndarray:
-    """(..., 68, 2) -> (...) distance between the two eye centres."""
-    left = landmarks[..., LEFT_EYE, :].mean(axis=-2)
-    right = landmarks[..., RIGHT_EYE, :].mean(axis=-2)
-    return np.linalg.norm(right - left, axis=-1)
 
 
 def jitter(landmarks: np.ndarray) -> float:

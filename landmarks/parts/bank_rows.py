@@ -33,7 +33,7 @@ class BankRows:
 def usable_face(frame: np.ndarray, points: np.ndarray | None) -> tuple[np.ndarray, np.ndarray] | None:
     """A bank's frame (H, W, 3) uint8 RGB and its 68 points -> (the frame, the points as (68, 2) float64), or None
     where the points are None or not finite (no face: skipped). A frame of another shape or type is a ValueError."""
-    from landmarks.parts.mouth.interior import finite_points
+    from landmarks.shape.measures import finite_points
 
     points = None if points is None else finite_points(points)
     if points is None:

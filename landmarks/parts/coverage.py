@@ -300,7 +300,7 @@ class MomentKeeper:
         """The frame's raw measures: mouth, eyes, yaw, pitch, gaze (``face_features``), width (mouth width over
         eye distance) and roundness (mouth opening over its width)."""
         from landmarks.parts.appearance import gaze
-        from landmarks.motion.smooth import inter_ocular_distance
+        from landmarks.shape.measures import inter_ocular_distance
 
         gazes = np.array([gaze(frame, points)[0]])
         mouth, eyes, yaw, pitch, glance = face_features(points[None], frame.shape[:2], gazes)[0]

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from landmarks.shape.ibug68 import LEFT_EYE, NUM_LANDMARKS, RIGHT_EYE
-from landmarks.motion.smooth import inter_ocular_distance
+from landmarks.shape.measures import inter_ocular_distance
 
 INNER_LIP_PAIRS = ((61, 67), (62, 66), (63, 65))
 EYE_LID_PAIRS = ((37, 41), (38, 40), (43, 47), (44, 46))

@@ -47,6 +47,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from landmarks.shape import measures
 from landmarks.warp import tps
 from landmarks.exceptions import ModelFilesError
 from landmarks.parts.mouth.opening_gain import EXPRESSION_GAIN, amplify_mouth, mouth_gain
@@ -539,7 +540,7 @@ def warp_references_mesh(shots: np.ndarray, shot_meshes: np.ndarray, shot_landma
         raise ValueError(f"shots must be (K, S, S, 3) uint8, got {shots.shape} {shots.dtype}")
     if count < 1:
         raise ValueError(f"count must be >= 1, got {count}")
-    indices = np.resize(tps.nearest_shots(shot_landmarks, target_landmarks, count), count)  # repeat when K < count
+    indices = np.resize(measures.nearest_shots(shot_landmarks, target_landmarks, count), count)  # repeat when K < count
     height, width = shots.shape[1:3]
     unique = [int(index) for index in dict.fromkeys(indices.tolist())]  # a repeated shot (K < count) is warped once
     fallbacks = tps.tps_maps([shot_landmarks[index] for index in unique], target_landmarks, height, width,

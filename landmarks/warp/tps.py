@@ -30,7 +30,7 @@ import inspect
 import cv2
 import numpy as np
 
-from landmarks.shape.ibug68 import LEFT_EYE, RIGHT_EYE
+from landmarks.shape.measures import nearest_shots
 
 DEFAULT_REGULARIZATION = 1e-3
 DEFAULT_MERGE_DISTANCE = 1.0  # pixels
@@ -428,30 +428,6 @@ def warp_tps(image: np.ndarray, source_points: np.ndarray, target_points: np.nda
 
 
 # ---- references for the warp-guided generator and the tps_mean3 baseline ------------------------------------
-
-
-def landmark_distance(first: np.ndarray, second: np.ndarray) -> np.ndarray:
-    """Mean point distance over ``second``'s eye-centre distance (NMKE without alignment).
-
-    first, second: (..., 68, 2) broadcastable -> (...) float64; NaN where either has NaN rows or no eye distance.
-    """
-    first, second = np.asarray(first, np.float64), np.asarray(second, np.float64)
-    mean_distance = np.linalg.norm(first - second, axis=-1).mean(axis=-1)
-    eyes = np.linalg.norm(second[..., LEFT_EYE, :].mean(axis=-2) - second[..., RIGHT_EYE, :].mean(axis=-2), axis=-1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(eyes > 0, mean_distance / np.where(eyes > 0, eyes, 1.0), np.nan)
-
-
-def nearest_shots(shot_landmarks: np.ndarray, target_landmarks: np.ndarray, count: int) -> np.ndarray:
-    """Indices of the ``count`` shots nearest to the target (``landmark_distance``, ties by index).
-
-    shot_landmarks: (K, 68, 2) (NaN rows = shot without a face; chosen last); target_landmarks: (68, 2)
-    -> (min(count, K),) int. Raw landmarks, not aligned: the warped pixels keep their position, so a shot
-    whose head sits elsewhere in the frame is a worse reference even if the pose matches.
-    """
-    distances = landmark_distance(shot_landmarks, np.asarray(target_landmarks)[None])
-    distances = np.where(np.isnan(distances), np.inf, distances)
-    return np.argsort(distances, kind="stable")[: max(1, min(count, len(shot_landmarks)))]
 
 
 def warp_references(

@@ -108,7 +108,7 @@ def nme(points: np.ndarray, reference: np.ndarray, index: slice | Sequence[int] 
 
     points, reference: (N, 68, 2), NaN rows where missing; NaN where either is missing.
     """
-    from landmarks.motion.smooth import inter_ocular_distance
+    from landmarks.shape.measures import inter_ocular_distance
 
     points, reference = _check_sequence(points, "points"), _check_sequence(reference, "reference")
     if points.shape != reference.shape:
@@ -138,7 +138,7 @@ def still_stretches(
     ends), must move less than ``max_motion`` inter-ocular distances per frame all through the run, which is at
     least ``min_frames`` long. Frames within window // 2 of a motion are not still: the average already sees it.
     """
-    from landmarks.motion.smooth import inter_ocular_distance
+    from landmarks.shape.measures import inter_ocular_distance
 
     reference = _check_sequence(reference, "reference")
     valid = np.isfinite(reference).all(axis=(1, 2))
@@ -165,7 +165,7 @@ def stretch_jitter(points: np.ndarray, reference: np.ndarray, stretches: Sequenc
 
     points, reference: (N, 68, 2); the frames of the stretches must have points in both.
     """
-    from landmarks.motion.smooth import inter_ocular_distance
+    from landmarks.shape.measures import inter_ocular_distance
 
     points, reference = _check_sequence(points, "points"), _check_sequence(reference, "reference")
     rigid = list(RIGID_POINTS)

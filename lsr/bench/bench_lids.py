@@ -92,7 +92,7 @@ def pooled_slope(x: np.ndarray, y: np.ndarray) -> float:
 
 def eye_strip(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
     """Both eyes of ``image`` (H, W, 3) around ``landmarks`` (68, 2): the eye corners' box grown by ``CROP``."""
-    from landmarks.motion.smooth import inter_ocular_distance
+    from landmarks.shape.measures import inter_ocular_distance
 
     points = np.asarray(landmarks, np.float64)
     scale = float(inter_ocular_distance(points[None])[0])

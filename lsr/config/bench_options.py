@@ -6,7 +6,6 @@ Each benchmark is a command that prints a markdown table with machine info; neve
 from __future__ import annotations
 
 import dataclasses
-import os
 from pathlib import Path
 from typing import Annotated, Literal
 

@@ -41,15 +41,14 @@ from lsr.core.inputs import (
     source_key,
     track_driver,
 )
-from landmarks.parts.eyes.driver_lids import DriverEyes, cut_driver_eyes, paste_eyes
-from landmarks.parts.eyes.drawn_lids import draw_lids
+from landmarks.parts.eyes.driver_lids import DriverEyes, cut_driver_eyes
 from landmarks.exceptions import InputFileError, NoFaceError
 from landmarks.parts.mouth.opening_gain import EXPRESSION_GAIN, GAIN_RANGE
-from landmarks.parts.eyes.eye_bank import EyeChoice, paste_bank_eyes
-from landmarks.parts.mouth.mouth_bank import MouthChoice, paste_bank_mouth
+from landmarks.parts.eyes.eye_bank import EyeChoice
+from landmarks.parts.mouth.mouth_bank import MouthChoice
 from landmarks.parts.eyes.lids import LOOK_AHEAD
 from landmarks.motion.retarget_mesh import RETARGET_MODES, DriverReference
-from landmarks.parts.mouth.interior import DriverMouth, cut_driver_mouth, paste_interior
+from landmarks.parts.mouth.interior import DriverMouth, cut_driver_mouth
 from lsr.core.backend import SynthesisBackend
 from lsr.core.overlap import finish_behind, prefetch
 from lsr.core.part_tracks import PartTracks, part_tracks
@@ -57,7 +56,7 @@ from lsr.core.scene import paste_into_driver, paste_into_scene
 from lsr.core.subject import Subject
 from lsr.core.images import from_network, square_resize, to_network
 from lsr.core.finish import (BANK_PARTS, BANKS, EYES, LIDS, MOUTH_INTERIORS, MOUTHS, Choice, DriverGaze, draws_mouth,
-                             finish_eyes, finish_mouth)
+                             finish_parts)
 
 Mode = Literal["auto", "relative", "absolute"]
 Scene = Literal["source", "driver"]
@@ -286,21 +285,9 @@ class ReenactorBase:
             *((inputs["references"], inputs["reference_masks"]) if "references" in inputs else ()),
         )
         image = from_network(image[0])
-        if crop_landmarks is not None and self.mouth != "blend":
-            shot_landmarks = (subject or self._require_subject()).shots.landmarks
-            image = finish_mouth(image, self.mouth, inputs, crop_landmarks, shot_landmarks, self.warp_references,
-                                 self.backend)
-        if crop_landmarks is not None and driver_mouth is not None and self.mouth_interior == "driver":
-            image = paste_interior(image, crop_landmarks, driver_mouth)
-        if crop_landmarks is not None and driver_eyes is not None and self.lids == "driver":
-            image = paste_eyes(image, crop_landmarks, driver_eyes)
-        elif crop_landmarks is not None and self.lids != "shots":
-            image = draw_lids(image, crop_landmarks, (subject or self._require_subject()).lid_gaps)
-        if crop_landmarks is not None and gaze is not None and self.eyes == "drawn":
-            image = finish_eyes(image, self.eyes, crop_landmarks, gaze, (subject or self._require_subject()).irises[0])
-        if crop_landmarks is not None:  # each choice carries the bank it was made from
-            image = paste_bank_mouth(image, crop_landmarks, None, mouth_choice)
-            image = paste_bank_eyes(image, crop_landmarks, None, eye_choice)
+        if crop_landmarks is not None:
+            image = finish_parts(image, self, inputs, crop_landmarks, subject or self._require_subject(), gaze,
+                                 driver_mouth, driver_eyes, eye_choice, mouth_choice)
         return image, None if layout is None else np.asarray(layout[0], np.float32)
 
     def network_inputs(self, crop_landmarks: np.ndarray, latents: tuple[np.ndarray, np.ndarray] | None = None,

@@ -18,6 +18,11 @@ from collections.abc import Callable
 
 import numpy as np
 
+from landmarks.parts.eyes.drawn_lids import draw_lids
+from landmarks.parts.eyes.driver_lids import paste_eyes
+from landmarks.parts.eyes.eye_bank import paste_bank_eyes
+from landmarks.parts.mouth.interior import paste_interior
+from landmarks.parts.mouth.mouth_bank import paste_bank_mouth
 from landmarks.parts.eyes.iris import CLOSED, IrisDonor, draw_irises, find_irises, gaze_offsets, iris_donor, retarget_gaze
 from lsr.core.images import from_network, to_network
 from landmarks.parts.part_window import (MOUTH, PartWindow, extract, lip_masks, paste, paste_weight, to_window,
@@ -194,3 +199,27 @@ def finish_eyes(image: np.ndarray, eyes: str, crop_landmarks: np.ndarray, gaze: 
     if eyes != "drawn" or gaze is None or donor is None:
         return image
     return draw_irises(image, crop_landmarks, gaze, donor)
+
+
+def finish_parts(image: np.ndarray, settings, inputs: dict[str, np.ndarray], crop_landmarks: np.ndarray, subject,
+                 gaze: np.ndarray | None, driver_mouth, driver_eyes, eye_choice, mouth_choice) -> np.ndarray:
+    """The parts' steps after the frame synthesis, in order, on the (C, C, 3) uint8 ``image`` of target landmarks
+    ``crop_landmarks`` (68, 2) crop pixels; ``settings``: the reenactor (its ``mouth``, ``mouth_interior``, ``lids``,
+    ``eyes``, ``warp_references`` and ``backend``). The mouth as ``mouth`` says (the nearest warped shot's, redrawn
+    by the mouth generator for "drawn"); with a ``driver_mouth``, the interior as ``mouth_interior`` says; the shut
+    lids as ``lids`` says (the driver's with ``driver_eyes``, else drawn); with a ``gaze``, drawn irises for ``eyes``
+    "drawn"; then the subject's own mouth and eyes from its part banks over all that, each choice carrying the bank
+    it was made from (``landmarks.parts``)."""
+    if settings.mouth != "blend":
+        image = finish_mouth(image, settings.mouth, inputs, crop_landmarks, subject.shots.landmarks,
+                             settings.warp_references, settings.backend)
+    if driver_mouth is not None and settings.mouth_interior == "driver":
+        image = paste_interior(image, crop_landmarks, driver_mouth)
+    if driver_eyes is not None and settings.lids == "driver":
+        image = paste_eyes(image, crop_landmarks, driver_eyes)
+    elif settings.lids != "shots":
+        image = draw_lids(image, crop_landmarks, subject.lid_gaps)
+    if gaze is not None and settings.eyes == "drawn":
+        image = finish_eyes(image, settings.eyes, crop_landmarks, gaze, subject.irises[0])
+    image = paste_bank_mouth(image, crop_landmarks, None, mouth_choice)
+    return paste_bank_eyes(image, crop_landmarks, None, eye_choice)

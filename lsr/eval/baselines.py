@@ -2,8 +2,8 @@
 (``lsr.eval.protocol.Method``) as a trained model.
 
 nearest_shot  copies the source shot whose landmarks are closest to the target's. Distance:
-              ``landmarks.warp.tps.landmark_distance``, the NMKE of the raw landmarks (no alignment; mean
-              point distance over the target's eye distance); the choice is ``landmarks.warp.tps.nearest_shots``,
+              ``landmarks.shape.measures.landmark_distance``, the NMKE of the raw landmarks (no alignment; mean
+              point distance over the target's eye distance); the choice is ``landmarks.shape.measures.nearest_shots``,
               the one the warp-guided generator's references use. Raw, because the copied pixels keep
               their position: a shot whose head sits elsewhere in the frame is a worse copy even if the
               pose matches.
@@ -29,6 +29,7 @@ import collections
 import numpy as np
 
 from landmarks.warp import piecewise_affine as mesh_warp
+from landmarks.shape import measures
 from landmarks.warp import tps
 
 
@@ -56,15 +57,15 @@ def check_mesh_inputs(shot_meshes: np.ndarray, target_meshes: np.ndarray, shots:
 
 
 def nearest_shot_indices(shot_landmarks: np.ndarray, target_landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per target, the shot ``landmarks.warp.tps.nearest_shots`` picks first, and its raw-landmark NMKE.
+    """Per target, the shot ``landmarks.shape.measures.nearest_shots`` picks first, and its raw-landmark NMKE.
 
     shot_landmarks: (K, 68, 2) (NaN rows = shot without a face; never chosen unless all are);
     target_landmarks: (T, 68, 2). Returns (T,) int indices, (T,) float distances (NaN when the
     target or every shot lacks landmarks; index 0 then).
     """
-    distances = tps.landmark_distance(shot_landmarks[None, :], target_landmarks[:, None])  # (T, K)
+    distances = measures.landmark_distance(shot_landmarks[None, :], target_landmarks[:, None])  # (T, K)
     # one choice of "nearest" for the baselines, the pose buckets and the warp-guided references
-    indices = np.array([tps.nearest_shots(shot_landmarks, target, 1)[0] for target in target_landmarks], dtype=np.int64)
+    indices = np.array([measures.nearest_shots(shot_landmarks, target, 1)[0] for target in target_landmarks], dtype=np.int64)
     return indices, distances[np.arange(len(indices)), indices]
 
 
@@ -135,7 +136,7 @@ class TpsMean3(TpsWarp):
         check_method_inputs(shots, shot_landmarks, target_landmarks)
         outputs = []
         for target in target_landmarks:
-            nearest = tps.nearest_shots(shot_landmarks, target, self.SHOTS)  # min(3, K) distinct shots, nearest first
+            nearest = measures.nearest_shots(shot_landmarks, target, self.SHOTS)  # min(3, K) distinct shots, nearest first
             warped = np.stack([self.warp(shots[i], shot_landmarks[i], target) for i in nearest])  # (n, S, S, 3)
             outputs.append(np.rint(warped.mean(axis=0, dtype=np.float64)).astype(np.uint8))
         return np.stack(outputs)
@@ -195,7 +196,7 @@ class MeshMean3(MeshWarp):
         check_mesh_inputs(shot_meshes, target_meshes, len(shots), len(target_landmarks))
         outputs = []
         for target, target_mesh in zip(target_landmarks, target_meshes):
-            nearest = tps.nearest_shots(shot_landmarks, target, self.SHOTS)
+            nearest = measures.nearest_shots(shot_landmarks, target, self.SHOTS)
             warped = np.stack([self.warp_mesh(shots[i], shot_landmarks[i], target, shot_meshes[i], target_mesh)
                                for i in nearest])  # (n, S, S, 3)
             outputs.append(np.rint(warped.mean(axis=0, dtype=np.float64)).astype(np.uint8))

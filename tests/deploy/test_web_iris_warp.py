@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from landmarks.warp import tps
-from landmarks.parts.eyes.iris import eye_axes, find_irises, gaze_offsets, retarget_gaze
+from landmarks.parts.eyes.iris import find_irises, gaze_offsets, retarget_gaze
+from landmarks.shape.measures import eye_axes
 from landmarks.parts.eyes.iris_shift import _eye_box, align_irises, iris_along
 from landmarks.shape.mesh68 import MAPPING_FILE
 from lsr.core import finish as parts

@@ -63,7 +63,7 @@ def warped_inputs(shots, target: np.ndarray):
 
 def test_mouth_weight_and_strength_match_python(web, shots, targets):
     from landmarks.parts.mouth.nearest_mouth import mouth_strength, mouth_weight
-    from landmarks.warp.tps import nearest_shots
+    from landmarks.shape.measures import nearest_shots
 
     faces = np.concatenate([targets, targets * 2.0])  # also at a 512 crop
     sides = [CROP] * len(targets) + [2 * CROP] * len(targets)

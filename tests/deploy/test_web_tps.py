@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from landmarks.shape import measures
 from landmarks.warp import tps
 from landmarks.motion.head_pose import project_canonical
 
@@ -98,9 +99,9 @@ def test_nearest_shots_and_landmark_distance_match_python(web, real_shots):
     target = points[9]
     got = web.calls(("nearestShots", [points[:8], target, 8]), ("nearestShots", [points[:8], target, 3]),
                     ("landmarkDistance", [points[0], target]))
-    assert got[0] == tps.nearest_shots(points[:8], target, 8).tolist() and got[0][-1] == 2
-    assert got[1] == tps.nearest_shots(points[:8], target, 3).tolist()
-    assert got[2] == pytest.approx(float(tps.landmark_distance(points[0], target)), rel=1e-12)
+    assert got[0] == measures.nearest_shots(points[:8], target, 8).tolist() and got[0][-1] == 2
+    assert got[1] == measures.nearest_shots(points[:8], target, 3).tolist()
+    assert got[2] == pytest.approx(float(measures.landmark_distance(points[0], target)), rel=1e-12)
 
 
 def test_the_spline_and_the_grid_map_match_python(web, real_shots):

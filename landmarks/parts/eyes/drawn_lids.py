@@ -34,7 +34,7 @@ from landmarks.parts.eyes.driver_lids import EYES, SHUT, aperture_share
 from landmarks.parts.eyes.lids import lid_gaps, set_lid_gaps
 from landmarks.parts.part_window import polygon_mask
 from landmarks.scene.compositing import fill_in
-from landmarks.motion.smooth import inter_ocular_distance
+from landmarks.shape.measures import inter_ocular_distance
 
 GROW = 0.04
 """The open eye's polygon is grown by this fraction of the eye distance: its lashes and the edge of its white."""

@@ -12,7 +12,7 @@ lash line at this very moment. So where the driver's eyes shut, its eye region i
   its reference gap, ``lids.LidReference``), and less as the driver's head turns (``TURN``);
 * ``paste_eyes``: per eye, the patch mapped onto the target by the similarity that takes the driver's eye corners
   onto the target's (each target pixel reads the patch there, bicubic), lit as the target is
-  (``interior.match_light``, against a skin ring around the region, with the whole colour cast and no fading:
+  (``landmarks.parts.lay_in.match_light``, against a skin ring around the region, with the whole colour cast and no fading:
   skin laid on skin; the interior's half cast, fading toward the highlights, left real036's shut lids lavender
   under real046's), and laid inside an ellipse over the eye (``REGION``), feathered by ``FEATHER`` eye widths.
 
@@ -28,10 +28,13 @@ import dataclasses
 import cv2
 import numpy as np
 
+from landmarks.parts.lay_in import ellipse_mask
 from landmarks.parts.eyes.lids import closed_gaps, lid_gaps
-from landmarks.parts.mouth.interior import TURN, cut_around, finite_points, match_light
+from landmarks.parts.mouth.interior import TURN, cut_around
+from landmarks.shape.measures import finite_points
+from landmarks.parts.lay_in import match_light
 from landmarks.motion.head_pose import estimate_head_pose
-from landmarks.motion.smooth import inter_ocular_distance
+from landmarks.shape.measures import inter_ocular_distance
 
 EYES = (slice(36, 42), slice(42, 48))
 """Each eye's 6 of the 68 points: the outer corner first, the inner corner fourth."""
@@ -111,16 +114,6 @@ def similarity(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     step = complex(*(target[1] - target[0])) / complex(*(source[1] - source[0]))
     linear = np.array([[step.real, -step.imag], [step.imag, step.real]])
     return np.hstack([linear, (target[0] - linear @ source[0])[:, None]])
-
-
-def ellipse_mask(centre: np.ndarray, axes: tuple[float, float], along: np.ndarray, shape: tuple[int, int]
-                 ) -> np.ndarray:
-    """The pixels whose centres lie inside the ellipse of semi-axes ``axes`` (along the unit direction ``along``
-    (2,), and across it) around ``centre`` (2,): (h, w) float32 in {0, 1} (the web page computes the same)."""
-    ys, xs = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
-    dx, dy = xs - centre[0], ys - centre[1]
-    u, v = dx * along[0] + dy * along[1], dy * along[0] - dx * along[1]
-    return ((u / axes[0]) ** 2 + (v / axes[1]) ** 2 <= 1.0).astype(np.float32)
 
 
 def paste_eyes(image: np.ndarray, landmarks: np.ndarray, eyes: DriverEyes | None) -> np.ndarray:

@@ -7,7 +7,7 @@ and each output frame takes its eyes from one real frame of the person, moved in
 
 * ``EyeEntry`` / ``build_eye_bank``: per source frame, both eyes cut into the eye's own frame (``eye_affine``: the
   corner line levelled, ``CANON_WIDTH`` pixels corner to corner, ``PATCH`` pixels around the eyes' centre) with
-  what was read there: each eye's aperture (``landmarks.parts.eyes.iris.eye_apertures``), its gaze
+  what was read there: each eye's aperture (``landmarks.shape.measures.eye_apertures``), its gaze
   (``landmarks.parts.eyes.iris.gaze_offsets``, NaN where no iris was found) and the head's yaw and pitch.
 * ``EyeBankTrack``: per output frame, the entry nearest the target's state (``state_cost``), one entry for both
   eyes (their gaze and light belong together; never a blend of several entries' eyes), kept until another is
@@ -15,7 +15,7 @@ and each output frame takes its eyes from one real frame of the person, moved in
   an entry whose lid opening reaches the target's within ``STRETCH`` is ever shown: an eye shut or opened further
   than every entry shows gets no bank eye, and the steps before (the synthesis, drawn or the driver's lids) stand.
 * ``paste_bank_eyes``: each chosen eye mapped onto the target's corners, its lid opening stretched toward the
-  target's by at most ``STRETCH``, lit as the skin around it (``landmarks.parts.mouth.interior.match_light``) and laid in
+  target's by at most ``STRETCH``, lit as the skin around it (``landmarks.parts.lay_in.match_light``) and laid in
   under the feathered ellipse of ``landmarks.parts.eyes.driver_lids`` (lids, crease and lash line, not the brow).
 
 How far an output eye lies from the person's real ones is ``landmarks.parts.eyes.eye_realism``.
@@ -34,11 +34,14 @@ import numpy as np
 
 from landmarks.parts.bank_rows import BankRows, usable_face
 from landmarks.parts.hysteresis import EntryTrack
-from landmarks.parts.eyes.driver_lids import FEATHER, RING, ellipse_mask
-from landmarks.parts.eyes.iris import EYES, eye_apertures, eye_axes, gaze_offsets
-from landmarks.parts.mouth.interior import finite_points, match_light
+from landmarks.parts.eyes.driver_lids import FEATHER, RING
+from landmarks.parts.lay_in import ellipse_mask
+from landmarks.parts.eyes.iris import gaze_offsets
+from landmarks.shape.measures import EYES, eye_apertures, eye_axes
+from landmarks.shape.measures import finite_points
+from landmarks.parts.lay_in import match_light
 from landmarks.motion.head_pose import estimate_head_pose
-from landmarks.motion.smooth import inter_ocular_distance
+from landmarks.shape.measures import inter_ocular_distance
 
 CANON_WIDTH = 32.0
 """An eye's width (corner to corner) in the bank's patches, in pixels."""
@@ -68,7 +71,7 @@ class EyeBank:
     patches: np.ndarray
     """(N, 2, PATCH[1], PATCH[0], 3) uint8 RGB: each entry's eyes (image left first) in the eye's own frame."""
     apertures: np.ndarray
-    """(N, 2) float64: each eye's lid gap over its width (``landmarks.parts.eyes.iris.eye_apertures``)."""
+    """(N, 2) float64: each eye's lid gap over its width (``landmarks.shape.measures.eye_apertures``)."""
     gazes: np.ndarray
     """(N, 2, 2) float64: each eye's gaze (``landmarks.parts.eyes.iris.gaze_offsets``), NaN where not found."""
     poses: np.ndarray
@@ -109,7 +112,7 @@ def eye_affine(corners: np.ndarray, size: tuple[int, int] = PATCH, stretch: floa
 
 
 def eye_corners(landmarks: np.ndarray) -> np.ndarray:
-    """(2, 2, 2): each eye's two corners (image left first, ``landmarks.parts.eyes.iris.EYES``) of (68, 2) points."""
+    """(2, 2, 2): each eye's two corners (image left first, ``landmarks.shape.measures.EYES``) of (68, 2) points."""
     return np.stack([np.asarray(landmarks, np.float64)[[first, last]] for first, last, _ in EYES])
 
 

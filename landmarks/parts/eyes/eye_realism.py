@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from landmarks.parts.eyes.eye_bank import cut_eyes
-from landmarks.parts.mouth.interior import finite_points
+from landmarks.shape.measures import finite_points
 
 REALISM_PATCH = (64, 32)
 """The patch ``eye_realism`` compares, (width, height) pixels at ``eye_bank.CANON_WIDTH``: the eye and its lids."""

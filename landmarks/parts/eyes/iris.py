@@ -31,13 +31,9 @@ import math
 import cv2
 import numpy as np
 
+from landmarks.shape.measures import EYE_RINGS, EYES, eye_apertures, eye_axes
 from landmarks.parts.part_window import polygon_mask
 
-EYES = ((36, 39, False), (42, 45, True))
-"""Per eye of the 68 points, image left first: its corners (outer or inner, left to right in the image) and whether
-the iris net sees it mirrored (the net knows image-left eyes)."""
-EYE_RINGS = (tuple(range(36, 42)), tuple(range(42, 48)))
-"""Each eye's lid polygon in the 68 points."""
 PATCH = 24
 """Side of a donor iris patch in pixels; it spans ``PATCH_SPAN`` iris radii."""
 PATCH_SPAN = 2.6
@@ -65,15 +61,6 @@ GHOST_AREA = 0.3
 """A dark blob inside the lids, outside the drawn iris, is another iris when at least this share of an iris' area..."""
 GHOST_HEIGHT = 0.8
 """... and at least this share of its radius tall."""
-
-
-def eye_axes(landmarks: np.ndarray, eye: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """(centre (2,), unit axis along the corners (2,), width) of eye ``eye`` (0 = image left) of (68, 2) points."""
-    first, last, _ = EYES[eye]
-    start, end = np.asarray(landmarks[first], np.float64), np.asarray(landmarks[last], np.float64)
-    width = float(np.linalg.norm(end - start))
-    axis = (end - start) / max(width, 1e-9)
-    return (start + end) / 2.0, axis, width
 
 
 def find_irises(image: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
@@ -120,17 +107,6 @@ def gaze_offsets(irises: np.ndarray, landmarks: np.ndarray, open_apertures: np.n
         delta = irises[eye, :2] - centre
         offsets[eye] = (delta @ axis / width, delta @ np.array([-axis[1], axis[0]]) / width)
     return offsets
-
-
-def eye_apertures(landmarks: np.ndarray) -> np.ndarray:
-    """(2,) each eye's lid gap (the mean of its two vertical point pairs) over its width."""
-    points = np.asarray(landmarks, np.float64)
-    gaps = []
-    for eye, ring in enumerate(EYE_RINGS):
-        _, _, width = eye_axes(points, eye)
-        upper, lower = points[[ring[1], ring[2]]], points[[ring[5], ring[4]]]
-        gaps.append(float(np.mean(np.linalg.norm(upper - lower, axis=1))) / max(width, 1e-9))
-    return np.array(gaps)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -26,7 +26,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from landmarks.parts.eyes.iris import eye_axes
+from landmarks.shape.measures import eye_axes
 
 PLATEAU = 0.25
 """Half-width, in eye widths along the corner line, of the band around the iris that moves rigidly (an iris' radius

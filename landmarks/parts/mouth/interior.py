@@ -27,10 +27,11 @@ import dataclasses
 import cv2
 import numpy as np
 
+from landmarks.shape.measures import finite_points
+from landmarks.parts.lay_in import match_light
 from landmarks.shape.expression import mouth_opening
-from landmarks.shape.ibug68 import NUM_LANDMARKS
 from landmarks.motion.head_pose import estimate_head_pose
-from landmarks.motion.smooth import inter_ocular_distance
+from landmarks.shape.measures import inter_ocular_distance
 
 LIPS = slice(48, 68)
 """The 20 lip points of the 68; of those, the first 12 are the outer lips, the last 8 the inner lips."""
@@ -43,25 +44,12 @@ REACH = 0.35
 RING = 0.12
 """The skin whose brightness is matched: the target's outer-lip polygon grown by this fraction of its eye distance,
 less the lips."""
-GAIN = (0.6, 1.6)
-"""The brightness gain is clipped to this range (a patch of background or hair in the ring). One gain for the three
-channels: a gain per channel matched the skin's tone too, which turned the driver's teeth orange on a ruddier face."""
 FEATHER = 0.012
 """The inner-lip polygon's edge is feathered by a Gaussian of this fraction of the target's eye distance."""
 TURN = (35.0, 50.0)
 """Degrees of the driver's head yaw: from the first the interior fades, at the second it is gone. A mouth seen from
 the side shows its teeth edge-on; mapped onto a mouth seen from the front it drew a white blob (on the FSTH sample,
 a driver at 47 degrees)."""
-CAST, FADE = 0.5, 2.0
-"""The share of the colour cast (the skin ring's mean colour less its grey, the synthesis' against the driver's) the
-patch takes on, fading out toward the highlights: a pixel takes ``CAST`` of it up to half the synthesis' brightest
-around the lips (its 99th percentile), none at it (``FADE`` = 1 / that half). The whole cast turned white teeth
-orange on a ruddier face; none left a driver's bluish lips in another video's light; half of it everywhere tinted
-the teeth past what the target's own video shows (on 4 validation pairs re-enacted by ``lsr reenact``, the share
-of teeth-like pixels in the open mouths, ``landmarks.parts.appearance.mouth_interior``, fell from 28% to 18%; with the
-fade 23%)."""
-
-
 @dataclasses.dataclass(frozen=True)
 class DriverMouth:
     """A driver frame's mouth, cut out for ``paste_interior``."""
@@ -74,14 +62,6 @@ class DriverMouth:
     """The driver's mouth opening (``landmarks.shape.expression.mouth_opening``)."""
     yaw: float = 0.0
     """The driver's head yaw in degrees (``landmarks.motion.head_pose.estimate_head_pose`` of its 68 points; NaN: not found)."""
-
-
-def finite_points(landmarks: np.ndarray) -> np.ndarray | None:
-    """One face's 68 points as (68, 2) float64, or None where any is not finite (a ValueError for another shape)."""
-    points = np.asarray(landmarks, np.float64)
-    if points.shape != (NUM_LANDMARKS, 2):
-        raise ValueError(f"landmarks must be ({NUM_LANDMARKS}, 2), got {points.shape}")
-    return points if np.isfinite(points).all() else None
 
 
 def cut_around(frame: np.ndarray, points: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -138,35 +118,6 @@ def _polygon(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     mask = np.zeros(shape, np.uint8)
     cv2.fillPoly(mask, [np.round(points * 4).astype(np.int32)], 255, lineType=cv2.LINE_AA, shift=2)
     return mask.astype(np.float32) * (1.0 / 255.0)
-
-
-def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: int, cast: float = CAST,
-                fade: float | None = FADE) -> np.ndarray:
-    """The driver's mapped patch ``warped`` (h, w, 3) float32 lit as the target is, against ``region`` (h, w, 3)
-    float32, the synthesis there, whose outer lips cover ``lips`` (h, w) bool with a skin ring ``ring`` pixels wide
-    around them -> a new (h, w, 3) float32: scaled by one gain so that the ring's brightness matches (clipped to
-    ``GAIN``), then shifted by ``cast`` of the difference of the rings' colour casts (mean colour less mean grey),
-    fading out toward the synthesis' brightest there (``fade``; None: no fading, skin laid on skin). The patch as it
-    is where there is no ring.
-
-    Tried and dropped: blurring the patch until no sharper than the synthesis, and softening its highlights above
-    the synthesis' brightest. On a crisp driver's teeth in a dim, soft video (the FSTH sample's id00017) they looked
-    less pasted on, but dlib's 68 points read those mouths less open (on two FSTH pairs' open mouths, the judged
-    opening's slope on the target's 1.00 -> 0.75; in ``lsr eval``'s judged table, mouth correlation 0.65 -> 0.61,
-    gain 0.64 -> 0.55 at K = 8): the synthesis is softer than the video it stands for."""
-    grown = cv2.dilate(lips.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring + 1,) * 2)) > 0
-    skin = grown & ~lips
-    if not skin.any():
-        return warped
-    means = [values[skin].mean(axis=0, dtype=np.float64) for values in (region, warped)]  # (3,) each
-    gain = float(np.clip((means[0].mean() + 1.0) / (means[1].mean() + 1.0), *GAIN))
-    shift = ((means[0] - means[0].mean()) - gain * (means[1] - means[1].mean())) * cast
-    result = warped * np.float32(gain)
-    if fade is None:
-        return (result + shift.astype(np.float32)).astype(np.float32)
-    top = float(np.percentile(region.max(axis=-1)[grown], 99.0))
-    fading = np.clip(fade * (1.0 - result.mean(axis=-1, keepdims=True) / np.float32(max(top, 1.0))), 0.0, 1.0)
-    return (result + fading * shift.astype(np.float32)).astype(np.float32)
 
 
 def paste_interior(image: np.ndarray, landmarks: np.ndarray, mouth: DriverMouth | None) -> np.ndarray:

@@ -32,9 +32,11 @@ from landmarks.parts.bank_rows import BankRows, usable_face
 from landmarks.parts.hysteresis import EntryTrack
 from landmarks.parts.eyes.driver_lids import similarity
 from landmarks.shape.expression import mouth_opening
-from landmarks.parts.mouth.interior import LIPS, finite_points, lip_affine, match_light
+from landmarks.parts.mouth.interior import LIPS, lip_affine
+from landmarks.shape.measures import finite_points
+from landmarks.parts.lay_in import match_light
 from landmarks.parts.mouth.nearest_mouth import mouth_weight
-from landmarks.motion.smooth import inter_ocular_distance
+from landmarks.shape.measures import inter_ocular_distance
 
 CANON_WIDTH = 48.0
 """The mouth's width (corner to corner) in the bank's patches, in pixels."""

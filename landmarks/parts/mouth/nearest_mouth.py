@@ -9,7 +9,7 @@ does (``mesh_mean3``: 0.73).
 
 So the mouth region, the target's outer-lip polygon grown by ``MOUTH_MARGIN`` and feathered by
 ``MOUTH_FEATHER`` (fractions of the target's eye distance), is taken from the nearest shot warped onto the
-target (the first reference: ``landmarks.warp.tps.nearest_shots``' order), where that warp is valid, and as far as
+target (the first reference: ``landmarks.shape.measures.nearest_shots``' order), where that warp is valid, and as far as
 the target opens its mouth wider than the references' median (``mouth_strength``: fully from ``CLOSED_MOUTH``
 beyond it). Where the target's mouth is one most references show, their blend is right and more accurate than
 one shot (taken always, the nearest shot's mouth cost 0.3 dB of face PSNR in self re-enactment on the FSTH
@@ -37,8 +37,8 @@ import numpy as np
 
 from landmarks.shape.expression import CLOSED_MOUTH, mouth_opening
 from landmarks.shape.ibug68 import NUM_LANDMARKS
-from landmarks.motion.smooth import inter_ocular_distance
-from landmarks.warp.tps import nearest_shots
+from landmarks.shape.measures import inter_ocular_distance
+from landmarks.shape.measures import nearest_shots
 
 OUTER_LIPS = slice(48, 60)
 MOUTH_MARGIN = 0.15

@@ -10,7 +10,7 @@ from landmarks.shape.expression import set_mouth_opening
 from landmarks.parts.part_window import (MOUTH, extract, lip_masks, paste, paste_weight, to_window, window_eye_distance,
                                    window_transform)
 from landmarks.motion.head_pose import project_canonical
-from landmarks.motion.smooth import inter_ocular_distance
+from landmarks.shape.measures import inter_ocular_distance
 
 SIDE = 256
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from landmarks.shape import measures
 from landmarks.warp import tps
 from landmarks.motion.head_pose import project_canonical
 
@@ -52,12 +53,12 @@ def test_nearest_shots_order_ties_and_missing_faces():
     target = _face()
     offsets = [6.0, 1.0, np.nan, 3.0, 1.0, 0.5]  # shot 2 has no face; shots 1 and 4 tie
     shot_landmarks = np.stack([target + [offset, 0.0] for offset in offsets])
-    np.testing.assert_array_equal(tps.nearest_shots(shot_landmarks, target, 6), [5, 1, 4, 3, 0, 2])
-    np.testing.assert_array_equal(tps.nearest_shots(shot_landmarks, target, 2), [5, 1])
-    assert len(tps.nearest_shots(shot_landmarks, target, 10)) == 6  # never more than K
+    np.testing.assert_array_equal(measures.nearest_shots(shot_landmarks, target, 6), [5, 1, 4, 3, 0, 2])
+    np.testing.assert_array_equal(measures.nearest_shots(shot_landmarks, target, 2), [5, 1])
+    assert len(measures.nearest_shots(shot_landmarks, target, 10)) == 6  # never more than K
     partly_missing = shot_landmarks.copy()
     partly_missing[5, 30] = np.nan  # one missing point disqualifies the shot too
-    assert tps.nearest_shots(partly_missing, target, 6)[-2:].tolist() == [2, 5]
+    assert measures.nearest_shots(partly_missing, target, 6)[-2:].tolist() == [2, 5]
 
 
 def test_warp_references_returns_the_nearest_shots_in_order():

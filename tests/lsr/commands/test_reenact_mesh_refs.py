@@ -194,7 +194,7 @@ def test_the_stages_overlap_on_threads_and_give_the_frames_of_the_sequential_pat
 
 
 def test_warped_eyes_carry_the_references_irises_to_the_gaze_and_change_nothing_else(reenactor, people):
-    from landmarks.parts.eyes.iris import eye_axes
+    from landmarks.shape.measures import eye_axes
     from landmarks.parts.eyes.iris_shift import BAND, REACH
 
     subject = reenactor.encode_subject(people["source"], k=4)

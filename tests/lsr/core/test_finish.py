@@ -116,7 +116,8 @@ def test_the_onnx_bundle_draws_the_same_mouth(folders, tmp_path):
 def test_drawn_eyes_change_the_eyes_only_and_only_with_a_gaze(folders):
     import cv2
 
-    from landmarks.parts.eyes.iris import EYE_RINGS, PATCH, IrisDonor
+    from landmarks.parts.eyes.iris import PATCH, IrisDonor
+    from landmarks.shape.measures import EYE_RINGS
     from lsr.pipeline import Reenactor
 
     reenactor = Reenactor(folders, crop_size=SIDE)

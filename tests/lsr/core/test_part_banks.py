@@ -138,7 +138,7 @@ def test_a_source_frame_without_a_face_is_skipped_by_the_bank_and_a_video_withou
 
 
 def test_the_eye_bank_changes_the_output_around_the_eyes_only(driven):
-    from landmarks.motion.smooth import inter_ocular_distance
+    from landmarks.shape.measures import inter_ocular_distance
 
     assert [f.has_face for f in driven.frames["all"]] == [True] * DRIVER_FRAMES
     for plain, banked in zip(driven.frames["none"], driven.frames["all"], strict=True):

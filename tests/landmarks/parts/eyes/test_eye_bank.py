@@ -13,7 +13,7 @@ from landmarks.parts.eyes.eye_bank import (PATCH, STRETCH, EyeBank, EyeBankTrack
                                      paste_bank_eyes, state_cost)
 from landmarks.parts.hysteresis import FADE, SWITCH
 from landmarks.parts.eyes.eye_realism import eye_realism, realism_patches
-from landmarks.parts.eyes.iris import eye_apertures, eye_axes
+from landmarks.shape.measures import eye_apertures, eye_axes
 from landmarks.motion.head_pose import estimate_head_pose, project_canonical
 
 SIDE = 160

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from landmarks.parts.eyes.iris import (EYE_RINGS, PATCH, IrisDonor, draw_irises, eye_apertures, find_irises, gaze_offsets,
-                            retarget_gaze)
+from landmarks.parts.eyes.iris import PATCH, IrisDonor, draw_irises, find_irises, gaze_offsets, retarget_gaze
+from landmarks.shape.measures import EYE_RINGS, eye_apertures
 
 SIDE = 128
 WHITE, SKIN, IRIS = 235, 150, 30

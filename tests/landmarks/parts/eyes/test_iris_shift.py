@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from landmarks.parts.eyes.iris import EYE_RINGS
+from landmarks.shape.measures import EYE_RINGS
 from landmarks.parts.eyes.iris_shift import BAND, REACH, align_irises, landed
 
 SIDE = 128
@@ -144,7 +144,7 @@ def test_the_tps_references_carry_their_irises_to_the_gaze():
 
 
 def test_a_rolled_eye_keeps_its_warp_beyond_the_reach_along_its_corner_line():
-    from landmarks.parts.eyes.iris import eye_axes
+    from landmarks.shape.measures import eye_axes
     from landmarks.parts.eyes.iris_shift import shift_iris
 
     points = _eyes()

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from landmarks.shape.expression import set_mouth_opening
-from landmarks.parts.mouth.interior import (CAST, GAIN, DriverMouth, cut_driver_mouth, interior_strength, lip_affine,
-                                      paste_interior)
+from landmarks.parts.mouth.interior import DriverMouth, cut_driver_mouth, interior_strength, lip_affine, paste_interior
+from landmarks.parts.lay_in import CAST, GAIN
 from landmarks.motion.head_pose import project_canonical
 
 SIDE = 256

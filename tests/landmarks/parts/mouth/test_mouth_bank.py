@@ -13,7 +13,7 @@ from landmarks.parts.mouth.mouth_bank import (CANON_WIDTH, PATCH, TOLERANCE, Mou
                                        build_mouth_bank, mouth_affine, own_lips, paste_bank_mouth, shape_cost)
 from landmarks.shape.expression import mouth_opening
 from landmarks.motion.head_pose import project_canonical
-from landmarks.motion.smooth import inter_ocular_distance
+from landmarks.shape.measures import inter_ocular_distance
 
 SIDE = 160
 IMAGE_SIZE = (SIDE, SIDE)

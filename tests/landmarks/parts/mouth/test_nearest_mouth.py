@@ -8,7 +8,7 @@ import pytest
 from landmarks.shape.expression import set_mouth_opening
 from landmarks.parts.mouth.nearest_mouth import MOUTH_MARGIN, keep_nearest_mouth, mouth_weight
 from landmarks.motion.head_pose import project_canonical
-from landmarks.motion.smooth import inter_ocular_distance
+from landmarks.shape.measures import inter_ocular_distance
 
 SIDE = 256
 
