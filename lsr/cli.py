@@ -122,6 +122,7 @@ GROUPS: dict[str, dict[str, tuple[type, Runner]]] = {
         "synth": (config.BenchSynthConfig, _run_bench_synth),
         "oracle-seg": (config.BenchOracleSegConfig, "lsr.data.oracle_seg:run_bench_oracle_seg"),
         "layout-legend": (config.BenchLayoutLegendConfig, "lsr.bench.layout_legend:run_bench_layout_legend"),
+        "walk": (config.BenchWalkConfig, "lsr.bench.bench_walk:run_bench_walk"),
     },
     "parts": {
         "pairs": (config.PartPairsConfig, "lsr.train.part_training:run_pairs"),

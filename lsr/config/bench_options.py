@@ -418,6 +418,29 @@ class BenchHardConfig:
 
 
 @dataclasses.dataclass
+class BenchWalkConfig:
+    """Print the path of one frame through `lsr reenact --paste-back`: the modules each stage enters, in order
+    (lsr.bench.bench_walk)."""
+
+    source: OptionalPath = None
+    """Source person; default the bundled example's (lsr/examples)."""
+    driver: OptionalPath = None
+    """Driver; default the bundled example's."""
+    frame: int = 10
+    """Which driver frame to follow (0-based; the first frames warm the loop up)."""
+    runtime: Literal["torch", "onnx"] = "torch"
+    out_md: OptionalPath = None
+    """Also write the table as the 'walk' section of this markdown file (e.g. BENCHMARKS.md)."""
+
+    def validate(self) -> None:
+        if self.frame < 0:
+            raise ConfigError(f"--frame must be >= 0, got {self.frame}")
+        for label, path in (("--source", self.source), ("--driver", self.driver)):
+            if path is not None and not Path(path).exists():
+                raise ConfigError(f"{label} {path} not found")
+
+
+@dataclasses.dataclass
 class BenchSynthConfig:
     """Print the synthetic generator's speed (frames/s at 128² and 256², 1 and 2 workers) with machine info."""
 

@@ -28,6 +28,7 @@ from lsr.config.bench_options import (  # noqa: F401 - re-exported: every sub-co
     BenchAblationConfig,
     BenchOracleSegConfig,
     BenchSynthConfig,
+    BenchWalkConfig,
 )
 from lsr.config.bench_app_options import BenchLiveConfig, BenchSoakConfig, BenchWebConfig  # noqa: F401 - re-exported
 from lsr.config.eval_options import EvalConfig  # noqa: F401 - re-exported
