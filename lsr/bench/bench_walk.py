@@ -90,16 +90,17 @@ def walk(source: Path, driver: Path, *, frame: int = 10, runtime: str = "torch")
             if not entered or entered[-1] != module:
                 entered.append(module)
 
-    # the loop's threads start with the stream and inherit the profile; it records a few frames from ``frame`` on,
-    # and each thread's first whole frame is kept (the threads work on neighbouring frames at once)
+    # the loop's threads start with the stream and inherit the profile; it records from ``frame`` on until each
+    # thread has a whole frame, and keeps each thread's first (the threads work on neighbouring frames at once)
     sys.setprofile(profile), threading.setprofile(profile)
     stream = reenactor.reenact(driver, paste_back=True)
     try:
         for index, _ in enumerate(stream):
             if index == frame:
                 recording.set()
-            elif index == frame + 4:
-                break
+            elif index > frame + 1 and (index >= frame + 40 or all(
+                    entered.count(FRAME) >= 2 for entered in list(calls.values()) if FRAME in entered)):
+                break  # every thread has recorded a whole frame (a thread ahead may wait on a full queue a while)
     finally:
         recording.clear()
         sys.setprofile(None), threading.setprofile(None)

@@ -299,16 +299,8 @@ class BenchLidsConfig:
 
 
 @dataclasses.dataclass
-class BenchAblationConfig(SplitOptions):
-    """Reproduce the thesis ablation (Table 4.2): train baseline, +SPADE, +learned seg. maps and +latent layout with
-    one schedule on one data set (resumable), score each single-shot without fine-tuning with `lsr eval`'s protocol,
-    and print each metric's ranks beside the thesis' (lsr.bench.bench_ablation).
-
-    Default schedule: 1000 steps per variant, preset compact, batch 8, K 4: the four train in about three hours on
-    this project's 2-core CPU with --threads 1 while another job shares it (2.2-2.9 s/step measured so), one hour alone.
-    Uncontended s/step (16 steps each, data loading included; stage 1 | stages 2-3): baseline 0.74,
-    spade_landmarks 0.72, learned_seg 0.54 | 1.01, latent_layout 0.51 | 0.99. 3000 steps (~3 h alone, ~6 h shared)
-    did not fit a 3-hour session, whose run folders do not outlive it."""
+class _AblationRun:
+    """The options of ``BenchAblationConfig`` besides the evaluation split's (``SplitOptions``, listed after them)."""
 
     data: OptionalPath = None
     """Dataset root (an lsr dataset, e.g. from `lsr prepare`); its 'test' split is scored too when it has one."""
@@ -361,6 +353,19 @@ class BenchAblationConfig(SplitOptions):
         if self.fsth_root is not None and not Path(self.fsth_root).is_dir():
             raise ConfigError(f"--fsth-root {self.fsth_root} is not a folder; give the FSTH sample or leave it unset")
         check_metric_weights(self.lpips_weights, self.fid_weights)
+
+
+@dataclasses.dataclass
+class BenchAblationConfig(SplitOptions, _AblationRun):
+    """Reproduce the thesis ablation (Table 4.2): train baseline, +SPADE, +learned seg. maps and +latent layout with
+    one schedule on one data set (resumable), score each single-shot without fine-tuning with `lsr eval`'s protocol,
+    and print each metric's ranks beside the thesis' (lsr.bench.bench_ablation).
+
+    Default schedule: 1000 steps per variant, preset compact, batch 8, K 4: the four train in about three hours on
+    this project's 2-core CPU with --threads 1 while another job shares it (2.2-2.9 s/step measured so), one hour alone.
+    Uncontended s/step (16 steps each, data loading included; stage 1 | stages 2-3): baseline 0.74,
+    spade_landmarks 0.72, learned_seg 0.54 | 1.01, latent_layout 0.51 | 0.99. 3000 steps (~3 h alone, ~6 h shared)
+    did not fit a 3-hour session, whose run folders do not outlive it."""
 
 
 def shared_real_clips() -> tuple[Path | None, Path | None]:

@@ -13,8 +13,8 @@ from lsr.errors import ConfigError
 
 
 @dataclasses.dataclass
-class EvalConfig(SplitOptions):
-    """Evaluate re-enactment with the thesis protocol (§4.4): K shots from the inputs, metrics on hold-out frames."""
+class _EvalRun:
+    """The options of ``EvalConfig`` besides the evaluation split's (``SplitOptions``, listed after them)."""
 
     data: OptionalPath = None
     """LSR-release folder ({train,test}/<id>/<video>/combined/*_rgb.png) or an lsr dataset root (manifest.json);
@@ -152,3 +152,8 @@ class EvalConfig(SplitOptions):
         if not self.section.replace("_", "").replace("-", "").isalnum():
             raise ConfigError(f"--section must be letters, digits, '-' or '_', got {self.section!r}")
         check_metric_weights(self.lpips_weights, self.fid_weights)
+
+
+@dataclasses.dataclass
+class EvalConfig(SplitOptions, _EvalRun):
+    """Evaluate re-enactment with the thesis protocol (§4.4): K shots from the inputs, metrics on hold-out frames."""

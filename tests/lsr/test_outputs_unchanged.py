@@ -31,7 +31,11 @@ def machine_key() -> str:
 
 def frame_digests(source: Path, driver: Path, *, side_by_side: bool, frames: int = FRAMES) -> dict:
     """Re-enact ``frames`` frames as ``lsr reenact --paste-back`` (and the demo) do, one thread; each frame's
-    sha256 and its (mean, std) per channel, and the side-by-side panels' when asked."""
+    sha256 and its (mean, std) per channel, and the side-by-side panels' when asked. numpy's BLAS on one thread, as
+    the ``lsr`` command sets it (``single_blas_thread``): its rounding depends on its thread count."""
+    from lsr.core.overlap import single_blas_thread
+
+    single_blas_thread()
     from lsr.config import ReenactConfig
     from lsr.commands.reenact import make_reenactor
     from lsr.writer import side_by_side_frame
