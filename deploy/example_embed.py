@@ -3,7 +3,7 @@
 Copy this file. It needs numpy, onnxruntime and opencv (and the ``landmarks`` toolkit, whose face models run on onnxruntime) and an ONNX
 bundle made once with ``lsr export --weights MODEL_DIR --out BUNDLE``.
 
-    python deploy/example_embed.py BUNDLE source.jpg driving.mp4 out.mp4     # or out_folder/ for PNG frames
+    python deploy/example_embed.py BUNDLE source.jpg driver.mp4 out.mp4     # or out_folder/ for PNG frames
 """
 
 from __future__ import annotations
@@ -19,16 +19,16 @@ from landmarks.io.image_files import write_image
 from landmarks.io.video import VideoWriter
 
 
-def reenact_to(bundle: str, source: str, driving: str, out: str) -> int:
-    """Re-enact ``source`` with ``driving`` into ``out`` (.mp4, or a folder of PNGs). Returns the frame count."""
+def reenact_to(bundle: str, source: str, driver: str, out: str) -> int:
+    """Re-enact ``source`` with ``driver`` into ``out`` (.mp4, or a folder of PNGs). Returns the frame count."""
     single_blas_thread()  # numpy's BLAS on one thread: the frame loop's stages need the cores its idle threads spin on
     reenactor = OnnxReenactor(bundle)  # loads both graphs once
     reenactor.encode_subject(source)  # K shots -> latents, cached on the reenactor
-    info = describe_driver(driving)  # frame count, fps, size, audio
-    frames = reenactor(driving, paste_back=info.kind != "landmarks")  # a generator: one frame at a time
+    info = describe_driver(driver)  # frame count, fps, size, audio
+    frames = reenactor(driver, paste_back=info.kind != "landmarks")  # a generator: one frame at a time
     count = 0
     if out.endswith(".mp4"):
-        audio = driving if info.has_audio else None
+        audio = driver if info.has_audio else None
         # Mark the output as synthetic: container metadata and a visible watermark.
         with VideoWriter(out, info.fps, audio_from=audio, metadata=provenance_metadata(runtime="onnx")) as writer:
             for frame in frames:

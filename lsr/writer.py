@@ -81,7 +81,7 @@ class WrittenVideo:
         return None if self.coverage_features is None else describe(*self.coverage_features)
 
 
-def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtime: str, mode: str = "auto",
+def write_reenactment(reenactor: ReenactorBase, driver, output: Path, *, runtime: str, mode: str = "auto",
                       smooth: bool = True, paste_back: bool = False, scene: str = "source", watermark: bool = False,
                       fps: float | None = None,
                       landmark_space=None, landmark_size: int | None = None, progress: bool = False,
@@ -97,11 +97,11 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
     from lsr.core.overlap import Drain
     from lsr.layout_view import load_layout_legend
 
-    info = describe_driver(driving, fps=fps)
+    info = describe_driver(driver, fps=fps)
     metadata = provenance_metadata(__version__, runtime)
-    audio = driving if info.kind == "video" and info.has_audio else None
+    audio = driver if info.kind == "video" and info.has_audio else None
     with_layout = side_by_side is not None or panel_sink is not None
-    frames = reenactor.reenact(driving, mode=mode, smooth=smooth, paste_back=paste_back, scene=scene, retarget=retarget,
+    frames = reenactor.reenact(driver, mode=mode, smooth=smooth, paste_back=paste_back, scene=scene, retarget=retarget,
                                with_layout=with_layout,
                                landmark_space=landmark_space, landmark_size=landmark_size, progress=progress)
     first_landmarks, driven = None, []
@@ -135,12 +135,12 @@ def write_reenactment(reenactor: ReenactorBase, driving, output: Path, *, runtim
         encode_seconds = encoded[0]
         stats = reenactor.last_stats
         if stats.frames != info.frames and info.kind != "video":
-            raise LsrError(f"{driving}: produced {stats.frames} frames for {info.frames} driver frames")
+            raise LsrError(f"{driver}: produced {stats.frames} frames for {info.frames} driver frames")
         started = time.perf_counter()
     stats.add("encode", encode_seconds + time.perf_counter() - started)  # includes the final flush and audio mux
     warnings = []
     if info.kind == "video" and stats.frames < info.frames:
-        warnings.append(f"warning: {Path(driving).name}: decoded {stats.frames} of its {info.frames} declared frames "
+        warnings.append(f"warning: {Path(driver).name}: decoded {stats.frames} of its {info.frames} declared frames "
                         "(truncated file?); the output has the decoded ones")
     features = coverage_features(reenactor.subject.shots, np.stack(driven), size) if driven else None
     return WrittenVideo(stats, warnings, first_landmarks, features)

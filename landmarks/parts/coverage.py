@@ -274,8 +274,8 @@ MOMENTS = (
 """The moments a recording asks for, each (name, what to do): the range the method borrows from its shots."""
 
 
-REFERENCE_FRAMES = 150
-"""A recording's reference is the median of its last this many faces (6 s at 25 fps)."""
+BASELINE_FRAMES = 150
+"""A recording's baseline is the median of its last this many faces (6 s at 25 fps)."""
 
 
 @dataclasses.dataclass
@@ -286,7 +286,7 @@ class MomentKeeper:
     open = the mouth's opening; "O" = an open mouth that is narrow for its height; eyes closed = the eyes' closing;
     glances = the iris's offset (``landmarks.parts.appearance.gaze``) with a frontal head; turns = the head's yaw; smile =
     the mouth's width with the lips closed. A moment keeps a frame only where it scores better than the first frames
-    did (``reference``: the median of the last ``REFERENCE_FRAMES`` faces), by at least a step of the feature (``STEPS``), so a
+    did (their baseline: the median of the last ``BASELINE_FRAMES`` faces), by at least a step of the feature (``STEPS``), so a
     recording of a still face keeps only "straight ahead" (always the best so far). Left and right are the
     image's.
     """
@@ -315,22 +315,22 @@ class MomentKeeper:
         if points.shape != (68, 2) or not np.isfinite(points).all():
             return []
         measure = self.measures(frame, points)
-        self.seen = [*self.seen[-(REFERENCE_FRAMES - 1):], np.array([measure[key] for key in
+        self.seen = [*self.seen[-(BASELINE_FRAMES - 1):], np.array([measure[key] for key in
                                                                      ("mouth", "eyes", "yaw", "pitch", "gaze", "width")])]
-        reference = np.nanmedian(np.stack(self.seen), axis=0)
+        baseline = np.nanmedian(np.stack(self.seen), axis=0)
         mouth, eyes, yaw, pitch, glance, width = (measure[key] for key in ("mouth", "eyes", "yaw", "pitch", "gaze", "width"))
-        frontal = (abs(yaw) + abs(pitch - reference[3])) / STEPS["yaw"]  # a camera above or below tilts every frame
+        frontal = (abs(yaw) + abs(pitch - baseline[3])) / STEPS["yaw"]  # a camera above or below tilts every frame
         scores = {
-            "straight ahead": -frontal - mouth / STEPS["mouth"] - max(0.0, reference[1] - eyes) / STEPS["eyes"],
-            "mouth wide open": (mouth - reference[0]) / STEPS["mouth"],
-            '"O"': (mouth - reference[0]) / STEPS["mouth"] * min(1.0, measure["roundness"] / 0.6)
-            - max(0.0, width - reference[5]) / 0.1,
-            "eyes closed": (reference[1] - eyes) / STEPS["eyes"],
-            "glance left": (reference[4] - glance) / STEPS["gaze"] - frontal,
-            "glance right": (glance - reference[4]) / STEPS["gaze"] - frontal,
-            "turn left": (reference[2] - yaw) / STEPS["yaw"],
-            "turn right": (yaw - reference[2]) / STEPS["yaw"],
-            "smile": (width - reference[5]) / 0.1 - max(0.0, mouth - reference[0]) / STEPS["mouth"],
+            "straight ahead": -frontal - mouth / STEPS["mouth"] - max(0.0, baseline[1] - eyes) / STEPS["eyes"],
+            "mouth wide open": (mouth - baseline[0]) / STEPS["mouth"],
+            '"O"': (mouth - baseline[0]) / STEPS["mouth"] * min(1.0, measure["roundness"] / 0.6)
+            - max(0.0, width - baseline[5]) / 0.1,
+            "eyes closed": (baseline[1] - eyes) / STEPS["eyes"],
+            "glance left": (baseline[4] - glance) / STEPS["gaze"] - frontal,
+            "glance right": (glance - baseline[4]) / STEPS["gaze"] - frontal,
+            "turn left": (baseline[2] - yaw) / STEPS["yaw"],
+            "turn right": (yaw - baseline[2]) / STEPS["yaw"],
+            "smile": (width - baseline[5]) / 0.1 - max(0.0, mouth - baseline[0]) / STEPS["mouth"],
         }
         kept = []
         for name, _ in MOMENTS:

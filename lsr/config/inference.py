@@ -348,7 +348,7 @@ class ExportConfig:
     """Also write a static-QDQ int8 frame generator, calibrated on real frames; prints its error vs fp32."""
     calibration_source: OptionalPath = None
     """--int8: source (image/folder/video) whose latents calibrate; default the shared tpsmm_driving.mp4."""
-    calibration_driving: OptionalPath = None
+    calibration_driver: OptionalPath = None
     """--int8: driving video whose landmark images calibrate; default --calibration-source."""
     calibration_frames: int = 32
     calibration_k: OptionalInt = None

@@ -355,7 +355,7 @@ def read_landmark_array(
     else:
         path = Path(driver)
         if not path.is_file():
-            raise InputFileError(f"driving landmarks not found: {path}")
+            raise InputFileError(f"driver landmarks not found: {path}")
         try:
             if path.suffix.lower() == ".npy":
                 array = np.load(path, allow_pickle=False)
@@ -366,17 +366,17 @@ def read_landmark_array(
                     data = data.get("landmarks")
                 array = np.asarray(data, dtype=np.float64)
         except (OSError, ValueError, json.JSONDecodeError) as exc:
-            raise InputFileError(f"cannot read driving landmarks {path}: {exc}; write an (N, 68, 2) .npy or .json") from exc
+            raise InputFileError(f"cannot read driver landmarks {path}: {exc}; write an (N, 68, 2) .npy or .json") from exc
     array = np.asarray(array)
     if array.dtype.kind not in "fiu" or array.ndim != 3 or array.shape[1:] != (NUM_LANDMARKS, 2) or len(array) == 0:
         raise InputFileError(
-            f"driving landmarks {name} must be a non-empty (N, {NUM_LANDMARKS}, 2) numeric array (x, y), "
+            f"driver landmarks {name} must be a non-empty (N, {NUM_LANDMARKS}, 2) numeric array (x, y), "
             f"got shape {array.shape} dtype {array.dtype}"
         )
     bad = np.flatnonzero(~np.isfinite(array).all(axis=(1, 2)))
     if len(bad):
         raise InputFileError(
-            f"driving landmarks {name} contain NaN/inf in {len(bad)} frame(s) (first: {bad[:5].tolist()}); raw "
+            f"driver landmarks {name} contain NaN/inf in {len(bad)} frame(s) (first: {bad[:5].tolist()}); raw "
             "landmark drivers must be complete: interpolate or drop those frames (video drivers pass face-less frames through)"
         )
     space = landmark_space or space_in_file or "frame"

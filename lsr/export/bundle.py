@@ -226,16 +226,16 @@ def graph_error(reference_path: Path, other_path: Path, inputs: Sequence[dict[st
     return max_abs, total / max(1, len(inputs))
 
 
-def calibration_inputs(weights: str | os.PathLike | LSRModel, source, driving, *, k: int | None = None,
+def calibration_inputs(weights: str | os.PathLike | LSRModel, source, driver, *, k: int | None = None,
                        frames: int = 32) -> list[dict[str, np.ndarray]]:
-    """Frame-graph inputs of real frames: ``driving``'s first ``frames`` landmark images and ``source``'s latents
+    """Frame-graph inputs of real frames: ``driver``'s first ``frames`` landmark images and ``source``'s latents
     (and its shots warped onto them, for a warp-guided model), as ``ReenactorBase.network_inputs`` makes them."""
     from lsr.pipeline import Reenactor
 
     reenactor = Reenactor(weights)
     reenactor.encode_subject(source, k=k)
     feeds = []
-    for frame in reenactor(driving):
+    for frame in reenactor(driver):
         if frame.landmarks is not None:
             feeds.append({name: np.asarray(value, np.float32)
                           for name, value in reenactor.network_inputs(frame.landmarks)[1].items()})
@@ -265,10 +265,10 @@ def run_export(cfg: ExportConfig) -> ExportResult:
           f"(opset {ONNX_OPSET}, preset {result.metadata['preset']}, {result.metadata['resolution']}^2)")
     if cfg.int8:
         source = cfg.calibration_source or default_calibration_clip()
-        driving = cfg.calibration_driving or source
+        driver = cfg.calibration_driver or source
         if source is None:
-            raise ConfigError("--int8 needs real calibration frames: pass --calibration-source (and --calibration-driving)")
-        feeds = calibration_inputs(model, source, driving, k=cfg.calibration_k, frames=cfg.calibration_frames)
+            raise ConfigError("--int8 needs real calibration frames: pass --calibration-source (and --calibration-driver)")
+        feeds = calibration_inputs(model, source, driver, k=cfg.calibration_k, frames=cfg.calibration_frames)
         int8_path = quantize_frame_generator(result.folder / FRAME_GENERATOR_FILE,
                                              result.folder / FRAME_GENERATOR_INT8_FILE, feeds)
         result.files.append(int8_path)

@@ -19,7 +19,7 @@ export const MAX_APERTURE = 1.5;
 export const MIN_APERTURE = 0.02;
 export const SMALL_LID_GAIN = 3.0;
 export const SMALL_LID_SPAN = 0.35;
-export const REFERENCE_FRAMES = 250;
+export const REST_FRAMES = 250;
 
 // landmarks/shape/expression.py
 const INNER_LIP_PAIRS: [number, number][] = [[61, 67], [62, 66], [63, 65]];
@@ -239,7 +239,7 @@ export class LidReference {
   private readonly gaps: Float64Array[] = [];
   private ahead = 0;
 
-  constructor(readonly frames = REFERENCE_FRAMES) {}
+  constructor(readonly frames = REST_FRAMES) {}
 
   reset(): void {
     this.gaps.length = 0;

@@ -28,7 +28,7 @@ so 81% of id00017's targets sat at the ``MAX_APERTURE`` cap; on the validation p
 stares (0.165 against 0.119), which left the sources' eyes at two thirds of their aperture throughout. So the
 reference lid gaps are the median of the driver's faces: a file's first ``LOOK_AHEAD`` faces are read before any
 is driven (``lsr reenact`` tracks them first), and every face driven since joins them (the last
-``REFERENCE_FRAMES``); a live camera has only the faces so far. ``lsr eval`` computes the same for each whole
+``REST_FRAMES``); a live camera has only the faces so far. ``lsr eval`` computes the same for each whole
 driver (``running_reference_gaps``), so it measures what ``lsr reenact`` does. On the 12 validation sequences
 (32 frames each, so the median of the whole driver; ``lsr eval --data VAL --k 8 --methods tps --weights
 lsr/weights/default --cross-drivers 3``), cross-identity eye correlation 0.60 -> 0.67 and eye gain (the mean of
@@ -95,8 +95,8 @@ SMALL_LID_GAIN = 3.0
 """How much further a driver's small lid motions move the source's lids (``lid_share``; module docstring)."""
 SMALL_LID_SPAN = 0.35
 """The size of a lid motion, as a share of the driver's aperture, beyond which the gain fades out (``lid_share``)."""
-REFERENCE_FRAMES = 250
-"""How many of the driver's latest faces its reference lid gaps are the median of (``LidReference``): 10 s at 25
+REST_FRAMES = 250
+"""How many of the driver's latest faces its lids at rest (its reference lid gaps) are the median of (``LidReference``): 10 s at 25
 fps, so a long stream's reference follows its open eyes and stays cheap."""
 LOOK_AHEAD = 50
 """How many of a driver file's first faces count towards its reference lids before the first is driven (2 s at
@@ -272,7 +272,7 @@ class LidReference:
     included. One per driver and kind of face (mesh or 68 points). Call it on each driver face, in order (NaN
     faces are skipped, but counted against those seen ahead) -> (2,) float64, NaN before the first finite face."""
 
-    def __init__(self, frames: int = REFERENCE_FRAMES) -> None:
+    def __init__(self, frames: int = REST_FRAMES) -> None:
         self._gaps: collections.deque[np.ndarray] = collections.deque(maxlen=int(frames))
         self._ahead = 0  # faces counted by look_ahead and not driven yet
 
@@ -302,7 +302,7 @@ class LidReference:
 
 
 def running_reference_gaps(drivers: np.ndarray, look_ahead: int = LOOK_AHEAD,
-                           frames: int = REFERENCE_FRAMES) -> np.ndarray:
+                           frames: int = REST_FRAMES) -> np.ndarray:
     """``LidReference`` over a whole driver at once, as ``lsr reenact`` gets it from a file (its first
     ``look_ahead`` faces seen before the first is driven): (T, N, >=2) -> (T, 2)."""
     drivers = np.asarray(drivers, np.float64)

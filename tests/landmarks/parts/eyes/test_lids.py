@@ -196,7 +196,7 @@ def test_a_driver_whose_first_face_blinks_does_not_widen_every_later_eye():
     running = eyelids.running_reference_gaps(driver, look_ahead=0)
     np.testing.assert_allclose(running[0], eyelids.lid_gaps(driver[0]))
     np.testing.assert_allclose(running[[2, 4, 5, 6]], open_gaps.repeat(4, 0), rtol=1e-9)
-    # a stream keeps the last REFERENCE_FRAMES faces, skips faces it could not read, counts the faces seen ahead
+    # a stream keeps the last REST_FRAMES faces, skips faces it could not read, counts the faces seen ahead
     # once, and starts anew on reset
     stream = eyelids.LidReference(frames=2)
     assert np.isnan(stream(np.full((468, 3), np.nan))).all()
