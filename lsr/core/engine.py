@@ -302,8 +302,7 @@ class ReenactorBase:
         subject = subject if subject is not None else self._require_subject()
         landmark_image = draw_landmarks(scale_points(crop_landmarks, self.resolution / self.crop_size), self.resolution)
         layout_latent, style_latent = latents if latents is not None else (subject.layout_latent, subject.style_latent)
-        inputs = {"landmark_image": to_network(landmark_image)[None], "layout_latent": layout_latent,
-                  "style_latent": style_latent}
+        warped = None
         if self.warp_references:
             shots = subject.shots
             irises = subject.shot_irises if self.eyes == "warped" else None
@@ -318,6 +317,9 @@ class ReenactorBase:
 
                 warped, valid, _ = warp_references(shots.frames, shots.landmarks, crop_landmarks, self.warp_references,
                                                    irises=irises, gaze=gaze)
+        inputs = {"landmark_image": to_network(landmark_image)[None], "layout_latent": layout_latent,
+                  "style_latent": style_latent}
+        if warped is not None:
             inputs["references"], inputs["reference_masks"] = to_network(warped)[None], valid[None, :, None]
         return landmark_image, inputs
 
@@ -401,23 +403,29 @@ class ReenactorBase:
         mesh[:, :2] += spreading_weights() @ (np.asarray(points, np.float64) - raw_points)
         return transform_mesh(mesh, matrix)
 
+    def _source_face(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """The anchor shot's face that relative motion moves: (68, 2) crop landmarks, (468, 3) mesh or None."""
+        subject = self._require_subject()
+        return subject.reference_landmarks, subject.reference_mesh
+
     def _drive(self, crop_landmarks: np.ndarray, crop_mesh: np.ndarray | None, reference: DriverReference,
-               lids: tuple[np.ndarray, np.ndarray], relative: bool, retarget: str = "2d"
-               ) -> tuple[np.ndarray, np.ndarray | None]:
+               lids: tuple[np.ndarray, np.ndarray], relative: bool, source: tuple[np.ndarray, np.ndarray | None],
+               retarget: str = "2d") -> tuple[np.ndarray, np.ndarray | None]:
         """What the source is driven with: (68 points, mesh for the references or None). Relative motion: the
         driver's since its first face (``reference``; ``lids``: its reference lid gaps, ``DriverReference.lids``)
         on the source's face (``landmarks.motion.retarget_mesh.retarget_face`` in mode ``retarget``; FOMM / LivePortrait
-        style, the mouth exactly as open as the driver's); absolute: the driver's own."""
+        style, the mouth exactly as open as the driver's); absolute: the driver's own. source: the subject's face
+        that relative motion moves (``_source_face``), read once per stream."""
         from landmarks.motion.retarget_mesh import retarget_face
 
         if not relative:
             return crop_landmarks, crop_mesh if self._uses_mesh_references() else None
-        subject = self._require_subject()
+        source_landmarks, source_mesh = source
         gaps, mesh_gaps = lids
-        meshes = crop_mesh is not None and reference.mesh is not None and subject.reference_mesh is not None
-        landmarks, moved = retarget_face(crop_landmarks[None], reference.landmarks, subject.reference_landmarks,
+        meshes = crop_mesh is not None and reference.mesh is not None and source_mesh is not None
+        landmarks, moved = retarget_face(crop_landmarks[None], reference.landmarks, source_landmarks,
                                          crop_mesh[None] if meshes else None, reference.mesh if meshes else None,
-                                         subject.reference_mesh if meshes else None, retarget, gaps, mesh_gaps)
+                                         source_mesh if meshes else None, retarget, gaps, mesh_gaps)
         mesh = moved[0] if moved is not None and np.isfinite(moved[0]).all() else None
         return landmarks[0], mesh if self._uses_mesh_references() else None
 
@@ -487,7 +495,7 @@ class ReenactorBase:
 
         array, space, size = read_landmark_array(driver, landmark_space=landmark_space, landmark_size=landmark_size)
         one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
-        reference = DriverReference()
+        reference, source = DriverReference(), self._source_face()
         if relative:  # the whole array is at hand: its first faces set the lids at rest, as a file driver's do
             reference.look_ahead(list(array[:LOOK_AHEAD]), [None] * min(len(array), LOOK_AHEAD))
         for index, points in enumerate(array):
@@ -499,7 +507,7 @@ class ReenactorBase:
             else:
                 crop_landmarks = points.astype(np.float64) * (self.crop_size / float(size or self.resolution))
             reference.start(crop_landmarks)
-            target, _ = self._drive(crop_landmarks, None, reference, lids, relative)
+            target, _ = self._drive(crop_landmarks, None, reference, lids, relative, source)
             stats.add("landmarks", time.perf_counter() - started)
             stats.frames += 1
             yield (self._into_scene(scenes, index, None, target, stats) if scenes is not None
@@ -516,7 +524,7 @@ class ReenactorBase:
         size = self.crop_size
         tracker = make_tracker(self.detector)
         one_euro = OneEuroFilter(info.fps, driving_cutoffs()) if smooth else None
-        reference = DriverReference()
+        reference, source = DriverReference(), self._source_face()
         ahead, tracked = track_driver(info, tracker, LOOK_AHEAD if relative else 0)  # the lids at rest, first
         reference.look_ahead([points for points, *_ in ahead], [mesh for _, mesh, *_ in ahead])
         gazes = DriverGaze(self._require_subject().anchor_gaze if relative else None) if self.eyes != "blend" else None
@@ -535,7 +543,7 @@ class ReenactorBase:
                 lids = (reference.lids(raw_points, mesh) if relative or self.lids == "driver"
                         else None)  # as detected, as lsr eval reads them: relative motion and the driver's eyes
                 reference.start(crop_landmarks, crop_mesh)  # the driver's first face: its motion moves the source's
-                crop_landmarks, crop_mesh = self._drive(crop_landmarks, crop_mesh, reference, lids, relative,
+                crop_landmarks, crop_mesh = self._drive(crop_landmarks, crop_mesh, reference, lids, relative, source,
                                                         retarget)
             elif one_euro is not None:
                 one_euro.reset()  # never smooth across a gap
