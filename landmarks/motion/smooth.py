@@ -102,3 +102,21 @@ def jitter(landmarks: np.ndarray) -> float:
     step = np.linalg.norm(landmarks[1:] - landmarks[:-1], axis=2).mean(axis=1)  # (N-1,)
     scale = 0.5 * (inter_ocular_distance(landmarks[1:]) + inter_ocular_distance(landmarks[:-1]))
     return float(np.mean(step[pairs] / scale[pairs]))
+
+
+def part_jitter(landmarks: np.ndarray, part: slice) -> float:
+    """Mean frame-to-frame motion of one part's points against the whole face's, in inter-ocular distances: how
+    much a part (``landmarks.shape.ibug68`` ranges, e.g. the eyes 36-47) moves on its own, pops included.
+
+    landmarks: (N, 68, 2), NaN rows ignored as in ``jitter``; NaN when fewer than two consecutive valid frames."""
+    landmarks = np.asarray(landmarks, dtype=np.float64)
+    if landmarks.ndim != 3 or landmarks.shape[1:] != (NUM_LANDMARKS, 2):
+        raise ValueError(f"landmarks must be (N, 68, 2), got {landmarks.shape}")
+    valid = np.isfinite(landmarks).all(axis=(1, 2))
+    pairs = valid[1:] & valid[:-1]
+    if not pairs.any():
+        return float("nan")
+    moves = landmarks[1:] - landmarks[:-1]  # (N-1, 68, 2)
+    own = moves[:, part] - moves.mean(axis=1, keepdims=True)  # the part's motion less the face's
+    scale = 0.5 * (inter_ocular_distance(landmarks[1:]) + inter_ocular_distance(landmarks[:-1]))
+    return float(np.mean(np.linalg.norm(own, axis=2).mean(axis=1)[pairs] / scale[pairs]))

@@ -31,6 +31,8 @@ import numpy as np
 
 from lsr.config.bench_options import BenchEyesConfig
 
+JITTER_PARTS = {"eye": slice(36, 48), "mouth": slice(48, 68)}
+"""The parts whose steadiness the table reads (iBUG-68 ranges)."""
 SECTION = "eyes"
 FLOOR_GAP = 5
 """The floor compares a real frame with the source's frames at least this many frames away."""
@@ -68,8 +70,8 @@ def driver_readings(video: Path, judge, keep: np.ndarray) -> dict[str, np.ndarra
     from landmarks.io.video import iter_frames
 
     tracker = make_tracker("mesh")
-    names = ("mesh_mouth", "mesh_eye", "mesh_gaze", "judge_mouth", "judge_eye", "judge_gaze")
-    readings: dict[str, list[float]] = {name: [] for name in names}
+    names = ("mesh_mouth", "mesh_eye", "mesh_gaze", "judge_mouth", "judge_eye", "judge_gaze", "judge_points")
+    readings: dict[str, list] = {name: [] for name in names}
     wanted = set(int(i) for i in keep)
     for index, frame in enumerate(iter_frames(video)):
         points = tracker.update(frame)  # every frame: the track as the re-enactment's
@@ -85,6 +87,7 @@ def driver_readings(video: Path, judge, keep: np.ndarray) -> dict[str, np.ndarra
         readings["judge_mouth"].append(float(mouth_opening(judged)) if judged is not None else math.nan)
         readings["judge_eye"].append(float(eye_opening(judged)) if judged is not None else math.nan)
         readings["judge_gaze"].append(float(gaze(frame, judged)[0]) if judged is not None else math.nan)
+        readings["judge_points"].append(judged if judged is not None else np.full((68, 2), np.nan))
     return {name: np.asarray(values, np.float64) for name, values in readings.items()}
 
 
@@ -95,34 +98,43 @@ def output_readings(frames: list, judge, real: np.ndarray) -> dict[str, np.ndarr
     from landmarks.parts.eyes.eye_realism import eye_realism, realism_patches
     from landmarks.shape.expression import eye_opening, mouth_opening
 
-    readings: dict[str, list] = {"judge_mouth": [], "judge_eye": [], "judge_gaze": [], "realism": []}
+    readings: dict[str, list] = {"judge_mouth": [], "judge_eye": [], "judge_gaze": [], "realism": [],
+                                 "judge_points": []}
     for frame in frames:
         if frame is None or frame.synthesis is None:
             for name in ("judge_mouth", "judge_eye", "judge_gaze"):
                 readings[name].append(math.nan)
             readings["realism"].append(np.full(2, np.nan))
+            readings["judge_points"].append(np.full((68, 2), np.nan))
             continue
         judged = judge.landmarks(frame.synthesis, frame.landmarks)
         readings["judge_mouth"].append(float(mouth_opening(judged)) if judged is not None else math.nan)
         readings["judge_eye"].append(float(eye_opening(judged)) if judged is not None else math.nan)
         readings["judge_gaze"].append(float(gaze(frame.synthesis, judged)[0]) if judged is not None else math.nan)
         readings["realism"].append(eye_realism(realism_patches(frame.synthesis, frame.landmarks)[None], real)[0])
+        readings["judge_points"].append(judged if judged is not None else np.full((68, 2), np.nan))
     return {name: np.asarray(values, np.float64) for name, values in readings.items()}
 
 
 def pair_rows(pair: str, driver: dict[str, np.ndarray], outputs: dict[str, dict[str, np.ndarray]], floor: float
               ) -> list[dict[str, Any]]:
     """The agreement row and one row per bank of one pair (the module docstring's columns)."""
+    from landmarks.motion.smooth import part_jitter
     from lsr.eval.cross import opening_correlation, pooled_gain
 
     def judged(part: str, reading: np.ndarray) -> tuple[float, float]:
         return (opening_correlation(driver[f"judge_{part}"], reading),
                 pooled_gain([(driver[f"judge_{part}"], reading)]))
 
+    def steadiness(points: np.ndarray | None) -> dict[str, float]:  # each part's own motion, inter-ocular distances
+        if points is None:
+            return dict.fromkeys((f"{part}_jitter" for part in JITTER_PARTS), math.nan)
+        return {f"{part}_jitter": part_jitter(points, where) for part, where in JITTER_PARTS.items()}
+
     rows = [{"pair": pair, "row": "agreement", **{f"{part}_{what}": value for part in ("eye", "mouth")
              for what, value in zip(("r", "gain"), judged(part, driver[f"mesh_{part}"]))},
              "gaze_r": opening_correlation(driver["judge_gaze"], driver["mesh_gaze"]), "realism": floor,
-             "switches": math.nan, "ms_per_frame": math.nan}]
+             "switches": math.nan, "ms_per_frame": math.nan, **steadiness(driver.get("judge_points"))}]
     for bank, reading in outputs.items():
         row = {"pair": pair, "row": bank}
         for part in ("eye", "mouth"):
@@ -131,6 +143,7 @@ def pair_rows(pair: str, driver: dict[str, np.ndarray], outputs: dict[str, dict[
         row["realism"] = float(np.nanmedian(reading["realism"])) if np.isfinite(reading["realism"]).any() else math.nan
         row["switches"] = float(reading.get("switches", math.nan))
         row["ms_per_frame"] = float(reading.get("ms_per_frame", math.nan))
+        row.update(steadiness(reading.get("judge_points")))
         rows.append(row)
     return rows
 
@@ -141,7 +154,7 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
     lines = [f"clips: {settings['clips']}; K = {settings['k']}; model `{settings['weights']}`; judged frames per "
              f"driver: {settings['frames']}", "",
              "| pair | eyes from | eye r | eye gain | mouth r | mouth gain | gaze r | realism ↓ (x floor) | switches "
-             "| ms / frame |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "| ms / frame | eye jitter (x driver) | mouth jitter (x driver) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def share(value: float, of: float) -> str:
         return f"{value:.2f} ({value / of:.2f})" if math.isfinite(value) and math.isfinite(of) and of else f"{value:.2f}"
@@ -151,7 +164,9 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
         if row["row"] == "agreement":
             agreement = row
             cells = [f"{row[c]:.2f}" for c in ("eye_r", "eye_gain", "mouth_r", "mouth_gain", "gaze_r")]
-            lines.append(f"| {row['pair']} | agreement / floor | {' | '.join(cells)} | {row['realism']:.3f} | | |")
+            jitters = " | ".join(f"{row.get(f'{part}_jitter', math.nan):.4f}" for part in JITTER_PARTS)
+            lines.append(f"| {row['pair']} | agreement / floor | {' | '.join(cells)} | {row['realism']:.3f} | | | "
+                         f"{jitters} |")
             continue
         cells = [share(row[c], agreement.get(c, math.nan)) for c in ("eye_r", "eye_gain", "mouth_r", "mouth_gain",
                                                                       "gaze_r")]
@@ -159,13 +174,19 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
                                                                                    f"{row['realism']:.3f}", 1)
         switches = "" if not math.isfinite(row["switches"]) else f"{row['switches']:.0f}"
         speed = "" if not math.isfinite(row.get("ms_per_frame", math.nan)) else f"{row['ms_per_frame']:.0f}"
-        lines.append(f"| | {row['row']} | {' | '.join(cells)} | {realism} | {switches} | {speed} |")
+        jitters = " | ".join(share(row.get(f"{part}_jitter", math.nan), agreement.get(f"{part}_jitter", math.nan))
+                             .replace(f"{row.get(f'{part}_jitter', math.nan):.2f}",
+                                      f"{row.get(f'{part}_jitter', math.nan):.4f}", 1) for part in JITTER_PARTS)
+        lines.append(f"| | {row['row']} | {' | '.join(cells)} | {realism} | {switches} | {speed} | {jitters} |")
     lines += ["", "agreement: the face mesh's reading of the driver's frames against dlib's (the judge); each bank's "
               "row: the output against the driver, both read by dlib, and in brackets its share of the agreement. "
               "realism: the median distance of the output's eyes to the nearest of the source's real eyes "
               "(1 - NCC), the floor that of the source's real frames to its frames at least "
               f"{FLOOR_GAP} frames away; switches: how often the bank's eye entry changed; ms / frame: the "
-              "re-enactment's wall time per driver frame (the banks built before, once per source).", "", machine]
+              "re-enactment's wall time per driver frame (the banks built before, once per source); jitter: each part's "
+              "own frame-to-frame motion (its points' less the face's, dlib's reading, in inter-ocular distances; "
+              "``landmarks.motion.smooth.part_jitter``), the driver's in the agreement row, each bank's against it in "
+              "brackets (the issue's bar: at most the driver's).", "", machine]
     return "\n".join(lines)
 
 

@@ -105,9 +105,9 @@ def _row(pair, name, realism, switches=math.nan, **values):
 
 
 def test_the_table_prints_each_pairs_agreement_then_each_bank_with_its_share_of_it():
-    rows = [_row("a ← b", "agreement", 0.04, eye_r=0.8, eye_gain=0.5, mouth_r=math.nan),
+    rows = [_row("a ← b", "agreement", 0.04, eye_r=0.8, eye_gain=0.5, mouth_r=math.nan, eye_jitter=0.02),
             _row("a ← b", "none", 0.1, eye_r=0.4, eye_gain=1.0),
-            _row("a ← b", "all", 0.05, switches=3.0, eye_r=0.6, eye_gain=0.25, ms_per_frame=41.6),
+            _row("a ← b", "all", 0.05, switches=3.0, eye_r=0.6, eye_gain=0.25, ms_per_frame=41.6, eye_jitter=0.03),
             _row("b ← a", "agreement", 0.02, eye_r=0.2),
             _row("b ← a", "all", 0.05, switches=0.0, eye_r=0.6)]
     settings = {"clips": "a.mp4 and 1 more", "k": 8, "weights": "weights/tiny", "frames": "10-12"}
@@ -115,15 +115,16 @@ def test_the_table_prints_each_pairs_agreement_then_each_bank_with_its_share_of_
     lines = text.splitlines()
     assert lines[0] == "clips: a.mp4 and 1 more; K = 8; model `weights/tiny`; judged frames per driver: 10-12"
     assert ("| pair | eyes from | eye r | eye gain | mouth r | mouth gain | gaze r | realism ↓ (x floor) | switches | "
-            "ms / frame |") in lines
+            "ms / frame | eye jitter (x driver) | mouth jitter (x driver) |") in lines
     table = [line for line in lines if line.startswith("| ") and "pair |" not in line]
     assert table == [
-        "| a ← b | agreement / floor | 0.80 | 0.50 | nan | 0.50 | 0.50 | 0.040 | | |",
+        "| a ← b | agreement / floor | 0.80 | 0.50 | nan | 0.50 | 0.50 | 0.040 | | | 0.0200 | nan |",
         # in brackets: the share of the agreement (gains: their ratio), realism over the floor; no agreement, no share
-        "| | none | 0.40 (0.50) | 1.00 (2.00) | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.100 (2.50) |  |  |",
-        "| | all | 0.60 (0.75) | 0.25 (0.50) | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.050 (1.25) | 3 | 42 |",
-        "| b ← a | agreement / floor | 0.20 | 0.50 | 0.50 | 0.50 | 0.50 | 0.020 | | |",
-        "| | all | 0.60 (3.00) | 0.50 (1.00) | 0.50 (1.00) | 0.50 (1.00) | 0.50 (1.00) | 0.050 (2.50) | 0 |  |",  # its own pair's
+        "| | none | 0.40 (0.50) | 1.00 (2.00) | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.100 (2.50) |  |  | nan | nan |",
+        "| | all | 0.60 (0.75) | 0.25 (0.50) | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.050 (1.25) | 3 | 42 | 0.0300 (1.50) "
+        "| nan |",
+        "| b ← a | agreement / floor | 0.20 | 0.50 | 0.50 | 0.50 | 0.50 | 0.020 | | | nan | nan |",
+        "| | all | 0.60 (3.00) | 0.50 (1.00) | 0.50 (1.00) | 0.50 (1.00) | 0.50 (1.00) | 0.050 (2.50) | 0 |  | nan | nan |",
     ]
     assert f"at least {FLOOR_GAP} frames away" in text and lines[-1] == "machine: test box"
 
@@ -228,3 +229,18 @@ def test_the_command_drives_each_clip_by_the_next_and_prints_a_row_per_bank(tmp_
 
     figure = read_image(tmp_path / "eyes.png")  # driver | each bank, the hardest eye moments (one row each)
     assert figure.shape[1] == 256 * 4 and figure.shape[0] >= 256
+
+
+def test_part_jitter_reads_a_part_moving_on_its_own_not_the_head():
+    from landmarks.motion.head_pose import project_canonical
+    from landmarks.motion.smooth import part_jitter
+
+    face = project_canonical(0.0, 0.0, 0.0, (256, 256)).astype(np.float64)
+    moving_head = np.stack([face + [3.0 * t, 0.0] for t in range(6)])  # the whole face slides: no part moves alone
+    assert part_jitter(moving_head, slice(36, 48)) == pytest.approx(0.0, abs=1e-12)
+    popping = moving_head.copy()
+    popping[::2, 36:48, 1] += 2.0  # the eyes jump up and down every frame
+    assert part_jitter(popping, slice(36, 48)) > 0.01 > part_jitter(popping, slice(48, 68))
+    popping[3] = np.nan  # frames without a face break the pairs around them, nothing more
+    assert np.isfinite(part_jitter(popping, slice(36, 48)))
+    assert np.isnan(part_jitter(np.full((3, 68, 2), np.nan), slice(36, 48)))
