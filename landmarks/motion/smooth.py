@@ -86,12 +86,10 @@ def smooth_sequence(
     return np.stack([one_euro(frame) for frame in landmarks]) if len(landmarks) else landmarks.copy()
 
 
-def jitter(landmarks: np.ndarray) -> float:
-    """Mean frame-to-frame landmark displacement in units of inter-ocular distance.
-
-    landmarks: (N, 68, 2), NaN rows ignored (pairs touching a missing frame are skipped).
-    NaN when fewer than two consecutive valid frames exist.
-    """
+def _mean_step(landmarks: np.ndarray, step) -> float:
+    """Mean of ``step(moves)`` ((N-1, 68, 2) frame-to-frame moves -> (N-1,) pixels) over consecutive valid frames, in
+    inter-ocular distances. landmarks: (N, 68, 2), NaN rows ignored (pairs touching a missing frame are skipped);
+    NaN when fewer than two consecutive valid frames exist."""
     landmarks = np.asarray(landmarks, dtype=np.float64)
     if landmarks.ndim != 3 or landmarks.shape[1:] != (NUM_LANDMARKS, 2):
         raise ValueError(f"landmarks must be (N, 68, 2), got {landmarks.shape}")
@@ -99,9 +97,17 @@ def jitter(landmarks: np.ndarray) -> float:
     pairs = valid[1:] & valid[:-1]
     if not pairs.any():
         return float("nan")
-    step = np.linalg.norm(landmarks[1:] - landmarks[:-1], axis=2).mean(axis=1)  # (N-1,)
     scale = 0.5 * (inter_ocular_distance(landmarks[1:]) + inter_ocular_distance(landmarks[:-1]))
-    return float(np.mean(step[pairs] / scale[pairs]))
+    return float(np.mean(step(landmarks[1:] - landmarks[:-1])[pairs] / scale[pairs]))
+
+
+def jitter(landmarks: np.ndarray) -> float:
+    """Mean frame-to-frame landmark displacement in units of inter-ocular distance.
+
+    landmarks: (N, 68, 2), NaN rows ignored (pairs touching a missing frame are skipped).
+    NaN when fewer than two consecutive valid frames exist.
+    """
+    return _mean_step(landmarks, lambda moves: np.linalg.norm(moves, axis=2).mean(axis=1))
 
 
 def part_jitter(landmarks: np.ndarray, part: slice) -> float:
@@ -109,14 +115,7 @@ def part_jitter(landmarks: np.ndarray, part: slice) -> float:
     much a part (``landmarks.shape.ibug68`` ranges, e.g. the eyes 36-47) moves on its own, pops included.
 
     landmarks: (N, 68, 2), NaN rows ignored as in ``jitter``; NaN when fewer than two consecutive valid frames."""
-    landmarks = np.asarray(landmarks, dtype=np.float64)
-    if landmarks.ndim != 3 or landmarks.shape[1:] != (NUM_LANDMARKS, 2):
-        raise ValueError(f"landmarks must be (N, 68, 2), got {landmarks.shape}")
-    valid = np.isfinite(landmarks).all(axis=(1, 2))
-    pairs = valid[1:] & valid[:-1]
-    if not pairs.any():
-        return float("nan")
-    moves = landmarks[1:] - landmarks[:-1]  # (N-1, 68, 2)
-    own = moves[:, part] - moves.mean(axis=1, keepdims=True)  # the part's motion less the face's
-    scale = 0.5 * (inter_ocular_distance(landmarks[1:]) + inter_ocular_distance(landmarks[:-1]))
-    return float(np.mean(np.linalg.norm(own, axis=2).mean(axis=1)[pairs] / scale[pairs]))
+    def own(moves: np.ndarray) -> np.ndarray:  # the part's motion less the face's
+        return np.linalg.norm(moves[:, part] - moves.mean(axis=1, keepdims=True), axis=2).mean(axis=1)
+
+    return _mean_step(landmarks, own)
