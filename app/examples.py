@@ -8,8 +8,8 @@ default detector. They are written once into a cache folder and reused. The fold
 
     examples = ensure_examples()            # ~/.cache/lsr/app_examples by default
     examples.source_images                  # 4 PNG shots of real person A
-    examples.driving_video                  # H.264 clip of person B with a sine-tone audio track
-    examples.driving_landmarks              # the same clip's (N, 68, 2) landmarks (.npy, frame pixels)
+    examples.driver_video                  # H.264 clip of person B with a sine-tone audio track
+    examples.driver_landmarks              # the same clip's (N, 68, 2) landmarks (.npy, frame pixels)
 """
 
 from __future__ import annotations
@@ -25,13 +25,13 @@ import numpy as np
 
 from lsr.examples import EXAMPLE_SHOTS
 
-EXAMPLES_VERSION = 2  # bump when the recipe changes: a new folder name, old caches are left alone
+EXAMPLES_VERSION = 3  # bump when the recipe changes: a new folder name, old caches are left alone
 SOURCE_SHOTS = EXAMPLE_SHOTS
 DRIVER_FRAMES = 32
 EXAMPLE_FPS = 25
-TONE_HZ = 440.0  # the driving clip carries audio so "the output keeps the audio" can be seen and tested
+TONE_HZ = 440.0  # the driver clip carries audio so "the output keeps the audio" can be seen and tested
 
-# Names shown in the driving-example dropdown.
+# Names shown in the driver-example dropdown.
 DRIVER_EXAMPLE_NONE = "none (use my upload)"
 DRIVER_EXAMPLE_VIDEO = f"real person B (GRID corpus, CC BY 4.0): video, {DRIVER_FRAMES} frames with audio"
 DRIVER_EXAMPLE_LANDMARKS = f"real person B: landmarks only (.npy, {DRIVER_FRAMES} x 68 x 2)"
@@ -44,12 +44,12 @@ class Examples:
 
     folder: Path
     source_images: list[Path]
-    driving_video: Path
-    driving_landmarks: Path
+    driver_video: Path
+    driver_landmarks: Path
 
     def driver(self, name: str) -> Path | None:
         """The file behind a dropdown entry of ``DRIVER_EXAMPLES`` (None for 'none')."""
-        return {DRIVER_EXAMPLE_VIDEO: self.driving_video, DRIVER_EXAMPLE_LANDMARKS: self.driving_landmarks}.get(name)
+        return {DRIVER_EXAMPLE_VIDEO: self.driver_video, DRIVER_EXAMPLE_LANDMARKS: self.driver_landmarks}.get(name)
 
 
 def default_examples_dir() -> Path:
@@ -61,8 +61,8 @@ def _layout(folder: Path) -> Examples:
     return Examples(
         folder,
         [folder / f"source_person_a_{i}.png" for i in range(SOURCE_SHOTS)],
-        folder / "driving_person_b.mp4",
-        folder / "driving_person_b_landmarks.npy",
+        folder / "driver_person_b.mp4",
+        folder / "driver_person_b_landmarks.npy",
     )
 
 
@@ -103,14 +103,14 @@ def _generate(folder: Path) -> None:
     for path, shot in zip(layout.source_images, example_shots(SOURCE_SHOTS)):
         write_image(path, shot)
     driver = np.stack([frame for _, frame in zip(range(DRIVER_FRAMES), iter_frames(REAL_DRIVER))])
-    write_clip_with_tone(layout.driving_video, driver)
+    write_clip_with_tone(layout.driver_video, driver)
     detector = make_detector()
     landmarks = np.full((len(driver), 68, 2), np.nan, np.float32)
     for index, frame in enumerate(driver):
         faces = detector.detect(frame)
         if faces:
             landmarks[index] = faces[0].landmarks
-    np.save(layout.driving_landmarks, landmarks)
+    np.save(layout.driver_landmarks, landmarks)
     manifest = {"version": EXAMPLES_VERSION, "source": REAL_SOURCE.name, "driver": REAL_DRIVER.name,
                 "fps": EXAMPLE_FPS, "landmark_space": "frame", "licence": "CC BY 4.0 (lsr/examples/NOTICE.md)"}
     (folder / "examples.json").write_text(json.dumps(manifest, indent=2))

@@ -27,7 +27,7 @@ from lsr.core import MAX_K
 
 LOG = logging.getLogger("lsr.app")
 DISPLAY_SIDE = 256  # shots, per-shot results and side-by-side tiles are shown at least this large
-PANEL_TITLES = ("driving frame", "landmarks", "latent layout", "output")
+PANEL_TITLES = ("driver frame", "landmarks", "latent layout", "output")
 LIVE_NETWORK_THREADS = 1  # onnxruntime threads of the live network: on 2 cores, 1 thread ran it as fast as 2 (45 ms)
 # and 2.4x faster than its default threads while another process kept a core busy (58 against 141 ms)
 
@@ -240,16 +240,16 @@ def check_upload_size(path: Path, limits: Limits) -> None:
                              "(a shorter or smaller file, or start the app with a larger --max-upload-mb)")
 
 
-def check_driver(driving: Path, limits: Limits):
+def check_driver(driver: Path, limits: Limits):
     """``describe_driver`` plus the app's length limits; returns the ``DriverInfo``."""
     from lsr.core.inputs import describe_driver
     from landmarks.exceptions import InputFileError
 
-    check_upload_size(driving, limits)
-    info = describe_driver(driving)
+    check_upload_size(driver, limits)
+    info = describe_driver(driver)
     seconds = info.frames / info.fps
     if info.kind == "video" and seconds > limits.max_video_seconds:
-        raise InputFileError(f"the driving video is {seconds:.1f} s long; this app accepts up to "
+        raise InputFileError(f"the driver video is {seconds:.1f} s long; this app accepts up to "
                              f"{limits.max_video_seconds:g} s (trim it, or use `lsr reenact` for long videos)")
     if info.frames > limits.max_video_frames:
         raise InputFileError(f"the driver has {info.frames} frames; this app accepts up to {limits.max_video_frames} "
@@ -415,7 +415,7 @@ def panel_path(panels_dir: str | os.PathLike, index: int) -> Path:
     return Path(panels_dir) / f"{int(index):05d}.png"
 
 
-def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_files, k: int, driving, *,
+def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_files, k: int, driver, *,
                     motion: str = "relative", smooth: bool = True, paste_back: bool = False, finetune_steps: int = 0,
                     runtime: str = "torch", watermark: bool = True) -> RunResult:
     """Shots -> subject latents (K-shot average) -> one output frame per driver frame, written as the app shows them."""
@@ -425,15 +425,15 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     from lsr.writer import stage_table, write_reenactment
 
     reenactor = store.reenactor(runtime)  # first: without a model nothing else matters
-    driving_paths = upload_paths(driving)
-    if not driving_paths:
-        raise InputFileError("no driving input yet: upload a video or a landmark file (.npy/.json), or pick a bundled example")
-    driving = driving_paths[0]
+    driver_paths = upload_paths(driver)
+    if not driver_paths:
+        raise InputFileError("no driver yet: upload a video or a landmark file (.npy/.json), or pick a bundled example")
+    driver = driver_paths[0]
     if motion not in ("relative", "absolute"):
         raise InputFileError(f"motion must be 'relative' or 'absolute', got {motion!r}")
     if not 0 <= int(finetune_steps) <= 1000:
         raise InputFileError(f"fine-tuning steps must be in 0..1000, got {finetune_steps}")
-    info = check_driver(driving, limits)
+    info = check_driver(driver, limits)
     started = time.perf_counter()
     shots, notes = load_shots(source_files, k, reenactor.crop_size, store.detector, limits)
     shot_seconds = time.perf_counter() - started
@@ -449,7 +449,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     panels_dir.mkdir()
     with store.finetuned(reenactor, int(finetune_steps)) as finetune_seconds:
         written = write_reenactment(
-            reenactor, driving, output, runtime=runtime, mode=motion, smooth=smooth, paste_back=paste_back, scene="source",
+            reenactor, driver, output, runtime=runtime, mode=motion, smooth=smooth, paste_back=paste_back, scene="source",
             watermark=watermark, progress=True,
             panel_sink=lambda index, panel: write_image(panel_path(panels_dir, index), panel),
         )
@@ -468,7 +468,7 @@ def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_fil
     if kind == "none":
         notes.append("this model variant has no layout stage: the layout panel stays black")
     if info.kind == "landmarks":
-        notes.append("a landmark driver has no pictures: the 'driving frame' panel stays black")
+        notes.append("a landmark driver has no pictures: the 'driver frame' panel stays black")
     if info.kind == "landmarks" and paste_back:
         notes.append("a landmark driver has no frames: the face is composited into the source's anchor shot")
     audio = info.kind == "video" and info.has_audio

@@ -1,4 +1,4 @@
-"""The Gradio page of ``lsr app``: K-shot source, driving motion, the re-enacted video and the latent layout.
+"""The Gradio page of ``lsr app``: K-shot source, the driver, the re-enacted video and the latent layout.
 
 Layout only; the work happens in ``app.handlers`` (over ``lsr.pipeline``). Importing this module imports
 Gradio but loads no model: ``ModelStore`` loads the weights on the first request.
@@ -29,17 +29,17 @@ DELETE_CACHE = (1800, 3600)
 CSS = ".lsr-warning {border: 2px solid #e8a33d; border-radius: 8px; padding: 4px 12px; background: #fff7e8}"  # every 30 min, remove Gradio's cached uploads/outputs older than an hour
 
 INTRO = """# LSR: few-shot talking heads
-Give **a few photos of one person** (the source, K shots) and **a driving video or landmarks**; the model
+Give **a few photos of one person** (the source, K shots) and **a driver video or landmarks**; the model
 moves the source person like the driver. Based on *Learned Spatial Representations for Few-shot Talking-Head
 Synthesis* (Meshry et al., ICCV 2021). Outputs are marked as synthetic (a visible mark and the file's metadata).
 
-**Quick start:** click *Use the example person*, pick a *bundled driving example*, then **Re-enact**."""
+**Quick start:** click *Use the example person*, pick a *bundled driver example*, then **Re-enact**."""
 
 AVERAGING_HELP = """Each source shot is encoded **alone** and rendered at the same target pose (the first driven
 frame), next to the result of **averaging the K latents** (thesis eq. 4.3, Fig. 4.10): with more shots, details
 seen in only one shot (an occluding hand, glasses, a bad frame) fade out of the average."""
 
-LAYOUT_HELP = """Per frame: the driving frame, the landmark image the generator receives, its **latent spatial layout**
+LAYOUT_HELP = """Per frame: the driver frame, the landmark image the generator receives, its **latent spatial layout**
 (each pixel's strongest channel in a colour of its own, the same in every frame and for every person; the legend
 names the face parts each channel covers, `lsr bench layout-legend`; segmentation-stage models show class colours)
 and the output.
@@ -91,7 +91,7 @@ def model_summary(weights: Path | None, random_init: bool) -> str:
     if config.get("variant") == "warp_guided":
         scale = config.get("crop_scale", 2)  # models_def.config.LATER_FIELDS: older configs blend at twice the side
         output = f"{scale * size}x{scale * size}" if isinstance(size, int) and isinstance(scale, int) else "a larger side"
-        line += (f". It warps the source shots nearest to each driving pose onto it and blends them with its own "
+        line += (f". It warps the source shots nearest to each driver pose onto it and blends them with its own "
                  f"synthesis at {output}, so detail comes from your shots")
         if config.get("reference_detail"):
             line += " (the fine detail most of the warped shots agree on, not a blur of them)"
@@ -147,13 +147,13 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                 path = ex.ensure_examples(examples_dir).driver(name)
         return str(path) if path is not None else gr.skip()
 
-    def run(source_files, k, driving, motion, smooth, paste_back, finetune_steps, runtime, watermark,
+    def run(source_files, k, driver, motion, smooth, paste_back, finetune_steps, runtime, watermark,
             request: gr.Request, progress=gr.Progress(track_tqdm=True)):
         progress(0.0, desc="loading the model and the source shots")
         with handlers.readable_errors("re-enact"):
             run_dir = files.new_run(request.session_hash if request is not None else None)
             result = handlers.run_reenactment(
-                store, limits, run_dir, source_files, int(k), driving, motion=motion, smooth=bool(smooth),
+                store, limits, run_dir, source_files, int(k), driver, motion=motion, smooth=bool(smooth),
                 paste_back=bool(paste_back), finetune_steps=int(finetune_steps), runtime=runtime,
                 watermark=bool(watermark),
             )
@@ -232,17 +232,17 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                                        object_fit="contain", elem_id="shots")
                     source_notes = gr.Markdown()
                 with gr.Column():
-                    gr.Markdown("### 2. Driving motion")
-                    driving = gr.File(file_types=[".mp4", ".mov", ".avi", ".mkv", ".webm", ".npy", ".json"],
-                                      label="Driving video, or landmarks (.npy / .json, N x 68 x 2)",
-                                      elem_id="driving-file")
+                    gr.Markdown("### 2. The driver")
+                    driver = gr.File(file_types=[".mp4", ".mov", ".avi", ".mkv", ".webm", ".npy", ".json"],
+                                      label="Driver video, or landmarks (.npy / .json, N x 68 x 2)",
+                                      elem_id="driver-file")
                     driver_example = gr.Dropdown(list(ex.DRIVER_EXAMPLES), value=ex.DRIVER_EXAMPLE_NONE,
-                                                 label="...or a bundled driving example", elem_id="driver-example")
+                                                 label="...or a bundled driver example", elem_id="driver-example")
                     with gr.Accordion("Options", open=False):
                         motion = gr.Radio(["relative", "absolute"], value="relative", label="Motion",
                                           info="relative: the driver's motion on the source's face shape; "
                                                "absolute: the driver's own landmarks")
-                        smooth = gr.Checkbox(True, label="Smooth the driving landmarks (One-Euro)")
+                        smooth = gr.Checkbox(True, label="Smooth the driver's landmarks (One-Euro)")
                         paste_back = gr.Checkbox(True, label="Put the result into the source's own scene",
                                                  info="the source's frame size, background, body and hair (its anchor "
                                                       "shot, or its video's frames); otherwise the face crop")
@@ -262,7 +262,7 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                     coverage = gr.Image(label="What the shots cover of the driver (blue: shots; red: frames beyond "
                                         "every shot)", interactive=False, elem_id="coverage", format="png")
             gr.Markdown("### The latent layout, frame by frame\n" + LAYOUT_HELP)
-            panel = gr.Image(label="driving frame | landmarks | latent layout | output", show_label=False,
+            panel = gr.Image(label="driver frame | landmarks | latent layout | output", show_label=False,
                              interactive=False, elem_id="layout-panel", format="png")  # titles are in the picture
             scrubber = gr.Slider(0, 1, value=0, step=1, label="frame", interactive=False, elem_id="frame-scrubber")
             gr.Markdown("### Latent averaging over the K shots\n" + AVERAGING_HELP)
@@ -308,12 +308,12 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
         use_recorded.click(lambda keeper: record.recorded_files(keeper, examples_dir), inputs=record_state,
                            outputs=source_files, concurrency_id="examples")
         record_camera.clear(lambda: (None, [], ""), outputs=[record_state, recorded, record_status], queue=False)
-        driver_example.change(use_example_driver, inputs=driver_example, outputs=driving, concurrency_id="examples")
+        driver_example.change(use_example_driver, inputs=driver_example, outputs=driver, concurrency_id="examples")
         # An own upload replaces the example: show that in the dropdown too.
-        driving.upload(lambda: ex.DRIVER_EXAMPLE_NONE, outputs=driver_example, queue=False)
+        driver.upload(lambda: ex.DRIVER_EXAMPLE_NONE, outputs=driver_example, queue=False)
         run_button.click(
             run,
-            inputs=[source_files, k, driving, motion, smooth, paste_back, finetune_steps, runtime, watermark],
+            inputs=[source_files, k, driver, motion, smooth, paste_back, finetune_steps, runtime, watermark],
             outputs=[video, summary, shots, averaging, panel, scrubber, panels_state, timing, coverage],
             concurrency_id=MODEL_EVENTS,
             api_name="reenact",

@@ -61,7 +61,7 @@ class SoakResult:
         return min(values) / values[0] - 1, max(values) / values[0] - 1
 
 
-def batch_runs(url: str, count: int, source: Path, driving: Path, stop: threading.Event, result: dict) -> None:
+def batch_runs(url: str, count: int, source: Path, driver: Path, stop: threading.Event, result: dict) -> None:
     """``count`` re-enactments through the app's /reenact API, one after another (the queue serves one at a time)."""
     from gradio_client import Client, handle_file
 
@@ -70,7 +70,7 @@ def batch_runs(url: str, count: int, source: Path, driving: Path, stop: threadin
         if stop.is_set():
             return
         try:
-            client.predict([handle_file(str(source))], 4, handle_file(str(driving)), "relative", True, True, 0, "onnx",
+            client.predict([handle_file(str(source))], 4, handle_file(str(driver)), "relative", True, True, 0, "onnx",
                            True, api_name="/reenact")
             result["ok"] += 1
         except Exception as error:  # noqa: BLE001 - counted and named; the soak goes on
@@ -78,7 +78,7 @@ def batch_runs(url: str, count: int, source: Path, driving: Path, stop: threadin
             result.setdefault("first_error", f"{type(error).__name__}: {error}"[:300])
 
 
-def soak(url: str, y4m: Path, minutes: float, runs: int, warmup_minutes: float, source: Path, driving: Path) -> SoakResult:
+def soak(url: str, y4m: Path, minutes: float, runs: int, warmup_minutes: float, source: Path, driver: Path) -> SoakResult:
     """Stream ``y4m`` into the live tab of ``url`` for ``minutes`` while ``runs`` batch runs go through the API."""
     from lsr.bench.bench_live import live_page, wait_for_first_result
 
@@ -89,7 +89,7 @@ def soak(url: str, y4m: Path, minutes: float, runs: int, warmup_minutes: float, 
     with live_page(url, y4m) as page:
         try:
             wait_for_first_result(page)
-            worker = threading.Thread(target=batch_runs, args=(url, runs, source, driving, stop, counts), daemon=True)
+            worker = threading.Thread(target=batch_runs, args=(url, runs, source, driver, stop, counts), daemon=True)
             worker.start()
             while time.perf_counter() - started < minutes * 60:
                 samples.append((time.perf_counter() - started, resident_mb()))

@@ -21,18 +21,18 @@ def free_port() -> int:
 
 @pytest.fixture(scope="session")
 def app_inputs(tmp_path_factory) -> dict[str, Path]:
-    """source.png (synthetic person A), driving.mp4 (person B, 5 frames, with audio), no_face.png (a gradient)."""
+    """source.png (synthetic person A), driver.mp4 (person B, 5 frames, with audio), no_face.png (a gradient)."""
     from app.examples import write_clip_with_tone
     from landmarks.io.image_files import write_image
     from lsr.data.synth import render_video
 
     folder = tmp_path_factory.mktemp("app_inputs")
     write_image(folder / "source.png", render_video(11, 1, SIZE).frames[0])
-    write_clip_with_tone(folder / "driving.mp4", render_video(12, DRIVER_FRAMES, SIZE).frames)
+    write_clip_with_tone(folder / "driver.mp4", render_video(12, DRIVER_FRAMES, SIZE).frames)
     ramp = np.linspace(0, 255, SIZE, dtype=np.float32)
     gradient = np.stack([np.add.outer(ramp, ramp) / 2, np.tile(ramp, (SIZE, 1)), np.full((SIZE, SIZE), 90.0)], axis=-1)
     write_image(folder / "no_face.png", gradient.astype(np.uint8))
-    return {"source": folder / "source.png", "driving": folder / "driving.mp4", "no_face": folder / "no_face.png"}
+    return {"source": folder / "source.png", "driver": folder / "driver.mp4", "no_face": folder / "no_face.png"}
 
 
 @pytest.fixture(scope="session")

@@ -82,7 +82,7 @@ def run_and_wait_for_video(page) -> None:
 def test_upload_run_video_plays_and_layout_shows(page, app_inputs, tmp_path):
     upload(page, "source-files", app_inputs["source"])
     page.locator("#shots img").first.wait_for()  # the shot gallery with landmarks drawn
-    upload(page, "driving-file", app_inputs["driving"])
+    upload(page, "driver-file", app_inputs["driver"])
     run_and_wait_for_video(page)
     duration = page.evaluate("() => document.querySelector('#result-video video').duration")
     assert duration > 0
@@ -100,7 +100,7 @@ def test_the_real_example_person_driven_by_the_bundled_example(page, tmp_path):
     page.locator("#shots img").first.wait_for()
     page.locator("#driver-example input").click()
     page.get_by_role("option", name=re.compile("real person B .*: video")).click()
-    page.locator("#driving-file td.filename").wait_for()  # the example driver is in place before running
+    page.locator("#driver-file td.filename").wait_for()  # the example driver is in place before running
     run_and_wait_for_video(page)
     page.wait_for_function(PANEL_SHOWN)
     page.locator("#coverage img").first.wait_for()
@@ -111,7 +111,7 @@ def test_the_real_example_person_driven_by_the_bundled_example(page, tmp_path):
 def test_source_without_face_shows_message_and_app_stays_usable(page, app_inputs, tmp_path):
     upload(page, "source-files", app_inputs["no_face"])
     expect_toast(page, "no face found")  # shown as soon as the shots are read
-    upload(page, "driving-file", app_inputs["driving"])
+    upload(page, "driver-file", app_inputs["driver"])
     dismiss_toasts(page)
     page.locator("#run").click()
     expect_toast(page, "no face found")  # and again when run anyway

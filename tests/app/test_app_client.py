@@ -8,14 +8,14 @@ import pytest
 pytestmark = pytest.mark.slow
 
 
-def call_reenact(url, source, driving, **options):
+def call_reenact(url, source, driver, **options):
     from gradio_client import Client, handle_file
 
     client = Client(url, verbose=False)
     settings = {"k": 1, "motion": "relative", "smooth": True, "paste_back": False, "finetune_steps": 0,
                 "runtime": "torch", "watermark": True, **options}
     return client.predict(
-        [handle_file(str(source))], settings["k"], handle_file(str(driving)), settings["motion"], settings["smooth"],
+        [handle_file(str(source))], settings["k"], handle_file(str(driver)), settings["motion"], settings["smooth"],
         settings["paste_back"], settings["finetune_steps"], settings["runtime"], settings["watermark"],
         api_name="/reenact",
     )
@@ -36,10 +36,10 @@ def test_reenact_returns_playable_video_with_every_frame(app_server, app_server_
 
     from landmarks.io.video import probe_video
 
-    driver_frames = probe_video(app_inputs["driving"]).frames
+    driver_frames = probe_video(app_inputs["driver"]).frames
     # gr.State outputs are not part of the API: video, summary, shots, averaging, panel, scrubber, timing, coverage.
     video, summary, shots, averaging, panel, _scrubber, timing, coverage = call_reenact(
-        app_server, app_inputs["source"], app_inputs["driving"]
+        app_server, app_inputs["source"], app_inputs["driver"]
     )
     path = video["video"] if isinstance(video, dict) else video
     streams, frames, comment = decode(path)
@@ -65,7 +65,7 @@ def test_paste_back_puts_the_result_into_the_source_scene(app_server, app_inputs
     source = read_image(app_inputs["source"])
     wide = np.pad(source, ((0, 0), (32, 32), (0, 0)), mode="edge")
     write_image(tmp_path / "wide.png", wide)
-    video, *_ = call_reenact(app_server, tmp_path / "wide.png", app_inputs["driving"], paste_back=True, watermark=False)
+    video, *_ = call_reenact(app_server, tmp_path / "wide.png", app_inputs["driver"], paste_back=True, watermark=False)
     _, frames, _ = decode(video["video"] if isinstance(video, dict) else video)
     assert len(frames) == 5 and frames[0].shape == (128, 192, 3)  # conftest: 5 driver frames of 128^2
     border = np.abs(frames[0][:, :16].astype(int) - wide[:, :16]).mean()  # the padded strip, far from the head
@@ -76,7 +76,7 @@ def test_source_without_face_is_a_readable_error(app_server, app_inputs):
     from gradio_client.exceptions import AppError
 
     with pytest.raises(AppError, match="no face found"):
-        call_reenact(app_server, app_inputs["no_face"], app_inputs["driving"])
+        call_reenact(app_server, app_inputs["no_face"], app_inputs["driver"])
 
 
 def test_unsupported_driver_is_a_readable_error(app_server, app_inputs, tmp_path):

@@ -1,4 +1,4 @@
-"""The live tab in a real browser: Chromium's fake camera plays a .y4m made here (the shared real driving clip, or a
+"""The live tab in a real browser: Chromium's fake camera plays a .y4m made here (the shared real driver clip, or a
 synthetic person when it is absent), the stream starts and re-enacted frames with a face come back.
 
 Frame rate and latency are recorded (printed; `lsr bench live` writes them to BENCHMARKS.md), never asserted: the

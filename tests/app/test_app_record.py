@@ -41,7 +41,7 @@ def test_shots_recorded_with_the_webcam_reenact_and_show_their_coverage(app_serv
             page.locator("#shots img").first.wait_for()  # the recorded shots are now the source person
             page.locator("#driver-example input").click()
             page.get_by_role("option", name=re.compile("real person B .*: video")).click()
-            page.locator("#driving-file td.filename").wait_for()  # the example driver is in place before running
+            page.locator("#driver-file td.filename").wait_for()  # the example driver is in place before running
             page.locator("#run").click()
             page.wait_for_function(VIDEO_PLAYABLE, timeout=WAIT_MS)
             page.wait_for_function(PANEL_SHOWN)

@@ -21,7 +21,7 @@ def test_live_stream_and_batch_runs_are_served_together(app_server, app_inputs, 
 
     y4m = write_y4m(tmp_path / "camera.y4m", camera_frames(None, 25))
     result = soak(app_server, y4m, minutes=0.35, runs=1, warmup_minutes=0.1, source=app_inputs["source"],
-                  driving=app_inputs["driving"])
+                  driver=app_inputs["driver"])
     assert result.runs_ok == 1 and result.runs_failed == 0
     assert result.live_frames > 0 and len(result.samples) >= 3 and all(mb > 0 for _, mb in result.samples)
     assert "| yes |" in soak_markdown(result, "tiny", "") or "| no |" in soak_markdown(result, "tiny", "")

@@ -13,13 +13,13 @@ from lsr.errors import WeightsError
 
 
 def test_driver_limits_are_enforced_with_a_message(app_inputs):
-    assert handlers.check_driver(app_inputs["driving"], handlers.Limits()).frames == 5
+    assert handlers.check_driver(app_inputs["driver"], handlers.Limits()).frames == 5
     with pytest.raises(InputFileError, match="up to 3"):
-        handlers.check_driver(app_inputs["driving"], handlers.Limits(max_video_frames=3))
+        handlers.check_driver(app_inputs["driver"], handlers.Limits(max_video_frames=3))
     with pytest.raises(InputFileError, match=r"s long; this app accepts up to 0.1 s"):
-        handlers.check_driver(app_inputs["driving"], handlers.Limits(max_video_seconds=0.1))
+        handlers.check_driver(app_inputs["driver"], handlers.Limits(max_video_seconds=0.1))
     with pytest.raises(InputFileError, match="MB"):
-        handlers.check_driver(app_inputs["driving"], handlers.Limits(max_upload_mb=1e-6))
+        handlers.check_driver(app_inputs["driver"], handlers.Limits(max_upload_mb=1e-6))
 
 
 def test_faceless_images_are_skipped_and_named(app_inputs):
@@ -32,7 +32,7 @@ def test_faceless_images_are_skipped_and_named(app_inputs):
     with pytest.raises(NoFaceError, match="no face found"):
         handlers.load_shots([app_inputs["no_face"]], 4, 64, detector, handlers.Limits())
     with pytest.raises(InputFileError, match="either images or one video"):
-        handlers.load_shots([app_inputs["source"], app_inputs["driving"]], 4, 64, detector, handlers.Limits())
+        handlers.load_shots([app_inputs["source"], app_inputs["driver"]], 4, 64, detector, handlers.Limits())
     with pytest.raises(InputFileError, match="K must be in 1..2"):
         handlers.load_shots([app_inputs["source"]], 3, 64, detector, handlers.Limits(max_k=2))
 
@@ -92,15 +92,15 @@ def test_examples_are_generated_once_and_usable(tmp_path):
     from landmarks.io.video import probe_video
 
     made = examples.ensure_examples(tmp_path)
-    stamp = made.driving_video.stat().st_mtime_ns
+    stamp = made.driver_video.stat().st_mtime_ns
     again = examples.ensure_examples(tmp_path)
-    assert again.driving_video.stat().st_mtime_ns == stamp  # cached, not regenerated
+    assert again.driver_video.stat().st_mtime_ns == stamp  # cached, not regenerated
     assert all(path.is_file() for path in made.source_images)
-    info = probe_video(made.driving_video)
+    info = probe_video(made.driver_video)
     assert info.frames == examples.DRIVER_FRAMES and info.has_audio
-    landmarks = np.load(made.driving_landmarks, allow_pickle=False)
+    landmarks = np.load(made.driver_landmarks, allow_pickle=False)
     assert landmarks.shape == (examples.DRIVER_FRAMES, 68, 2) and np.isfinite(landmarks).all()
-    assert made.driver(examples.DRIVER_EXAMPLE_LANDMARKS) == made.driving_landmarks
+    assert made.driver(examples.DRIVER_EXAMPLE_LANDMARKS) == made.driver_landmarks
     assert not list(tmp_path.glob(".staging-*"))
 
 
@@ -113,7 +113,7 @@ def test_finetuning_is_per_run_and_leaves_the_served_model_untouched(tiny_app_we
     before = {name: tensor.clone() for name, tensor in base.state_dict().items()}
     files = handlers.SessionFiles(tmp_path / "sessions")
     result = handlers.run_reenactment(store, handlers.Limits(), files.new_run("s"), [app_inputs["source"]], 1,
-                                      app_inputs["driving"], finetune_steps=1, watermark=False)
+                                      app_inputs["driver"], finetune_steps=1, watermark=False)
     assert result.frames == 5 and "| finetune |" in result.timing
     assert store.reenactor("torch").model is base
     assert all(torch.equal(before[name], tensor) for name, tensor in base.state_dict().items())
@@ -157,10 +157,10 @@ def test_the_app_and_lsr_reenact_write_the_same_video(tiny_app_weights, app_inpu
     store = handlers.ModelStore(tiny_app_weights, "cpu")
     files = handlers.SessionFiles(tmp_path / "sessions")
     result = handlers.run_reenactment(store, handlers.Limits(), files.new_run("s"), [app_inputs["source"]], 1,
-                                      app_inputs["driving"], motion="relative", finetune_steps=0, watermark=True)
+                                      app_inputs["driver"], motion="relative", finetune_steps=0, watermark=True)
     cli_out = tmp_path / "cli.mp4"
     assert main(["reenact", "--weights", str(tiny_app_weights), "--source", str(app_inputs["source"]),
-                 "--k", "1", "--driver", str(app_inputs["driving"]), "--motion", "relative", "--finetune-steps", "0",
+                 "--k", "1", "--driver", str(app_inputs["driver"]), "--motion", "relative", "--finetune-steps", "0",
                  "--watermark", "--out", str(cli_out), "--no-progress"]) == 0
     app_frames, cli_frames = list(iter_frames(result.video)), list(iter_frames(cli_out))
     assert len(app_frames) == len(cli_frames) == 5
