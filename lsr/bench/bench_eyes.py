@@ -156,8 +156,9 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
              "| pair | eyes from | eye r | eye gain | mouth r | mouth gain | gaze r | realism ↓ (x floor) | switches "
              "| ms / frame | eye jitter (x driver) | mouth jitter (x driver) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
-    def share(value: float, of: float) -> str:
-        return f"{value:.2f} ({value / of:.2f})" if math.isfinite(value) and math.isfinite(of) and of else f"{value:.2f}"
+    def share(value: float, of: float, digits: int = 2) -> str:
+        shown = f"{value:.{digits}f}"
+        return f"{shown} ({value / of:.2f})" if math.isfinite(value) and math.isfinite(of) and of else shown
 
     agreement: dict[str, Any] = {}
     for row in rows:
@@ -170,13 +171,11 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
             continue
         cells = [share(row[c], agreement.get(c, math.nan)) for c in ("eye_r", "eye_gain", "mouth_r", "mouth_gain",
                                                                       "gaze_r")]
-        realism = share(row["realism"], agreement.get("realism", math.nan)).replace(f"{row['realism']:.2f}",
-                                                                                   f"{row['realism']:.3f}", 1)
+        realism = share(row["realism"], agreement.get("realism", math.nan), 3)
         switches = "" if not math.isfinite(row["switches"]) else f"{row['switches']:.0f}"
         speed = "" if not math.isfinite(row.get("ms_per_frame", math.nan)) else f"{row['ms_per_frame']:.0f}"
-        jitters = " | ".join(share(row.get(f"{part}_jitter", math.nan), agreement.get(f"{part}_jitter", math.nan))
-                             .replace(f"{row.get(f'{part}_jitter', math.nan):.2f}",
-                                      f"{row.get(f'{part}_jitter', math.nan):.4f}", 1) for part in JITTER_PARTS)
+        jitters = " | ".join(share(row.get(f"{part}_jitter", math.nan), agreement.get(f"{part}_jitter", math.nan), 4)
+                             for part in JITTER_PARTS)
         lines.append(f"| | {row['row']} | {' | '.join(cells)} | {realism} | {switches} | {speed} | {jitters} |")
     lines += ["", "agreement: the face mesh's reading of the driver's frames against dlib's (the judge); each bank's "
               "row: the output against the driver, both read by dlib, and in brackets its share of the agreement. "

@@ -48,16 +48,19 @@ def _project_caller(frame) -> tuple[str, str] | None:
     return None
 
 
-_labels: dict[int, str] = {}
+def _thread_labels():
+    """A function giving the current thread's name, numbered where several share it (a nested prefetch stage has
+    its own thread of the same name)."""
+    labels: dict[int, str] = {}
 
+    def label() -> str:
+        thread = threading.current_thread()
+        if thread.ident not in labels:
+            same = sum(known.split("#")[0] == thread.name for known in labels.values())
+            labels[thread.ident] = thread.name if not same else f"{thread.name}#{same + 1}"
+        return labels[thread.ident]
 
-def _thread_label() -> str:
-    """The current thread's name, numbered where several share it (a nested prefetch stage has its own thread)."""
-    thread = threading.current_thread()
-    if thread.ident not in _labels:
-        same = sum(label.split("#")[0] == thread.name for label in _labels.values())
-        _labels[thread.ident] = thread.name if not same else f"{thread.name}#{same + 1}"
-    return _labels[thread.ident]
+    return label
 
 
 def walk(source: Path, driver: Path, *, frame: int = 10, runtime: str = "torch") -> dict[str, list[str]]:
@@ -71,14 +74,14 @@ def walk(source: Path, driver: Path, *, frame: int = 10, runtime: str = "torch")
     reenactor = make_reenactor(cfg)
     reenactor.encode_subject(source)
     calls: dict[str, list[str]] = collections.defaultdict(list)
-    _labels.clear()
+    thread_label = _thread_labels()
     recording = threading.Event()
 
     def profile(code_frame, event, arg) -> None:
         if event != "call" or not recording.is_set() or code_frame.f_code.co_name in MACHINERY:
             return
         module = code_frame.f_globals.get("__name__", "")
-        entered = calls[_thread_label()]
+        entered = calls[thread_label()]
         if (module, code_frame.f_code.co_name) in FRAME_STARTS:
             entered.append(FRAME)  # the loop's generator resumed: this thread's next frame starts
             return

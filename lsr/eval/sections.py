@@ -1,8 +1,8 @@
 """Sections of BENCHMARKS.md: each is written, between its own markers, by the command it names.
 
 ``section_text`` builds one (heading, timestamp, the command that reproduces it, its body); ``replace_section``
-puts it in place of the old one (or appends it), atomically, then rebuilds the file's summary of headline rows
-(``lsr.eval.summary.write_summary``); ``command_line`` rebuilds the command from a config.
+puts it in place of the old one (or appends it) and rebuilds the file's summary of headline rows
+(``lsr.eval.summary``), in one atomic write; ``command_line`` rebuilds the command from a config.
 """
 
 from __future__ import annotations
@@ -14,14 +14,10 @@ from pathlib import Path
 from typing import Any
 
 from lsr.errors import ConfigError
-from lsr.eval.summary import write_summary
+from lsr.eval.markers import around_block, markers
+from lsr.eval.summary import with_summary
 
 HEADER = "# Benchmarks\n\nEvery section is written by the command it names.\n"
-
-
-def markers(name: str, kind: str = "eval") -> tuple[str, str]:
-    """The start / end markers of section ``name`` (``<!-- eval:NAME:start -->``)."""
-    return f"<!-- {kind}:{name}:start -->", f"<!-- {kind}:{name}:end -->"
 
 
 def command_line(cfg: Any, prog: str) -> str:
@@ -56,27 +52,27 @@ def section_text(name: str, title: str, command: str, body: str, note: str | Non
 
 def replace_section(path: Path, section: str, start: str, end: str) -> Path:
     """Put ``section`` (markers included) into ``path`` between the markers ``start`` / ``end``, replacing the old
-    one in place and keeping every other line; appended when the file has none. Atomic. Then the summary at the
-    top is rebuilt from the sections (``write_summary``), so every command that writes a section refreshes it."""
+    one in place and keeping every other line; appended when the file has none. The summary at the top is rebuilt
+    from the sections in the same write (``lsr.eval.summary.with_summary``), so every command that writes a section
+    refreshes it. Atomic."""
     from landmarks.io.image_files import atomic_output
 
     path = Path(path)
     text = path.read_text() if path.is_file() else HEADER
-    starts, ends = text.count(start), text.count(end)
-    if starts != ends or starts > 1:
-        raise ConfigError(f"{path}: the markers {start} / {end} are unbalanced or repeated; "
-                          "fix them by hand (one pair) and re-run")
-    if starts:
-        before, rest = text.split(start, 1)
-        _, after = rest.split(end, 1)
-        after = after[1:] if after.startswith("\n") else after
-        text = before + section + after
-    else:
-        text = text.rstrip("\n") + "\n\n" + section
+    try:
+        around = around_block(text, start, end)
+    except ConfigError as error:
+        raise ConfigError(f"{path}: {error}") from None
+    text = around[0] + section + around[1] if around else text.rstrip("\n") + "\n\n" + section
+    try:
+        updated, failure = with_summary(text), None
+    except ConfigError as error:  # the summary's markers need mending by hand: the measured section is kept
+        updated, failure = text, ConfigError(f"{path}: {error}")
     with atomic_output(path) as temp:
-        temp.write_text(text)
-    # a second write: the section is on disk even if the summary's markers need mending by hand
-    return write_summary(path)
+        temp.write_text(updated)
+    if failure is not None:
+        raise failure
+    return path
 
 
 def write_section(path: Path, name: str, title: str, command: str, body: str, note: str | None = None) -> Path:

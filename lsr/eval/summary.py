@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from lsr.errors import ConfigError
+from lsr.eval.markers import around_block
 
 SUMMARY_START, SUMMARY_END = "<!-- summary:start -->", "<!-- summary:end -->"
 TITLE = "## Summary: the headline rows"
@@ -44,7 +45,7 @@ class Table:
 
 @dataclasses.dataclass(frozen=True)
 class Section:
-    """The text between one section's markers (``lsr.eval.sections.markers``)."""
+    """The text between one section's markers (``lsr.eval.markers.markers``)."""
     name: str
     body: str
 
@@ -357,14 +358,10 @@ def summary_block(text: str) -> str:
 def with_summary(text: str) -> str:
     """``text`` with its summary block rebuilt in place, or put before the first section; every byte outside the
     block is kept. A file without a block and without headline rows is returned as it is."""
-    starts, ends = text.count(SUMMARY_START), text.count(SUMMARY_END)
-    if starts != ends or starts > 1 or (starts and text.index(SUMMARY_END) < text.index(SUMMARY_START)):
-        raise ConfigError(f"the markers {SUMMARY_START} / {SUMMARY_END} are unbalanced or repeated; fix them by hand "
-                          "(one pair, or none: the summary is put back before the first section) and re-run")
-    if starts:
-        before, rest = text.split(SUMMARY_START, 1)
-        after = rest.split(SUMMARY_END, 1)[1]
-        after = after.removeprefix("\n")
+    around = around_block(text, SUMMARY_START, SUMMARY_END, "one pair, or none: the summary is put back before the "
+                          "first section")
+    if around:
+        before, after = around
         return before + summary_block(before + after) + after
     first = _START.search(text)
     if first is None or not headlines(text):
