@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 
 import tyro
 
-from lsr.core import DEFAULT_FINETUNE_LR, MAX_K  # lsr/core/__init__ imports nothing: --help stays instant
+from lsr.core import MAX_K  # lsr/core/__init__ imports nothing: --help stays instant
 from lsr.config.bench_options import (  # noqa: F401 - re-exported: every sub-command config is lsr.config.*
     BenchLandmarksConfig,
     BenchTrainConfig,
