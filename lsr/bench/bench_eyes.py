@@ -93,21 +93,24 @@ def driver_readings(video: Path, judge, keep: np.ndarray) -> dict[str, np.ndarra
 
 def output_readings(frames: list, judge, real: np.ndarray) -> dict[str, np.ndarray]:
     """The re-enacted frames (``ReenactedFrame``s, the kept ones; None where the driver had no face) read by the
-    judge (openings, gaze) and their eyes' realism against the source's ``real`` eyes ((N, 2, P))."""
+    judge (openings, gaze) and their eyes' realism against the source's ``real`` eyes ((N, 2, P)); "asked_*": the
+    openings of the target's own points, what the re-enactment asked the synthesis to draw."""
     from landmarks.parts.appearance import gaze
     from landmarks.parts.eyes.eye_realism import eye_realism, realism_patches
     from landmarks.shape.expression import eye_opening, mouth_opening
 
     readings: dict[str, list] = {"judge_mouth": [], "judge_eye": [], "judge_gaze": [], "realism": [],
-                                 "judge_points": []}
+                                 "judge_points": [], "asked_mouth": [], "asked_eye": []}
     for frame in frames:
         if frame is None or frame.synthesis is None:
-            for name in ("judge_mouth", "judge_eye", "judge_gaze"):
+            for name in ("judge_mouth", "judge_eye", "judge_gaze", "asked_mouth", "asked_eye"):
                 readings[name].append(math.nan)
             readings["realism"].append(np.full(2, np.nan))
             readings["judge_points"].append(np.full((68, 2), np.nan))
             continue
         judged = judge.landmarks(frame.synthesis, frame.landmarks)
+        readings["asked_mouth"].append(float(mouth_opening(frame.landmarks)))
+        readings["asked_eye"].append(float(eye_opening(frame.landmarks)))
         readings["judge_mouth"].append(float(mouth_opening(judged)) if judged is not None else math.nan)
         readings["judge_eye"].append(float(eye_opening(judged)) if judged is not None else math.nan)
         readings["judge_gaze"].append(float(gaze(frame.synthesis, judged)[0]) if judged is not None else math.nan)
@@ -135,6 +138,12 @@ def pair_rows(pair: str, driver: dict[str, np.ndarray], outputs: dict[str, dict[
              for what, value in zip(("r", "gain"), judged(part, driver[f"mesh_{part}"]))},
              "gaze_r": opening_correlation(driver["judge_gaze"], driver["mesh_gaze"]), "realism": floor,
              "switches": math.nan, "ms_per_frame": math.nan, **steadiness(driver.get("judge_points"))}]
+    asked = next(iter(outputs.values()), None)  # every bank's target points are the same
+    if asked is not None and "asked_eye" in asked:
+        rows.append({"pair": pair, "row": "asked", **{f"{part}_{what}": value for part in ("eye", "mouth")
+                     for what, value in zip(("r", "gain"), judged(part, asked[f"asked_{part}"]))},
+                     "gaze_r": math.nan, "realism": math.nan, "switches": math.nan, "ms_per_frame": math.nan,
+                     **steadiness(None)})
     for bank, reading in outputs.items():
         row = {"pair": pair, "row": bank}
         for part in ("eye", "mouth"):
@@ -157,6 +166,8 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
              "| ms / frame | eye jitter (x driver) | mouth jitter (x driver) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def share(value: float, of: float, digits: int = 2) -> str:
+        if not math.isfinite(value):
+            return "–"
         shown = f"{value:.{digits}f}"
         return f"{shown} ({value / of:.2f})" if math.isfinite(value) and math.isfinite(of) and of else shown
 
@@ -177,7 +188,9 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
         jitters = " | ".join(share(row.get(f"{part}_jitter", math.nan), agreement.get(f"{part}_jitter", math.nan), 4)
                              for part in JITTER_PARTS)
         lines.append(f"| | {row['row']} | {' | '.join(cells)} | {realism} | {switches} | {speed} | {jitters} |")
-    lines += ["", "agreement: the face mesh's reading of the driver's frames against dlib's (the judge); each bank's "
+    lines += ["", "agreement: the face mesh's reading of the driver's frames against dlib's (the judge); asked: the "
+              "target's own points (what the re-enactment asks the synthesis to draw; its lids' small motions "
+              "multiplied for the warps) against the judge's reading of the driver; each bank's "
               "row: the output against the driver, both read by dlib, and in brackets its share of the agreement. "
               "realism: the median distance of the output's eyes to the nearest of the source's real eyes "
               "(1 - NCC), the floor that of the source's real frames to its frames at least "

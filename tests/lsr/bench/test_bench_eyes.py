@@ -73,12 +73,18 @@ def test_pair_rows_give_the_detectors_agreement_and_each_banks_correlation_and_g
     eye, mouth, gaze = driver["judge_eye"], driver["judge_mouth"], driver["judge_gaze"]
     realism = np.array([[0.1, 0.2], [0.3, np.nan]] + [[np.nan, np.nan]] * 6)
     twice = {"judge_eye": 2.0 * eye - 0.1, "judge_mouth": np.where(np.arange(8) == 2, np.nan, -0.5 * mouth),
-             "judge_gaze": gaze, "realism": realism, "switches": 3, "ms_per_frame": 12.5}
+             "judge_gaze": gaze, "realism": realism, "switches": 3, "ms_per_frame": 12.5,
+             "asked_eye": 3.0 * eye, "asked_mouth": 0.5 * mouth + 0.1}
     frozen = {"judge_eye": np.full(8, 0.2), "judge_mouth": mouth, "judge_gaze": -gaze,
               "realism": np.full((8, 2), np.nan)}
     rows = pair_rows("a ← b", driver, {"all": twice, "none": frozen}, floor=0.04)
-    assert [(row["pair"], row["row"]) for row in rows] == [("a ← b", "agreement"), ("a ← b", "all"), ("a ← b", "none")]
-    agreement, banked, plain = rows
+    assert [(row["pair"], row["row"]) for row in rows] == [("a ← b", "agreement"), ("a ← b", "asked"),
+                                                           ("a ← b", "all"), ("a ← b", "none")]
+    agreement, asked, banked, plain = rows
+    # what the target's own points asked, against the judge's reading of the driver (the first bank's targets)
+    assert asked["eye_r"] == pytest.approx(1.0) and asked["eye_gain"] == pytest.approx(3.0)
+    assert asked["mouth_r"] == pytest.approx(1.0) and asked["mouth_gain"] == pytest.approx(0.5)
+    assert all(math.isnan(asked[name]) for name in ("gaze_r", "realism", "switches", "ms_per_frame", "eye_jitter"))
     assert agreement["eye_r"] == pytest.approx(1.0) and agreement["eye_gain"] == pytest.approx(0.5)  # the mesh's
     assert agreement["mouth_r"] == pytest.approx(-1.0) and agreement["mouth_gain"] == pytest.approx(-1.0)
     assert agreement["gaze_r"] == pytest.approx(1.0)
@@ -120,11 +126,11 @@ def test_the_table_prints_each_pairs_agreement_then_each_bank_with_its_share_of_
     assert table == [
         "| a ← b | agreement / floor | 0.80 | 0.50 | nan | 0.50 | 0.50 | 0.040 | | | 0.0200 | nan |",
         # in brackets: the share of the agreement (gains: their ratio), realism over the floor; no agreement, no share
-        "| | none | 0.40 (0.50) | 1.00 (2.00) | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.100 (2.50) |  |  | nan | nan |",
+        "| | none | 0.40 (0.50) | 1.00 (2.00) | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.100 (2.50) |  |  | – | – |",
         "| | all | 0.60 (0.75) | 0.25 (0.50) | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.050 (1.25) | 3 | 42 | 0.0300 (1.50) "
-        "| nan |",
+        "| – |",
         "| b ← a | agreement / floor | 0.20 | 0.50 | 0.50 | 0.50 | 0.50 | 0.020 | | | nan | nan |",
-        "| | all | 0.60 (3.00) | 0.50 (1.00) | 0.50 (1.00) | 0.50 (1.00) | 0.50 (1.00) | 0.050 (2.50) | 0 |  | nan | nan |",
+        "| | all | 0.60 (3.00) | 0.50 (1.00) | 0.50 (1.00) | 0.50 (1.00) | 0.50 (1.00) | 0.050 (2.50) | 0 |  | – | – |",
     ]
     assert f"at least {FLOOR_GAP} frames away" in text and lines[-1] == "machine: test box"
 
@@ -216,8 +222,11 @@ def test_the_command_drives_each_clip_by_the_next_and_prints_a_row_per_bank(tmp_
         torch.set_num_threads(threads)
     assert [(row["pair"], row["row"]) for row in rows] == [
         (pair, name) for pair in ("person31 ← person32", "person32 ← person31")
-        for name in ("agreement", "none", "all", "all+mouth")]
+        for name in ("agreement", "asked", "none", "all", "all+mouth")]
     for row in rows:
+        if row["row"] == "asked":  # the target's points: openings only
+            assert math.isfinite(row["mouth_gain"]) and math.isnan(row["realism"])
+            continue
         assert math.isfinite(row["realism"])  # the floor; each output's eyes against the source's real ones
         assert math.isfinite(row["switches"]) == (row["row"] in ("all", "all+mouth"))
         assert math.isfinite(row["ms_per_frame"]) == (row["row"] != "agreement")
