@@ -209,7 +209,8 @@ def finish_parts(image: np.ndarray, settings, inputs: dict[str, np.ndarray], cro
     by the mouth generator for "drawn"); with a ``driver_mouth``, the interior as ``mouth_interior`` says; the shut
     lids as ``lids`` says (the driver's with ``driver_eyes``, else drawn); with a ``gaze``, drawn irises for ``eyes``
     "drawn"; then the subject's own mouth and eyes from its part banks over all that, each choice carrying the bank
-    it was made from (``landmarks.parts``)."""
+    it was made from (``landmarks.parts``), and the lids again over a bank eye the target shuts further than its
+    entry shows (``EyeChoice.shut``)."""
     if settings.mouth != "blend":
         image = finish_mouth(image, settings.mouth, inputs, crop_landmarks, subject.shots.landmarks,
                              settings.warp_references, settings.backend)
@@ -222,4 +223,10 @@ def finish_parts(image: np.ndarray, settings, inputs: dict[str, np.ndarray], cro
     if gaze is not None and settings.eyes == "drawn":
         image = finish_eyes(image, settings.eyes, crop_landmarks, gaze, subject.irises[0])
     image = paste_bank_mouth(image, crop_landmarks, None, mouth_choice)
-    return paste_bank_eyes(image, crop_landmarks, None, eye_choice)
+    image = paste_bank_eyes(image, crop_landmarks, None, eye_choice)
+    if eye_choice is not None and any(eye_choice.shut):  # shut further than the bank shows: lids over its eye
+        if driver_eyes is not None and settings.lids == "driver":
+            image = paste_eyes(image, crop_landmarks, driver_eyes)
+        elif settings.lids != "shots":
+            image = draw_lids(image, crop_landmarks, subject.lid_gaps, eye_choice.shut)
+    return image

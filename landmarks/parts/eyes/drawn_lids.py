@@ -87,15 +87,16 @@ def lid_normal(eye: np.ndarray) -> np.ndarray:
     return normal if normal @ (eye[[4, 5]].mean(axis=0) - eye[[0, 3]].mean(axis=0)) >= 0 else -normal
 
 
-def draw_lids(image: np.ndarray, landmarks: np.ndarray, reference_gaps: np.ndarray) -> np.ndarray:
+def draw_lids(image: np.ndarray, landmarks: np.ndarray, reference_gaps: np.ndarray,
+              which: tuple[bool, bool] = (True, True)) -> np.ndarray:
     """The subject's upper lids drawn down over ``image`` where ``landmarks`` shut them (module docstring).
 
     image: (H, W, 3) uint8 RGB, the synthesis; landmarks: (68, 2) its target landmarks in its pixels;
-    reference_gaps: (2,) the subject's lids at rest (``shot_lid_gaps``) -> (H, W, 3) uint8 (``image`` itself when
-    nothing shuts)."""
+    reference_gaps: (2,) the subject's lids at rest (``shot_lid_gaps``); which: the eyes drawn (image left first)
+    -> (H, W, 3) uint8 (``image`` itself when nothing shuts)."""
     points = np.asarray(landmarks, np.float64)
     strength = lid_strength(points, reference_gaps)
-    if strength <= 0.0:
+    if strength <= 0.0 or not any(which):
         return image
     gaps = lid_gaps(points)
     opened = set_lid_gaps(points, np.fmax(np.asarray(reference_gaps, np.float64), gaps))
@@ -106,7 +107,9 @@ def draw_lids(image: np.ndarray, landmarks: np.ndarray, reference_gaps: np.ndarr
     height, width = image.shape[:2]
     grow = max(1, round(GROW * scale))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
-    for eye in EYES:
+    for eye, drawn in zip(EYES, which):
+        if not drawn:
+            continue
         centre = (points[eye][0] + points[eye][3]) / 2
         x0, y0 = (int(max(0, np.floor(c - REACH * scale))) for c in centre)
         x1, y1 = (int(min(side, np.ceil(c + REACH * scale))) for c, side in zip(centre, (width, height)))

@@ -11,9 +11,10 @@ and each output frame takes its eyes from one real frame of the person, moved in
   (``landmarks.parts.eyes.iris.gaze_offsets``, NaN where no iris was found) and the head's yaw and pitch.
 * ``EyeBankTrack``: per output frame, the entry nearest the target's state (``state_cost``), one entry for both
   eyes (their gaze and light belong together; never a blend of several entries' eyes), kept until another is
-  clearly nearer and cross-faded in when it changes (``landmarks.parts.hysteresis``), so the eyes do not pop. Only
-  an entry whose lid opening reaches the target's within ``STRETCH`` is ever shown: an eye shut or opened further
-  than every entry shows gets no bank eye, and the steps before (the synthesis, drawn or the driver's lids) stand.
+  clearly nearer and cross-faded in when it changes (``landmarks.parts.hysteresis``), so the eyes do not pop. An
+  entry whose lid opening reaches the target's within ``STRETCH`` is shown where there is one; an eye opened or shut
+  further than every entry shows takes the nearest extreme, its stretch bounded, and where it is shut further, the
+  lids are drawn down over it afterwards (``EyeChoice.shut``).
 * ``paste_bank_eyes``: each chosen eye mapped onto the target's corners, its lid opening stretched toward the
   target's by at most ``STRETCH``, lit as the skin around it (``landmarks.parts.lay_in.match_light``) and laid in
   under the feathered ellipse of ``landmarks.parts.eyes.driver_lids`` (lids, crease and lash line, not the brow).
@@ -52,10 +53,13 @@ SCALES = {"aperture": 0.04, "gaze": 0.06, "yaw": 8.0, "pitch": 8.0}
 """How far apart two states are (``state_cost``): each term's difference over its scale, squared, summed. An
 aperture in eye widths (open eyes read 0.25-0.35, shut 0.05-0.12), a gaze in eye widths, a pose in degrees."""
 STRETCH = 1.3
-"""An entry's lid opening is stretched onto the target's by at most this factor (or its inverse); an entry farther
-from it is not shown. On the FSTH sample (``lsr eval --banks shots none``, K = 8, the bank the 8 shots) the nearest
-entry stretched at most this far whatever the target asked left the output's eyes open where the driver's shut:
-judged eye correlation 0.40 -> 0.20."""
+"""An entry's lid opening is stretched onto the target's by at most this factor (or its inverse). On the FSTH sample
+(``lsr eval --banks shots none``, K = 8, the bank the 8 shots) the nearest entry stretched at most this far, laid
+over the drawn lids, left the output's eyes open where the driver's shut (judged eye correlation 0.40 -> 0.20): so
+where the target shuts further, the lids are drawn over the entry's eye (``EyeChoice.shut``)."""
+NEAREST = 1.1
+"""An eye that no entry shows within ``STRETCH`` (opened or shut beyond every entry, or between two far apart) takes
+the entries whose stretch lies within this factor of the least one's."""
 REGION = (1.0, 0.6)
 """The ellipse laid in over each eye: semi-axes along and across the corner line, in eye widths, centred between
 the corners: the lids, the crease, the lash line and the skin around them, so that no synthesised lid line shows at
@@ -199,11 +203,15 @@ class EyeChoice:
     previous: int | None = None
     previous_weight: float = 0.0
     eyes: tuple[bool, bool] = (True, True)
-    """Which eyes (image left first) take the bank's: False where no entry shows its opening (``STRETCH``)."""
+    """Which eyes (image left first) take the bank's: False where the bank has no reading of it, or where no one entry
+    shows both eyes' openings and the other eye's is shown."""
     apertures: tuple[float, float] = (math.nan, math.nan)
     """The apertures asked of each eye (``EyeBankTrack.asked``), which its lid opening is stretched toward."""
     gazes: tuple[float, float] = (math.nan, math.nan)
     """Where each iris is moved, along the corner line in eye widths (the target's gaze; NaN: left where it is)."""
+    shut: tuple[bool, bool] = (False, False)
+    """Which eyes the target shuts further than the entry's lids stretch (``STRETCH``): the bank has no eye that shut,
+    so the lids are drawn down over the entry's (``lsr.core.finish.finish_parts``)."""
     bank: EyeBank | None = dataclasses.field(default=None, compare=False, repr=False)
     """The bank it was chosen from (``EyeBankTrack``): what ``paste_bank_eyes`` lays in when given no other."""
 
@@ -255,9 +263,13 @@ class EyeBankTrack:
             return None
         apertures = self.asked(points)
         with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = apertures[None, :] / self.bank.apertures  # (N, 2): how far each entry's lids would stretch
-        shows = (ratio >= 1.0 / STRETCH) & (ratio <= STRETCH)  # NaN: never
-        eyes = shows.any(axis=0)
+            far = np.abs(np.log(apertures[None, :] / self.bank.apertures))  # (N, 2): how far each entry's lids stretch
+        far = np.where(np.isfinite(far), far, np.inf)
+        # an entry within STRETCH where there is one; for an eye opened or shut beyond every entry, or between two
+        # far apart, the nearest (stretched as far as it goes: ``_placed``)
+        reach = np.maximum(math.log(STRETCH), far.min(axis=0) + math.log(NEAREST)) + 1e-9
+        shows = far <= reach
+        eyes = np.isfinite(far).any(axis=0)
         if not eyes.any():
             self.reset()
             return None
@@ -267,10 +279,13 @@ class EyeBankTrack:
             usable = shows[:, eyes].all(axis=1)
         cost = np.where(usable, state_cost(self.bank, apertures, gazes, head_turn(points)), np.inf)
         entry, previous, weight = self.entries(cost)
-        eyes = tuple(bool(e) for e in eyes)
+        with np.errstate(invalid="ignore"):
+            shut = eyes & (apertures < self.bank.apertures[entry] / STRETCH)
         along = (np.full(2, np.nan) if gazes is None else np.asarray(gazes, np.float64)[:, 0])
-        return EyeChoice(entry, previous, weight, eyes=eyes, apertures=tuple(float(a) for a in apertures),  # type: ignore
-                         gazes=tuple(float(g) for g in along), bank=self.bank)  # type: ignore[arg-type]
+        return EyeChoice(entry, previous, weight, eyes=tuple(bool(e) for e in eyes),  # type: ignore[arg-type]
+                         apertures=tuple(float(a) for a in apertures),  # type: ignore[arg-type]
+                         gazes=tuple(float(g) for g in along), shut=tuple(bool(e) for e in shut),  # type: ignore
+                         bank=self.bank)
 
 
 def paste_bank_eyes(image: np.ndarray, landmarks: np.ndarray, bank: EyeBank | None, choice: EyeChoice | None

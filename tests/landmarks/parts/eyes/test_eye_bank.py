@@ -4,6 +4,7 @@ takes and how long it keeps it, when it takes none, where and what is pasted, an
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import cv2
 import numpy as np
@@ -295,26 +296,57 @@ def test_noisy_targets_around_one_state_switch_far_fewer_times_than_the_nearest_
 # ---- when the bank has no eye for the target ----------------------------------------------------------------
 
 
-def test_a_target_shut_beyond_a_bank_of_open_eyes_takes_none_and_its_lids_stand():
+def test_a_target_shut_beyond_a_bank_of_open_eyes_takes_its_least_open_entry_marked_shut():
     bank = _bank([((0.3, 0.3), STRAIGHT), ((0.25, 0.25), STRAIGHT)])  # a source whose eyes are never shut
     least = 0.25
     track = EyeBankTrack(bank)
-    assert track(_points(0.3)).entry == 0
-    assert track(_points(0.1)) is None
-    assert track.entries.current is None  # the next frame chooses afresh
-    # a bounded stretch: a little below the bank's least aperture still takes its least open entry
-    assert EyeBankTrack(bank)(_points(0.95 * least)).entry == 1
-    assert EyeBankTrack(bank)(_points(1.05 * least / STRETCH)).entry == 1
-    assert EyeBankTrack(bank)(_points(0.95 * least / STRETCH)) is None
-    # one eye shut: that eye keeps the synthesis' (drawn) lids, the other takes the bank's
-    winking = _points((0.1, 0.3))
+    assert track(_points(0.3)).entry == 0 and track(_points(0.3)).shut == (False, False)
+    # beyond every entry: the nearest extreme (its stretch bounded), its lids to be drawn over it (finish_parts)
+    choice = EyeBankTrack(bank)(_points(0.1))
+    assert choice.entry == 1 and choice.eyes == (True, True) and choice.shut == (True, True)
+    assert EyeBankTrack(bank)(_points(0.95 * least)).shut == (False, False)
+    assert EyeBankTrack(bank)(_points(1.05 * least / STRETCH)).shut == (False, False)
+    assert EyeBankTrack(bank)(_points(0.95 * least / STRETCH)).shut == (True, True)
+    # opened beyond every entry: the widest entry, stretched as far as it goes; nothing drawn over it
+    wide = EyeBankTrack(bank)(_points(0.6))
+    assert wide.entry == 0 and wide.shut == (False, False)
+    # one eye shut: that eye is marked, the other not
+    winking = EyeBankTrack(bank)(_points((0.1, 0.3)))
+    assert winking.eyes == (True, True) and winking.shut == (True, False)
+
+
+def test_no_reading_of_an_eye_in_the_bank_takes_no_bank_eye():
+    def bank_of(apertures) -> EyeBank:
+        return EyeBank(np.zeros((1, 2, PATCH[1], PATCH[0], 3), np.uint8), np.array([apertures], np.float64),
+                       np.full((1, 2, 2), math.nan), np.zeros((1, 2)))
+
+    assert EyeBankTrack(bank_of((math.nan, math.nan)))(_points(0.3)) is None
+    half = EyeBankTrack(bank_of((math.nan, 0.3)))(_points(0.1))
+    assert half.eyes == (False, True) and half.shut == (False, True)
+
+
+def test_the_lids_are_drawn_over_a_bank_eye_the_target_shuts_further_than_the_bank_shows():
+    from types import SimpleNamespace
+
+    from landmarks.parts.eyes.drawn_lids import draw_lids
+    from lsr.core.finish import finish_parts
+
+    from landmarks.parts.eyes.lids import lid_gaps
+
+    bank = _bank([((0.3, 0.3), STRAIGHT), ((0.25, 0.25), STRAIGHT)])
+    subject = SimpleNamespace(lid_gaps=lid_gaps(_points(0.3)), shots=SimpleNamespace(landmarks=None))
+    settings = SimpleNamespace(mouth="blend", mouth_interior="shots", lids="drawn", eyes="warped")
+    winking = _points((0.05, 0.3))
     choice = EyeBankTrack(bank)(winking)
-    assert choice.eyes == (False, True)
+    assert choice.shut == (True, False)
     drawn = _smudged(winking)
-    pasted = paste_bank_eyes(drawn, winking, bank, choice)
-    left, right = _eye_box(winking, 0, 1.0), _eye_box(winking, 1, 0.5)
-    np.testing.assert_array_equal(pasted[left], drawn[left])
-    assert np.abs(pasted[right].astype(int) - drawn[right]).max() > 50
+    finished = finish_parts(drawn, settings, {}, winking, subject, None, None, None, choice, None)
+    pasted = paste_bank_eyes(draw_lids(drawn, winking, subject.lid_gaps), winking, bank, choice)
+    left, right = _eye_box(winking, 0, 0.5), _eye_box(winking, 1, 0.5)
+    # the shut eye: the bank's eye with the lids drawn down over it again; the open one: the bank's eye alone
+    np.testing.assert_array_equal(finished[left], draw_lids(pasted, winking, subject.lid_gaps, (True, False))[left])
+    assert np.abs(finished[left].astype(int) - pasted[left]).max() > 30
+    np.testing.assert_array_equal(finished[right], pasted[right])
 
 
 def test_a_single_photo_makes_a_bank():
