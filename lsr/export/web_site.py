@@ -14,6 +14,10 @@ What it writes (``OUT``):
   anchor and its gaze (``anchor_gaze``, which the driver's moves; NaN, not found, written as null); its scene (the
   anchor's frame, its face and crop transform) with the person matte and background plate of the head layer
   (``landmarks.scene.compositing.background_plate``); pictures as raw uint8 files (``*.u8``, shapes in ``subject.json``);
+  and the person's own eyes (``landmarks.parts.eyes.eye_bank``, issue 63), as ``Subject.part_banks`` gives them for
+  the reenactor's ``bank``: for "all", every frame of the example person's video (``lsr.examples.REAL_SOURCE``), at
+  most ``WEB_BANK_ENTRIES`` of them; its patches raw (``eye_bank.u8``), its index (apertures, gazes, head turns) in
+  ``eye_bank.json`` (``write_eye_bank``);
 * ``site.json``: the sizes and names the page needs; ``NOTICE.md``: where everything comes from.
 
 The site is written into a temporary folder beside ``OUT`` and renamed into place: an interrupted export leaves the
@@ -41,6 +45,9 @@ TRACKER_ASSETS = ("mediapipe/face_detection_short_range.onnx", "mediapipe/face_l
 SUBJECT_ENCODER = "subject_encoder.onnx"
 SEGMENTER = "mediapipe/selfie_segmentation.onnx"
 PAGE = Path(__file__).resolve().parents[2] / "deploy" / "web" / "static"
+WEB_BANK_ENTRIES = 200
+"""The site's eye bank holds at most this many entries, evenly spread over the video's frames (the Python default is
+600): 4.5 MB of raw patches at most (22 kB an entry); the bundled example's 75 frames are all kept."""
 
 
 @dataclasses.dataclass
@@ -73,6 +80,53 @@ def _nullable(values) -> list:
         return [convert(value) for value in item] if isinstance(item, list) else None if np.isnan(item) else item
 
     return convert(np.asarray(values, np.float64).tolist())
+
+
+def example_eye_bank(reenactor, subject, scope: str):
+    """The example person's eye bank of scope ``scope`` (``lsr.core.finish.BANKS``), as ``Subject.part_banks`` gives it
+    for a video source, bounded by ``WEB_BANK_ENTRIES``: "all", every frame of its video (``lsr.examples.REAL_SOURCE``,
+    whose frames its shots are); "shots", its shots; "none": None (None too where no frame shows a face)."""
+    from lsr.core.subject import video_part_banks
+    from lsr.examples import REAL_SOURCE
+
+    if scope == "none":
+        return None
+    if scope == "all":
+        return video_part_banks(REAL_SOURCE, reenactor.detector, max_entries=WEB_BANK_ENTRIES)[0]
+    return subject.part_banks(scope, reenactor.detector)[0]
+
+
+def write_eye_bank(folder: Path, bank) -> None:
+    """An ``EyeBank`` as ``folder/eye_bank.u8`` (its patches (N, 2, h, w, 3), raw uint8) and ``folder/eye_bank.json``
+    (its count, patch size (w, h), apertures, gazes and head turns; NaN written as null): what the page reads
+    (``deploy/web/src/eye_bank.ts`` readEyeBank)."""
+    from landmarks.parts.eyes.eye_bank import PATCH
+
+    (folder / "eye_bank.u8").write_bytes(np.ascontiguousarray(bank.patches, np.uint8).tobytes())
+    _write_json(folder / "eye_bank.json", {"count": len(bank), "patch": list(PATCH),
+                                           "apertures": _nullable(bank.apertures), "gazes": _nullable(bank.gazes),
+                                           "poses": _nullable(bank.poses)})
+
+
+def read_eye_bank(folder: Path):
+    """``write_eye_bank``'s files back -> the ``EyeBank``."""
+    from landmarks.parts.eyes.eye_bank import PATCH, EyeBank
+
+    folder = Path(folder)
+    index = json.loads((folder / "eye_bank.json").read_text())
+    count, shape = int(index["count"]), (int(index["count"]), 2, PATCH[1], PATCH[0], 3)
+    raw = (folder / "eye_bank.u8").read_bytes()
+    if list(index["patch"]) != list(PATCH) or len(raw) != int(np.prod(shape)):
+        raise ValueError(f"{folder}: eye_bank.u8 must hold {count} entries of {PATCH[0]} x {PATCH[1]} patches "
+                         f"({int(np.prod(shape))} bytes), got {len(raw)} bytes of {index['patch']} patches: "
+                         "export the site again")
+    patches = np.frombuffer(raw, np.uint8).reshape(shape)
+
+    def values(name: str, shape: tuple[int, ...]) -> np.ndarray:
+        return np.array(index[name], np.float64).reshape(shape)  # null -> NaN
+
+    return EyeBank(patches.copy(), values("apertures", (count, 2)), values("gazes", (count, 2, 2)),
+                   values("poses", (count, 2)))
 
 
 def write_person(folder: Path, reenactor, subject, scene) -> dict:
@@ -128,13 +182,17 @@ def write_site(weights: Path, out: Path, k: int | None = None) -> WebSite:
         for name in (*TRACKER_ASSETS, SEGMENTER):
             shutil.copy2(assets / name, models / name)
         person = write_person(temp / "person", reenactor, subject, scene)
+        scope = reenactor.bank if reenactor.bank_parts in ("eyes", "both") else "none"  # the page banks eyes only
+        eye_bank = example_eye_bank(reenactor, subject, scope)
+        if eye_bank is not None:
+            write_eye_bank(temp / "person", eye_bank)
         legend = load_layout_legend(weights)
         _write_json(temp / "site.json", {
             "resolution": int(backend.resolution), "crop_size": int(reenactor.crop_size),
             "references": int(reenactor.warp_references), "latent_dim": len(person["layout_latent"]),
             "layout": backend.layout_kind, "layout_palette": LAYOUT_PALETTE.tolist(), "layout_legend": legend,
             "mouth": reenactor.mouth, "mouth_interior": reenactor.mouth_interior, "lids": reenactor.lids,
-            "eyes": reenactor.eyes, "k": person["k"],
+            "eyes": reenactor.eyes, "bank": scope if eye_bank is not None else "none", "k": person["k"],
         })
         (temp / "NOTICE.md").write_text(_notice())
         for path in temp.rglob("*"):  # readable by any static server

@@ -87,11 +87,13 @@ def site(tmp_path_factory, web):
 @pytest.fixture(scope="module")
 def python_session(site):
     """A factory of Python live sessions (``lsr.core.live_session.LiveSession``, the live tab's) on the site's person and
-    scene layers (its 8-bit matte), unmarked: the reference of the browser's output."""
+    scene layers (its 8-bit matte), unmarked: the reference of the browser's output. Its eyes come from the bank the
+    site carries (``bank`` "all": ``lsr.export.web_site.read_eye_bank``), its shots' (``bank`` "shots": what the page
+    banks for a user's photos) or none (``bank`` "none")."""
     from landmarks.scene.compositing import SceneLayers
     from lsr.core.live_session import LiveSession
     from lsr.export.bundle import cached_bundle
-    from lsr.export.web_site import example_subject
+    from lsr.export.web_site import example_subject, read_eye_bank
     from lsr.weights import resolve_weights
 
     reenactor, subject, _ = example_subject(cached_bundle(resolve_weights(None)), site.k)
@@ -99,10 +101,12 @@ def python_session(site):
     shapes = json.loads((person / "subject.json").read_text())["shapes"]
     matte = np.frombuffer((person / "matte.u8").read_bytes(), np.uint8).reshape(shapes["matte"])
     plate = np.frombuffer((person / "plate.u8").read_bytes(), np.uint8).reshape(shapes["plate"])
+    site_bank = read_eye_bank(person)  # the video's frames, as the site holds them
 
-    reenactor.bank = "none"  # the web page has no part banks yet: its reference is the synthesis' own eyes
-
-    def session() -> LiveSession:
+    def session(bank: str = "all", eye_bank=None) -> LiveSession:
+        """bank: the scope; eye_bank: the bank of "all" (None: the site's)."""
+        subject.banks["all"] = (site_bank if eye_bank is None else eye_bank, None)
+        reenactor.bank = bank
         live = LiveSession(reenactor, subject, paste_back=True, smooth=True, with_layout=False, watermark=False)
         live.scene.layers = SceneLayers(matte.astype(np.float32) / 255, plate)
         return live

@@ -78,6 +78,24 @@ def test_the_page_finds_the_same_irises(python_person, web_person):
     np.testing.assert_allclose(web_person["anchorGaze"], gaze, atol=0.01, equal_nan=True)
 
 
+def test_the_page_banks_the_photos_eyes(python_person, web_person):
+    """The person's own eyes (deploy/web/src/eye_bank.ts buildEyeBank on the page's shots, their points and irises)
+    against Python's bank of a photo source (lsr.core.subject.Subject.part_banks: its shots'): the same entries, cut
+    from crops and points that differ as the shots do."""
+    expected = python_person[0].part_banks("shots")[0]
+    got = web_person["eyeBank"]
+    assert got["patches"].shape == expected.patches.shape
+    scores = psnr(got["patches"], expected.patches)  # (N, 2): each eye of each shot
+    print(f"\neye bank of the photos: patches {np.round(scores.min(), 1)} dB at worst; apertures "
+          f"{np.abs(got['apertures'] - expected.apertures).max():.4f}, gazes "
+          f"{np.nanmax(np.abs(got['gazes'] - expected.gazes)):.4f}, head turns "
+          f"{np.abs(got['poses'] - expected.poses).max():.3f} deg apart at most")
+    assert scores.min() >= 35.0
+    np.testing.assert_allclose(got["apertures"], expected.apertures, atol=0.005)
+    np.testing.assert_allclose(got["gazes"], expected.gazes, atol=0.01)
+    np.testing.assert_allclose(got["poses"], expected.poses, atol=0.5)
+
+
 def test_the_page_makes_the_same_scene_layers(python_person, web_person):
     _, scene, matte, layers = python_person
     difference = np.abs(web_person["matte"] - matte)
@@ -159,10 +177,11 @@ def test_photos_without_a_face_are_left_out_and_k_takes_the_first(site, web, pho
 
 def test_the_person_encoded_in_the_page_is_drawn_as_python_draws_it(site, web, photos, python_session):
     """End to end: the live session on the person encoded in the page (renderEncodedTargets) against Python's live
-    session on the person encoded in Python, at the same landmarks."""
+    session on the person encoded in Python, at the same landmarks; the person's own eyes from its photos' bank (the
+    page's, cut from its shots; Python's bank "shots", which a photo source's "all" is)."""
     from landmarks.shape.expression import set_mouth_opening
 
-    session = python_session()
+    session = python_session("shots")
     reference = session.subject.reference_landmarks.astype(np.float64)
     targets = np.stack([reference, set_mouth_opening(reference, 0.35), reference + [6.0, -4.0]])
     expected = np.stack([session.render(target).image for target in targets])

@@ -257,7 +257,9 @@ async function main(): Promise<void> {
       const photos = await Promise.all(files.map(decodePhoto));
       personModels ??= loadPersonModels(read);
       const person = await encodePerson(photos, await personModels, site.config);
-      usePerson(person, `Your person: ${person.shots.shape[0]} shot${person.shots.shape[0] === 1 ? "" : "s"}.` +
+      const shots = person.shots.shape[0], banked = person.eyeBank ? person.eyeBank.patches.shape[0] : 0;
+      usePerson(person, `Your person: ${shots} shot${shots === 1 ? "" : "s"}.` +
+                        (banked ? ` Its own eyes from ${banked} of them.` : "") +
                         (person.notes.length ? ` ${person.notes.join(" ")}` : ""));
     } catch (error) {
       status.textContent = `Those photos could not be used: ${error instanceof Error ? error.message : error}`;

@@ -13,7 +13,9 @@
 //   landmarks/scene/person_matte.py person_matte and landmarks/scene/compositing.py background_plate (segment.ts): the scene's layers,
 //     the matte kept at 8 bits as `lsr export --web` writes it (lsr/export/web_site.py write_person);
 //   lsr/core/finish.py shot_irises and subject_irises' anchor gaze (gaze.ts): each shot's irises by the tracker's iris
-//     net, which eyes "warped" carries to the driver's gaze (iris_warp.ts).
+//     net, which eyes "warped" carries to the driver's gaze (iris_warp.ts);
+//   lsr/core/subject.py Subject.part_banks for a photo source (eye_bank.ts buildEyeBank): the person's own eyes are
+//     its shots' (crops, their points and irises), where the site banks eyes (site.json's "bank").
 //
 // Left out: the identity filter (landmarks.detect.same_person, dlib's face descriptor) that drops shots of another person's
 // face; with more usable photos than K (default 8), Python's covering choice (landmarks.parts.coverage.choose_covering,
@@ -29,13 +31,14 @@ import * as ort from "onnxruntime-web";
 import { folderReader } from "./files.js";
 import { composeAffine, cropTransform, invertAffine, transformPoints } from "./geometry.js";
 import { MESH_POINTS } from "./facemesh.js";
+import { BankFace, buildEyeBank } from "./eye_bank.js";
 import { findShotIrises, gazeOffsets, shotIrisCentres } from "./gaze.js";
 import { FrameGenerator, toNetwork } from "./network.js";
 import { pickAnchor } from "./pose.js";
 import { drawLandmarks } from "./raster.js";
-import { roundHalfEven, warpAffineCubic } from "./remap.js";
+import { openCvInverse, roundHalfEven, warpAffineCubic } from "./remap.js";
 import { SEGMENTER_FILE, backgroundPlate, createSegmenter, personMatte, resizeUint8 } from "./segment.js";
-import { LiveSession, Person, Reader, Site, SiteConfig } from "./session.js";
+import { LiveSession, Person, Reader, Site, SiteConfig, banksEyes } from "./session.js";
 import { Affine, Tensor, median, tensor } from "./tensor.js";
 import { MeshTracker, TrackerAssets, createTracker, loadTrackerAssets, meshTo68 } from "./tracker.js";
 
@@ -66,14 +69,6 @@ export interface EncodedPerson extends Person {
 }
 
 // ---- the crop (landmarks/align.py crop, warp_to_crop) ----------------------------------------------------------
-
-/** cv2.warpAffine's inverse of a frame -> crop matrix (imgwarp.cpp, without WARP_INVERSE_MAP). */
-function openCvInverse(m: Affine): Affine {
-  let d = m[0] * m[4] - m[1] * m[3];
-  d = d !== 0 ? 1 / d : 0;
-  const a = m[4] * d, e = m[0] * d, b = m[1] * -d, c = m[3] * -d;
-  return [a, b, -a * m[2] - b * m[5], c, e, -c * m[2] - e * m[5]];
-}
 
 /** The frame's region under a crop's footprint, `margin` pixels around, clipped (landmarks.align._frame_roi). */
 function frameRoi(matrix: Affine, size: number, height: number, width: number, margin: number
@@ -261,6 +256,10 @@ export async function encodePerson(photos: Tensor<Uint8Array>[], models: PersonM
   const irises = await findShotIrises(tracker.faceMesh, shotTensor, landmarks);
   const anchorGaze = gazeOffsets(irises.subarray(8 * anchor, 8 * anchor + 8),
                                  shotLandmarks.subarray(136 * anchor, 136 * anchor + 136));
+  // the person's own eyes: its shots', as Python banks a photo source's (Subject.part_banks)
+  const eyeBank = banksEyes(config) ? buildEyeBank(Array.from({ length: count }, (_, i): BankFace => [
+    tensor(frames.subarray(i * crop * crop * 3, (i + 1) * crop * crop * 3), [crop, crop, 3]),
+    tensor(shotLandmarks.subarray(136 * i, 136 * (i + 1)), [68, 2]), irises.subarray(8 * i, 8 * (i + 1))])) : null;
   const scene = photos[shots[anchor].photo];
   const sceneLandmarks = tensor(Float64Array.from(shots[anchor].frameLandmarks), [68, 2]);
   const matte = await personMatte(segmenter, scene);
@@ -271,7 +270,7 @@ export async function encodePerson(photos: Tensor<Uint8Array>[], models: PersonM
     shots: shotTensor, shotLandmarks: landmarks, shotIrises: shotIrisCentres(irises), anchorGaze, anchor, latents, scene,
     sceneLandmarks,
     sceneMatrix: cropTransform(sceneLandmarks, crop),
-    layers: { matte: tensor(stepped, layers.matte.shape), plate: layers.plate },
+    layers: { matte: tensor(stepped, layers.matte.shape), plate: layers.plate }, eyeBank,
     photos: shots.map((shot) => shot.photo), frameLandmarks: tensor(frameLandmarks, [count, 68, 2]), matte, notes,
   };
 }
@@ -308,6 +307,7 @@ export async function encodePhotosFromFolder(siteFolder: string, photos: Tensor<
     frameLandmarks: person.frameLandmarks, layoutLatent: person.latents.layout, styleLatent: person.latents.style,
     scene: person.scene, sceneLandmarks: person.sceneLandmarks, sceneMatrix: tensor(Float64Array.from(person.sceneMatrix), [2, 3]),
     matte: person.matte, layerMatte: person.layers.matte, plate: person.layers.plate, notes: person.notes,
+    eyeBank: person.eyeBank ?? null,
   };
 }
 

@@ -23,3 +23,6 @@ export * from "./encode.js";
 export * from "./references.js";
 export * from "./gaze.js";
 export * from "./iris_warp.js";
+export * from "./hysteresis.js";
+export * from "./bank_rows.js";
+export * from "./eye_bank.js";

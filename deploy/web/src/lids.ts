@@ -66,16 +66,16 @@ function lidNormal(eye: ArrayLike<number>): [number, number] {
 }
 
 /** draw_lids: `image` (S, S, 3) uint8, the synthesis for the target's (68, 2) points, with the subject's upper lids
- * drawn down where the points shut them against its lids at rest (2,); `image` itself when nothing shuts, else a new
- * image (or `image` written in place when inPlace). */
+ * drawn down where the points shut them against its lids at rest (2,); `which`: the eyes drawn (image left first);
+ * `image` itself when nothing shuts, else a new image (or `image` written in place when inPlace). */
 export function drawLids(image: Tensor, landmarks: Tensor, referenceGaps: Tensor | ArrayLike<number>,
-                         inPlace = false): Tensor {
+                         inPlace = false, which: [boolean, boolean] = [true, true]): Tensor {
   if (image.shape.length !== 3 || image.shape[2] !== 3 || !(image.data instanceof Uint8Array)) {
     throw new Error(`image must be (H, W, 3) uint8, got [${image.shape}]`);
   }
   const p = flat(landmarks), reference = flat(referenceGaps);
   const strength = lidStrength(p, reference);
-  if (!(strength > 0)) return image;
+  if (!(strength > 0) || !(which[0] || which[1])) return image;
   const gaps = lidGaps(p), points = tensor(Float64Array.from(p), [68, 2]);
   const fmax = (a: number, b: number) => (Number.isNaN(a) ? b : Number.isNaN(b) ? a : Math.max(a, b));
   const opened = setLidGaps(points, [fmax(reference[0], gaps[0]), fmax(reference[1], gaps[1])]).data;
@@ -84,7 +84,8 @@ export function drawLids(image: Tensor, landmarks: Tensor, referenceGaps: Tensor
   const [height, width] = image.shape, source = image.data as Uint8Array;
   const work = Float32Array.from(source);
   const grow = Math.max(1, roundHalfEven(LID_GROW * scale)), inv255 = f32(1.0 / 255.0), dark = f32(LID_DARK);
-  for (const start of EYE_STARTS) {
+  for (const [eye, start] of EYE_STARTS.entries()) {
+    if (!which[eye]) continue;
     const cx = (p[2 * start] + p[2 * start + 6]) / 2, cy = (p[2 * start + 1] + p[2 * start + 7]) / 2;
     const x0 = Math.max(0, Math.floor(cx - LID_REACH * scale)), y0 = Math.max(0, Math.floor(cy - LID_REACH * scale));
     const x1 = Math.min(width, Math.ceil(cx + LID_REACH * scale)), y1 = Math.min(height, Math.ceil(cy + LID_REACH * scale));

@@ -109,8 +109,8 @@ export function setMouthOpening(landmarks: Tensor, opening: number): Tensor<Floa
 
 // ---------------------------------------------------------------------------------------------------------- lids
 
-/** numpy.interp for a short increasing xp (numpy's own branches: outside -> the end values, on a knot -> its value). */
-function interp(x: number, xp: number[], fp: number[]): number {
+/** numpy.interp for an increasing xp (numpy's own branches: outside -> the end values, on a knot -> its value). */
+export function numpyInterp(x: number, xp: number[], fp: number[]): number {
   const n = xp.length;
   if (Number.isNaN(x)) return x;
   if (x > xp[n - 1]) return fp[n - 1];
@@ -155,7 +155,7 @@ function measureLids(p: ArrayLike<number>): EyeMeasure[] {
       const xp = order.map((k) => lowerAlong[k]), fp = order.map((k) => lowerAcross[k]);
       for (const i of upper) {
         const ux = p[2 * i] - ox, uy = p[2 * i + 1] - oy;
-        opening.push(interp(ux * alongX + uy * alongY, xp, fp) - (ux * acrossX + uy * acrossY));
+        opening.push(numpyInterp(ux * alongX + uy * alongY, xp, fp) - (ux * acrossX + uy * acrossY));
       }
     }
     // the middle upper points (0, 1): the mean of |lower - upper|
@@ -214,6 +214,26 @@ export function lidShare(share: number, gain = SMALL_LID_GAIN, span = SMALL_LID_
   }
   const value = 1.0 + change;
   return Number.isNaN(value) ? NaN : Math.min(Math.max(value, 0.0), MAX_APERTURE);
+}
+
+let driverShareTable: [number[], number[]] | null = null;
+
+/** The inverse of lidShare (landmarks.parts.eyes.lids.driver_share, the module's gain and span): the driver's share of
+ * its reference's aperture that lidShare maps onto `share` (the smallest, where lidShare clips). A part shown as it
+ * is, not warped (eye_bank.ts), follows the driver's own lid motion, not its small motions multiplied. */
+export function driverShare(share: number): number {
+  if (driverShareTable === null) {
+    const count = 1201, step = (2.0 * MAX_APERTURE) / (count - 1), xp: number[] = [], fp: number[] = [];
+    let running = -Infinity;
+    for (let i = 0; i < count; i++) {
+      const grid = i === count - 1 ? 2.0 * MAX_APERTURE : i * step;  // np.linspace
+      const mapped = Math.max(running, lidShare(grid));  // np.maximum.accumulate
+      if (i === 0 || mapped > running) { xp.push(mapped); fp.push(grid); }  // xp must increase: a clipped run keeps its first
+      running = mapped;
+    }
+    driverShareTable = [xp, fp];
+  }
+  return numpyInterp(share, ...driverShareTable);
 }
 
 /** A retargeted face (68, 2) with its lids as closed as its driver's, in proportion

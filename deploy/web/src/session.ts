@@ -2,13 +2,16 @@
 // Per frame: camera frame -> track 68 points (and the irises: the gaze, gaze.ts) -> smooth -> crop -> retarget onto
 // the person's anchor shot -> landmark image -> warp the nearest shots (their irises carried to the gaze with eyes
 // "warped", iris_warp.ts) -> frame generator -> the nearest mouth -> the camera's mouth interior (interior.ts)
-// -> the camera's shut eyes (eyes.ts) -> composite into the person's scene.
-// A frame without a face shows the last good output again.
+// -> the camera's shut eyes (eyes.ts) -> the person's own eyes from its eye bank (eye_bank.ts: chosen per frame in
+// order, as lsr.core.part_tracks.PartTracks is, laid in last, as lsr.core.finish.finish_parts does, with the lids
+// again over an eye shut further than the bank shows) -> composite into the person's scene. A frame without a face
+// shows the last good output again (and the bank's choice starts afresh).
 
 import { compositeFace, SceneLayers } from "./composite.js";
 import { folderReader } from "./files.js";
 import { Affine, Tensor, tensor } from "./tensor.js";
 import { invertAffine, transformPoints } from "./geometry.js";
+import { EyeBank, EyeBankTrack, EyeChoice, pasteBankEyes, readEyeBank } from "./eye_bank.js";
 import { DriverEyes, EyePatch, cutEyePatch, pasteEyes, shutEyes } from "./eyes.js";
 import type { FaceMesh } from "./facemesh.js";
 import { DriverGaze, trackedIrises } from "./gaze.js";
@@ -36,6 +39,9 @@ export interface SiteConfig {
   lids: string;
   eyes?: string;  // lsr.core.finish.EYES: "warped" carries the shots' irises to the gaze; the page draws none (a site
                   // written before it has none: "blend")
+  bank?: string;  // lsr.core.finish.BANKS: which of the person's frames its own eyes come from ("all": the example
+                  // person's video, "shots": its shots; a user's photos either way); "none", or a site written before
+                  // the bank (none), keeps the synthesis' eyes
   k: number;
 }
 
@@ -51,6 +57,7 @@ export interface Person {
   sceneLandmarks: Tensor<Float64Array>;  // (68, 2) its face, frame pixels
   sceneMatrix: Affine;  // frame -> crop of that face
   layers: SceneLayers;
+  eyeBank?: EyeBank | null;  // the person's own eyes (eye_bank.ts): the site's person/eye_bank.*, a user's photos
 }
 
 export type Reader = (path: string) => Promise<Uint8Array>;
@@ -91,6 +98,11 @@ function nullable(values: unknown, count: number): Float64Array {
 
 export interface Site { config: SiteConfig; person: Person; generator: FrameGenerator; tracker: Tracker }
 
+/** Whether a site's person takes its own eyes from an eye bank (site.json's "bank"; a site written before it: no). */
+export function banksEyes(config: SiteConfig): boolean {
+  return config.bank !== undefined && config.bank !== "none";
+}
+
 /** Read a site through `read` (fetch in a browser, the file system in Node): its config, the person, the frame
  * generator and the face tracker (`makeTracker` given: that one, e.g. in a worker; else src/tracker.ts here). */
 export async function loadSite(read: Reader,
@@ -107,6 +119,7 @@ export async function loadSite(read: Reader,
     resolution: config.resolution, cropSize: config.crop_size, references: config.references });
   const assets = await loadTrackerAssets((path) => read(`models/${path}`));
   const tracker = makeTracker ? await makeTracker(assets) : localTracker(await createTracker(assets));
+  const eyeBank = banksEyes(config) ? await readEyeBank(read) : null;
   const person: Person = {
     shots: shots as Tensor<Uint8Array>,
     shotLandmarks: tensor(Float64Array.from((subject.shot_landmarks as number[][][]).flat(2)), [subject.k, 68, 2]),
@@ -118,6 +131,7 @@ export async function loadSite(read: Reader,
     sceneLandmarks: tensor(Float64Array.from((subject.scene.landmarks as number[][]).flat()), [68, 2]),
     sceneMatrix: subject.scene.matrix as Affine,
     layers: { matte: tensor(matte, matte8.shape.slice(0, 2)), plate: plate as Tensor<Uint8Array> },
+    eyeBank,
   };
   return { config, person, generator, tracker };
 }
@@ -144,8 +158,11 @@ export class LiveSession {
   /** The subject's lids at rest (shotLidGaps), which the drawn lids are read against. */
   private readonly lidGaps: Float64Array;
   private readonly cropToScene: Affine;
-  /** The target's gaze with eyes "warped" (lsr.core.live_session.LiveSession.gazes), relative to the anchor shot's. */
+  /** The target's gaze (lsr.core.live_session.LiveSession.gazes: eyes "warped" or "drawn"), relative to the anchor
+   * shot's: the warps carry the irises to it ("warped"), the eye bank's choice asks for it. */
   private readonly gazes: DriverGaze | null;
+  /** The person's own eyes chosen frame by frame (lsr.core.part_tracks.PartTracks' eyes), null without a bank. */
+  readonly eyeTrack: EyeBankTrack | null;
   last: LiveFrame | null = null;
   frames = 0;
   faces = 0;
@@ -156,7 +173,11 @@ export class LiveSession {
     this.referenceLandmarks = tensor(person.shotLandmarks.data.slice(anchor, anchor + 136), [68, 2]);
     this.lidGaps = shotLidGaps(person.shotLandmarks);
     this.cropToScene = invertAffine(person.sceneMatrix);
-    this.gazes = this.warpsIrises ? new DriverGaze(person.anchorGaze) : null;
+    const eyes = site.config.eyes;
+    this.gazes = eyes === "warped" || eyes === "drawn" ? new DriverGaze(person.anchorGaze) : null;
+    // relative motion: the targets' lids were retargeted from the driver's onto the anchor's
+    this.eyeTrack = person.eyeBank && banksEyes(site.config)
+      ? new EyeBankTrack(person.eyeBank, this.referenceLandmarks) : null;
   }
 
   /** Whether the references carry the shots' irises to the gaze (eyes "warped"; Python draws them with "drawn",
@@ -191,6 +212,7 @@ export class LiveSession {
     const tracked = now();
     if (face === null) {
       this.smoother.gap();
+      this.eyeTrack?.reset();  // the person's eyes are chosen afresh after a gap
       const shown = this.last?.image ?? this.site.person.scene;
       return { image: shown, face: false, layout: null, landmarkImage: null, target: null, ms: now() - started,
                stages: { track } };
@@ -217,7 +239,9 @@ export class LiveSession {
     const irises = this.warpsIrises ? tensor(person.shotIrises, [person.shots.shape[0], 2, 2]) : null;
     const references = warpReferences(person.shots, person.shotLandmarks, target, config.references, 4, irises,
                                       gaze === null ? null : tensor(gaze, [2, 2]));
-    return { target, landmarkImage, references, mouth, eyes, started, stages: { ...stages, warps: now() - warping } };
+    const eyeChoice = this.eyeTrack === null ? null : this.eyeTrack.step(target, gaze);  // in order, as frames come
+    return { target, landmarkImage, references, mouth, eyes, eyeChoice, started,
+             stages: { ...stages, warps: now() - warping } };
   }
 
   /** Target landmarks (68, 2) in the anchor's crop pixels -> the frame (LiveSession.render). */
@@ -238,9 +262,16 @@ export class LiveSession {
                            person.shotLandmarks, true) as Tensor<Uint8Array>
       : synthesis.image;
     const interior = pasteInterior(mouthed, target, prepared.mouth, true);
-    const face = (prepared.eyes !== null && config.lids === "driver"
+    const lidded = prepared.eyes !== null && config.lids === "driver"
       ? pasteEyes(interior, target, prepared.eyes, true)
-      : config.lids !== "shots" ? drawLids(interior, target, this.lidGaps, true) : interior) as Tensor<Uint8Array>;
+      : config.lids !== "shots" ? drawLids(interior, target, this.lidGaps, true) : interior;
+    let face = pasteBankEyes(lidded, target, null, prepared.eyeChoice, true) as Tensor<Uint8Array>;  // last
+    const shut = prepared.eyeChoice?.shut;
+    if (shut && (shut[0] || shut[1])) {  // shut further than the bank shows: the lids again over its eye
+      const relidded = prepared.eyes !== null && config.lids === "driver" ? pasteEyes(face, target, prepared.eyes, true)
+        : config.lids !== "shots" ? drawLids(face, target, this.lidGaps, true, shut) : face;
+      face = relidded as Tensor<Uint8Array>;
+    }
     const interiored = now();
     const composite = compositeFace(person.scene, person.sceneLandmarks, transformPoints(target, this.cropToScene), face,
                                     person.sceneMatrix, person.layers);
@@ -264,6 +295,7 @@ export interface Prepared {
   references: References;
   mouth: DriverMouth | null;  // the camera frame's open mouth, whose interior the synthesis takes
   eyes: DriverEyes | null;  // the camera frame's shut eyes, which the synthesis takes
+  eyeChoice: EyeChoice | null;  // the person's own eyes from its bank, laid in last
   started: number;
   stages: Partial<Stages>;
 }
