@@ -15,7 +15,12 @@ import torch.nn.functional as F
 from torch import nn
 
 from models_def.blocks import channel_softmax
-from models_def.composite import add_reference_detail, blend_references, shift_references
+from models_def.composite import (
+    add_reference_detail,
+    blend_references,
+    blend_with_reference_detail,
+    shift_references,
+)
 from models_def.config import NUM_SEG_CLASSES, ModelConfig
 from models_def.encoder import SubjectEncoder
 from models_def.generator import SpadeGenerator
@@ -125,12 +130,21 @@ class FrameGenerator(nn.Module):
             return FrameOutputs(image, layout, layout_logits, aux_rgb)
         # warp_guided (§4.5.6): G^s also sees the warped shots and predicts how to blend them with its image.
         references, reference_masks = self._check_references(references, reference_masks, batch)
+        # The exported graph takes the composite written for onnxruntime (same math up to float rounding, see
+        # blend_with_reference_detail); eager keeps the reference functions, whose frames are recorded bit for bit.
+        exporting = torch.onnx.is_in_onnx_export()
         size = self.config.resolution
         small_references = references.flatten(1, 2)  # (B, 3N, H', W')
         small_masks = reference_masks.flatten(1, 2)  # (B, N, H', W')
+        half_references = None  # (B, 3N, H'/2, W'/2): pooled once for the network's input and the detail's low band
         if references.shape[-1] % size == 0 and references.shape[-1] > size:  # integer factor (ONNX-friendly)
             factor = references.shape[-1] // size
-            small_references, small_masks = F.avg_pool2d(small_references, factor), F.avg_pool2d(small_masks, factor)
+            small_masks = F.avg_pool2d(small_masks, factor)
+            if exporting and factor % 2 == 0:  # a mean of 2x2 means is the factor x factor mean
+                half_references = F.avg_pool2d(small_references, 2)
+                small_references = F.avg_pool2d(half_references, factor // 2) if factor > 2 else half_references
+            else:
+                small_references = F.avg_pool2d(small_references, factor)
         elif references.shape[-1] != size:
             small_references = F.interpolate(small_references, size=(size, size), mode="area")
             small_masks = F.interpolate(small_masks, size=(size, size), mode="area")
@@ -140,9 +154,14 @@ class FrameGenerator(nn.Module):
         if self.config.reference_flow > 0:  # residual flow per reference (B, 2N, H, W), applied at the blend side
             references, reference_masks = shift_references(references, reference_masks, output[:, 4 + count :],
                                                            self.config.reference_flow)
+            half_references = None  # the moved references pool anew
+        sigma = self.config.reference_detail * references.shape[-1]  # 0: no detail step
+        if exporting:
+            image, weights = blend_with_reference_detail(references, reference_masks, generated, blend_logits, sigma,
+                                                         half_references)
+            return FrameOutputs(image, layout, layout_logits, aux_rgb, weights, generated)
         image, weights = blend_references(references, reference_masks, generated, blend_logits)
-        if self.config.reference_detail > 0:  # the references' consensus detail on the blend's low band
-            sigma = self.config.reference_detail * references.shape[-1]
+        if sigma > 0:  # the references' consensus detail on the blend's low band
             image = add_reference_detail(image, references, reference_masks, weights[:, count:], sigma)
         return FrameOutputs(image, layout, layout_logits, aux_rgb, weights, generated)
 

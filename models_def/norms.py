@@ -36,9 +36,25 @@ def centered_and_inv_std(x: torch.Tensor, eps: float = DEFAULT_EPS) -> tuple[tor
 
 
 def instance_norm(x: torch.Tensor, eps: float = DEFAULT_EPS) -> torch.Tensor:
-    """Parameter-free InstanceNorm. x: (B, C, H, W) -> same shape, zero mean / unit variance per (b, c)."""
+    """Parameter-free InstanceNorm. x: (B, C, H, W) -> same shape, zero mean / unit variance per (b, c).
+
+    Traced for ONNX, it is one InstanceNormalization node: onnxruntime runs it as one kernel, where the eager ops
+    (two means, a subtraction, a square, an epsilon, a root, a reciprocal and a product) are eight nodes, most of
+    them a pass over x; 32 norms in the default frame graph. Eager keeps ``centered_and_inv_std`` (channels-last
+    friendly, float32 statistics)."""
+    if torch.onnx.is_in_onnx_export():
+        return F.instance_norm(x, eps=eps)
     centered, inv_std = centered_and_inv_std(x, eps)
     return centered * inv_std
+
+
+def modulate(normalized: torch.Tensor, scale: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
+    """``normalized * scale + shift``: ``torch.addcmul`` in eager (one fused kernel); a Mul and an Add traced for
+    ONNX, where addcmul exports as three nodes (its multiplier of 1 is a Mul of its own: one more pass over the
+    activations)."""
+    if torch.onnx.is_in_onnx_export():
+        return normalized * scale + shift
+    return torch.addcmul(shift, normalized, scale)
 
 
 class AdaIN(nn.Module):
@@ -54,7 +70,10 @@ class AdaIN(nn.Module):
         self.to_gamma_beta = EqualLinear(latent_dim, 2 * channels)
 
     def forward(self, x: torch.Tensor, latent: torch.Tensor) -> torch.Tensor:
-        gamma, beta = self.to_gamma_beta(latent).unsqueeze(-1).unsqueeze(-1).chunk(2, dim=1)  # 2 x (B, C, 1, 1)
+        # split, not chunk: static sizes, where chunk traces its sizes from the tensor's shape (six more ONNX nodes)
+        gamma, beta = self.to_gamma_beta(latent)[:, :, None, None].split([self.channels, self.channels], dim=1)
+        if torch.onnx.is_in_onnx_export():  # one InstanceNormalization node (see instance_norm)
+            return modulate(instance_norm(x, self.eps), 1.0 + gamma, beta)  # 2 x (B, C, 1, 1)
         centered, inv_std = centered_and_inv_std(x, self.eps)
         # (x - mean) * inv_std * (1 + gamma) + beta with the per-channel factors folded: one pass over x.
         return torch.addcmul(beta, centered, inv_std * (1.0 + gamma))
@@ -94,5 +113,6 @@ class SPADE(nn.Module):
         head = self.to_gamma_beta
         # The "+1" of (1 + gamma) is added to the gamma half of the conv bias (2C values, not H*W*C).
         bias = head.bias + self.one_plus.to(head.bias.dtype)
-        scale, beta = F.conv2d(hidden, head.weight * head.scale, bias, 1, head.padding).chunk(2, dim=1)
-        return torch.addcmul(beta, instance_norm(x, self.eps), scale)  # x_norm * (1 + gamma) + beta
+        scale_and_beta = F.conv2d(hidden, head.weight * head.scale, bias, 1, head.padding)  # (B, 2C, h, w)
+        scale, beta = scale_and_beta.split([self.channels, self.channels], dim=1)  # static sizes (see AdaIN)
+        return modulate(instance_norm(x, self.eps), scale, beta)  # x_norm * (1 + gamma) + beta

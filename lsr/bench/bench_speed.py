@@ -8,9 +8,10 @@ of that preset through the thesis protocol (§4.4, ``lsr.eval.protocol``; meta-l
 synthetic test split (and on the FSTH sample with ``--fsth``).
 
 * Runtimes: torch eager / channels-last / torch.compile (fp32; they run the same math, so their error is
-  computed once, with the torch pipeline), onnxruntime fp32 and onnxruntime int8 (static QDQ frame generator
-  of ``lsr export --int8``, calibrated on the test identities' *input* frames; its error is computed with the
-  int8 graph, so int8 vs fp32 shows in the table). The int8 bundle keeps the fp32 subject encoder.
+  computed once, with the torch pipeline), onnxruntime fp32 and onnxruntime int8 (the frame generator of
+  ``lsr export --int8``: the network's convolutions static int8, the composite fp32; calibrated on the test
+  identities' *input* frames; its error is computed with the int8 graph, so int8 vs fp32 shows in the table). The
+  int8 bundle keeps the fp32 subject encoder.
 * Timing uses the trained weights when their resolution matches the row, else a randomly initialised model
   of the same config (speed does not depend on the weights).
 * Output: a markdown section between ``<!-- bench:speed:start -->`` / ``<!-- bench:speed:end -->`` in
@@ -50,7 +51,7 @@ RUNTIME_LABELS = {
     "channels_last": "torch channels-last fp32",
     "compile": "torch.compile fp32",
     "onnxruntime": "onnxruntime fp32",
-    "int8": "onnxruntime int8 (static QDQ)",
+    "int8": "onnxruntime int8 (static, convolutions)",
 }
 TORCH_RUNTIMES = ("eager", "channels_last", "compile")
 ENCODER_KS = (1, 32)

@@ -122,7 +122,7 @@ class BenchSpeedConfig:
         "onnxruntime",
         "int8",
     )
-    """'compile' (torch.compile) is opt-in: it takes minutes to compile on 2 cores. 'int8': static QDQ frame generator."""
+    """'compile' (torch.compile) is opt-in: it takes minutes to compile on 2 cores. 'int8': the frame generator with its network's convolutions int8 (``lsr.export.bundle.quantize_frame_generator``)."""
     weights: tuple[str, ...] = ()
     """Trained weights per preset as PRESET=DIR (from `lsr train`); presets without weights get no error columns."""
     k: tuple[int, ...] = (1, 8)

@@ -345,7 +345,7 @@ class ExportConfig:
     out: Path = Path("out/onnx")
     """Bundle folder: subject_encoder.onnx, frame_generator.onnx [, frame_generator.int8.onnx]."""
     int8: bool = False
-    """Also write a static-QDQ int8 frame generator, calibrated on real frames; prints its error vs fp32."""
+    """Also write a frame generator whose network convolutions are int8, calibrated on real frames; prints its error vs fp32."""
     calibration_source: OptionalPath = None
     """--int8: source (image/folder/video) whose latents calibrate; default the shared tpsmm_driving.mp4."""
     calibration_driver: OptionalPath = None
