@@ -169,7 +169,7 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
         if not math.isfinite(value):
             return "–"
         shown = f"{value:.{digits}f}"
-        return f"{shown} ({value / of:.2f})" if math.isfinite(value) and math.isfinite(of) and of else shown
+        return f"{shown} ({value / of:.2f})" if math.isfinite(of) and of else shown
 
     agreement: dict[str, Any] = {}
     for row in rows:

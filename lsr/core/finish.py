@@ -201,6 +201,18 @@ def finish_eyes(image: np.ndarray, eyes: str, crop_landmarks: np.ndarray, gaze: 
     return draw_irises(image, crop_landmarks, gaze, donor)
 
 
+def finish_lids(image: np.ndarray, lids: str, crop_landmarks: np.ndarray, lid_gaps: np.ndarray, driver_eyes,
+                which: tuple[bool, bool] = (True, True)) -> np.ndarray:
+    """The shut lids as ``lids`` (``LIDS``) says: the driver's laid in where it has ``driver_eyes`` and ``lids`` is
+    "driver" (both eyes), else the subject's drawn down (``lid_gaps``: its lids at rest) over the eyes ``which``;
+    "shots" leaves ``image``."""
+    if driver_eyes is not None and lids == "driver":
+        return paste_eyes(image, crop_landmarks, driver_eyes)
+    if lids != "shots":
+        return draw_lids(image, crop_landmarks, lid_gaps, which)
+    return image
+
+
 def finish_parts(image: np.ndarray, settings, inputs: dict[str, np.ndarray], crop_landmarks: np.ndarray, subject,
                  gaze: np.ndarray | None, driver_mouth, driver_eyes, eye_choice, mouth_choice) -> np.ndarray:
     """The parts' steps after the frame synthesis, in order, on the (C, C, 3) uint8 ``image`` of target landmarks
@@ -216,17 +228,11 @@ def finish_parts(image: np.ndarray, settings, inputs: dict[str, np.ndarray], cro
                              settings.warp_references, settings.backend)
     if driver_mouth is not None and settings.mouth_interior == "driver":
         image = paste_interior(image, crop_landmarks, driver_mouth)
-    if driver_eyes is not None and settings.lids == "driver":
-        image = paste_eyes(image, crop_landmarks, driver_eyes)
-    elif settings.lids != "shots":
-        image = draw_lids(image, crop_landmarks, subject.lid_gaps)
+    image = finish_lids(image, settings.lids, crop_landmarks, subject.lid_gaps, driver_eyes)
     if gaze is not None and settings.eyes == "drawn":
         image = finish_eyes(image, settings.eyes, crop_landmarks, gaze, subject.irises[0])
     image = paste_bank_mouth(image, crop_landmarks, None, mouth_choice)
     image = paste_bank_eyes(image, crop_landmarks, None, eye_choice)
     if eye_choice is not None and any(eye_choice.shut):  # shut further than the bank shows: lids over its eye
-        if driver_eyes is not None and settings.lids == "driver":
-            image = paste_eyes(image, crop_landmarks, driver_eyes)
-        elif settings.lids != "shots":
-            image = draw_lids(image, crop_landmarks, subject.lid_gaps, eye_choice.shut)
+        image = finish_lids(image, settings.lids, crop_landmarks, subject.lid_gaps, driver_eyes, eye_choice.shut)
     return image

@@ -308,9 +308,9 @@ export class EyeBankTrack {
     // apart, the nearest (stretched as far as it goes: placedEye)
     const least = [0, 1].map((e) => far.reduce((best, value, k) => (k % 2 === e && value < best ? value : best), Infinity));
     const reach = least.map((value) => Math.max(Math.log(BANK_STRETCH), value + Math.log(BANK_NEAREST)) + 1e-9);
-    const shows = Array.from(far, (value, k) => value <= reach[k % 2]);
+    const shows = Array.from(far, (value, k) => Number.isFinite(value) && value <= reach[k % 2]);
     const count = (e: number) => shows.filter((flag, k) => flag && k % 2 === e).length;
-    let eyes = [Number.isFinite(least[0]), Number.isFinite(least[1])];
+    let eyes = [count(0) > 0, count(1) > 0];
     if (!eyes[0] && !eyes[1]) {
       this.reset();
       return null;

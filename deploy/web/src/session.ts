@@ -262,19 +262,16 @@ export class LiveSession {
                            person.shotLandmarks, true) as Tensor<Uint8Array>
       : synthesis.image;
     const interior = pasteInterior(mouthed, target, prepared.mouth, true);
-    const lidded = prepared.eyes !== null && config.lids === "driver"
-      ? pasteEyes(interior, target, prepared.eyes, true)
-      : config.lids !== "shots" ? drawLids(interior, target, this.lidGaps, true) : interior;
-    let face = pasteBankEyes(lidded, target, null, prepared.eyeChoice, true) as Tensor<Uint8Array>;  // last
+    // the shut lids as config.lids says (lsr.core.finish.finish_lids): the camera's, else the subject's drawn
+    const lids = (image: Tensor, which: [boolean, boolean]) => (prepared.eyes !== null && config.lids === "driver"
+      ? pasteEyes(image, target, prepared.eyes, true)
+      : config.lids !== "shots" ? drawLids(image, target, this.lidGaps, true, which) : image);
+    let face = pasteBankEyes(lids(interior, [true, true]), target, null, prepared.eyeChoice, true);  // last
     const shut = prepared.eyeChoice?.shut;
-    if (shut && (shut[0] || shut[1])) {  // shut further than the bank shows: the lids again over its eye
-      const relidded = prepared.eyes !== null && config.lids === "driver" ? pasteEyes(face, target, prepared.eyes, true)
-        : config.lids !== "shots" ? drawLids(face, target, this.lidGaps, true, shut) : face;
-      face = relidded as Tensor<Uint8Array>;
-    }
+    if (shut && (shut[0] || shut[1])) face = lids(face, shut);  // shut further than the bank shows: lids over its eye
     const interiored = now();
-    const composite = compositeFace(person.scene, person.sceneLandmarks, transformPoints(target, this.cropToScene), face,
-                                    person.sceneMatrix, person.layers);
+    const composite = compositeFace(person.scene, person.sceneLandmarks, transformPoints(target, this.cropToScene),
+                                    face as Tensor<Uint8Array>, person.sceneMatrix, person.layers);
     const done = now();
     this.faces += 1;
     const frame: LiveFrame = {

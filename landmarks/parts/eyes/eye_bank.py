@@ -268,8 +268,8 @@ class EyeBankTrack:
         # an entry within STRETCH where there is one; for an eye opened or shut beyond every entry, or between two
         # far apart, the nearest (stretched as far as it goes: ``_placed``)
         reach = np.maximum(math.log(STRETCH), far.min(axis=0) + math.log(NEAREST)) + 1e-9
-        shows = far <= reach
-        eyes = np.isfinite(far).any(axis=0)
+        shows = np.isfinite(far) & (far <= reach)
+        eyes = shows.any(axis=0)
         if not eyes.any():
             self.reset()
             return None
