@@ -14,7 +14,9 @@ Needs numpy, onnxruntime, OpenCV and the ``landmarks`` toolkit (dlib only for ``
 from __future__ import annotations
 
 import json
+import logging
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -26,24 +28,45 @@ SUBJECT_ENCODER_FILE = "subject_encoder.onnx"
 FRAME_GENERATOR_FILE = "frame_generator.onnx"
 FRAME_GENERATOR_INT8_FILE = "frame_generator.int8.onnx"
 MOUTH_GENERATOR_FILE = "mouth_generator.onnx"
+GPU_PROVIDERS = ("CUDAExecutionProvider",)  # tried first where this onnxruntime has them (all fp32)
+CPU_PROVIDER = "CPUExecutionProvider"
+
+LOG = logging.getLogger("deploy.runtime")
 
 
 class BundleError(InputFileError):
     """An ONNX bundle folder is missing a graph or its metadata (re-run ``lsr export``)."""
 
 
-def _session(path: Path, providers: list[str] | None, threads: int):
+def choose_providers(available: Sequence[str], asked: Sequence[str] | None = None) -> list[str]:
+    """The execution providers to ask onnxruntime for, in order: those ``asked`` (None: ``GPU_PROVIDERS``) that
+    ``available`` (``onnxruntime.get_available_providers()``) holds, then the CPU, always last."""
+    wanted = GPU_PROVIDERS if asked is None else asked
+    return [*(provider for provider in wanted if provider in available and provider != CPU_PROVIDER), CPU_PROVIDER]
+
+
+def onnx_session(path: Path, providers: Sequence[str] | None = None, threads: int = 0):
+    """An onnxruntime session of the graph at ``path`` on ``choose_providers(available, providers)``; where it cannot
+    be made there, on the CPU alone (the reason logged). Which providers it runs on is logged (``deploy.runtime``, at
+    INFO). threads: intra-op threads (0 = onnxruntime's default)."""
     import onnxruntime as ort
 
     options = ort.SessionOptions()
     if threads > 0:
         options.intra_op_num_threads = threads
-    available = ort.get_available_providers()
-    chosen = [p for p in (providers or ["CUDAExecutionProvider", "CPUExecutionProvider"]) if p in available]
-    try:
-        return ort.InferenceSession(str(path), options, providers=chosen or ["CPUExecutionProvider"])
-    except Exception as exc:  # onnxruntime raises its own untyped errors for bad files
-        raise BundleError(f"cannot load {path} with onnxruntime: {exc}; re-run `lsr export`") from exc
+    chosen = choose_providers(ort.get_available_providers(), providers)
+    attempts = [chosen] if chosen == [CPU_PROVIDER] else [chosen, [CPU_PROVIDER]]
+    for attempt in attempts:
+        try:
+            session = ort.InferenceSession(str(path), options, providers=attempt)
+        except Exception as exc:  # onnxruntime raises its own untyped errors for bad files and failing providers
+            failure = exc
+            if attempt is not attempts[-1]:
+                LOG.warning("%s could not be loaded on %s (%s); loading it on the CPU", path.name, ", ".join(attempt), exc)
+            continue
+        LOG.info("%s runs on %s", path.name, ", ".join(session.get_providers()))
+        return session
+    raise BundleError(f"cannot load {path} with onnxruntime: {failure}; re-run `lsr export`") from failure
 
 
 class OnnxBackend:
@@ -58,8 +81,9 @@ class OnnxBackend:
                 hint = "`lsr export --int8`" if name == FRAME_GENERATOR_INT8_FILE else "`lsr export --weights DIR --out FOLDER`"
                 raise BundleError(f"{folder / name} not found; make the ONNX bundle with {hint}")
         self.folder = folder
-        self.subject_session = _session(folder / SUBJECT_ENCODER_FILE, providers, threads)
-        self.frame_session = _session(folder / frame_name, providers, threads)
+        self.subject_session = onnx_session(folder / SUBJECT_ENCODER_FILE, providers, threads)
+        self.frame_session = onnx_session(folder / frame_name, providers, threads)
+        self.providers = self.frame_session.get_providers()  # where the per-frame graph runs
         self.metadata = dict(self.frame_session.get_modelmeta().custom_metadata_map)
         try:
             self.resolution = int(self.metadata["resolution"])
@@ -71,7 +95,7 @@ class OnnxBackend:
             raise BundleError(f"{folder / frame_name} lacks LSR metadata ({exc}); re-run `lsr export`") from exc
         self.frame_outputs = [output.name for output in self.frame_session.get_outputs()]
         mouth = folder / MOUTH_GENERATOR_FILE
-        self.mouth_session = _session(mouth, providers, threads) if mouth.is_file() else None
+        self.mouth_session = onnx_session(mouth, providers, threads) if mouth.is_file() else None
         self.mouth_generator_size = 0 if self.mouth_session is None else int(self.mouth_session.get_inputs()[0].shape[-1])
 
     def draw_mouth(self, window: np.ndarray, masks: np.ndarray) -> np.ndarray:
@@ -110,7 +134,7 @@ class OnnxBackend:
 class OnnxReenactor(ReenactorBase):
     """Torch-free re-enactment. folder: an ``lsr export`` bundle. int8: use the quantised frame generator.
 
-    providers: onnxruntime execution providers (default CUDA when available, else CPU); threads: intra-op
+    providers: onnxruntime execution providers (``choose_providers``: default CUDA when available, else CPU); threads: intra-op
     threads (0 = onnxruntime's default). detector: "mesh" (the default) | "hog" | "cnn" (dlib), or a detector. API as ``lsr.pipeline.Reenactor``.
     """
 

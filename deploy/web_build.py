@@ -47,6 +47,8 @@ def ensure_built() -> Path:
 
 def onnxruntime_files() -> list[Path]:
     """The onnxruntime-web files a page needs beside app.js: its WASM-only ES module and the WASM (SIMD, threads)
-    build (14 MB; the WebGPU build would add 28 MB)."""
+    build (14 MB), and the build of the GPU backends (deploy/web/src/backend.ts GPU_RUNTIME: WebGPU and WebNN through
+    JSEP, 28 MB more), which a browser fetches only where it runs the frame generator on one of them."""
     dist = WEB / "node_modules" / "onnxruntime-web" / "dist"
-    return [dist / "ort.wasm.min.mjs", dist / "ort-wasm-simd-threaded.mjs", dist / "ort-wasm-simd-threaded.wasm"]
+    return [dist / "ort.wasm.min.mjs", dist / "ort-wasm-simd-threaded.mjs", dist / "ort-wasm-simd-threaded.wasm",
+            dist / "ort.min.mjs", dist / "ort-wasm-simd-threaded.jsep.mjs", dist / "ort-wasm-simd-threaded.jsep.wasm"]

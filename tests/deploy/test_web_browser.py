@@ -89,3 +89,43 @@ def test_your_own_photos_become_the_person(page, tmp_path):
     page.click("#example")
     assert page.inner_text("#status") == "The example person." and not page.is_enabled("#example")
     assert not page.errors
+
+
+def _open(page, query: str):
+    """A second tab of the page's browser at its address + ``query``, loaded -> (the tab, its console messages)."""
+    tab = page.context.new_page()
+    messages: list[str] = []
+    tab.on("console", lambda message: messages.append(f"{message.type}: {message.text}"))
+    tab.set_default_timeout(WAIT_MS)
+    tab.goto(page.url.split("?")[0] + query)
+    tab.wait_for_function("document.body.dataset.ready === '1' || document.body.dataset.failed !== undefined")
+    assert tab.evaluate("document.body.dataset.failed") is None, tab.inner_text("#status")
+    return tab, messages
+
+
+def test_without_a_gpu_adapter_the_page_runs_the_network_on_wasm_and_says_so(page):
+    # headless Chromium has navigator.gpu but no adapter (and no navigator.ml): nothing but WASM is tried
+    assert page.evaluate("[window.lsr.backend, window.lsr.backends, window.lsr.failures]") == ["wasm", ["wasm"], []]
+    assert page.evaluate("document.body.dataset.backend") == "wasm"
+    assert page.evaluate("navigator.gpu !== undefined")
+    # the status says so until the camera starts, then the stats line beside the frame rate
+    assert "the network on WASM" in page.inner_text("#status") or "(WASM)" in page.inner_text("#stats")
+
+
+@pytest.mark.parametrize("asked", ["wasm", "webgpu"])
+def test_the_backend_asked_for_is_tried_and_wasm_takes_over_where_it_fails(page, asked):
+    tab, messages = _open(page, f"?backend={asked}")
+    try:
+        backend, backends, failures = tab.evaluate("[window.lsr.backend, window.lsr.backends, window.lsr.failures]")
+        assert backend == "wasm" and backends == ([asked, "wasm"] if asked != "wasm" else ["wasm"])
+        assert "lsr: the frame generator runs on WASM" in "\n".join(messages)
+        if asked == "webgpu":  # onnxruntime-web finds no adapter: the reason is logged and shown
+            (failure,) = failures
+            assert failure["backend"] == "webgpu" and "GPU adapter" in failure["reason"]
+            assert any(message.startswith("warning: lsr: the frame generator could not run on WebGPU") and
+                       "GPU adapter" in message for message in messages)
+            assert "WebGPU failed, see the console" in tab.inner_text("#status")
+        else:
+            assert failures == [] and "failed" not in tab.inner_text("#status")
+    finally:
+        tab.close()

@@ -108,3 +108,63 @@ def test_mesh_to_68_matches_python_on_turned_heads(web, source_runs):
         expected.append(mesh_to_68(turned))
     for got, want in zip(web.calls(*calls), expected):
         np.testing.assert_allclose(got, want, atol=2e-3)
+
+
+SEEN, GAP = 6, 3  # frames with the face before it leaves, and frames without it
+
+
+def _face_gone(frame: np.ndarray, shift: int = 240) -> np.ndarray:
+    """The frame moved `shift` pixels left, its right edge repeated: the face (x 117-227 in the example video's
+    frames) has left it to the left; the background beside it stays."""
+    out = np.empty_like(frame)
+    out[:, :-shift] = frame[:, shift:]
+    out[:, -shift:] = frame[:, -1:]
+    return out
+
+
+@pytest.fixture(scope="module")
+def lost_and_found():
+    """The example video's face for SEEN frames, then GAP frames without it (moved out of the frame, a grey frame,
+    moved out again), then the last frame before the gap again and the two after it: (frames, Python's run, Python's
+    run of the video's frames without the gap)."""
+    from lsr.examples import REAL_SOURCE
+
+    frames = _frames(REAL_SOURCE, SEEN + 2)
+    gone = [_face_gone(frames[SEEN]), np.full_like(frames[0], 128), _face_gone(frames[SEEN + 1])]
+    sequence = np.stack([*frames[:SEEN], *gone, frames[SEEN - 1], *frames[SEEN:]])
+    return sequence, _python_run(sequence), _python_run(frames)
+
+
+def test_the_python_tracker_loses_the_face_and_finds_it_again(lost_and_found):
+    frames, run, unbroken = lost_and_found
+    back = SEEN + GAP  # the first frame with the face again: the video's frame SEEN - 1 once more
+    missing = np.isnan(run["landmarks"]).any(axis=(1, 2))
+    assert missing.tolist() == [False] * SEEN + [True] * GAP + [False] * 3
+    # a detection on the first frame, on each frame of the gap and on the face's return; tracked otherwise
+    assert run["detections"] == 1 + GAP + 1
+    tracker = make_tracker("mesh")
+    counts = []
+    for frame in frames:
+        before = tracker.detections
+        tracker.update(frame)
+        counts.append(tracker.detections - before)
+    assert counts == [1] + [0] * (SEEN - 1) + [1] * (GAP + 1) + [0, 0]
+    # found again as a fresh start finds it (the last face's box only picks among faces), where it was before the
+    # gap, and tracked on from there as if the face had never left (a detection's mesh and a tracked one differ by
+    # under a pixel on average)
+    fresh = make_tracker("mesh").update(frames[back])
+    np.testing.assert_allclose(run["landmarks"][back], fresh, atol=1e-5)
+    for step in range(3):
+        error = np.linalg.norm(run["landmarks"][back + step] - unbroken["landmarks"][SEEN - 1 + step], axis=-1)
+        assert error.mean() < 1.0 and error.max() < 2.5, (step, error.mean(), error.max())
+
+
+def test_the_web_tracker_loses_and_finds_the_face_as_python_does(web, lost_and_found):
+    frames, expected, _ = lost_and_found
+    got = web.call("trackFramesDetailed", ASSETS, frames)
+    missing = np.isnan(expected["landmarks"]).any(axis=(1, 2))
+    np.testing.assert_array_equal(np.isnan(got["landmarks"]).any(axis=(1, 2)), missing)
+    np.testing.assert_array_equal(np.isnan(got["irises"]), np.isnan(expected["irises"]))
+    assert got["detections"] == expected["detections"] == 1 + GAP + 1
+    error = np.linalg.norm(got["landmarks"] - expected["landmarks"], axis=-1)[~missing]
+    assert error.mean() < 0.1 and error.max() < 0.5

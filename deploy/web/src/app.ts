@@ -3,6 +3,8 @@
 
 import * as ort from "onnxruntime-web";
 
+import { BACKEND_NAMES, Backend, Failure, GPU_RUNTIME, askedBackend, chooseBackends, probeBrowser } from "./backend.js";
+import { Runtime, createFrameGenerator } from "./network.js";
 import { RemoteTracker } from "./remote_tracker.js";
 import { PersonModels, encodePerson, loadPersonModels, photoFromImageData, shrinkPhoto } from "./encode.js";
 import { LiveFrame, LiveSession, Person, Site, loadSite } from "./session.js";
@@ -35,16 +37,31 @@ async function isolate(): Promise<boolean> {
   return true;
 }
 
-function configureOnnxRuntime(): void {
-  ort.env.wasm.wasmPaths = new URL("./", location.href).href;
+/** An onnxruntime-web build's settings: the page's WASM one, and the GPU one where it is loaded. */
+function configureOnnxRuntime(runtime: Runtime): void {
+  runtime.env.wasm.wasmPaths = new URL("./", location.href).href;
   // The frame generator's threads: the cores beside this thread and the tracker's worker (one thread each), at
   // most 4. On 2 cores that is 1: measured there, the stages overlap best so (10.6 fps against 7.9 with 2 threads).
   // ?threads=N asks for N. More than one needs cross-origin isolation (sw.js).
   const asked = Number(new URLSearchParams(location.search).get("threads"));
   const most = globalThis.crossOriginIsolated ? Math.min(4, navigator.hardwareConcurrency || 1) : 1;
   const spare = Math.max(1, Math.min(4, (navigator.hardwareConcurrency || 1) - 2));
-  ort.env.wasm.numThreads = Math.min(asked > 0 ? asked : spare, most);
-  ort.env.wasm.proxy = true;  // the networks run in a worker: this thread tracks and warps the next frame meanwhile
+  runtime.env.wasm.numThreads = Math.min(asked > 0 ? asked : spare, most);
+  runtime.env.wasm.proxy = true;  // the networks run in a worker: this thread tracks and warps the next frame meanwhile
+}
+
+/** Each backend's onnxruntime-web build: the page's own for WASM, the GPU one (backend.ts) for WebGPU and WebNN,
+ * fetched the first time it is asked for. */
+function runtimeLoader(): (backend: Backend) => Promise<Runtime> {
+  let gpu: Promise<Runtime> | undefined;
+  return async (backend) => {
+    if (backend === "wasm") return ort;
+    gpu ??= (import(/* @vite-ignore */ GPU_RUNTIME) as Promise<Runtime>).then((runtime) => {
+      configureOnnxRuntime(runtime);
+      return runtime;
+    });
+    return gpu;
+  };
 }
 
 /** An RGB (H, W, 3) frame -> RGBA ImageData (into `into` when it is the frame's size). */
@@ -131,7 +148,7 @@ function bytesToBase64(bytes: Uint8Array): string {
 
 async function main(): Promise<void> {
   if (await isolate()) return;
-  configureOnnxRuntime();
+  configureOnnxRuntime(ort);
   const status = element<HTMLSpanElement>("status"), statsLine = element<HTMLParagraphElement>("stats");
   const output = element<HTMLCanvasElement>("output"), layoutCanvas = element<HTMLCanvasElement>("layout");
   const video = element<HTMLVideoElement>("camera"), start = element<HTMLButtonElement>("start");
@@ -139,9 +156,20 @@ async function main(): Promise<void> {
   const wasmPaths = ort.env.wasm.wasmPaths as string;
   const workers: { tracker?: RemoteTracker } = {};
   const read = async (path: string) => new Uint8Array(await (await fetch(path)).arrayBuffer());
+  // the frame generator on the GPU where the browser has one (?backend=webgpu|webnn|wasm asks for one), else WASM
+  const backends = chooseBackends(await probeBrowser(), askedBackend(location.search));
+  let failures: Failure[] = [];
   const site = await loadSite(read,
                               async (assets) => (workers.tracker = await RemoteTracker.create("./tracker.worker.js", assets,
-                                                                                               wasmPaths)));
+                                                                                               wasmPaths)),
+                              async (model, sizes, latents) => {
+                                const chosen = await createFrameGenerator(model, sizes, latents, backends, runtimeLoader());
+                                failures = chosen.failures;
+                                return chosen.value;
+                              });
+  const backend = site.generator.backend;
+  console.info(`lsr: the frame generator runs on ${BACKEND_NAMES[backend]} (tried ${backends.join(", ")})`);
+  document.body.dataset.backend = backend;
   const [height, width] = site.person.scene.shape;
   const context = output.getContext("2d")!;
   let shownPixels: ImageData | undefined;  // the canvas's pixels, the same buffer each frame
@@ -157,7 +185,10 @@ async function main(): Promise<void> {
   };
   show(site.person.scene);
   const threads = ort.env.wasm.numThreads;
-  status.textContent = `Ready (onnxruntime-web, WASM, ${threads} thread${threads === 1 ? "" : "s"}). Start the camera to drive the person.`;
+  const failed = failures.map((failure) => BACKEND_NAMES[failure.backend]);
+  status.textContent = `Ready (onnxruntime-web, the network on ${BACKEND_NAMES[backend]}, ` +
+    `${threads} thread${threads === 1 ? "" : "s"}${failed.length ? `; ${failed.join(" and ")} failed, see the console` : ""}). ` +
+    "Start the camera to drive the person.";
   const stats: Stats = { grabbed: [], shown: [], latency: [], ms: [], stages: [], faces: 0, frames: 0 };
   let session = new LiveSession(site, site.config.layout !== "none");
   let running = false;
@@ -179,7 +210,7 @@ async function main(): Promise<void> {
     stats.stages.push(result.stages as Record<string, number>);
     const recent = stats.shown.filter((time) => time > shown - 2000);
     const fps = recent.length > 1 ? (recent.length - 1) / ((recent[recent.length - 1] - recent[0]) / 1000) : NaN;
-    statsLine.textContent = `${fps.toFixed(1)} fps · ${result.ms.toFixed(0)} ms per frame · latency ` +
+    statsLine.textContent = `${fps.toFixed(1)} fps · ${result.ms.toFixed(0)} ms per frame (${BACKEND_NAMES[backend]}) · latency ` +
       `${median(stats.latency.slice(-30)).toFixed(0)} ms · frame ${stats.frames}` +
       (result.face ? "" : " · no face in the camera: showing the last frame");
   };
@@ -270,7 +301,7 @@ async function main(): Promise<void> {
   example.onclick = () => usePerson(site.person, "The example person.");
 
   window.lsr = {
-    site, stats, threads, startCamera,
+    site, stats, threads, backend, backends, failures, startCamera,
     /** Fresh session, frames (base64 of (T, H, W, 3) uint8) at fps -> base64 of the composited (T, H', W', 3). */
     reenactFrames: async (frames: string, shape: number[], fps: number) => {
       const fresh = new LiveSession(site, false), data = base64ToBytes(frames), size = shape[1] * shape[2] * 3;

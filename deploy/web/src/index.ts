@@ -26,3 +26,4 @@ export * from "./iris_warp.js";
 export * from "./hysteresis.js";
 export * from "./bank_rows.js";
 export * from "./eye_bank.js";
+export * from "./backend.js";

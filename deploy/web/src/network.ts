@@ -4,7 +4,19 @@
 
 import * as ort from "onnxruntime-web";
 
+import { Backend, OnBackend, askedBackend, chooseBackends, onFirstBackend, probeBrowser } from "./backend.js";
+import { folderReader } from "./files.js";
 import { Tensor, tensor } from "./tensor.js";
+
+/** An onnxruntime-web module: the page's WASM build, or the GPU one (backend.ts GPU_RUNTIME). */
+export type Runtime = typeof ort;
+
+/** The frame generator's sizes (site.json): its network's side S, its crop's side C, its N references. */
+export interface GeneratorSizes { resolution: number; cropSize: number; references: number }
+
+/** The most grey levels a GPU backend's check frame may be from WASM's: fp32 sums in another order move a pixel by
+ * one level at most (the JSEP build on Chromium's software WebGPU); the miscomputing build (backend.ts), by 123. */
+export const AGREEMENT = 3;
 
 export interface Latents { layout: Float32Array; style: Float32Array }
 
@@ -54,33 +66,41 @@ export class FrameGenerator {
   readonly references: number;
   readonly hasLayout: boolean;
 
-  private constructor(readonly session: ort.InferenceSession, metadata: { resolution: number; cropSize: number; references: number }) {
-    this.resolution = metadata.resolution;
-    this.cropSize = metadata.cropSize;
-    this.references = metadata.references;
+  private constructor(readonly session: ort.InferenceSession, sizes: GeneratorSizes, readonly backend: Backend,
+                      private readonly runtime: Runtime) {
+    this.resolution = sizes.resolution;
+    this.cropSize = sizes.cropSize;
+    this.references = sizes.references;
     this.hasLayout = session.outputNames.includes("layout");
   }
 
-  /** model: frame_generator.onnx's bytes (or a URL/path onnxruntime-web can fetch); metadata: its sizes (site.json). */
-  static async create(model: Uint8Array | string, metadata: { resolution: number; cropSize: number; references: number },
-                      options: ort.InferenceSession.SessionOptions = {}): Promise<FrameGenerator> {
-    const session = await ort.InferenceSession.create(model as Uint8Array, { graphOptimizationLevel: "all", ...options });
-    return new FrameGenerator(session, metadata);
+  /** model: frame_generator.onnx's bytes (handed over to onnxruntime's proxy worker where there is one: pass a copy
+   * to keep them); sizes: site.json's; backend: the execution provider, of `runtime`'s onnxruntime-web build. */
+  static async create(model: Uint8Array, sizes: GeneratorSizes, backend: Backend = "wasm",
+                      runtime: Runtime = ort): Promise<FrameGenerator> {
+    const session = await runtime.InferenceSession.create(model, { executionProviders: [backend],
+                                                                   graphOptimizationLevel: "all" });
+    return new FrameGenerator(session, sizes, backend, runtime);
+  }
+
+  release(): Promise<void> {
+    return this.session.release();
   }
 
   async run(landmarkImage: Tensor, latents: Latents, references?: Tensor, masks?: Tensor,
             withLayout = false): Promise<Synthesis> {
     const s = this.resolution, c = this.cropSize;
+    const OrtTensor = this.runtime.Tensor;  // a session takes its own build's tensors
     const feed: Record<string, ort.Tensor> = {
-      landmark_image: new ort.Tensor("float32", toNetwork(landmarkImage.data as Uint8Array, 1, s), [1, 3, s, s]),
-      layout_latent: new ort.Tensor("float32", latents.layout.slice(), [1, latents.layout.length]),
-      style_latent: new ort.Tensor("float32", latents.style.slice(), [1, latents.style.length]),
+      landmark_image: new OrtTensor("float32", toNetwork(landmarkImage.data as Uint8Array, 1, s), [1, 3, s, s]),
+      layout_latent: new OrtTensor("float32", latents.layout.slice(), [1, latents.layout.length]),
+      style_latent: new OrtTensor("float32", latents.style.slice(), [1, latents.style.length]),
     };
     if (this.references > 0) {
       if (!references || !masks) throw new Error("a warp-guided frame generator needs the warped references and masks");
       const n = this.references;
-      feed.references = new ort.Tensor("float32", toNetwork(references.data as Uint8Array, n, c), [1, n, 3, c, c]);
-      feed.reference_masks = new ort.Tensor("float32", Float32Array.from(masks.data as ArrayLike<number>), [1, n, 1, c, c]);
+      feed.references = new OrtTensor("float32", toNetwork(references.data as Uint8Array, n, c), [1, n, 3, c, c]);
+      feed.reference_masks = new OrtTensor("float32", Float32Array.from(masks.data as ArrayLike<number>), [1, n, 1, c, c]);
     }
     const wanted = withLayout && this.hasLayout ? ["image", "layout"] : ["image"];
     const outputs = await this.session.run(feed, wanted);
@@ -88,4 +108,96 @@ export class FrameGenerator {
     const layout = outputs.layout ? tensor(new Float32Array(outputs.layout.data as Float32Array), outputs.layout.dims.slice(1) as number[]) : null;
     return { image, layout };
   }
+}
+
+/** `count` seeded pseudo-random bytes (Park and Miller's minimal standard generator): the check frame's pictures. */
+function noise(count: number, seed: number): Uint8Array {
+  const out = new Uint8Array(count);
+  for (let i = 0; i < count; i++) {
+    seed = (seed * 16807) % 2147483647;
+    out[i] = seed & 255;
+  }
+  return out;
+}
+
+/** How far apart (the most grey levels) two frame generators of the same graph draw the check frame: a landmark
+ * image of noise and, for a warp-guided graph, references of noise under full masks, at `latents`. */
+export async function checkFrameDifference(first: FrameGenerator, second: FrameGenerator,
+                                           latents: Latents): Promise<number> {
+  const s = first.resolution, c = first.cropSize, n = first.references;
+  const draw = (generator: FrameGenerator) => generator.run(
+    tensor(noise(s * s * 3, 1), [s, s, 3]), latents,
+    n > 0 ? tensor(noise(n * c * c * 3, 2), [n, c, c, 3]) : undefined,
+    n > 0 ? tensor(new Uint8Array(n * c * c).fill(1), [n, c, c]) : undefined);
+  const a = (await draw(first)).image.data, b = (await draw(second)).image.data;
+  let most = 0;
+  for (let i = 0; i < a.length; i++) most = Math.max(most, Math.abs(a[i] - b[i]));
+  return most;
+}
+
+/** The frame generator on the first of `backends` (backend.ts chooseBackends) where it works: it is created there
+ * and, on a GPU backend, draws the check frame within AGREEMENT grey levels of WASM (a GPU build can compute wrongly
+ * without failing). runtimeOf: each backend's onnxruntime-web build; log: where each failure's reason goes. */
+export async function createFrameGenerator(model: Uint8Array, sizes: GeneratorSizes, latents: Latents,
+                                           backends: readonly Backend[],
+                                           runtimeOf: (backend: Backend) => Promise<Runtime> = async () => ort,
+                                           log?: (message: string) => void): Promise<OnBackend<FrameGenerator>> {
+  let onWasm: Promise<FrameGenerator> | undefined;  // made once: the checks' reference, and the last resort
+  const wasm = () => (onWasm ??= runtimeOf("wasm").then((runtime) => FrameGenerator.create(model.slice(), sizes,
+                                                                                            "wasm", runtime)));
+  const chosen = await onFirstBackend(backends, async (backend) => {
+    if (backend === "wasm") return wasm();
+    const generator = await FrameGenerator.create(model.slice(), sizes, backend, await runtimeOf(backend));
+    const apart = await checkFrameDifference(generator, await wasm(), latents);
+    if (apart > AGREEMENT) {
+      await generator.release();
+      throw new Error(`its check frame is ${apart} grey levels from WASM's (at most ${AGREEMENT})`);
+    }
+    return generator;
+  }, log);
+  if (chosen.backend !== "wasm" && onWasm !== undefined) await (await onWasm).release();
+  return chosen;
+}
+
+/** Node, for the tests: a stand-in GPU build, WASM with every output pixel moved by `skew` (a GPU that computes
+ * wrongly without failing). */
+function skewedRuntime(skew: number): Runtime {
+  const create = async (model: Uint8Array, options: ort.InferenceSession.SessionOptions) => {
+    const session = await ort.InferenceSession.create(model, { ...options, executionProviders: ["wasm"] });
+    const run = session.run.bind(session);
+    Object.assign(session, {
+      run: async (...args: Parameters<typeof run>) => {
+        const outputs = await run(...args);
+        const image = outputs.image.data as Float32Array;
+        for (let i = 0; i < image.length; i++) image[i] += skew;
+        return outputs;
+      },
+    });
+    return session;
+  };
+  return { ...ort, InferenceSession: { ...ort.InferenceSession, create } } as unknown as Runtime;
+}
+
+/** Node, for the tests: the site's frame generator made as the page makes it, in a browser stand-in with
+ * `browser.gpu` (giving an adapter) and `browser.ml` (giving a context) and `?backend=asked` -> the backends chosen,
+ * the one it runs on, the failures logged and its check frame's difference from WASM's. In Node onnxruntime-web has
+ * WASM only, so the GPU backends fail, unless `skew` is given: then they run on skewedRuntime. */
+export async function frameGeneratorInBrowser(siteFolder: string, browser: { gpu: boolean; ml: boolean },
+                                              asked: string | null, skew: number | null = null) {
+  const read = await folderReader(siteFolder);
+  const config = JSON.parse(new TextDecoder().decode(await read("site.json")));
+  const subject = JSON.parse(new TextDecoder().decode(await read("person/subject.json")));
+  const latents = { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) };
+  const sizes = { resolution: config.resolution, cropSize: config.crop_size, references: config.references };
+  const standIn = { gpu: browser.gpu ? { requestAdapter: async () => ({}) } : undefined,
+                    ml: browser.ml ? { createContext: async () => ({}) } : undefined };
+  const backends = chooseBackends(await probeBrowser(standIn), askedBackend(asked === null ? "" : `?backend=${asked}`));
+  ort.env.wasm.numThreads = 1;
+  const logged: string[] = [];
+  const runtimeOf = async (backend: Backend) => (backend === "wasm" || skew === null ? ort : skewedRuntime(skew));
+  const chosen = await createFrameGenerator(await read("models/frame_generator.onnx"), sizes, latents, backends,
+                                            runtimeOf, (message) => logged.push(message));
+  const onWasm = await FrameGenerator.create(await read("models/frame_generator.onnx"), sizes);
+  const difference = await checkFrameDifference(chosen.value, onWasm, latents);
+  return { backends, backend: chosen.backend, failures: chosen.failures, logged, difference };
 }

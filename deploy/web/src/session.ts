@@ -18,7 +18,7 @@ import { DriverGaze, trackedIrises } from "./gaze.js";
 import { drawLids, shotLidGaps } from "./lids.js";
 import { DriverMouth, cutDriverMouth, pasteInterior } from "./interior.js";
 import { finishMouthNearest } from "./mouth.js";
-import { FrameGenerator, Latents } from "./network.js";
+import { FrameGenerator, GeneratorSizes, Latents } from "./network.js";
 import { drawLandmarks } from "./raster.js";
 import { DriverReference, liveTarget } from "./retarget.js";
 import { LiveSmoother } from "./smooth.js";
@@ -104,9 +104,12 @@ export function banksEyes(config: SiteConfig): boolean {
 }
 
 /** Read a site through `read` (fetch in a browser, the file system in Node): its config, the person, the frame
- * generator and the face tracker (`makeTracker` given: that one, e.g. in a worker; else src/tracker.ts here). */
+ * generator (`makeGenerator` given: that one, e.g. on a GPU, network.ts createFrameGenerator; else on WASM) and the
+ * face tracker (`makeTracker` given: that one, e.g. in a worker; else src/tracker.ts here). */
 export async function loadSite(read: Reader,
-                               makeTracker?: (assets: TrackerAssets) => Promise<Tracker>): Promise<Site> {
+                               makeTracker?: (assets: TrackerAssets) => Promise<Tracker>,
+                               makeGenerator?: (model: Uint8Array, sizes: GeneratorSizes, latents: Latents) => Promise<FrameGenerator>
+                               ): Promise<Site> {
   const text = async (path: string) => JSON.parse(new TextDecoder().decode(await read(path)));
   const config = (await text("site.json")) as SiteConfig;
   const subject = await text("person/subject.json");
@@ -115,8 +118,10 @@ export async function loadSite(read: Reader,
   const [shots, scene, plate, matte8] = await Promise.all(["shots", "scene", "plate", "matte"].map(raw));
   const matte = new Float32Array(matte8.data.length);
   for (let i = 0; i < matte.length; i++) matte[i] = matte8.data[i] / 255;
-  const generator = await FrameGenerator.create(await read("models/frame_generator.onnx"), {
-    resolution: config.resolution, cropSize: config.crop_size, references: config.references });
+  const latents = { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) };
+  const sizes = { resolution: config.resolution, cropSize: config.crop_size, references: config.references };
+  const model = await read("models/frame_generator.onnx");
+  const generator = await (makeGenerator ? makeGenerator(model, sizes, latents) : FrameGenerator.create(model, sizes));
   const assets = await loadTrackerAssets((path) => read(`models/${path}`));
   const tracker = makeTracker ? await makeTracker(assets) : localTracker(await createTracker(assets));
   const eyeBank = banksEyes(config) ? await readEyeBank(read) : null;
@@ -126,7 +131,7 @@ export async function loadSite(read: Reader,
     shotIrises: nullable(subject.shot_irises, subject.k * 4),
     anchorGaze: nullable(subject.anchor_gaze, 4),
     anchor: subject.anchor,
-    latents: { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) },
+    latents,
     scene: scene as Tensor<Uint8Array>,
     sceneLandmarks: tensor(Float64Array.from((subject.scene.landmarks as number[][]).flat()), [68, 2]),
     sceneMatrix: subject.scene.matrix as Affine,
