@@ -4,7 +4,8 @@ and the time per frame, with the ratios (issue 42's bar: the site at >= 0.8x the
 worse).
 
 The site is served by a plain static server (``deploy.web_serve``); the page runs everything itself on
-onnxruntime-web (WASM, SIMD, threads through its service worker's cross-origin isolation). In the page, per frame
+onnxruntime-web (the frame generator on WebGPU or WebNN where the browser has them, else WASM with SIMD and threads
+through its service worker's cross-origin isolation). In the page, per frame
 shown:
 
     latency = the picture drawn on its canvas - the camera frame grabbed from the video element
@@ -34,7 +35,8 @@ STAGES = ("track", "retarget", "warps", "network", "mouth", "composite")
 def measure_site(folder: Path, y4m: Path, seconds: float, warmup: float, screenshot: Path | None
                  ) -> tuple[LiveMeasure, dict[str, float], int]:
     """The site in ``folder`` served statically and opened in Chromium with ``y4m`` as the camera, its stream
-    measured: (the measure, median ms of each stage, WASM threads)."""
+    measured: (the measure, median ms of each stage, WASM threads, the frame generator's backend as the page names it:
+    WASM, WebGPU or WebNN, ``deploy/web/src/backend.ts``)."""
     from deploy.web_serve import serve_folder
     from landmarks.io.image_files import atomic_output
     from lsr.errors import LsrError
@@ -53,6 +55,8 @@ def measure_site(folder: Path, y4m: Path, seconds: float, warmup: float, screens
         end = page.evaluate("performance.now()")
         stats = page.evaluate("window.lsr.stats")
         threads = int(page.evaluate("window.lsr.threads"))
+        backend = str(page.evaluate("window.lsr.backend"))
+        backend = {"wasm": "WASM", "webgpu": "WebGPU", "webnn": "WebNN"}.get(backend, backend)
         if screenshot is not None:
             with atomic_output(Path(screenshot)) as temp:
                 page.screenshot(path=str(temp))
@@ -62,10 +66,10 @@ def measure_site(folder: Path, y4m: Path, seconds: float, warmup: float, screens
                          [stats["latency"][i] for i in window], [stats["ms"][i] for i in window])
     stages = {name: statistics.median(values) for name in STAGES
               if (values := [stats["stages"][i][name] for i in window if name in stats["stages"][i]])}
-    return result, stages, threads
+    return result, stages, threads, backend
 
 
-def web_markdown(web: LiveMeasure, live: LiveMeasure, stages: dict[str, float], threads: int, camera: str,
+def web_markdown(web: LiveMeasure, live: LiveMeasure, stages: dict[str, float], threads: int, backend: str, camera: str,
                  site_mib: float, machine: str) -> str:
     def row(what: str, result: LiveMeasure, latency: str) -> str:
         p90 = f"{np.percentile(result.latency_ms, 90):.0f}" if result.latency_ms else "–"
@@ -78,7 +82,7 @@ def web_markdown(web: LiveMeasure, live: LiveMeasure, stages: dict[str, float], 
     live_latency = statistics.median(live.latency_ms) if live.latency_ms else float("nan")
     lines = [f"The shipped default driving the example person; camera: {camera} (Chromium's fake camera; both ask "
              "for 320x240). The site: `lsr export --web`, served by a plain static server, onnxruntime-web "
-             f"(WASM, SIMD, {threads} threads); {site_mib:.0f} MiB.", "",
+             f"(the frame generator on {backend}; WASM with SIMD and {threads} threads); {site_mib:.0f} MiB.", "",
              "| where | frames shown | seconds | fps | latency ms, median | latency ms, 90th percentile | ms per frame, "
              "median |", "|---|---|---|---|---|---|---|",
              row("the web site: everything in the browser", web, "camera grab to picture drawn"),
@@ -105,10 +109,10 @@ def run_bench_web(cfg: BenchWebConfig) -> tuple[LiveMeasure, LiveMeasure]:
         site = write_site(resolve_weights(cfg.weights), temp / "site")
         site_mib = sum(path.stat().st_size for path in site.files) / 2**20
         y4m = camera_file(temp / "camera.y4m", cfg.camera_video, cfg.seconds + cfg.warmup)
-        web, stages, threads = measure_site(site.folder, y4m, cfg.seconds, cfg.warmup, cfg.screenshot)
+        web, stages, threads, backend = measure_site(site.folder, y4m, cfg.seconds, cfg.warmup, cfg.screenshot)
         live = live_tab(cfg.weights, y4m, cfg.seconds, cfg.warmup, None, temp / "examples")
     camera = ("a synthetic talking person (lsr.data.synth)" if cfg.camera_video is None
               else f"`{shown_path(cfg.camera_video)}`")
-    text = web_markdown(web, live, stages, threads, camera, site_mib, machine_markdown())
+    text = web_markdown(web, live, stages, threads, backend, camera, site_mib, machine_markdown())
     sections.publish(cfg, "lsr bench web", SECTION, "The web site: everything in the browser (`lsr bench web`)", text)
     return web, live

@@ -226,7 +226,8 @@ def _notice() -> str:
         "- The face detector, face mesh, iris and selfie segmentation nets: MediaPipe (Apache-2.0, "
         "models/mediapipe/LICENSE), converted to ONNX by `lsr face-models convert` "
         "(landmarks/assets/mediapipe/SOURCES.json).\n"
-        "- onnxruntime-web (MIT, Microsoft): ort.wasm.min.mjs and its WASM build.\n"
+        "- onnxruntime-web (MIT, Microsoft): ort.wasm.min.mjs and its WASM build; ort.min.mjs and its JSEP build, "
+        "fetched only where the frame generator runs on WebGPU or WebNN.\n"
         "- The frame generator and the subject encoder: this project's model (MODEL_CARD.md).\n\n"
         "Every frame it shows is synthetic and marked so.\n"
     )
