@@ -219,9 +219,10 @@ def _median(values: list[float]) -> str:
     return f"{statistics.median(values):.0f}" if values else "–"
 
 
-def handler_loop(weights: Path | None, frames: np.ndarray, examples_dir: Path) -> LiveMeasure:
+def handler_loop(weights: Path | None, frames: np.ndarray, examples_dir: Path, bank: str | None = None) -> LiveMeasure:
     """The live handler called back to back on camera frames in this process, no browser: what a browser on
-    another machine gets from these 2 cores, minus the network (rate; per-call time as the latency floor)."""
+    another machine gets from these 2 cores, minus the network (rate; per-call time as the latency floor). bank: the
+    live reenactor's ``bank`` (``lsr.core.finish.BANKS``; None: its default, the shipped one)."""
     import cv2
 
     from app import handlers
@@ -229,6 +230,8 @@ def handler_loop(weights: Path | None, frames: np.ndarray, examples_dir: Path) -
     from lsr.weights import resolve_weights
 
     store = handlers.ModelStore(resolve_weights(weights), "cpu")
+    if bank is not None:
+        store.live_reenactor().bank = bank
     small = [cv2.resize(frame, LIVE_CAMERA_SIZE, interpolation=cv2.INTER_AREA) for frame in frames]
     stream, calls, processing = None, [], []
     for frame in small[:WARMUP_CALLS]:
@@ -264,7 +267,7 @@ def slider_updates(weights: Path | None, examples_dir: Path, count: int = SLIDER
 
 
 def live_markdown(browser: LiveMeasure, server: LiveMeasure | None, label: str, camera: str, machine: str,
-                  sliders: list[float] | None = None) -> str:
+                  sliders: list[float] | None = None, no_bank: LiveMeasure | None = None) -> str:
     def row(what: str, result: LiveMeasure, latency: str) -> str:
         p90 = f"{np.percentile(result.latency_ms, 90):.0f}" if result.latency_ms else "–"
         return (f"| {what} | {result.frames} | {result.seconds:.1f} | {result.fps:.1f} | {_median(result.latency_ms)} "
@@ -277,6 +280,11 @@ def live_markdown(browser: LiveMeasure, server: LiveMeasure | None, label: str, 
              row("browser and app on these 2 cores (loopback)", browser, "camera grab to picture loaded")]
     if server is not None:
         lines.append(row("the app alone: its handler back to back, no browser", server, "one call"))
+    if no_bank is not None:
+        lines.append(row("the same, without the eye bank (`bank` none)", no_bank, "one call"))
+        if server is not None and no_bank.fps > 0:
+            lines += ["", f"**The eye bank's cost, same run:** the handler's rate with it {server.fps / no_bank.fps:.2f}x "
+                          "its rate without it (issue 63's bar: >= 0.9x)."]
     if sliders:
         lines += ["", f"Expression sliders: one update (edit the anchor's landmarks, synthesise, composite, colour the "
                       f"layout) takes {statistics.median(sliders):.0f} ms, median of {len(sliders)} (goal: <= 100 ms)."]
@@ -379,12 +387,15 @@ def run_bench_live(cfg: BenchLiveConfig) -> LiveMeasure:
         temp = Path(temp)
         y4m = camera_file(temp / "camera.y4m", cfg.camera_video, cfg.seconds + cfg.warmup)
         result = live_tab(cfg.weights, y4m, cfg.seconds, cfg.warmup, cfg.screenshot, temp / "examples", cfg.port)
-        server = handler_loop(cfg.weights, camera_frames(cfg.camera_video, 5 * CAMERA_FPS), temp / "examples")
+        frames = camera_frames(cfg.camera_video, 5 * CAMERA_FPS)
+        server = handler_loop(cfg.weights, frames, temp / "examples")
+        no_bank = handler_loop(cfg.weights, frames, temp / "examples", bank="none")
         sliders = slider_updates(cfg.weights, temp / "examples")
     label = "the shipped default" if cfg.weights is None else f"`{shown_path(cfg.weights)}`"
     camera = ("a synthetic talking person (lsr.data.synth)" if cfg.camera_video is None
               else f"`{shown_path(cfg.camera_video)}`")
-    text = live_markdown(result, server, label + " driving the example person", camera, machine_markdown(), sliders)
+    text = live_markdown(result, server, label + " driving the example person", camera, machine_markdown(), sliders,
+                         no_bank)
     sections.publish(cfg, "lsr bench live", SECTION, "Live: the webcam tab in a browser (`lsr bench live`)", text)
     return result
 
