@@ -34,6 +34,8 @@ from lsr.config.bench_options import BenchEyesConfig
 JITTER_PARTS = {"eye": slice(36, 48), "mouth": slice(48, 68)}
 """The parts whose steadiness the table reads (iBUG-68 ranges)."""
 SECTION = "eyes"
+COLUMNS = ("eye_r", "eye_gain", "eye_own_gain", "mouth_r", "mouth_gain", "gaze_r")
+"""The judged columns, each with its share of the agreement row in brackets."""
 FLOOR_GAP = 5
 """The floor compares a real frame with the source's frames at least this many frames away."""
 
@@ -119,6 +121,15 @@ def output_readings(frames: list, judge, real: np.ndarray) -> dict[str, np.ndarr
     return {name: np.asarray(values, np.float64) for name, values in readings.items()}
 
 
+def own_scale(openings: np.ndarray) -> np.ndarray:
+    """Openings (T,) over their own median (NaN kept; all NaN where the median is not above 0): an eye as a share of
+    its own usual opening, so that a narrow-eyed face that shuts as far as the driver, in proportion, has a gain of 1
+    against a wide-eyed driver (relative motion moves the lids so: ``landmarks.parts.eyes.lids.lids_as_driver``)."""
+    openings = np.asarray(openings, np.float64)
+    usual = np.nanmedian(openings) if np.isfinite(openings).any() else math.nan
+    return openings / usual if usual > 0 else np.full_like(openings, math.nan)
+
+
 def pair_rows(pair: str, driver: dict[str, np.ndarray], outputs: dict[str, dict[str, np.ndarray]], floor: float
               ) -> list[dict[str, Any]]:
     """The agreement row and one row per bank of one pair (the module docstring's columns)."""
@@ -129,6 +140,9 @@ def pair_rows(pair: str, driver: dict[str, np.ndarray], outputs: dict[str, dict[
         return (opening_correlation(driver[f"judge_{part}"], reading),
                 pooled_gain([(driver[f"judge_{part}"], reading)]))
 
+    def own_gain(reading: np.ndarray) -> float:  # the eyes' slope, each face's openings over its own median
+        return pooled_gain([(own_scale(driver["judge_eye"]), own_scale(reading))])
+
     def steadiness(points: np.ndarray | None) -> dict[str, float]:  # each part's own motion, inter-ocular distances
         if points is None:
             return dict.fromkeys((f"{part}_jitter" for part in JITTER_PARTS), math.nan)
@@ -136,18 +150,21 @@ def pair_rows(pair: str, driver: dict[str, np.ndarray], outputs: dict[str, dict[
 
     rows = [{"pair": pair, "row": "agreement", **{f"{part}_{what}": value for part in ("eye", "mouth")
              for what, value in zip(("r", "gain"), judged(part, driver[f"mesh_{part}"]))},
+             "eye_own_gain": own_gain(driver["mesh_eye"]),
              "gaze_r": opening_correlation(driver["judge_gaze"], driver["mesh_gaze"]), "realism": floor,
              "switches": math.nan, "ms_per_frame": math.nan, **steadiness(driver.get("judge_points"))}]
     asked = next(iter(outputs.values()), None)  # every bank's target points are the same
     if asked is not None and "asked_eye" in asked:
         rows.append({"pair": pair, "row": "asked", **{f"{part}_{what}": value for part in ("eye", "mouth")
                      for what, value in zip(("r", "gain"), judged(part, asked[f"asked_{part}"]))},
+                     "eye_own_gain": own_gain(asked["asked_eye"]),
                      "gaze_r": math.nan, "realism": math.nan, "switches": math.nan, "ms_per_frame": math.nan,
                      **steadiness(None)})
     for bank, reading in outputs.items():
         row = {"pair": pair, "row": bank}
         for part in ("eye", "mouth"):
             row[f"{part}_r"], row[f"{part}_gain"] = judged(part, reading[f"judge_{part}"])
+        row["eye_own_gain"] = own_gain(reading["judge_eye"])
         row["gaze_r"] = opening_correlation(driver["judge_gaze"], reading["judge_gaze"])
         row["realism"] = float(np.nanmedian(reading["realism"])) if np.isfinite(reading["realism"]).any() else math.nan
         row["switches"] = float(reading.get("switches", math.nan))
@@ -162,8 +179,9 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
     floor), then per bank the judged columns and, in brackets, their share of the agreement (gains: their ratio)."""
     lines = [f"clips: {settings['clips']}; K = {settings['k']}; model `{settings['weights']}`; judged frames per "
              f"driver: {settings['frames']}", "",
-             "| pair | eyes from | eye r | eye gain | mouth r | mouth gain | gaze r | realism ↓ (x floor) | switches "
-             "| ms / frame | eye jitter (x driver) | mouth jitter (x driver) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| pair | eyes from | eye r | eye gain | eye gain, own opening | mouth r | mouth gain | gaze r | realism ↓ "
+             "(x floor) | switches | ms / frame | eye jitter (x driver) | mouth jitter (x driver) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def share(value: float, of: float, digits: int = 2) -> str:
         if not math.isfinite(value):
@@ -175,13 +193,12 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
     for row in rows:
         if row["row"] == "agreement":
             agreement = row
-            cells = [f"{row[c]:.2f}" for c in ("eye_r", "eye_gain", "mouth_r", "mouth_gain", "gaze_r")]
+            cells = [f"{row.get(c, math.nan):.2f}" for c in COLUMNS]
             jitters = " | ".join(f"{row.get(f'{part}_jitter', math.nan):.4f}" for part in JITTER_PARTS)
             lines.append(f"| {row['pair']} | agreement / floor | {' | '.join(cells)} | {row['realism']:.3f} | | | "
                          f"{jitters} |")
             continue
-        cells = [share(row[c], agreement.get(c, math.nan)) for c in ("eye_r", "eye_gain", "mouth_r", "mouth_gain",
-                                                                      "gaze_r")]
+        cells = [share(row.get(c, math.nan), agreement.get(c, math.nan)) for c in COLUMNS]
         realism = share(row["realism"], agreement.get("realism", math.nan), 3)
         switches = "" if not math.isfinite(row["switches"]) else f"{row['switches']:.0f}"
         speed = "" if not math.isfinite(row.get("ms_per_frame", math.nan)) else f"{row['ms_per_frame']:.0f}"
@@ -190,7 +207,8 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
         lines.append(f"| | {row['row']} | {' | '.join(cells)} | {realism} | {switches} | {speed} | {jitters} |")
     lines += ["", "agreement: the face mesh's reading of the driver's frames against dlib's (the judge); asked: the "
               "target's own points (what the re-enactment asks the synthesis to draw; its lids' small motions "
-              "multiplied for the warps) against the judge's reading of the driver; each bank's "
+              "multiplied for the warps) against the judge's reading of the driver; eye gain, own opening: the gain with "
+              "each face's eye openings over its own median (relative motion shuts a narrow eye in proportion); each bank's "
               "row: the output against the driver, both read by dlib, and in brackets its share of the agreement. "
               "realism: the median distance of the output's eyes to the nearest of the source's real eyes "
               "(1 - NCC), the floor that of the source's real frames to its frames at least "

@@ -11,7 +11,7 @@ from landmarks.parts.eyes.eye_realism import REALISM_PATCH, eye_realism
 from lsr.config.bench_options import BenchEyesConfig
 from lsr.errors import ConfigError
 from lsr.bench import bench_eyes
-from lsr.bench.bench_eyes import FLOOR_GAP, eyes_markdown, pair_rows, realism_floor
+from lsr.bench.bench_eyes import FLOOR_GAP, eyes_markdown, own_scale, pair_rows, realism_floor
 
 PIXELS = REALISM_PATCH[0] * REALISM_PATCH[1]
 
@@ -90,16 +90,27 @@ def test_pair_rows_give_the_detectors_agreement_and_each_banks_correlation_and_g
     assert agreement["gaze_r"] == pytest.approx(1.0)
     assert agreement["realism"] == 0.04 and math.isnan(agreement["switches"]) and math.isnan(agreement["ms_per_frame"])
     assert banked["eye_r"] == pytest.approx(1.0) and banked["eye_gain"] == pytest.approx(2.0)  # output = 2 driver
+    # on each face's own scale: output 2 eye - 0.1 over its median 0.3, the driver's eye over its 0.2
+    assert banked["eye_own_gain"] == pytest.approx(2.0 * 0.2 / 0.3)
+    assert asked["eye_own_gain"] == pytest.approx(1.0)  # 3 eye is the driver's, in proportion
+    assert agreement["eye_own_gain"] == pytest.approx(0.5 * 0.2 / 0.12)  # the mesh's 0.5 eye + 0.02, median 0.12
     # a frame without the judge's face is left out of both figures, not read as 0
     assert banked["mouth_r"] == pytest.approx(-1.0) and banked["mouth_gain"] == pytest.approx(-0.5)
     assert banked["gaze_r"] == pytest.approx(1.0)
     assert banked["realism"] == pytest.approx(0.2)  # the median of every eye found, over eyes and frames
     assert banked["switches"] == 3.0 and banked["ms_per_frame"] == 12.5
     assert math.isnan(plain["eye_r"]) and math.isnan(plain["eye_gain"])  # a frozen eye has no correlation
+    assert math.isnan(plain["eye_own_gain"])
     assert plain["mouth_r"] == pytest.approx(1.0) and plain["mouth_gain"] == pytest.approx(1.0)
     assert plain["gaze_r"] == pytest.approx(-1.0)
     # no eyes read; no bank, no switches; not timed
     assert math.isnan(plain["realism"]) and math.isnan(plain["switches"]) and math.isnan(plain["ms_per_frame"])
+
+
+def test_own_scale_divides_by_the_median_keeps_gaps_and_gives_nan_without_an_opening():
+    assert np.allclose(own_scale(np.array([0.1, 0.2, np.nan, 0.3])), [0.5, 1.0, np.nan, 1.5], equal_nan=True)
+    assert np.isnan(own_scale(np.array([0.0, 0.0, 0.1]))).all()
+    assert np.isnan(own_scale(np.full(3, np.nan))).all()
 
 
 # ---- the table ---------------------------------------------------------------------------------------------------
@@ -120,17 +131,17 @@ def test_the_table_prints_each_pairs_agreement_then_each_bank_with_its_share_of_
     text = eyes_markdown(rows, settings, "machine: test box")
     lines = text.splitlines()
     assert lines[0] == "clips: a.mp4 and 1 more; K = 8; model `weights/tiny`; judged frames per driver: 10-12"
-    assert ("| pair | eyes from | eye r | eye gain | mouth r | mouth gain | gaze r | realism ↓ (x floor) | switches | "
-            "ms / frame | eye jitter (x driver) | mouth jitter (x driver) |") in lines
+    assert ("| pair | eyes from | eye r | eye gain | eye gain, own opening | mouth r | mouth gain | gaze r | realism ↓ "
+            "(x floor) | switches | ms / frame | eye jitter (x driver) | mouth jitter (x driver) |") in lines
     table = [line for line in lines if line.startswith("| ") and "pair |" not in line]
     assert table == [
-        "| a ← b | agreement / floor | 0.80 | 0.50 | nan | 0.50 | 0.50 | 0.040 | | | 0.0200 | nan |",
+        "| a ← b | agreement / floor | 0.80 | 0.50 | nan | nan | 0.50 | 0.50 | 0.040 | | | 0.0200 | nan |",
         # in brackets: the share of the agreement (gains: their ratio), realism over the floor; no agreement, no share
-        "| | none | 0.40 (0.50) | 1.00 (2.00) | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.100 (2.50) |  |  | – | – |",
-        "| | all | 0.60 (0.75) | 0.25 (0.50) | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.050 (1.25) | 3 | 42 | 0.0300 (1.50) "
+        "| | none | 0.40 (0.50) | 1.00 (2.00) | – | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.100 (2.50) |  |  | – | – |",
+        "| | all | 0.60 (0.75) | 0.25 (0.50) | – | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.050 (1.25) | 3 | 42 | 0.0300 (1.50) "
         "| – |",
-        "| b ← a | agreement / floor | 0.20 | 0.50 | 0.50 | 0.50 | 0.50 | 0.020 | | | nan | nan |",
-        "| | all | 0.60 (3.00) | 0.50 (1.00) | 0.50 (1.00) | 0.50 (1.00) | 0.50 (1.00) | 0.050 (2.50) | 0 |  | – | – |",
+        "| b ← a | agreement / floor | 0.20 | 0.50 | nan | 0.50 | 0.50 | 0.50 | 0.020 | | | nan | nan |",
+        "| | all | 0.60 (3.00) | 0.50 (1.00) | – | 0.50 (1.00) | 0.50 (1.00) | 0.50 (1.00) | 0.050 (2.50) | 0 |  | – | – |",
     ]
     assert f"at least {FLOOR_GAP} frames away" in text and lines[-1] == "machine: test box"
 
