@@ -317,12 +317,34 @@ def _short(name: str, keep: int = 30) -> str:
     return name if len(name) <= keep else f"{name[:keep // 2 - 1]}…{name[-(keep // 2):]}"
 
 
+def mouth_roundness(points: np.ndarray) -> np.ndarray:
+    """(T,) how round each open mouth is, an "O": its inner lips' height over their width ((T, 68, 2) points, NaN
+    rows kept); NaN for a mouth opened less than ``O_OPENING``."""
+    from landmarks.shape.expression import mouth_opening
+
+    points = np.asarray(points, np.float64)
+    inner = points[:, 60:68]
+    height = np.linalg.norm(inner[:, [1, 2, 3]] - inner[:, [7, 6, 5]], axis=-1).mean(axis=-1)
+    width = np.linalg.norm(inner[:, 4] - inner[:, 0], axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        round_ = height / width
+    return np.where(mouth_opening(points) >= O_OPENING, round_, np.nan)
+
+
+O_OPENING = 0.15
+"""A mouth counts as an "O" in the figure only when opened at least this far (inter-ocular distances)."""
+
+
 def _moments(read: dict[str, np.ndarray], frames: dict[str, list]) -> list[np.ndarray]:
-    """The driver's widest and most shut eyes, its most aside gaze and its widest mouth: one figure row each, the
-    driver frame the re-enactment carried (``ReenactedFrame.driver_frame``) beside each bank's output."""
+    """The driver's widest and most shut eyes, its most aside gaze, its widest mouth and its roundest open mouth (an
+    "O", where it opens one): one figure row each, the driver frame the re-enactment carried
+    (``ReenactedFrame.driver_frame``) beside each bank's output."""
     picks = []
+    read = {**read, "judge_round": mouth_roundness(read["judge_points"])} if "judge_points" in read else read
     for name, pick in (("judge_eye", np.nanargmax), ("judge_eye", np.nanargmin), ("judge_gaze", None),
-                       ("judge_mouth", np.nanargmax)):
+                       ("judge_mouth", np.nanargmax), ("judge_round", np.nanargmax)):
+        if name not in read:
+            continue
         values = read[name]
         usable = np.isfinite(values) & np.array([all(f[i] is not None for f in frames.values())
                                                  for i in range(len(values))])

@@ -11,7 +11,7 @@ from landmarks.parts.eyes.eye_realism import REALISM_PATCH, eye_realism
 from lsr.config.bench_options import BenchEyesConfig
 from lsr.errors import ConfigError
 from lsr.bench import bench_eyes
-from lsr.bench.bench_eyes import FLOOR_GAP, eyes_markdown, own_scale, pair_rows, realism_floor
+from lsr.bench.bench_eyes import FLOOR_GAP, eyes_markdown, mouth_roundness, own_scale, pair_rows, realism_floor
 
 PIXELS = REALISM_PATCH[0] * REALISM_PATCH[1]
 
@@ -111,6 +111,21 @@ def test_own_scale_divides_by_the_median_keeps_gaps_and_gives_nan_without_an_ope
     assert np.allclose(own_scale(np.array([0.1, 0.2, np.nan, 0.3])), [0.5, 1.0, np.nan, 1.5], equal_nan=True)
     assert np.isnan(own_scale(np.array([0.0, 0.0, 0.1]))).all()
     assert np.isnan(own_scale(np.full(3, np.nan))).all()
+
+
+def test_mouth_roundness_reads_an_o_above_a_wide_open_mouth_and_nothing_in_a_shut_one():
+    from landmarks.motion.head_pose import project_canonical
+
+    def face(height: float, width: float) -> np.ndarray:
+        points = project_canonical(0, 0, 0, (256, 256), scale=0.5).astype(np.float64)
+        centre = points[60:68].mean(axis=0)
+        angles = np.linspace(np.pi, -np.pi, 8, endpoint=False)  # 60 left, 61-63 upper, 64 right, 65-67 lower
+        points[60:68] = centre + np.stack([width / 2 * np.cos(angles), -height / 2 * np.sin(angles)], axis=1)
+        return points
+
+    round_, wide, shut = mouth_roundness(np.stack([face(30.0, 30.0), face(20.0, 50.0), face(0.0, 50.0)]))
+    assert round_ > wide > 0.3 and np.isnan(shut)
+    assert np.isnan(mouth_roundness(np.full((1, 68, 2), np.nan))).all()
 
 
 # ---- the table ---------------------------------------------------------------------------------------------------
