@@ -9,6 +9,7 @@ import { cropTransform, faceGeometry, invertAffine, similarityAffine, similarity
          transformPoints } from "./geometry.js";
 import { PixelImage, bilinearAt, clampedView, densifyGrid, gaussianBlurF32, remapCubic, resizeArea, resizeLinear,
          roundHalfEven as rint, warpAffineCubic } from "./remap.js";
+import { CubicSources } from "./remap_wasm.js";
 import { RIGID_INDEX } from "./retarget.js";
 import { Affine, Tensor, checkPoints, tensor } from "./tensor.js";
 import { foldedFraction, tpsGridMap } from "./tps.js";
@@ -113,21 +114,23 @@ function edgeFade(gridX: Float64Array, gridY: Float64Array, shiftX: Float64Array
                   height: number, width: number, step: number): Float32Array | null {
   const rows = gridY.length, cols = gridX.length;
   let fade: Float32Array | null = null;
-  const edges: [(j: number, i: number) => number, (j: number, i: number, p: number) => number][] = [
-    [(_j, i) => gridX[i], (_j, i, p) => -(gridX[i] + shiftX[p])],
-    [(j) => gridY[j], (j, _i, p) => -(gridY[j] + shiftY[p])],
-    [(_j, i) => width - 1 - gridX[i], (_j, i, p) => gridX[i] + shiftX[p] - (width - 1)],
-    [(j) => height - 1 - gridY[j], (j, _i, p) => gridY[j] + shiftY[p] - (height - 1)],
-  ];
-  for (const [distance, beyond] of edges) {
+  // the left, top, right and bottom edges in turn: along x (left, right) or y, the far one past width - 1 or height - 1
+  for (let edge = 0; edge < 4; edge++) {
+    const alongX = edge % 2 === 0, far = edge >= 2, last = alongX ? width - 1 : height - 1;
     let reach = -Infinity;
-    for (let j = 0, p = 0; j < rows; j++) for (let i = 0; i < cols; i++, p++) reach = Math.max(reach, beyond(j, i, p));
+    for (let j = 0, p = 0; j < rows; j++) {
+      for (let i = 0; i < cols; i++, p++) {
+        const moved = alongX ? gridX[i] + shiftX[p] : gridY[j] + shiftY[p];  // how far beyond the edge it reads
+        reach = Math.max(reach, far ? moved - last : -moved);
+      }
+    }
     if (reach < EDGE_REACH) continue;
     const span = Math.max(EDGE_RAMP * reach, EDGE_CELLS * step);
     const next: Float32Array = fade ?? new Float32Array(rows * cols).fill(1);
     for (let j = 0, p = 0; j < rows; j++) {
       for (let i = 0; i < cols; i++, p++) {
-        const ramp = Math.min(Math.max(distance(j, i) / span, 0), 1);
+        const at = alongX ? gridX[i] : gridY[j], distance = far ? last - at : at;  // from the edge, inward
+        const ramp = Math.min(Math.max(distance / span, 0), 1);
         next[p] = f32(next[p] * f32(ramp * ramp * (3 - 2 * ramp)));
       }
     }
@@ -495,11 +498,19 @@ function headLayer(scene: Tensor<Uint8Array>, output: Uint8Array, scenePoints: T
     shiftX[p] *= weight[p];
     shiftY[p] *= weight[p];
   }
-  const sourceX = densifyGrid(warp.grid, shiftX), sourceY = densifyGrid(warp.grid, shiftY);
+  // the scene's source position of each box pixel, dense, in WebAssembly memory to be remapped there (remap_wasm.ts)
+  const sources = sceneSources(scene);
+  const [slot] = sources ? sources.mapSlots(1, w * h) : [{ mapX: new Float32Array(w * h), mapY: new Float32Array(w * h) }];
+  const sourceX = slot.mapX, sourceY = slot.mapY;
+  if (!sources?.densifySlot(slot, warp.grid, shiftX, shiftY)) {
+    densifyGrid(warp.grid, shiftX, sourceX);
+    densifyGrid(warp.grid, shiftY, sourceY);
+  }
   for (let y = 0, i = 0; y < h; y++) {
+    const row = f32(y0 + y);
     for (let x = 0; x < w; x++, i++) {
       sourceX[i] = f32(sourceX[i] + f32(x0 + x));
-      sourceY[i] = f32(sourceY[i] + f32(y0 + y));
+      sourceY[i] = f32(sourceY[i] + row);
     }
   }
   // interpolated, the field leaks a sub-pixel shift just past the ellipses: the scene stays there, bit for bit
@@ -507,34 +518,75 @@ function headLayer(scene: Tensor<Uint8Array>, output: Uint8Array, scenePoints: T
   if (layers) {  // ... and below the neck's fade
     for (let y = 0; y < h; y++) if (neck(y0 + y, chin, sides) <= 0) inside.fill(0, y * w, (y + 1) * w);
   }
-  const movedHead = remapCubic({ data: scene.data, width, height, channels: 3 }, sourceX, sourceY, "reflect",
-                               new Uint8Array(w * h * 3), inside);
-  const matte: PixelImage<Float32Array> | null = layers
-    ? { data: layers.matte.data, width, height, channels: 1 } : null;
-  const clamped = clampedView(output);  // its stores round half to even and saturate, as rint and the clip do
-  for (let y = 0, i = 0; y < h; y++) {
-    for (let x = 0; x < w; x++, i++) {
-      if (!inside[i]) continue;
-      const o = ((y0 + y) * width + x0 + x) * 3;
-      if (!matte || !layers) {
-        output[o] = movedHead[3 * i]; output[o + 1] = movedHead[3 * i + 1]; output[o + 2] = movedHead[3 * i + 2];
-        continue;
-      }
-      const dx = sourceX[i] - (x0 + x), dy = sourceY[i] - (y0 + y);
-      const moving = f32(Math.min(f32(Math.sqrt(dx * dx + dy * dy)), MOVING) / MOVING);
-      const background = f32((1 - f32(bilinearAt(matte, sourceX[i], sourceY[i], "reflect"))) * moving);
-      for (let c = 0; c < 3; c++) {
-        const head = movedHead[3 * i + c];
-        clamped[o + c] = f32(head + f32(background * f32(layers.plate.data[o + c] - head)));
+  const movedHead = new Uint8Array(w * h * 3);
+  if (sources) sources.remapSlot(slot, 0, "reflect", movedHead, inside);
+  else remapCubic({ data: scene.data, width, height, channels: 3 }, sourceX, sourceY, "reflect", movedHead, inside);
+  if (!layers) {
+    for (let y = 0, i = 0; y < h; y++) {
+      for (let x = 0, o = ((y0 + y) * width + x0) * 3; x < w; x++, i++, o += 3) {
+        if (inside[i]) { output[o] = movedHead[3 * i]; output[o + 1] = movedHead[3 * i + 1]; output[o + 2] = movedHead[3 * i + 2]; }
       }
     }
+    return;
   }
+  // the background plate where the head moves off it: head + background (plate - head), background the matte's
+  // outside (bilinearAt, its inside case here) at the source, as far as the pixel moves (up to MOVING pixels)
+  const matte = layers.matte.data, plate = layers.plate.data, image = { data: matte, width, height, channels: 1 };
+  const clamped = clampedView(output);  // its stores round half to even and saturate, as rint and the clip do
+  for (let y = 0, i = 0; y < h; y++) {
+    for (let x = 0, o = ((y0 + y) * width + x0) * 3; x < w; x++, i++, o += 3) {
+      if (!inside[i]) continue;
+      const sx = sourceX[i], sy = sourceY[i], dx = sx - (x0 + x), dy = sy - (y0 + y);
+      const moving = f32(Math.min(f32(Math.sqrt(dx * dx + dy * dy)), MOVING) / MOVING);
+      const mx = Math.floor(sx), my = Math.floor(sy);
+      let weight: number;
+      if (mx >= 0 && mx < width - 1 && my >= 0 && my < height - 1) {
+        const a = sx - mx, b = sy - my, r0 = my * width + mx, r1 = r0 + width;
+        weight = (matte[r0] * (1 - a) + matte[r0 + 1] * a) * (1 - b) + (matte[r1] * (1 - a) + matte[r1 + 1] * a) * b;
+      } else weight = bilinearAt(image, sx, sy, "reflect");
+      const background = f32((1 - f32(weight)) * moving), p = 3 * i;
+      const r = movedHead[p], g = movedHead[p + 1], bl = movedHead[p + 2];
+      clamped[o] = f32(r + f32(background * f32(plate[o] - r)));
+      clamped[o + 1] = f32(g + f32(background * f32(plate[o + 1] - g)));
+      clamped[o + 2] = f32(bl + f32(background * f32(plate[o + 2] - bl)));
+    }
+  }
+}
+
+let faceSources: CubicSources | null = null;
+
+/** warpAffineCubic(crop, m, width, height, "replicate") (the synthesis into the frame's face box), in WebAssembly
+ * where it runs (remap_wasm.ts): the same float32 positions as maps, the same bytes. */
+function warpFace(crop: PixelImage<Uint8Array>, m: Affine, width: number, height: number): Uint8Array {
+  faceSources = CubicSources.reload(faceSources, crop.data, 1, crop.width, crop.height);
+  if (faceSources === null) return warpAffineCubic(crop, m, width, height, "replicate");
+  const [slot] = faceSources.mapSlots(1, width * height), mapX = slot.mapX, mapY = slot.mapY;
+  const m0 = f32(m[0]), m3 = f32(m[3]);
+  for (let y = 0, i = 0; y < height; y++) {  // warpAffineCubic's positions, float32
+    const mx = f32(y * m[1] + m[2]), my = f32(y * m[4] + m[5]);
+    for (let x = 0; x < width; x++, i++) { mapX[i] = m0 * x + mx; mapY[i] = m3 * x + my; }
+  }
+  const out = new Uint8Array(width * height * 3);
+  faceSources.remapSlot(slot, 0, "replicate", out);
+  return out;
+}
+
+let cachedScene: CubicSources | null = null;
+
+/** The scene in WebAssembly memory for remap_wasm.ts (kept while the same scene comes: a person's; null without
+ * WebAssembly SIMD). */
+function sceneSources(scene: Tensor<Uint8Array>): CubicSources | null {
+  const [height, width] = scene.shape;
+  cachedScene = CubicSources.of(cachedScene, scene.data, 1, width, height);
+  return cachedScene;
 }
 
 /** Put a synthesised face into a scene frame, the head (hair) following it (landmarks.scene.compositing.composite_face).
  * scene: (H, W, 3) uint8; sceneLandmarks: (68, 2) the scene's own face; targetLandmarks: (68, 2) where the face is
  * drawn; faceCrop: (C, C, 3) uint8 the synthesis, a crop of the frame under cropMatrix (frame -> crop); layers: the
- * scene's person matte and background plate (only the person moves), or null (the whole head region moves). */
+ * scene's person matte and background plate (only the person moves), or null (the whole head region moves). The
+ * scene stays in WebAssembly memory for the next call with the same array (remap_wasm.ts): its values must not change
+ * in between. */
 export function compositeFace(scene: Tensor<Uint8Array>, sceneLandmarks: Tensor, targetLandmarks: Tensor,
                               faceCrop: Tensor<Uint8Array>, cropMatrix: Affine | number[],
                               layers: SceneLayers | null = null): Composite {
@@ -575,7 +627,7 @@ export function compositeFace(scene: Tensor<Uint8Array>, sceneLandmarks: Tensor,
   const faceMatrix: Affine = [c[0], c[1], c[2] + c[0] * fx0 + c[1] * fy0, c[3], c[4], c[5] + c[3] * fx0 + c[4] * fy0];
   const cropSide = faceCrop.shape[0];
   const crop = { data: faceCrop.data, width: faceCrop.shape[1], height: cropSide, channels: 3 };
-  const face = warpAffineCubic(crop, faceMatrix, fw, fh, "replicate");
+  const face = warpFace(crop, faceMatrix, fw, fh);
   // the crop's inside (edge pixels in from its border) under a bilinear warp: a separable indicator, so per axis
   const edge = Math.max(1, Math.floor(cropSide / 32));
   const indicator = (v: number) => {
@@ -616,17 +668,20 @@ export function compositeFace(scene: Tensor<Uint8Array>, sceneLandmarks: Tensor,
     bandSum += band[i];
   }
   if (bandSum > 16) {
-    const sigma = COLOUR_SIGMA * side, difference = new Float32Array(pixels * 3), total = [0, 0, 0];
+    // the difference on the band (3 channels) and the band (the 4th) blurred together: each channel as on its own
+    const sigma = COLOUR_SIGMA * side, stacked = new Float32Array(pixels * 4), total = [0, 0, 0];
     for (let i = 0; i < pixels; i++) {
       for (let k = 0; k < 3; k++) {
-        difference[3 * i + k] = (head[3 * i + k] - faceF[3 * i + k]) * band[i];
-        total[k] += difference[3 * i + k];
+        stacked[4 * i + k] = (head[3 * i + k] - faceF[3 * i + k]) * band[i];
+        total[k] += stacked[4 * i + k];
       }
+      stacked[4 * i + 3] = band[i];
     }
-    const spread = blur(band, fw, fh, 1, sigma), colour = blur(difference, fw, fh, 3, sigma);
+    const blurred = blur(stacked, fw, fh, 4, sigma);
     for (let i = 0; i < pixels; i++) {
+      const spread = blurred[4 * i + 3];
       for (let k = 0; k < 3; k++) {
-        const offset = spread[i] <= 1e-3 ? total[k] / bandSum : f32(colour[3 * i + k] / Math.max(spread[i], f32(1e-3)));
+        const offset = spread <= 1e-3 ? total[k] / bandSum : f32(blurred[4 * i + k] / Math.max(spread, f32(1e-3)));
         faceF[3 * i + k] += Math.min(Math.max(offset, -COLOUR_LIMIT), COLOUR_LIMIT);
       }
     }
@@ -652,11 +707,17 @@ export function compositeFace(scene: Tensor<Uint8Array>, sceneLandmarks: Tensor,
 function withinHead(ellipses: Ellipse[], width: number, height: number, x0: number, y0: number): Float32Array | null {
   const corners = [[x0, y0], [x0 + width - 1, y0], [x0, y0 + height - 1], [x0 + width - 1, y0 + height - 1]];
   if (ellipses.some((e) => corners.every(([x, y]) => radiusAt(e, x, y) <= f32(0.95)))) return null;
-  const out = new Float32Array(width * height);
+  // radiusAt's squared terms, float32: across per column, down per row
+  const across = ellipses.map((e) => Float32Array.from({ length: width }, (_, x) => {
+    const a = f32(f32(f32(x0 + x) - f32(e.cx)) / f32(e.ax));
+    return a * a;
+  }));
+  const down = new Float32Array(ellipses.length), out = new Float32Array(width * height);
   for (let y = 0, i = 0; y < height; y++) {
+    ellipses.forEach((e, k) => { const d = f32(f32(f32(y0 + y) - f32(e.cy)) / f32(e.ay)); down[k] = d * d; });
     for (let x = 0; x < width; x++, i++) {
       let radius = Infinity;
-      for (const e of ellipses) radius = Math.min(radius, radiusAt(e, x0 + x, y0 + y));
+      for (let k = 0; k < across.length; k++) radius = Math.min(radius, f32(Math.sqrt(f32(across[k][x] + down[k]))));
       out[i] = Math.min(Math.max(f32(f32(1 - radius) / f32(0.05)), 0), 1);
     }
   }

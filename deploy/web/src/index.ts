@@ -27,3 +27,6 @@ export * from "./hysteresis.js";
 export * from "./bank_rows.js";
 export * from "./eye_bank.js";
 export * from "./backend.js";
+export { useWebAssembly } from "./wasm.js";
+export { remapsInWasm } from "./remap_wasm.js";
+export { splinesInWasm } from "./tps_wasm.js";

@@ -5,7 +5,7 @@
 import { LEFT_EYE, RIGHT_EYE } from "./geometry.js";
 import { DenseMaps, alignIrises } from "./iris_warp.js";
 import { densifyGrid, remapCubic } from "./remap.js";
-import { CubicSources } from "./remap_wasm.js";
+import { CubicSources, MapSlot } from "./remap_wasm.js";
 import { Tensor, tensor } from "./tensor.js";
 import { GridMap, WarpMethod, tpsGridMaps, warpValidMask } from "./tps.js";
 
@@ -43,7 +43,7 @@ let cubicSources: CubicSources | null = null;
  * SIMD). */
 function shotSources(shots: Tensor<Uint8Array>): CubicSources | null {
   const [count, height, width] = shots.shape;
-  if (!cubicSources?.holds(shots.data, count, width, height)) cubicSources = CubicSources.create(shots.data, count, width, height);
+  cubicSources = CubicSources.of(cubicSources, shots.data, count, width, height);
   return cubicSources;
 }
 
@@ -81,7 +81,8 @@ export function warpReferences(shots: Tensor<Uint8Array>, shotLandmarks: Tensor,
   if (denseX.length !== pixels) { denseX = new Float32Array(pixels); denseY = new Float32Array(pixels); }
   const map = { mapX: denseX, mapY: denseY };
   const sources = shotSources(shots);
-  const bent = irises === null ? null : bentMaps(warps, unique, [...new Set(indices)], irises, targetLandmarks, gaze);
+  const bent = irises === null ? null
+    : bentMaps(warps, unique, [...new Set(indices)], irises, targetLandmarks, gaze, sources);
   const methods: WarpMethod[] = [];
   indices.forEach((index, slot) => {
     const warp = warps[unique.indexOf(index)];
@@ -98,8 +99,12 @@ export function warpReferences(shots: Tensor<Uint8Array>, shotLandmarks: Tensor,
     const irisMap = bent?.get(index);
     if (irisMap) {  // the dense maps bent for the irises: remapped, and their mask, as they are
       const mapX = irisMap.mapX.data, mapY = irisMap.mapY.data;
-      if (sources) sources.remap(index, mapX, mapY, "replicate", image);
-      else remapCubic({ data: shot, width, height, channels: 3 }, mapX, mapY, "replicate", image);
+      if (sources) {  // the maps are in its memory (bentMaps)
+        sources.remapSlot({ mapX, mapY }, index, "replicate", image);
+        sources.validSlot({ mapX, mapY }, mask);
+        return;
+      }
+      remapCubic({ data: shot, width, height, channels: 3 }, mapX, mapY, "replicate", image);
       warpValidMask({ mapX, mapY }, height, width, mask);
       return;
     }
@@ -116,22 +121,24 @@ export function warpReferences(shots: Tensor<Uint8Array>, shotLandmarks: Tensor,
            methods };
 }
 
-let irisMaps: Float32Array[] = [];  // bentMaps' dense maps, kept from frame to frame
+let irisMaps: MapSlot[] = [];  // bentMaps' dense maps without WebAssembly, kept from frame to frame
 
 /** Each shot's dense maps (warps[i] of shot unique[i]; the identity map, exact, for an "identity" warp, as
  * landmarks.warp.tps.warp_references makes it for the irises to bend) bent by alignIrises, `nearestFirst` (the unique
- * shots nearest first, as Python orders them: dict.fromkeys(indices)) -> shot index -> its maps. */
+ * shots nearest first, as Python orders them: dict.fromkeys(indices)) -> shot index -> its maps. With `sources`, the
+ * maps are made in its memory (densified there), to be remapped there as they are (CubicSources.remapSlot). */
 function bentMaps(warps: GridMap[], unique: number[], nearestFirst: number[], irises: Tensor, target: Tensor,
-                  gaze: Tensor | null): Map<number, DenseMaps> {
+                  gaze: Tensor | null, sources: CubicSources | null): Map<number, DenseMaps> {
   const { height, width } = warps[0].grid, pixels = height * width;
-  if (irisMaps.length < 2 * unique.length || irisMaps[0].length !== pixels) {
-    irisMaps = Array.from({ length: 2 * unique.length }, () => new Float32Array(pixels));
+  if (sources === null && (irisMaps.length < unique.length || irisMaps[0].mapX.length !== pixels)) {
+    irisMaps = Array.from({ length: unique.length }, () => ({ mapX: new Float32Array(pixels), mapY: new Float32Array(pixels) }));
   }
+  const slots = sources ? sources.mapSlots(nearestFirst.length, pixels) : irisMaps;
   const maps = nearestFirst.map((index, i) => {
-    const warp = warps[unique.indexOf(index)], mapX = irisMaps[2 * i], mapY = irisMaps[2 * i + 1];
+    const warp = warps[unique.indexOf(index)], { mapX, mapY } = slots[i];
     if (warp.method === "identity") {
       for (let p = 0; p < pixels; p++) { mapX[p] = p % width; mapY[p] = Math.floor(p / width); }
-    } else {
+    } else if (!sources?.densifySlot(slots[i], warp.grid, warp.mapX, warp.mapY)) {
       densifyGrid(warp.grid, warp.mapX, mapX);
       densifyGrid(warp.grid, warp.mapY, mapY);
     }

@@ -100,10 +100,12 @@ function cubicAt(src: Uint8Array, width: number, height: number, channels: numbe
   }
   const x0 = borderIndex(sx, width, border), x1 = borderIndex(sx + 1, width, border);
   const x2 = borderIndex(sx + 2, width, border), x3 = borderIndex(sx + 3, width, border);
+  const y0 = borderIndex(sy, height, border), y1 = borderIndex(sy + 1, height, border);
+  const y2 = borderIndex(sy + 2, height, border), y3 = borderIndex(sy + 3, height, border);
   for (let k = 0; k < channels; k++) {
     let sum = 0;
     for (let r = 0; r < 4; r++) {
-      const yr = borderIndex(sy + r, height, border);
+      const yr = r === 0 ? y0 : r === 1 ? y1 : r === 2 ? y2 : y3;
       if (yr < 0) continue;
       const row = yr * stride + k;
       sum += w[4 + r] * ((x0 >= 0 ? src[row + x0 * channels] * w[0] : 0)
@@ -137,14 +139,14 @@ export function remapCubic(src: PixelImage<Uint8Array>, mapX: Float32Array, mapY
   return out;
 }
 
-/** remapCubic's pixels whose taps leave the source (the rest, remap_wasm.ts's, are left as dst has them). */
-export function remapCubicBorder(src: PixelImage<Uint8Array>, mapX: Float32Array, mapY: Float32Array,
-                                 border: BorderMode, dst: Uint8Array): void {
+/** remapCubic's pixels `listed` (the first `count` indices), those whose taps leave the source (remap_wasm.ts lists
+ * them and leaves them to this). */
+export function remapCubicListed(src: PixelImage<Uint8Array>, mapX: Float32Array, mapY: Float32Array,
+                                 border: BorderMode, dst: Uint8Array, listed: Int32Array, count: number): void {
   const { data, width, height, channels } = src, clamped = clampedView(dst);
-  const xEnd = width - 2, yEnd = height - 2, count = mapX.length;
-  for (let i = 0; i < count; i++) {
-    const x = mapX[i], y = mapY[i];
-    if (!(x >= 1 && x < xEnd && y >= 1 && y < yEnd)) cubicAt(data, width, height, channels, x, y, border, clamped, i * channels);
+  for (let k = 0; k < count; k++) {
+    const i = listed[k];
+    cubicAt(data, width, height, channels, mapX[i], mapY[i], border, clamped, i * channels);
   }
 }
 
@@ -268,18 +270,26 @@ function areaTable(sourceSize: number, size: number
 /** cv2.resize(src, (width, height), interpolation=cv2.INTER_LINEAR) of a float32 image (pixel centres aligned,
  * the edge pixels replicated). */
 export function resizeLinear(src: PixelImage<Float32Array>, width: number, height: number): Float32Array {
-  const { channels } = src;
+  const { channels, data } = src;
   const [x0, ax] = linearTable(src.width, width), [y0, ay] = linearTable(src.height, height);
   const out = new Float32Array(width * height * channels);
   const line = src.width * channels;
-  for (let y = 0; y < height; y++) {
-    const r0 = y0[y] * line, r1 = Math.min(y0[y] + 1, src.height - 1) * line, b = ay[y];
+  // each output column's two source columns (element offsets) and weights, the same for every row
+  const c0 = new Int32Array(width), c1 = new Int32Array(width), a1 = new Float64Array(width), a0 = new Float64Array(width);
+  for (let x = 0; x < width; x++) {
+    c0[x] = x0[x] * channels;
+    c1[x] = Math.min(x0[x] + 1, src.width - 1) * channels;
+    a1[x] = ax[x];
+    a0[x] = 1 - ax[x];
+  }
+  for (let y = 0, o = 0; y < height; y++) {
+    const r0 = y0[y] * line, r1 = Math.min(y0[y] + 1, src.height - 1) * line, b = ay[y], b0 = 1 - b;
     for (let x = 0; x < width; x++) {
-      const c0 = x0[x] * channels, c1 = Math.min(x0[x] + 1, src.width - 1) * channels, a = ax[x];
-      for (let c = 0; c < channels; c++) {
-        const top = src.data[r0 + c0 + c] * (1 - a) + src.data[r0 + c1 + c] * a;
-        const bottom = src.data[r1 + c0 + c] * (1 - a) + src.data[r1 + c1 + c] * a;
-        out[(y * width + x) * channels + c] = top * (1 - b) + bottom * b;
+      const p0 = r0 + c0[x], p1 = r0 + c1[x], q0 = r1 + c0[x], q1 = r1 + c1[x], a = a1[x], na = a0[x];
+      for (let c = 0; c < channels; c++, o++) {
+        const top = data[p0 + c] * na + data[p1 + c] * a;
+        const bottom = data[q0 + c] * na + data[q1 + c] * a;
+        out[o] = top * b0 + bottom * b;
       }
     }
   }

@@ -8,6 +8,7 @@
 
 import { CoarseGrid, coarseGrid, densifyGrid } from "./remap.js";
 import { Tensor, tensor } from "./tensor.js";
+import { evaluateSpline } from "./tps_wasm.js";
 
 export const DEFAULT_REGULARIZATION = 1e-3;
 export const DEFAULT_MERGE_DISTANCE = 1.0;  // pixels
@@ -212,9 +213,11 @@ function solveTps(control: Float64Array, values: Float64Array, columns: number, 
 
 /** The spline at points (M, 2) flat -> (M, columns) flat (ThinPlateSpline.dense). Each output is summed in the
  * same order as a plain loop would (affine part, then the kernel terms by control point); four (or two) outputs
- * share each pass over the kernel row. */
+ * share each pass over the kernel row. In WebAssembly where it runs (tps_wasm.ts), else here. */
 function evaluate(spline: ThinPlateSpline, points: Float64Array): Float64Array {
   const { control, weights, affine, columns, scale } = spline, [cx, cy] = spline.centre;
+  const fast = evaluateSpline(control, weights, affine, columns, spline.centre, scale, points);  // the same values
+  if (fast !== null) return fast;
   const count = control.length / 2, total = points.length / 2;
   const out = new Float64Array(total * columns), row = new Float64Array(count);
   const transposed = new Float64Array(count * columns);  // (columns, N): each output's weights contiguous
@@ -253,6 +256,15 @@ function evaluate(spline: ThinPlateSpline, points: Float64Array): Float64Array {
     }
   }
   return out;
+}
+
+/** A spline's parts (fitTps's; control (N, 2) normalised, weights (N, D), affine (3, D)) at points (M, 2) -> (M, D)
+ * (ThinPlateSpline.dense on tensors: the tests compare its WebAssembly with its JavaScript). */
+export function splineAt(control: Tensor, weights: Tensor, affine: Tensor, centre: [number, number], scale: number,
+                         points: Tensor): Tensor<Float64Array> {
+  const columns = weights.shape[1], f64 = (t: Tensor) => Float64Array.from(t.data);
+  const spline = { control: f64(control), weights: f64(weights), affine: f64(affine), columns, centre, scale, condition: 0 };
+  return tensor(evaluate(spline, f64(points)), [points.shape[0], columns]);
 }
 
 /** landmarks.warp.tps.fit_tps on tensors: control (N, 2), values (N, D) -> the spline's parts and condition number. */
