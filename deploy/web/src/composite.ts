@@ -1,9 +1,8 @@
 // Composite a re-enacted face into a scene frame: landmarks/scene/compositing.py (composite_face, with its SceneLayers path
 // _keep_background, the head layer's rigid + TPS field made on a grid, _inside_heads, _within_head, the face
-// layer's feathered hull alpha and the colour match with blur), with the OpenCV pieces it calls ported to give
-// the same pixels: cv2.ellipse and cv2.fillConvexPoly (drawing.cpp: ellipse2Poly, FillConvexPoly, Line, Line2),
-// cv2.convexHull, cv2.distanceTransform (DIST_L2, 3x3 chamfer) and cv2.GaussianBlur (float32, reflect-101).
-// Outside the head box the frame is the scene's, bit for bit.
+// layer's feathered hull alpha and the colour match with blur), with cv2.GaussianBlur (float32, reflect-101) from
+// remap.ts and the masks (cv2.ellipse, cv2.fillConvexPoly, cv2.convexHull, cv2.distanceTransform) from shapes.ts,
+// each giving OpenCV's pixels. Outside the head box the frame is the scene's, bit for bit.
 
 import { cropTransform, faceGeometry, invertAffine, similarityAffine, similarityProcrustes,
          transformPoints } from "./geometry.js";
@@ -11,6 +10,7 @@ import { PixelImage, bilinearAt, clampedView, densifyGrid, gaussianBlurF32, rema
          roundHalfEven as rint, warpAffineCubic } from "./remap.js";
 import { CubicSources } from "./remap_wasm.js";
 import { RIGID_INDEX } from "./retarget.js";
+import { convexHull, distanceTransform, fillConvexPoly, fillEllipse } from "./shapes.js";
 import { Affine, Tensor, checkPoints, tensor } from "./tensor.js";
 import { foldedFraction, tpsGridMap } from "./tps.js";
 
@@ -184,181 +184,6 @@ export function headBox(landmarksList: Tensor[], height: number, width: number, 
   return boxOf(landmarksList.map(headEllipse), height, width, margin);
 }
 
-// ---- drawing.cpp: filled ellipses and convex polygons, 8-connected ------------------------------------------
-
-const XY_SHIFT = 16, XY_ONE = 1 << XY_SHIFT;
-const SIN_TABLE = Float32Array.from({ length: 451 }, (_, i) => Number(Math.sin((i * Math.PI) / 180).toFixed(7)));
-const shr = (value: number, bits: number) => Math.floor(value / 2 ** bits);  // int64 >> bits
-
-/** clipLine on an (width, height) image, int64 arithmetic: clips p = [x1, y1, x2, y2] in place; false if outside. */
-function clipLine(width: number, height: number, p: number[]): boolean {
-  if (width <= 0 || height <= 0) return false;
-  const right = width - 1, bottom = height - 1;
-  const code = (x: number, y: number) => (x < 0 ? 1 : 0) + (x > right ? 2 : 0) + (y < 0 ? 4 : 0) + (y > bottom ? 8 : 0);
-  let c1 = code(p[0], p[1]), c2 = code(p[2], p[3]);
-  if ((c1 & c2) === 0 && (c1 | c2) !== 0) {
-    if (c1 & 12) {
-      const a = c1 < 8 ? 0 : bottom;
-      p[0] += Math.trunc(((a - p[1]) * (p[2] - p[0])) / (p[3] - p[1]));
-      p[1] = a;
-      c1 = (p[0] < 0 ? 1 : 0) + (p[0] > right ? 2 : 0);
-    }
-    if (c2 & 12) {
-      const a = c2 < 8 ? 0 : bottom;
-      p[2] += Math.trunc(((a - p[3]) * (p[2] - p[0])) / (p[3] - p[1]));
-      p[3] = a;
-      c2 = (p[2] < 0 ? 1 : 0) + (p[2] > right ? 2 : 0);
-    }
-    if ((c1 & c2) === 0 && (c1 | c2) !== 0) {
-      if (c1) {
-        const a = c1 === 1 ? 0 : right;
-        p[1] += Math.trunc(((a - p[0]) * (p[3] - p[1])) / (p[2] - p[0]));
-        p[0] = a;
-        c1 = 0;
-      }
-      if (c2) {
-        const a = c2 === 1 ? 0 : right;
-        p[3] += Math.trunc(((a - p[2]) * (p[3] - p[1])) / (p[2] - p[0]));
-        p[2] = a;
-        c2 = 0;
-      }
-    }
-  }
-  return (c1 | c2) === 0;
-}
-
-/** Line (LineIterator, 8-connected, left to right) of integer points. */
-function line(img: Uint8Array, width: number, height: number, x1: number, y1: number, x2: number, y2: number): void {
-  if (x1 < 0 || x1 >= width || x2 < 0 || x2 >= width || y1 < 0 || y1 >= height || y2 < 0 || y2 >= height) {
-    const p = [x1, y1, x2, y2];
-    if (!clipLine(width, height, p)) return;
-    [x1, y1, x2, y2] = p;
-  }
-  let dx = x2 - x1, dy = y2 - y1;
-  if (dx < 0) { dx = -dx; dy = -dy; x1 = x2; y1 = y2; }
-  const sy = dy < 0 ? -1 : 1;
-  dy = Math.abs(dy);
-  const steep = dy > dx;
-  if (steep) [dx, dy] = [dy, dx];
-  let err = dx - 2 * dy, x = x1, y = y1;
-  for (let i = 0; i <= dx; i++) {
-    img[y * width + x] = 1;
-    const minor = err < 0;
-    err += -2 * dy + (minor ? 2 * dx : 0);
-    if (steep) { y += sy; if (minor) x += 1; } else { x += 1; if (minor) y += sy; }
-  }
-}
-
-/** Line2: a line between points in 1/65536 pixels. */
-function line2(img: Uint8Array, width: number, height: number, p1x: number, p1y: number, p2x: number, p2y: number
-               ): void {
-  const p = [p1x, p1y, p2x, p2y];
-  if (!clipLine(width * XY_ONE, height * XY_ONE, p)) return;
-  let [x1, y1, x2, y2] = p;
-  const dx0 = x2 - x1, dy0 = y2 - y1, ax = Math.abs(dx0), ay = Math.abs(dy0);
-  let xStep: number, yStep: number, ecount: number;
-  const put = (x: number, y: number) => { if (x >= 0 && x < width && y >= 0 && y < height) img[y * width + x] = 1; };
-  if (ax > ay) {
-    const dy = dx0 < 0 ? -dy0 : dy0;
-    if (dx0 < 0) [x1, y1, x2, y2] = [x2, y2, x1, y1];
-    xStep = XY_ONE;
-    yStep = Math.trunc((dy * XY_ONE) / (ax | 1));
-    ecount = shr(x2 - x1, XY_SHIFT);
-  } else {
-    const dx = dy0 < 0 ? -dx0 : dx0;
-    if (dy0 < 0) [x1, y1, x2, y2] = [x2, y2, x1, y1];
-    xStep = Math.trunc((dx * XY_ONE) / (ay | 1));
-    yStep = XY_ONE;
-    ecount = shr(y2 - y1, XY_SHIFT);
-  }
-  x1 += XY_ONE >> 1;
-  y1 += XY_ONE >> 1;
-  put(shr(x2 + (XY_ONE >> 1), XY_SHIFT), shr(y2 + (XY_ONE >> 1), XY_SHIFT));
-  if (ax > ay) {
-    x1 = shr(x1, XY_SHIFT);
-    for (; ecount >= 0; ecount--, x1++, y1 += yStep) put(x1, shr(y1, XY_SHIFT));
-  } else {
-    y1 = shr(y1, XY_SHIFT);
-    for (; ecount >= 0; ecount--, x1 += xStep, y1++) put(shr(x1, XY_SHIFT), y1);
-  }
-}
-
-/** FillConvexPoly (LINE_8): vertices (x, y) in 1/2^shift pixels, value 1. */
-function fillConvexPoly(img: Uint8Array, width: number, height: number, v: number[][], shift: number): void {
-  const npts = v.length, delta = shift ? 1 << (shift - 1) : 0, half = XY_ONE >> 1, up = 2 ** (XY_SHIFT - shift);
-  let p0 = [v[npts - 1][0] * up, v[npts - 1][1] * up];
-  let xmin = v[0][0], xmax = v[0][0], ymin = v[0][1], ymax = v[0][1], imin = 0;
-  for (let i = 0; i < npts; i++) {
-    const [px, py] = v[i];
-    if (py < ymin) { ymin = py; imin = i; }
-    ymax = Math.max(ymax, py); xmax = Math.max(xmax, px); xmin = Math.min(xmin, px);
-    const p = [px * up, py * up];
-    if (shift === 0) line(img, width, height, p0[0] / XY_ONE, p0[1] / XY_ONE, p[0] / XY_ONE, p[1] / XY_ONE);
-    else line2(img, width, height, p0[0], p0[1], p[0], p[1]);
-    p0 = p;
-  }
-  xmin = shr(xmin + delta, shift); xmax = shr(xmax + delta, shift);
-  ymin = shr(ymin + delta, shift); ymax = shr(ymax + delta, shift);
-  if (npts < 3 || xmax < 0 || ymax < 0 || xmin >= width || ymin >= height) return;
-  ymax = Math.min(ymax, height - 1);
-  const edge = [{ idx: imin, di: 1, x: -XY_ONE, dx: 0, ye: ymin },
-                { idx: imin, di: npts - 1, x: -XY_ONE, dx: 0, ye: ymin }];
-  let edges = npts, y = ymin;
-  do {
-    for (const e of edge) {
-      if (y < e.ye) continue;
-      let idx0 = e.idx, idx = idx0 + e.di;
-      if (idx >= npts) idx -= npts;
-      for (; edges-- > 0;) {
-        const ty = shr(v[idx][1] + delta, shift);
-        if (ty > y) {
-          const xs = v[idx0][0] * up, xe = v[idx][0] * up;
-          e.ye = ty;
-          e.dx = Math.trunc(((xe - xs) * 2 + (ty - y)) / (2 * (ty - y)));
-          e.x = xs;
-          e.idx = idx;
-          break;
-        }
-        idx0 = idx;
-        idx += e.di;
-        if (idx >= npts) idx -= npts;
-      }
-    }
-    if (edges < 0) break;
-    if (y >= 0) {
-      const [left, right] = edge[0].x > edge[1].x ? [edge[1], edge[0]] : [edge[0], edge[1]];
-      let xx1 = shr(left.x + half, XY_SHIFT), xx2 = shr(right.x + half, XY_SHIFT);
-      if (xx2 >= 0 && xx1 < width) {
-        xx1 = Math.max(xx1, 0);
-        xx2 = Math.min(xx2, width - 1);
-        img.fill(1, y * width + xx1, y * width + xx2 + 1);
-      }
-    }
-    edge[0].x += edge[0].dx;
-    edge[1].x += edge[1].dx;
-  } while (++y <= ymax);
-}
-
-/** cv2.ellipse(mask, centre, axes, 0, 0, 360, 1, -1, cv2.LINE_8, shift=4) (centre, axes in 1/16 pixels). */
-function fillEllipse(img: Uint8Array, width: number, height: number, cx16: number, cy16: number, ax16: number,
-                     ay16: number): void {
-  const up = 2 ** (XY_SHIFT - 4), cx = cx16 * up, cy = cy16 * up, aw = Math.abs(ax16 * up), ah = Math.abs(ay16 * up);
-  let delta = shr(Math.max(aw, ah) + (XY_ONE >> 1), XY_SHIFT);
-  delta = delta < 3 ? 90 : delta < 10 ? 30 : delta < 15 ? 18 : 5;
-  const points: number[][] = [];
-  for (let i = 0; i < 360 + delta; i += delta) {
-    const angle = Math.min(i, 360);
-    const rounded = [cx + aw * SIN_TABLE[450 - angle], cy + ah * SIN_TABLE[angle]].map((value) => {
-      const high = rint(value / XY_ONE) * XY_ONE;
-      return high + rint(value - high);
-    });
-    const last = points[points.length - 1];
-    if (!last || last[0] !== rounded[0] || last[1] !== rounded[1]) points.push(rounded);
-  }
-  if (points.length === 1) points.splice(0, 1, [cx, cy], [cx, cy]);
-  fillConvexPoly(img, width, height, points, XY_SHIFT);
-}
-
 /** (h, w) uint8 of a region at (x0, y0): 1 inside any head ellipse shrunk by 1.5 pixels
  * (landmarks.scene.compositing._inside_heads). */
 function insideHeads(ellipses: Ellipse[], height: number, width: number, x0: number, y0: number): Uint8Array {
@@ -370,50 +195,7 @@ function insideHeads(ellipses: Ellipse[], height: number, width: number, x0: num
   return mask;
 }
 
-/** cv2.convexHull of integer points (flat x, y): the hull's vertices, no collinear ones. */
-function convexHull(points: number[]): number[][] {
-  const pts: number[][] = [];
-  for (let i = 0; i < points.length; i += 2) pts.push([points[i], points[i + 1]]);
-  pts.sort((a, b) => a[0] - b[0] || a[1] - b[1]);
-  if (pts.length < 3) return pts;
-  const cross = (o: number[], a: number[], b: number[]) =>
-    (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
-  const lower: number[][] = [], upper: number[][] = [];
-  for (const p of pts) {
-    while (lower.length >= 2 && cross(lower[lower.length - 2], lower[lower.length - 1], p) <= 0) lower.pop();
-    lower.push(p);
-  }
-  for (let i = pts.length - 1; i >= 0; i--) {
-    const p = pts[i];
-    while (upper.length >= 2 && cross(upper[upper.length - 2], upper[upper.length - 1], p) <= 0) upper.pop();
-    upper.push(p);
-  }
-  return [...lower.slice(0, -1), ...upper.slice(0, -1)];
-}
-
-// ---- distance transform and blur (landmarks.scene.compositing.blur) ----------------------------------------------------
-
-/** cv2.distanceTransform(mask, cv2.DIST_L2, 3): for each nonzero pixel its 3x3-chamfer distance (0.955, 1.3693) to
- * the nearest zero pixel; (h, w) float32. */
-function distanceTransform(mask: Uint8Array, width: number, height: number, inverted: boolean): Float32Array {
-  const a = f32(0.955), b = f32(1.3693), far = 32768, stride = width + 2;
-  const t = new Float64Array((height + 2) * stride).fill(far);
-  for (let y = 0; y < height; y++) {
-    for (let x = 0, i = (y + 1) * stride + 1; x < width; x++, i++) {
-      if ((mask[y * width + x] !== 0) === inverted) { t[i] = 0; continue; }
-      t[i] = Math.min(t[i - stride - 1] + b, t[i - stride] + a, t[i - stride + 1] + b, t[i - 1] + a, far);
-    }
-  }
-  const out = new Float32Array(width * height);
-  for (let y = height - 1; y >= 0; y--) {
-    for (let x = width - 1, i = (y + 1) * stride + width; x >= 0; x--, i--) {
-      let d = t[i];
-      if (d > a) d = t[i] = Math.min(d, t[i + stride + 1] + b, t[i + stride] + a, t[i + stride - 1] + b, t[i + 1] + a);
-      out[y * width + x] = d;
-    }
-  }
-  return out;
-}
+// ---- blur (landmarks.scene.compositing.blur) ---------------------------------------------------------------------------
 
 /** Gaussian blur at any sigma, large sigmas on a shrunk copy (landmarks.scene.compositing.blur): (h, w, channels) float32. */
 function blur(image: Float32Array, width: number, height: number, channels: number, sigma: number): Float32Array {
