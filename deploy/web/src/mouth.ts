@@ -1,10 +1,11 @@
 // The mouth from the nearest warped shot over the synthesis, as the live session finishes a frame with mouth
 // "nearest": lsr/core/finish.py (finish_mouth) and landmarks/parts/mouth/nearest_mouth.py (mouth_weight, mouth_strength, mismatch,
-// keep_nearest_mouth). The region's mask is drawn as OpenCV draws it (cv2.fillPoly, LINE_AA, shift 2: its LineAA
-// edges and scan-line fill, ported from imgproc/src/drawing.cpp), grown by cv2.dilate with cv2's elliptic element and
-// feathered by cv2.GaussianBlur (float32, reflect-101 border); the blend in float32 as numpy computes it.
+// keep_nearest_mouth). The region's mask is drawn as OpenCV draws it (cv2.fillPoly, LINE_AA, shift 2: shapes.ts's
+// fillPolyAA), grown by cv2.dilate with cv2's elliptic element and feathered by cv2.GaussianBlur (float32,
+// reflect-101 border); the blend in float32 as numpy computes it.
 
 import { dilateEllipse, gaussianBlurF32, roundHalfEven } from "./remap.js";
+import { fillPolyAA } from "./shapes.js";
 import { Tensor, tensor } from "./tensor.js";
 import { interOcularDistance, mouthOpening } from "./retarget.js";
 
@@ -15,178 +16,7 @@ export const CLOSED_MOUTH = 0.05;
 
 const f32 = Math.fround;
 
-
-// ------------------------------------------------------------------------------ cv2.fillPoly(LINE_AA), 1 channel
-
-const XY_SHIFT = 16, XY_ONE = 1 << XY_SHIFT;
-const SLOPE_CORR = [181, 181, 181, 182, 182, 183, 184, 185, 187, 188, 190, 192, 194, 196, 198, 201,
-  203, 206, 209, 211, 214, 218, 221, 224, 227, 231, 235, 238, 242, 246, 250, 254];
-const FILTER_TABLE = [168, 177, 185, 194, 202, 210, 218, 224, 231, 236, 241, 246, 249, 252, 254, 254,
-  254, 254, 252, 249, 246, 241, 236, 231, 224, 218, 210, 202, 194, 185, 177, 168,
-  158, 149, 140, 131, 122, 114, 105, 97, 89, 82, 75, 68, 62, 56, 50, 45,
-  40, 36, 32, 28, 25, 22, 19, 16, 14, 12, 11, 9, 8, 7, 5, 5];
-
-/** C's int64 arithmetic right shift by 16 (floor division), exact for any safe integer. */
-function shr16(value: number): number {
-  return Math.floor(value / XY_ONE);
-}
-
-/** cv::clipLine(Size2l, ...): the segment clipped to [0, width-1] x [0, height-1]; false when outside. */
-function clipLine(width: number, height: number, p: number[]): boolean {
-  const right = width - 1, bottom = height - 1;
-  if (width <= 0 || height <= 0) return false;
-  let [x1, y1, x2, y2] = p;
-  let c1 = +(x1 < 0) + +(x1 > right) * 2 + +(y1 < 0) * 4 + +(y1 > bottom) * 8;
-  let c2 = +(x2 < 0) + +(x2 > right) * 2 + +(y2 < 0) * 4 + +(y2 > bottom) * 8;
-  if ((c1 & c2) === 0 && (c1 | c2) !== 0) {
-    let a: number;
-    if (c1 & 12) {
-      a = c1 < 8 ? 0 : bottom;
-      x1 += Math.trunc(((a - y1) * (x2 - x1)) / (y2 - y1));
-      y1 = a;
-      c1 = +(x1 < 0) + +(x1 > right) * 2;
-    }
-    if (c2 & 12) {
-      a = c2 < 8 ? 0 : bottom;
-      x2 += Math.trunc(((a - y2) * (x2 - x1)) / (y2 - y1));
-      y2 = a;
-      c2 = +(x2 < 0) + +(x2 > right) * 2;
-    }
-    if ((c1 & c2) === 0 && (c1 | c2) !== 0) {
-      if (c1) {
-        a = c1 === 1 ? 0 : right;
-        y1 += Math.trunc(((a - x1) * (y2 - y1)) / (x2 - x1));
-        x1 = a;
-        c1 = 0;
-      }
-      if (c2) {
-        a = c2 === 1 ? 0 : right;
-        y2 += Math.trunc(((a - x2) * (y2 - y1)) / (x2 - x1));
-        x2 = a;
-        c2 = 0;
-      }
-    }
-  }
-  p[0] = x1; p[1] = y1; p[2] = x2; p[3] = y2;
-  return (c1 | c2) === 0;
-}
-
-/** cv::LineAA on a 1-channel uint8 image: points in XY_SHIFT fixed point. */
-function lineAA(img: Uint8Array, width: number, height: number, p: number[], color: number): void {
-  if (!clipLine(width * XY_ONE, height * XY_ONE, p)) return;
-  let [x1, y1, x2, y2] = p;
-  let dx = x2 - x1, dy = y2 - y1;
-  const ax = Math.abs(dx), ay = Math.abs(dy);
-  let xStep: number, yStep: number, ecount: number, slope: number, i: number, j: number;
-  if (ax > ay) {
-    if (dx < 0) { dy = -dy; [x1, x2] = [x2, x1]; [y1, y2] = [y2, y1]; }
-    xStep = XY_ONE;
-    yStep = Math.trunc((dy * XY_ONE) / (ax % 2 === 1 ? ax : ax + 1));
-    x2 += XY_ONE;
-    ecount = shr16(x2) - shr16(x1);
-    const frac = -(x1 & (XY_ONE - 1));
-    y1 += shr16(yStep * frac) + (XY_ONE >> 1);
-    slope = (yStep >> (XY_SHIFT - 5)) & 0x3f;
-    slope ^= yStep < 0 ? 0x3f : 0;
-    i = (x1 >> (XY_SHIFT - 7)) & 0x78;
-    j = (x2 >> (XY_SHIFT - 7)) & 0x78;
-  } else {
-    if (dy < 0) { dx = -dx; [x1, x2] = [x2, x1]; [y1, y2] = [y2, y1]; }
-    xStep = Math.trunc((dx * XY_ONE) / (ay % 2 === 1 ? ay : ay + 1));
-    yStep = XY_ONE;
-    y2 += XY_ONE;
-    ecount = shr16(y2) - shr16(y1);
-    const frac = -(y1 & (XY_ONE - 1));
-    x1 += shr16(xStep * frac) + (XY_ONE >> 1);
-    slope = (xStep >> (XY_SHIFT - 5)) & 0x3f;
-    slope ^= xStep < 0 ? 0x3f : 0;
-    i = (y1 >> (XY_SHIFT - 7)) & 0x78;
-    j = (y2 >> (XY_SHIFT - 7)) & 0x78;
-  }
-  slope = slope & 0x20 ? 0x100 : SLOPE_CORR[slope];
-  const t0 = slope << 7, t1 = ((0x78 - i) | 4) * slope, t2 = (j | 4) * slope;
-  const ep = [0, 0, 0, 0, 0, 0, 0, 0, slope];
-  ep[1] = ep[3] = (((((j - i) & 0x78) | 4) * slope) >> 8) & 0x1ff;
-  ep[2] = (t1 >> 8) & 0x1ff;
-  ep[4] = (((((j - i) + 0x80) | 4) * slope) >> 8) & 0x1ff;
-  ep[5] = ((t1 + t0) >> 8) & 0x1ff;
-  ep[6] = (t2 >> 8) & 0x1ff;
-  ep[7] = ((t2 + t0) >> 8) & 0x1ff;
-  const put = (x: number, y: number, a: number): void => {
-    const at = y * width + x;
-    let v = img[at];
-    v += ((color - v) * a + 127) >> 8;
-    v += ((color - v) * a + 127) >> 8;
-    img[at] = v & 0xff;
-  };
-  let scount = 0;
-  const corr = (): number => ep[(((+(scount >= 2) + 1) & (scount | 2)) * 3) + ((+(ecount >= 2) + 1) & (ecount | 2))];
-  if (ax > ay) {
-    for (let x = shr16(x1); ecount >= 0; x++, y1 += yStep, scount++, ecount--) {
-      if (x < 0 || x >= width) continue;
-      const y = shr16(y1) - 1, epCorr = corr(), dist = (y1 >> (XY_SHIFT - 5)) & 31;
-      if (y >= 0 && y < height) put(x, y, ((epCorr * FILTER_TABLE[dist + 32]) >> 8) & 0xff);
-      if (y + 1 >= 0 && y + 1 < height) put(x, y + 1, ((epCorr * FILTER_TABLE[dist]) >> 8) & 0xff);
-      if (y + 2 >= 0 && y + 2 < height) put(x, y + 2, ((epCorr * FILTER_TABLE[63 - dist]) >> 8) & 0xff);
-    }
-  } else {
-    for (let y = shr16(y1); ecount >= 0; y++, x1 += xStep, scount++, ecount--) {
-      if (y < 0 || y >= height) continue;
-      const x = shr16(x1) - 1, epCorr = corr(), dist = (x1 >> (XY_SHIFT - 5)) & 31;
-      if (x >= 0 && x < width) put(x, y, ((epCorr * FILTER_TABLE[dist + 32]) >> 8) & 0xff);
-      if (x + 1 >= 0 && x + 1 < width) put(x + 1, y, ((epCorr * FILTER_TABLE[dist]) >> 8) & 0xff);
-      if (x + 2 >= 0 && x + 2 < width) put(x + 2, y, ((epCorr * FILTER_TABLE[63 - dist]) >> 8) & 0xff);
-    }
-  }
-}
-
-interface PolyEdge { y0: number; y1: number; x: number; dx: number }
-
-/** cv2.fillPoly(img, [points], color, cv2.LINE_AA, shift) on a 1-channel uint8 image: the anti-aliased outline
- * (CollectPolyEdges' LineAA per edge), then the scan-line fill of the interior (FillEdgeCollection).
- * points: flat (x, y) integers in 1/2^shift pixels. */
-function fillPolyAA(img: Uint8Array, width: number, height: number, points: Int32Array, color: number,
-                    shift: number): void {
-  const count = points.length / 2, delta = (1 << shift) >> 1, up = 2 ** (XY_SHIFT - shift), down = 2 ** shift;
-  const edges: PolyEdge[] = [];
-  let x0 = points[2 * count - 2] * up, y0 = Math.floor((points[2 * count - 1] + delta) / down);
-  for (let k = 0; k < count; k++) {
-    const x1 = points[2 * k] * up, y1 = Math.floor((points[2 * k + 1] + delta) / down);
-    lineAA(img, width, height, [x0, y0 * XY_ONE, x1, y1 * XY_ONE], color);
-    if (y0 !== y1) {
-      const dx = Math.trunc((x1 - x0) / (y1 - y0));
-      edges.push(y0 < y1 ? { y0, y1, x: x0, dx } : { y0: y1, y1: y0, x: x1, dx });
-    }
-    x0 = x1;
-    y0 = y1;
-  }
-  if (edges.length < 2) return;
-  let yMin = Infinity, yMax = -Infinity, xMin = Infinity, xMax = -Infinity;
-  for (const e of edges) {
-    const xEnd = e.x + (e.y1 - e.y0) * e.dx;
-    yMin = Math.min(yMin, e.y0); yMax = Math.max(yMax, e.y1);
-    xMin = Math.min(xMin, e.x, xEnd); xMax = Math.max(xMax, e.x, xEnd);
-  }
-  if (yMax < 0 || yMin >= height || xMax < 0 || xMin >= width * XY_ONE) return;
-  yMax = Math.min(yMax, height);
-  // Each scan line fills between consecutive pairs of the edges crossing it (y0 <= y < y1), ordered by their x there:
-  // FillEdgeCollection's active-edge list, whose x advance by dx per line.
-  const xs: number[] = [];
-  for (let y = yMin; y < yMax; y++) {
-    xs.length = 0;
-    for (const e of edges) if (e.y0 <= y && y < e.y1) xs.push(e.x + (y - e.y0) * e.dx);
-    if (y < 0) continue;
-    xs.sort((a, b) => a - b);
-    for (let k = 0; k + 1 < xs.length; k += 2) {
-      let left = shr16(xs[k] + XY_ONE - 1), right = shr16(xs[k + 1]);
-      if (left < width && right >= 0) {
-        left = Math.max(left, 0);
-        right = Math.min(right, width - 1);
-        img.fill(color, y * width + left, y * width + right + 1);
-      }
-    }
-  }
-}
+// ---------------------------------------------------------------------------------------------- polygon masks
 
 /** The box [minX, minY, maxX, maxY] of the points from..to (exclusive) of flat (x, y) pairs. */
 export function pointBox(p: ArrayLike<number>, from: number, to: number): [number, number, number, number] {
@@ -210,12 +40,6 @@ export function polygonMask(p: ArrayLike<number>, from: number, to: number, x0: 
   fillPolyAA(mask, w, h, polygon, 255, shift);
   return mask;
 }
-
-// ------------------------------------------------------------------------ cv2.dilate (ellipse), cv2.GaussianBlur
-
-
-
-
 
 // ---------------------------------------------------------------------------------------------- nearest mouth
 

@@ -1,8 +1,9 @@
-// Masks drawn and measured as landmarks/scene/compositing.py has OpenCV do it, ported to give the same pixels:
-// cv2.fillConvexPoly and the filled cv2.ellipse (imgproc/src/drawing.cpp: FillConvexPoly, ellipse2Poly, Line, Line2,
-// clipLine; 8-connected, in 1/65536-pixel fixed point), cv2.convexHull of integer points, and cv2.distanceTransform
-// (DIST_L2, 3x3 chamfer). Used by composite.ts: the head ellipses (_inside_heads), the face's hull, its feather and
-// its colour band.
+// Masks drawn and measured as the Python has OpenCV do it, ported to give the same pixels: cv2.fillConvexPoly and
+// the filled cv2.ellipse (imgproc/src/drawing.cpp: FillConvexPoly, ellipse2Poly, Line, Line2, clipLine;
+// 8-connected, in 1/65536-pixel fixed point), cv2.fillPoly with LINE_AA (LineAA, CollectPolyEdges,
+// FillEdgeCollection), cv2.convexHull of integer points, and cv2.distanceTransform (DIST_L2, 3x3 chamfer). Used by
+// composite.ts (landmarks/scene/compositing.py: the head ellipses, the face's hull, its feather and its colour band)
+// and mouth.ts (polygonMask's anti-aliased polygons).
 
 import { roundHalfEven as rint } from "./remap.js";
 
@@ -181,6 +182,132 @@ export function fillEllipse(img: Uint8Array, width: number, height: number, cx16
   }
   if (points.length === 1) points.splice(0, 1, [cx, cy], [cx, cy]);
   fillConvexPoly(img, width, height, points, XY_SHIFT);
+}
+
+// ---- drawing.cpp: cv2.fillPoly with LINE_AA, 1 channel ------------------------------------------------------
+
+const SLOPE_CORR = [181, 181, 181, 182, 182, 183, 184, 185, 187, 188, 190, 192, 194, 196, 198, 201,
+  203, 206, 209, 211, 214, 218, 221, 224, 227, 231, 235, 238, 242, 246, 250, 254];
+const FILTER_TABLE = [168, 177, 185, 194, 202, 210, 218, 224, 231, 236, 241, 246, 249, 252, 254, 254,
+  254, 254, 252, 249, 246, 241, 236, 231, 224, 218, 210, 202, 194, 185, 177, 168,
+  158, 149, 140, 131, 122, 114, 105, 97, 89, 82, 75, 68, 62, 56, 50, 45,
+  40, 36, 32, 28, 25, 22, 19, 16, 14, 12, 11, 9, 8, 7, 5, 5];
+
+/** cv::LineAA on a 1-channel uint8 image: points in XY_SHIFT fixed point. */
+function lineAA(img: Uint8Array, width: number, height: number, p: number[], color: number): void {
+  if (!clipLine(width * XY_ONE, height * XY_ONE, p)) return;
+  let [x1, y1, x2, y2] = p;
+  let dx = x2 - x1, dy = y2 - y1;
+  const ax = Math.abs(dx), ay = Math.abs(dy);
+  let xStep: number, yStep: number, ecount: number, slope: number, i: number, j: number;
+  if (ax > ay) {
+    if (dx < 0) { dy = -dy; [x1, x2] = [x2, x1]; [y1, y2] = [y2, y1]; }
+    xStep = XY_ONE;
+    yStep = Math.trunc((dy * XY_ONE) / (ax % 2 === 1 ? ax : ax + 1));
+    x2 += XY_ONE;
+    ecount = shr(x2, XY_SHIFT) - shr(x1, XY_SHIFT);
+    const frac = -(x1 & (XY_ONE - 1));
+    y1 += shr(yStep * frac, XY_SHIFT) + (XY_ONE >> 1);
+    slope = (yStep >> (XY_SHIFT - 5)) & 0x3f;
+    slope ^= yStep < 0 ? 0x3f : 0;
+    i = (x1 >> (XY_SHIFT - 7)) & 0x78;
+    j = (x2 >> (XY_SHIFT - 7)) & 0x78;
+  } else {
+    if (dy < 0) { dx = -dx; [x1, x2] = [x2, x1]; [y1, y2] = [y2, y1]; }
+    xStep = Math.trunc((dx * XY_ONE) / (ay % 2 === 1 ? ay : ay + 1));
+    yStep = XY_ONE;
+    y2 += XY_ONE;
+    ecount = shr(y2, XY_SHIFT) - shr(y1, XY_SHIFT);
+    const frac = -(y1 & (XY_ONE - 1));
+    x1 += shr(xStep * frac, XY_SHIFT) + (XY_ONE >> 1);
+    slope = (xStep >> (XY_SHIFT - 5)) & 0x3f;
+    slope ^= xStep < 0 ? 0x3f : 0;
+    i = (y1 >> (XY_SHIFT - 7)) & 0x78;
+    j = (y2 >> (XY_SHIFT - 7)) & 0x78;
+  }
+  slope = slope & 0x20 ? 0x100 : SLOPE_CORR[slope];
+  const t0 = slope << 7, t1 = ((0x78 - i) | 4) * slope, t2 = (j | 4) * slope;
+  const ep = [0, 0, 0, 0, 0, 0, 0, 0, slope];
+  ep[1] = ep[3] = (((((j - i) & 0x78) | 4) * slope) >> 8) & 0x1ff;
+  ep[2] = (t1 >> 8) & 0x1ff;
+  ep[4] = (((((j - i) + 0x80) | 4) * slope) >> 8) & 0x1ff;
+  ep[5] = ((t1 + t0) >> 8) & 0x1ff;
+  ep[6] = (t2 >> 8) & 0x1ff;
+  ep[7] = ((t2 + t0) >> 8) & 0x1ff;
+  const put = (x: number, y: number, a: number): void => {
+    const at = y * width + x;
+    let v = img[at];
+    v += ((color - v) * a + 127) >> 8;
+    v += ((color - v) * a + 127) >> 8;
+    img[at] = v & 0xff;
+  };
+  let scount = 0;
+  const corr = (): number => ep[(((+(scount >= 2) + 1) & (scount | 2)) * 3) + ((+(ecount >= 2) + 1) & (ecount | 2))];
+  if (ax > ay) {
+    for (let x = shr(x1, XY_SHIFT); ecount >= 0; x++, y1 += yStep, scount++, ecount--) {
+      if (x < 0 || x >= width) continue;
+      const y = shr(y1, XY_SHIFT) - 1, epCorr = corr(), dist = (y1 >> (XY_SHIFT - 5)) & 31;
+      if (y >= 0 && y < height) put(x, y, ((epCorr * FILTER_TABLE[dist + 32]) >> 8) & 0xff);
+      if (y + 1 >= 0 && y + 1 < height) put(x, y + 1, ((epCorr * FILTER_TABLE[dist]) >> 8) & 0xff);
+      if (y + 2 >= 0 && y + 2 < height) put(x, y + 2, ((epCorr * FILTER_TABLE[63 - dist]) >> 8) & 0xff);
+    }
+  } else {
+    for (let y = shr(y1, XY_SHIFT); ecount >= 0; y++, x1 += xStep, scount++, ecount--) {
+      if (y < 0 || y >= height) continue;
+      const x = shr(x1, XY_SHIFT) - 1, epCorr = corr(), dist = (x1 >> (XY_SHIFT - 5)) & 31;
+      if (x >= 0 && x < width) put(x, y, ((epCorr * FILTER_TABLE[dist + 32]) >> 8) & 0xff);
+      if (x + 1 >= 0 && x + 1 < width) put(x + 1, y, ((epCorr * FILTER_TABLE[dist]) >> 8) & 0xff);
+      if (x + 2 >= 0 && x + 2 < width) put(x + 2, y, ((epCorr * FILTER_TABLE[63 - dist]) >> 8) & 0xff);
+    }
+  }
+}
+
+interface PolyEdge { y0: number; y1: number; x: number; dx: number }
+
+/** cv2.fillPoly(img, [points], color, cv2.LINE_AA, shift) on a 1-channel uint8 image: the anti-aliased outline
+ * (CollectPolyEdges' LineAA per edge), then the scan-line fill of the interior (FillEdgeCollection).
+ * points: flat (x, y) integers in 1/2^shift pixels. */
+export function fillPolyAA(img: Uint8Array, width: number, height: number, points: Int32Array, color: number,
+                           shift: number): void {
+  const count = points.length / 2, delta = (1 << shift) >> 1, up = 2 ** (XY_SHIFT - shift), down = 2 ** shift;
+  const edges: PolyEdge[] = [];
+  let x0 = points[2 * count - 2] * up, y0 = Math.floor((points[2 * count - 1] + delta) / down);
+  for (let k = 0; k < count; k++) {
+    const x1 = points[2 * k] * up, y1 = Math.floor((points[2 * k + 1] + delta) / down);
+    lineAA(img, width, height, [x0, y0 * XY_ONE, x1, y1 * XY_ONE], color);
+    if (y0 !== y1) {
+      const dx = Math.trunc((x1 - x0) / (y1 - y0));
+      edges.push(y0 < y1 ? { y0, y1, x: x0, dx } : { y0: y1, y1: y0, x: x1, dx });
+    }
+    x0 = x1;
+    y0 = y1;
+  }
+  if (edges.length < 2) return;
+  let yMin = Infinity, yMax = -Infinity, xMin = Infinity, xMax = -Infinity;
+  for (const e of edges) {
+    const xEnd = e.x + (e.y1 - e.y0) * e.dx;
+    yMin = Math.min(yMin, e.y0); yMax = Math.max(yMax, e.y1);
+    xMin = Math.min(xMin, e.x, xEnd); xMax = Math.max(xMax, e.x, xEnd);
+  }
+  if (yMax < 0 || yMin >= height || xMax < 0 || xMin >= width * XY_ONE) return;
+  yMax = Math.min(yMax, height);
+  // Each scan line fills between consecutive pairs of the edges crossing it (y0 <= y < y1), ordered by their x there:
+  // FillEdgeCollection's active-edge list, whose x advance by dx per line.
+  const xs: number[] = [];
+  for (let y = yMin; y < yMax; y++) {
+    xs.length = 0;
+    for (const e of edges) if (e.y0 <= y && y < e.y1) xs.push(e.x + (y - e.y0) * e.dx);
+    if (y < 0) continue;
+    xs.sort((a, b) => a - b);
+    for (let k = 0; k + 1 < xs.length; k += 2) {
+      let left = shr(xs[k] + XY_ONE - 1, XY_SHIFT), right = shr(xs[k + 1], XY_SHIFT);
+      if (left < width && right >= 0) {
+        left = Math.max(left, 0);
+        right = Math.min(right, width - 1);
+        img.fill(color, y * width + left, y * width + right + 1);
+      }
+    }
+  }
 }
 
 /** cv2.convexHull of integer points (flat x, y): the hull's vertices, no collinear ones. */
