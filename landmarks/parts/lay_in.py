@@ -49,6 +49,25 @@ def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: 
     return (result + fading * shift.astype(np.float32)).astype(np.float32)
 
 
+def match_colourfulness(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: int) -> np.ndarray:
+    """Another person's patch ``warped`` (h, w, 3) float32 no more colourful than the target: each pixel's colour
+    (its channels less their mean) scaled by the target's skin ring's colourfulness over the patch's (the mean length
+    of that colour over the ring ``ring`` pixels wide around ``lips`` (h, w) bool, as in ``match_light``), at most 1
+    -> a new (h, w, 3) float32. A greyscale video then takes a grey interior, where a shift of the mean cast left a
+    colourful driver's red lips and blue make-up inside it; a target as colourful as the driver, or more, keeps the
+    patch's colour as it is."""
+    grown = cv2.dilate(lips.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring + 1,) * 2)) > 0
+    skin = grown & ~lips
+    if not skin.any():
+        return warped
+    colour = [values - values.mean(axis=-1, keepdims=True) for values in (region, warped)]
+    target, driven = (float(np.linalg.norm(c[skin], axis=-1).mean(dtype=np.float64)) for c in colour)
+    scale = min(1.0, target / driven) if driven > 0 else 1.0
+    if scale >= 1.0:
+        return warped
+    return (warped - (1.0 - np.float32(scale)) * colour[1]).astype(np.float32)
+
+
 def ellipse_mask(centre: np.ndarray, axes: tuple[float, float], along: np.ndarray, shape: tuple[int, int]
                  ) -> np.ndarray:
     """The pixels whose centres lie inside the ellipse of semi-axes ``axes`` (along the unit direction ``along``

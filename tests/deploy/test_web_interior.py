@@ -56,3 +56,21 @@ def test_the_interior_is_laid_in_as_python_lays_it(web, driven):
     assert changed >= 3  # the open mouths were laid in
     for target, mouth, affine in zip([t for t, m in zip(targets, mouths) if m], [m for m in mouths if m], affines):
         np.testing.assert_allclose(np.reshape(affine, (2, 3)), lip_affine(target[48:68], mouth.lips), atol=1e-8)
+
+
+def test_a_greyscale_target_takes_a_grey_interior_as_python_gives_it(web, driven):
+    """The bundled driver's colourful mouth laid into a greyscale anchor: no colour inside the lips, on the page as
+    in Python (match_colourfulness)."""
+    from landmarks.parts.mouth.interior import cut_driver_mouth, paste_interior
+
+    image, frames = driven
+    grey = np.repeat(image.mean(axis=-1, keepdims=True).round().astype(np.uint8), 3, axis=-1)
+    frame, points, target = frames[3]  # the driver's widest mouth
+    mouth = cut_driver_mouth(frame, points)
+    wire = {"patch": mouth.patch, "lips": mouth.lips, "opening": mouth.opening, "yaw": mouth.yaw}
+    (result,) = web.calls(("pasteInterior", [grey, target, wire]))
+    expected = paste_interior(grey, target, mouth)
+    assert expected is not grey
+    assert psnr(result, expected) >= 50.0 and np.abs(result.astype(int) - expected.astype(int)).max() <= 2
+    colour = np.abs(expected.astype(int) - expected.mean(axis=-1, keepdims=True)).max(axis=-1)
+    assert colour.max() <= 3  # grey within rounding, where the driver's lips and tongue were red
