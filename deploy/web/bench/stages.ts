@@ -1,11 +1,18 @@
-// The page's per-frame stages timed in Node (issue 65): src/session.ts LiveSession on the site and driver frames that
-// bench/prepare.py writes, frame by frame as reenactFrames (the tests' path) runs them (prepare, then finish), each
-// stage's median over the frames with a face; the warps (warpReferences) and the composite (compositeFace) are also
-// timed again on their own on each frame's target. A command that prints a table, not a test.
+// The page's per-frame stages timed in Node (issue 65): src/session.ts LiveSession on the shipped default's site and
+// the bundled driver's first frames, frame by frame as reenactFrames (the tests' path) runs them (prepare, then
+// finish), each stage's median over the frames with a face; the warps (warpReferences) and the composite
+// (compositeFace) are also timed again on their own on each frame's target. A command that prints a table, not a
+// test. Its inputs, once (the site as tests/deploy/conftest.py's `site` fixture writes it, the frames as its
+// `driver_frames` fixture reads them, raw):
+//
+//   lsr export --web DIR/site
+//   python -c "import json, sys, numpy as np; from landmarks.io.video import iter_frames; from lsr.examples import
+//     REAL_DRIVER; f = np.stack([x for _, x in zip(range(60), iter_frames(REAL_DRIVER))]); d = sys.argv[1];
+//     open(d + '/frames.u8', 'wb').write(f.tobytes()); json.dump({'shape': f.shape}, open(d + '/frames.json', 'w'))" DIR
 //
 //   node bench/run.mjs DIR [--repeat 3] [--javascript] [--save F] [--compare F] [--profile]
 //
-// DIR: bench/prepare.py's folder. --repeat: runs over the frames, each on a freshly loaded site (its tracker keeps the
+// --repeat: runs over the frames, each on a freshly loaded site (its tracker keeps the
 // last face). --javascript: the kernels of remap_wasm.ts and tps_wasm.ts turned off (wasm.ts useWebAssembly), the
 // JavaScript they stand in for instead. --save writes the first run's composited frames (T, H, W, 3) raw; --compare
 // reads such a file (another build's, say the old path's) and prints the lowest PSNR and the largest difference of
