@@ -21,13 +21,15 @@ channels: a gain per channel matched the skin's tone too, which turned the drive
 
 
 def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: int, cast: float = CAST,
-                fade: float | None = FADE) -> np.ndarray:
+                fade: float | None = FADE, colourful: bool = True) -> np.ndarray:
     """The driver's mapped patch ``warped`` (h, w, 3) float32 lit as the target is, against ``region`` (h, w, 3)
     float32, the synthesis there, whose outer lips cover ``lips`` (h, w) bool with a skin ring ``ring`` pixels wide
     around them -> a new (h, w, 3) float32: scaled by one gain so that the ring's brightness matches (clipped to
     ``GAIN``), then shifted by ``cast`` of the difference of the rings' colour casts (mean colour less mean grey),
     fading out toward the synthesis' brightest there (``fade``; None: no fading, skin laid on skin). The patch as it
-    is where there is no ring.
+    is where there is no ring. colourful False: another person's patch, first made no more colourful than the
+    target (``colour_scale``), so that a greyscale video takes a grey interior where a shift of the mean cast left a
+    colourful driver's red lips and blue make-up inside it.
 
     Tried and dropped: blurring the patch until no sharper than the synthesis, and softening its highlights above
     the synthesis' brightest. On a crisp driver's teeth in a dim, soft video (the FSTH sample's id00017) they looked
@@ -38,6 +40,8 @@ def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: 
     skin = grown & ~lips
     if not skin.any():
         return warped
+    if not colourful:
+        warped = colour_scale(warped, region, skin)
     means = [values[skin].mean(axis=0, dtype=np.float64) for values in (region, warped)]  # (3,) each
     gain = float(np.clip((means[0].mean() + 1.0) / (means[1].mean() + 1.0), *GAIN))
     shift = ((means[0] - means[0].mean()) - gain * (means[1] - means[1].mean())) * cast
@@ -49,17 +53,10 @@ def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: 
     return (result + fading * shift.astype(np.float32)).astype(np.float32)
 
 
-def match_colourfulness(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: int) -> np.ndarray:
-    """Another person's patch ``warped`` (h, w, 3) float32 no more colourful than the target: each pixel's colour
-    (its channels less their mean) scaled by the target's skin ring's colourfulness over the patch's (the mean length
-    of that colour over the ring ``ring`` pixels wide around ``lips`` (h, w) bool, as in ``match_light``), at most 1
-    -> a new (h, w, 3) float32. A greyscale video then takes a grey interior, where a shift of the mean cast left a
-    colourful driver's red lips and blue make-up inside it; a target as colourful as the driver, or more, keeps the
-    patch's colour as it is."""
-    grown = cv2.dilate(lips.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring + 1,) * 2)) > 0
-    skin = grown & ~lips
-    if not skin.any():
-        return warped
+def colour_scale(warped: np.ndarray, region: np.ndarray, skin: np.ndarray) -> np.ndarray:
+    """``warped`` (h, w, 3) float32 with each pixel's colour (its channels less their mean) scaled by the target's
+    colourfulness over the patch's (the mean length of that colour over ``skin`` (h, w) bool, in ``region`` and in
+    ``warped``), at most 1: a new (h, w, 3) float32, or ``warped`` itself where the target is as colourful or more."""
     colour = [values - values.mean(axis=-1, keepdims=True) for values in (region, warped)]
     target, driven = (float(np.linalg.norm(c[skin], axis=-1).mean(dtype=np.float64)) for c in colour)
     scale = min(1.0, target / driven) if driven > 0 else 1.0

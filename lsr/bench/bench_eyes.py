@@ -318,17 +318,16 @@ def _short(name: str, keep: int = 30) -> str:
 
 
 def mouth_roundness(points: np.ndarray) -> np.ndarray:
-    """(T,) how round each open mouth is, an "O": its inner lips' height over their width ((T, 68, 2) points, NaN
-    rows kept); NaN for a mouth opened less than ``O_OPENING``."""
+    """(T,) how round each open mouth is, an "O": its inner lips' gap (``mouth_opening``'s) over their width ((T, 68,
+    2) points, NaN rows kept); NaN for a mouth opened less than ``O_OPENING``."""
     from landmarks.shape.expression import mouth_opening
+    from landmarks.shape.measures import inter_ocular_distance
 
     points = np.asarray(points, np.float64)
-    inner = points[:, 60:68]
-    height = np.linalg.norm(inner[:, [1, 2, 3]] - inner[:, [7, 6, 5]], axis=-1).mean(axis=-1)
-    width = np.linalg.norm(inner[:, 4] - inner[:, 0], axis=-1)
+    opening = mouth_opening(points)
     with np.errstate(divide="ignore", invalid="ignore"):
-        round_ = height / width
-    return np.where(mouth_opening(points) >= O_OPENING, round_, np.nan)
+        round_ = opening * inter_ocular_distance(points) / np.linalg.norm(points[:, 64] - points[:, 60], axis=-1)
+    return np.where(opening >= O_OPENING, round_, np.nan)
 
 
 O_OPENING = 0.15
@@ -340,11 +339,9 @@ def _moments(read: dict[str, np.ndarray], frames: dict[str, list]) -> list[np.nd
     "O", where it opens one): one figure row each, the driver frame the re-enactment carried
     (``ReenactedFrame.driver_frame``) beside each bank's output."""
     picks = []
-    read = {**read, "judge_round": mouth_roundness(read["judge_points"])} if "judge_points" in read else read
+    read = {**read, "judge_round": mouth_roundness(read["judge_points"])}
     for name, pick in (("judge_eye", np.nanargmax), ("judge_eye", np.nanargmin), ("judge_gaze", None),
                        ("judge_mouth", np.nanargmax), ("judge_round", np.nanargmax)):
-        if name not in read:
-            continue
         values = read[name]
         usable = np.isfinite(values) & np.array([all(f[i] is not None for f in frames.values())
                                                  for i in range(len(values))])

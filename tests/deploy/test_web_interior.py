@@ -60,7 +60,7 @@ def test_the_interior_is_laid_in_as_python_lays_it(web, driven):
 
 def test_a_greyscale_target_takes_a_grey_interior_as_python_gives_it(web, driven):
     """The bundled driver's colourful mouth laid into a greyscale anchor: no colour inside the lips, on the page as
-    in Python (match_colourfulness)."""
+    in Python (match_light's colourful=False)."""
     from landmarks.parts.mouth.interior import cut_driver_mouth, paste_interior
 
     image, frames = driven

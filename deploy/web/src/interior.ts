@@ -2,9 +2,9 @@
 // interior_strength, lip_affine, paste_interior), as the live session finishes a frame with mouth_interior "driver".
 // The driver's frame around its lips is cut where the frame is (the tracker's worker, or this thread), mapped onto
 // the target by the affine fit of the target's 20 lip points to the driver's (bicubic, as cv2.warpAffine with
-// WARP_INVERSE_MAP), no more colourful than the target (matchColourfulness), lit as the target is (matchLight: its
-// brightness and, away from its highlights, half its colour cast from the skin around the lips), and laid inside the
-// target's inner lips.
+// WARP_INVERSE_MAP), lit as the target is (matchLight: no more colourful than the skin around the lips, its
+// brightness and, away from its highlights, half its colour cast from that skin), and laid inside the target's inner
+// lips.
 
 import { pointBox, polygonMask } from "./mouth.js";
 import { estimateHeadPose } from "./pose.js";
@@ -109,14 +109,40 @@ function percentile(values: Float32Array, q: number): number {
   return low + 1 < sorted.length ? sorted[low] + (sorted[low + 1] - sorted[low]) * (at - low) : sorted[low];
 }
 
+/** colour_scale: `warped` ((h, w, 3) float32) with each pixel's colour (its channels less their mean) scaled by the
+ * target's colourfulness over the patch's (the mean length of that colour over the skin, `grown` less `lips`), at
+ * most 1; `warped` itself where the target is as colourful or more. */
+function colourScale(warped: Float32Array, region: Float32Array, grown: Uint8Array, lips: Uint8Array, w: number,
+                     h: number): Float32Array {
+  const length = (values: Float32Array, k: number) => {
+    const mean = f32(f32(f32(values[3 * k] + values[3 * k + 1]) + values[3 * k + 2]) / 3);
+    const d = [0, 1, 2].map((c) => f32(values[3 * k + c] - mean));
+    return Math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+  };
+  let target = 0, driven = 0, skin = 0;
+  for (let k = 0; k < w * h; k++) {
+    if (!grown[k] || lips[k]) continue;
+    target += length(region, k); driven += length(warped, k); skin++;
+  }
+  if (!skin || !(driven > 0) || target >= driven) return warped;
+  const keep = f32(1 - f32(target / driven)), result = new Float32Array(warped.length);
+  for (let k = 0; k < w * h; k++) {
+    const mean = f32(f32(f32(warped[3 * k] + warped[3 * k + 1]) + warped[3 * k + 2]) / 3);
+    for (let c = 0; c < 3; c++) result[3 * k + c] = f32(warped[3 * k + c] - f32(keep * f32(warped[3 * k + c] - mean)));
+  }
+  return result;
+}
+
 /** match_light: the driver's mapped patch `warped` ((h, w, 3) float32) lit as the target is, against `region`, the
  * synthesis there, whose outer lips cover `lips` ((h, w) 0/1) with a skin ring `ring` pixels wide around them: one
  * gain for the ring's brightness (clipped to GAIN), then `cast` of the rings' colour-cast difference, fading out
  * toward the synthesis' brightest there (`fade`; null: no fading, skin laid on skin); the patch as it is where
- * there is no ring. */
+ * there is no ring. colourful false: another person's patch, first made no more colourful than the target
+ * (colourScale). */
 export function matchLight(warped: Float32Array, region: Float32Array, lips: Uint8Array, w: number, h: number,
-                           ring: number, cast = CAST, fade: number | null = FADE): Float32Array {
+                           ring: number, cast = CAST, fade: number | null = FADE, colourful = true): Float32Array {
   const grown = dilateEllipse(lips, w, h, ring);
+  if (!colourful) warped = colourScale(warped, region, grown, lips, w, h);
   const means = [[0, 0, 0], [0, 0, 0]], brightest: number[] = [];
   let skin = 0;
   for (let k = 0; k < w * h; k++) {
@@ -138,32 +164,6 @@ export function matchLight(warped: Float32Array, region: Float32Array, lips: Uin
     const mean = f32(f32(f32(result[3 * k] + result[3 * k + 1]) + result[3 * k + 2]) / 3);
     const fading = fade === null ? 1 : Math.min(Math.max(f32(fade * f32(1 - f32(mean / top))), 0), 1);
     for (let c = 0; c < 3; c++) result[3 * k + c] = f32(result[3 * k + c] + f32(fading * shift[c]));
-  }
-  return result;
-}
-
-/** match_colourfulness: another person's patch `warped` ((h, w, 3) float32) no more colourful than the target:
- * each pixel's colour (its channels less their mean) scaled by the target's skin ring's colourfulness over the
- * patch's (the mean length of that colour over the ring `ring` pixels wide around `lips`), at most 1 (a greyscale
- * video takes a grey interior). */
-export function matchColourfulness(warped: Float32Array, region: Float32Array, lips: Uint8Array, w: number, h: number,
-                                   ring: number): Float32Array {
-  const grown = dilateEllipse(lips, w, h, ring);
-  const length = (values: Float32Array, k: number) => {
-    const mean = f32(f32(f32(values[3 * k] + values[3 * k + 1]) + values[3 * k + 2]) / 3);
-    const d = [0, 1, 2].map((c) => f32(values[3 * k + c] - mean));
-    return Math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-  };
-  let target = 0, driven = 0, skin = 0;
-  for (let k = 0; k < w * h; k++) {
-    if (!grown[k] || lips[k]) continue;
-    target += length(region, k); driven += length(warped, k); skin++;
-  }
-  if (!skin || !(driven > 0) || target >= driven) return warped;
-  const keep = f32(1 - f32(target / driven)), result = new Float32Array(warped.length);
-  for (let k = 0; k < w * h; k++) {
-    const mean = f32(f32(f32(warped[3 * k] + warped[3 * k + 1]) + warped[3 * k + 2]) / 3);
-    for (let c = 0; c < 3; c++) result[3 * k + c] = f32(warped[3 * k + c] - f32(keep * f32(warped[3 * k + c] - mean)));
   }
   return result;
 }
@@ -197,7 +197,7 @@ export function pasteInterior(image: Tensor, landmarks: Tensor, mouth: DriverMou
     region.set(source.subarray(3 * ((y0 + y) * width + x0), 3 * ((y0 + y) * width + x1)), 3 * y * w);
   }
   for (let i = 0; i < mapped.length; i++) mapped[i] = warped[i];
-  const laid = matchLight(matchColourfulness(mapped, region, lipArea, w, h, ring), region, lipArea, w, h, ring);
+  const laid = matchLight(mapped, region, lipArea, w, h, ring, CAST, FADE, false);
   const inner = polygonMask(local, 12, 20, 0, 0, w, h), unit = f32(1.0 / 255.0), coverage = new Float32Array(w * h);
   for (let i = 0; i < coverage.length; i++) coverage[i] = f32(inner[i] * unit);
   const weight = gaussianBlurF32(coverage, w, h, 1, sigma), s = f32(strength);

@@ -11,9 +11,8 @@ driver's mouth interior:
 * ``cut_driver_mouth``: the driver frame around its lips (``DriverMouth``), cut on the tracking thread;
 * ``paste_interior``: that patch mapped onto the target by the affine map that best takes the target's 20 lip
   points onto the driver's (least squares; each target pixel reads the patch there, bicubic), lit as the target
-  is (``match_colourfulness``: no more colourful than the skin around the target's lips, so a greyscale video
-  takes a grey interior; ``match_light``: its brightness and, away from its highlights, half its colour cast taken
-  from the skin around the lips), and laid inside the target's inner-lip polygon, feathered by ``FEATHER`` eye
+  is (``match_light``: no more colourful than the skin around the target's lips, so a greyscale video takes a grey
+  interior, then its brightness and, away from its highlights, half its colour cast taken from that skin), and laid inside the target's inner-lip polygon, feathered by ``FEATHER`` eye
   distances, as far as both mouths are open and the driver faces the camera (``interior_strength``).
 
 The lips stay the synthesis' (the subject's), and so does everything outside them. A closed mouth is left as it is.
@@ -29,7 +28,7 @@ import cv2
 import numpy as np
 
 from landmarks.shape.measures import finite_points
-from landmarks.parts.lay_in import match_colourfulness, match_light
+from landmarks.parts.lay_in import match_light
 from landmarks.shape.expression import mouth_opening
 from landmarks.motion.head_pose import estimate_head_pose
 from landmarks.shape.measures import inter_ocular_distance
@@ -148,8 +147,7 @@ def paste_interior(image: np.ndarray, landmarks: np.ndarray, mouth: DriverMouth 
                             flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
                             ).astype(np.float32)
     region = image[y0:y1, x0:x1].astype(np.float32)
-    outer = _polygon(local[OUTER], box) > 0.5
-    warped = match_light(match_colourfulness(warped, region, outer, ring), region, outer, ring)
+    warped = match_light(warped, region, _polygon(local[OUTER], box) > 0.5, ring, colourful=False)
     weight = cv2.GaussianBlur(_polygon(local[INNER], box), (0, 0), sigma) * strength
     result = image.copy()
     mixed = weight[..., None] * warped + (1.0 - weight[..., None]) * region

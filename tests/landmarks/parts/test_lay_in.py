@@ -1,11 +1,12 @@
 """Laying a real patch into the synthesis (landmarks.parts.lay_in): another person's patch no more colourful than the
-target (match_colourfulness)."""
+target (colour_scale, match_light's colourful=False)."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
-from landmarks.parts.lay_in import match_colourfulness
+from landmarks.parts.lay_in import colour_scale, match_light
 
 SIZE = 40
 
@@ -20,6 +21,12 @@ def lips() -> np.ndarray:
     mask = np.zeros((SIZE, SIZE), bool)
     mask[15:25, 10:30] = True
     return mask
+
+
+def match_colourfulness(patch: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: int) -> np.ndarray:
+    """colour_scale over the skin ring ``ring`` pixels wide around ``lips``, as match_light takes it."""
+    grown = cv2.dilate(lips.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring + 1,) * 2)) > 0
+    return colour_scale(patch, region, grown & ~lips)
 
 
 def colourfulness(values: np.ndarray) -> float:
@@ -51,4 +58,4 @@ def test_a_target_half_as_colourful_halves_the_patchs_colour():
 
 def test_no_skin_ring_leaves_the_patch():
     patch = scene((190.0, 130.0, 100.0))
-    assert match_colourfulness(patch, scene((128.0, 128.0, 128.0)), np.ones((SIZE, SIZE), bool), ring=4) is patch
+    assert match_light(patch, scene((128.0, 128.0, 128.0)), np.ones((SIZE, SIZE), bool), ring=4, colourful=False) is patch
