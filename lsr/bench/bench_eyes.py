@@ -130,10 +130,21 @@ def own_scale(openings: np.ndarray) -> np.ndarray:
     return openings / usual if usual > 0 else np.full_like(openings, math.nan)
 
 
-def pair_rows(pair: str, driver: dict[str, np.ndarray], outputs: dict[str, dict[str, np.ndarray]], floor: float
-              ) -> list[dict[str, Any]]:
-    """The agreement row and one row per bank of one pair (the module docstring's columns)."""
+def steadiness(points: np.ndarray | None, prefix: str = "") -> dict[str, float]:
+    """Each part's own motion (``JITTER_PARTS``; ``landmarks.motion.smooth.part_jitter``, inter-ocular distances) of
+    (T, 68, 2) points read frame by frame -> {prefix + part + "_jitter": value}, NaN for no points."""
     from landmarks.motion.smooth import part_jitter
+
+    if points is None:
+        return dict.fromkeys((f"{prefix}{part}_jitter" for part in JITTER_PARTS), math.nan)
+    return {f"{prefix}{part}_jitter": part_jitter(points, where) for part, where in JITTER_PARTS.items()}
+
+
+def pair_rows(pair: str, driver: dict[str, np.ndarray], outputs: dict[str, dict[str, np.ndarray]], floor: float,
+              source_points: np.ndarray | None = None) -> list[dict[str, Any]]:
+    """The agreement row and one row per bank of one pair (the module docstring's columns). source_points: the
+    judge's reading of the source's own frames (T, 68, 2), whose jitter the agreement row carries beside the
+    driver's ("own_*_jitter": how steady the judge reads this face when it is real)."""
     from lsr.eval.cross import opening_correlation, pooled_gain
 
     def judged(part: str, reading: np.ndarray) -> tuple[float, float]:
@@ -143,16 +154,12 @@ def pair_rows(pair: str, driver: dict[str, np.ndarray], outputs: dict[str, dict[
     def own_gain(reading: np.ndarray) -> float:  # the eyes' slope, each face's openings over its own median
         return pooled_gain([(own_scale(driver["judge_eye"]), own_scale(reading))])
 
-    def steadiness(points: np.ndarray | None) -> dict[str, float]:  # each part's own motion, inter-ocular distances
-        if points is None:
-            return dict.fromkeys((f"{part}_jitter" for part in JITTER_PARTS), math.nan)
-        return {f"{part}_jitter": part_jitter(points, where) for part, where in JITTER_PARTS.items()}
-
     rows = [{"pair": pair, "row": "agreement", **{f"{part}_{what}": value for part in ("eye", "mouth")
              for what, value in zip(("r", "gain"), judged(part, driver[f"mesh_{part}"]))},
              "eye_own_gain": own_gain(driver["mesh_eye"]),
              "gaze_r": opening_correlation(driver["judge_gaze"], driver["mesh_gaze"]), "realism": floor,
-             "switches": math.nan, "ms_per_frame": math.nan, **steadiness(driver.get("judge_points"))}]
+             "switches": math.nan, "ms_per_frame": math.nan, **steadiness(driver.get("judge_points")),
+             **steadiness(source_points, "own_")}]
     asked = next(iter(outputs.values()), None)  # every bank's target points are the same
     if asked is not None and "asked_eye" in asked:
         rows.append({"pair": pair, "row": "asked", **{f"{part}_{what}": value for part in ("eye", "mouth")
@@ -180,7 +187,7 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
     lines = [f"clips: {settings['clips']}; K = {settings['k']}; model `{settings['weights']}`; judged frames per "
              f"driver: {settings['frames']}", "",
              "| pair | eyes from | eye r | eye gain | eye gain, own opening | mouth r | mouth gain | gaze r | realism ↓ "
-             "(x floor) | switches | ms / frame | eye jitter (x driver) | mouth jitter (x driver) |",
+             "(x floor) | switches | ms / frame | eye jitter (x driver, x own) | mouth jitter (x driver, x own) |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def share(value: float, of: float, digits: int = 2) -> str:
@@ -194,7 +201,8 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
         if row["row"] == "agreement":
             agreement = row
             cells = [f"{row.get(c, math.nan):.2f}" for c in COLUMNS]
-            jitters = " | ".join(f"{row.get(f'{part}_jitter', math.nan):.4f}" for part in JITTER_PARTS)
+            jitters = " | ".join(_own(f"{row.get(f'{part}_jitter', math.nan):.4f}", row.get(f"own_{part}_jitter"))
+                                 for part in JITTER_PARTS)
             lines.append(f"| {row['pair']} | agreement / floor | {' | '.join(cells)} | {row['realism']:.3f} | | | "
                          f"{jitters} |")
             continue
@@ -202,8 +210,8 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
         realism = share(row["realism"], agreement.get("realism", math.nan), 3)
         switches = "" if not math.isfinite(row["switches"]) else f"{row['switches']:.0f}"
         speed = "" if not math.isfinite(row.get("ms_per_frame", math.nan)) else f"{row['ms_per_frame']:.0f}"
-        jitters = " | ".join(share(row.get(f"{part}_jitter", math.nan), agreement.get(f"{part}_jitter", math.nan), 4)
-                             for part in JITTER_PARTS)
+        jitters = " | ".join(_jitter_share(row.get(f"{part}_jitter", math.nan), agreement.get(f"{part}_jitter", math.nan),
+                                           agreement.get(f"own_{part}_jitter", math.nan)) for part in JITTER_PARTS)
         lines.append(f"| | {row['row']} | {' | '.join(cells)} | {realism} | {switches} | {speed} | {jitters} |")
     lines += ["", "agreement: the face mesh's reading of the driver's frames against dlib's (the judge); asked: the "
               "target's own points (what the re-enactment asks the synthesis to draw; its lids' small motions "
@@ -216,8 +224,23 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
               "re-enactment's wall time per driver frame (the banks built before, once per source); jitter: each part's "
               "own frame-to-frame motion (its points' less the face's, dlib's reading, in inter-ocular distances; "
               "``landmarks.motion.smooth.part_jitter``), the driver's in the agreement row, each bank's against it in "
-              "brackets (the issue's bar: at most the driver's).", "", machine]
+              "brackets (the issue's bar: at most the driver's), then against the source's own (the judge's reading of "
+              "the source's real frames, where its clip drives: how steady the judge reads this face when nothing is "
+              "synthesised).", "", machine]
     return "\n".join(lines)
+
+
+def _own(shown: str, own: float | None) -> str:
+    """The agreement row's jitter cell: the driver's, and the source's own beside it where known."""
+    return f"{shown} (own {own:.4f})" if own is not None and math.isfinite(own) else shown
+
+
+def _jitter_share(value: float, driver: float, own: float) -> str:
+    """A bank row's jitter cell: the value, over the driver's and over the source's own (each where known)."""
+    if not math.isfinite(value):
+        return "–"
+    ratios = [f"{value / of:.2f}" for of in (driver, own) if math.isfinite(of) and of]
+    return f"{value:.4f} ({', '.join(ratios)})" if ratios else f"{value:.4f}"
 
 
 def _zoom(image: np.ndarray, points: np.ndarray, part: slice, width: int, height_share: float) -> np.ndarray:
@@ -262,6 +285,7 @@ def run_bench_eyes(cfg: BenchEyesConfig) -> list[dict[str, Any]]:
     weights = resolve_weights(cfg.weights)
     reenactor, judge = Reenactor(weights), Judge()
     rows: list[dict[str, Any]] = []
+    measured = []  # per pair: (source, driver, the driver's readings, each bank's output readings, the floor)
     figure: list[np.ndarray] = []
     frames_judged = []
     pairs = [(clips[i], clips[(i + 1) % len(clips)]) for i in range(len(clips))]
@@ -294,10 +318,14 @@ def run_bench_eyes(cfg: BenchEyesConfig) -> list[dict[str, Any]]:
             outputs[bank]["switches"] = (sum(a != b and a is not None and b is not None for a, b in zip(track, track[1:]))
                                          if bank != "none" else math.nan)
             kept_frames[bank] = frames
-        pair = f"{_short(source.stem)} ← {_short(driver.stem)}"
-        rows += pair_rows(pair, driver_read, outputs, floor)
+        measured.append((source, driver, driver_read, outputs, floor))
         if cfg.figure is not None:
             figure += _moments(driver_read, kept_frames)
+    # each clip drives once: the judge's reading of it then is its own real frames' (the steadiness it reads there)
+    as_driver = {driver: read.get("judge_points") for _, driver, read, _, _ in measured}
+    for source, driver, driver_read, outputs, floor in measured:
+        rows += pair_rows(f"{_short(source.stem)} ← {_short(driver.stem)}", driver_read, outputs, floor,
+                          as_driver.get(source))
     settings = {"clips": ", ".join(shown_path(c) for c in clips[:1]) + (f" and {len(clips) - 1} more" if len(clips) > 1
                                                                         else ""),
                 "k": cfg.k, "weights": shown_path(weights), "frames": f"{min(frames_judged)}-{max(frames_judged)}"}

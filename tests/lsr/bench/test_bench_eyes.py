@@ -85,6 +85,8 @@ def test_pair_rows_give_the_detectors_agreement_and_each_banks_correlation_and_g
     assert asked["eye_r"] == pytest.approx(1.0) and asked["eye_gain"] == pytest.approx(3.0)
     assert asked["mouth_r"] == pytest.approx(1.0) and asked["mouth_gain"] == pytest.approx(0.5)
     assert all(math.isnan(asked[name]) for name in ("gaze_r", "realism", "switches", "ms_per_frame", "eye_jitter"))
+    # no source frames given: its own jitter unknown
+    assert math.isnan(agreement["own_eye_jitter"]) and math.isnan(agreement["own_mouth_jitter"])
     assert agreement["eye_r"] == pytest.approx(1.0) and agreement["eye_gain"] == pytest.approx(0.5)  # the mesh's
     assert agreement["mouth_r"] == pytest.approx(-1.0) and agreement["mouth_gain"] == pytest.approx(-1.0)
     assert agreement["gaze_r"] == pytest.approx(1.0)
@@ -128,6 +130,23 @@ def test_mouth_roundness_reads_an_o_above_a_wide_open_mouth_and_nothing_in_a_shu
     assert np.isnan(mouth_roundness(np.full((1, 68, 2), np.nan))).all()
 
 
+def test_the_agreement_row_carries_how_steady_the_judge_reads_the_source_s_own_frames():
+    from landmarks.motion.smooth import part_jitter
+
+    rng = np.random.default_rng(0)
+    base = rng.uniform(20, 80, (68, 2))
+    still = np.repeat(base[None], 6, axis=0)
+    blinking = still.copy()
+    blinking[1::2, 36:48, 1] += 1.5  # the eyes alone jump every other frame
+    rows = pair_rows("a ← b", _driver(6), {}, floor=0.04, source_points=blinking)
+    assert rows[0]["own_eye_jitter"] == pytest.approx(part_jitter(blinking, slice(36, 48)))
+    assert rows[0]["own_eye_jitter"] > 0.01
+    assert rows[0]["own_mouth_jitter"] == pytest.approx(part_jitter(blinking, slice(48, 68)))
+    assert rows[0]["own_mouth_jitter"] < rows[0]["own_eye_jitter"] / 2
+    assert pair_rows("a ← b", _driver(6), {}, floor=0.04, source_points=still)[0]["own_eye_jitter"] == pytest.approx(
+        0.0, abs=1e-9)
+
+
 # ---- the table ---------------------------------------------------------------------------------------------------
 
 
@@ -137,7 +156,8 @@ def _row(pair, name, realism, switches=math.nan, **values):
 
 
 def test_the_table_prints_each_pairs_agreement_then_each_bank_with_its_share_of_it():
-    rows = [_row("a ← b", "agreement", 0.04, eye_r=0.8, eye_gain=0.5, mouth_r=math.nan, eye_jitter=0.02),
+    rows = [_row("a ← b", "agreement", 0.04, eye_r=0.8, eye_gain=0.5, mouth_r=math.nan, eye_jitter=0.02,
+                 own_eye_jitter=0.04),
             _row("a ← b", "none", 0.1, eye_r=0.4, eye_gain=1.0),
             _row("a ← b", "all", 0.05, switches=3.0, eye_r=0.6, eye_gain=0.25, ms_per_frame=41.6, eye_jitter=0.03),
             _row("b ← a", "agreement", 0.02, eye_r=0.2),
@@ -147,13 +167,14 @@ def test_the_table_prints_each_pairs_agreement_then_each_bank_with_its_share_of_
     lines = text.splitlines()
     assert lines[0] == "clips: a.mp4 and 1 more; K = 8; model `weights/tiny`; judged frames per driver: 10-12"
     assert ("| pair | eyes from | eye r | eye gain | eye gain, own opening | mouth r | mouth gain | gaze r | realism ↓ "
-            "(x floor) | switches | ms / frame | eye jitter (x driver) | mouth jitter (x driver) |") in lines
+            "(x floor) | switches | ms / frame | eye jitter (x driver, x own) | mouth jitter (x driver, x own) |") in lines
     table = [line for line in lines if line.startswith("| ") and "pair |" not in line]
     assert table == [
-        "| a ← b | agreement / floor | 0.80 | 0.50 | nan | nan | 0.50 | 0.50 | 0.040 | | | 0.0200 | nan |",
+        "| a ← b | agreement / floor | 0.80 | 0.50 | nan | nan | 0.50 | 0.50 | 0.040 | | | 0.0200 (own 0.0400) | nan |",
         # in brackets: the share of the agreement (gains: their ratio), realism over the floor; no agreement, no share
         "| | none | 0.40 (0.50) | 1.00 (2.00) | – | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.100 (2.50) |  |  | – | – |",
-        "| | all | 0.60 (0.75) | 0.25 (0.50) | – | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.050 (1.25) | 3 | 42 | 0.0300 (1.50) "
+        # jitter: over the driver's, then over the source's own
+        "| | all | 0.60 (0.75) | 0.25 (0.50) | – | 0.50 | 0.50 (1.00) | 0.50 (1.00) | 0.050 (1.25) | 3 | 42 | 0.0300 (1.50, 0.75) "
         "| – |",
         "| b ← a | agreement / floor | 0.20 | 0.50 | nan | 0.50 | 0.50 | 0.50 | 0.020 | | | nan | nan |",
         "| | all | 0.60 (3.00) | 0.50 (1.00) | – | 0.50 (1.00) | 0.50 (1.00) | 0.50 (1.00) | 0.050 (2.50) | 0 |  | – | – |",
