@@ -45,7 +45,9 @@ def single_blas_thread() -> bool:
     they burned ~35 ms of CPU a frame in ``lsr reenact`` (onnx, the shared tpsmm_driving.mp4 with paste-back: 86-92
     against 53-57 ms of CPU a frame, 22 against 31-34 fps), and one thread is also faster for the warps' small
     products alone (synthesis-only 26 against 28 ms). Process-wide: the ``lsr`` command calls it; a program
-    embedding the runtime may too (``deploy/example_embed.py``). Linux (reads /proc/self/maps); elsewhere False."""
+    embedding the runtime may too (``deploy/example_embed.py``). Linux (reads /proc/self/maps); elsewhere False.
+    OpenCV's own threads are left as they are: one OpenCV thread was slower end to end (the same run, onnx: 29.4
+    and 33.1 against 34.5 and 36.4 fps)."""
     import ctypes
     import os
     import re
