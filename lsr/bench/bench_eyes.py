@@ -190,12 +190,6 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
              "(x floor) | switches | ms / frame | eye jitter (x driver, x own) | mouth jitter (x driver, x own) |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
-    def share(value: float, of: float, digits: int = 2) -> str:
-        if not math.isfinite(value):
-            return "–"
-        shown = f"{value:.{digits}f}"
-        return f"{shown} ({value / of:.2f})" if math.isfinite(of) and of else shown
-
     agreement: dict[str, Any] = {}
     for row in rows:
         if row["row"] == "agreement":
@@ -207,11 +201,11 @@ def eyes_markdown(rows: list[dict[str, Any]], settings: dict[str, Any], machine:
                          f"{jitters} |")
             continue
         cells = [share(row.get(c, math.nan), agreement.get(c, math.nan)) for c in COLUMNS]
-        realism = share(row["realism"], agreement.get("realism", math.nan), 3)
+        realism = share(row["realism"], agreement.get("realism", math.nan), digits=3)
         switches = "" if not math.isfinite(row["switches"]) else f"{row['switches']:.0f}"
         speed = "" if not math.isfinite(row.get("ms_per_frame", math.nan)) else f"{row['ms_per_frame']:.0f}"
-        jitters = " | ".join(_jitter_share(row.get(f"{part}_jitter", math.nan), agreement.get(f"{part}_jitter", math.nan),
-                                           agreement.get(f"own_{part}_jitter", math.nan)) for part in JITTER_PARTS)
+        jitters = " | ".join(share(row.get(f"{part}_jitter", math.nan), agreement.get(f"{part}_jitter", math.nan),
+                                   agreement.get(f"own_{part}_jitter", math.nan), digits=4) for part in JITTER_PARTS)
         lines.append(f"| | {row['row']} | {' | '.join(cells)} | {realism} | {switches} | {speed} | {jitters} |")
     lines += ["", "agreement: the face mesh's reading of the driver's frames against dlib's (the judge); asked: the "
               "target's own points (what the re-enactment asks the synthesis to draw; its lids' small motions "
@@ -235,12 +229,13 @@ def _own(shown: str, own: float | None) -> str:
     return f"{shown} (own {own:.4f})" if own is not None and math.isfinite(own) else shown
 
 
-def _jitter_share(value: float, driver: float, own: float) -> str:
-    """A bank row's jitter cell: the value, over the driver's and over the source's own (each where known)."""
+def share(value: float, *of: float, digits: int = 2) -> str:
+    """A bank row's cell: the value, and in brackets its ratio to each of ``of`` that is known and not 0 (the
+    agreement's; for jitter, the driver's then the source's own); "–" for an unknown value."""
     if not math.isfinite(value):
         return "–"
-    ratios = [f"{value / of:.2f}" for of in (driver, own) if math.isfinite(of) and of]
-    return f"{value:.4f} ({', '.join(ratios)})" if ratios else f"{value:.4f}"
+    ratios = [f"{value / by:.2f}" for by in of if math.isfinite(by) and by]
+    return f"{value:.{digits}f} ({', '.join(ratios)})" if ratios else f"{value:.{digits}f}"
 
 
 def _zoom(image: np.ndarray, points: np.ndarray, part: slice, width: int, height_share: float) -> np.ndarray:
