@@ -378,6 +378,16 @@ def grid_points(count: int, grid_step: int) -> np.ndarray:
     return grid_step * np.arange(count, dtype=np.float64) + (grid_step - 1) / 2.0
 
 
+@functools.lru_cache(maxsize=8)
+def _grid_coordinates(rows: int, cols: int, grid_step: int) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) float32 x and y frame coordinates of the ``grid_points`` (read-only, made once per grid)."""
+    grid_x, grid_y = np.meshgrid(grid_points(cols, grid_step).astype(np.float32),
+                                 grid_points(rows, grid_step).astype(np.float32))
+    grid_x.setflags(write=False)
+    grid_y.setflags(write=False)
+    return grid_x, grid_y
+
+
 def upsample(values: np.ndarray, grid_step: int, height: int, width: int) -> np.ndarray:
     """Grid values (h, w[, C]) float32 -> (H, W[, C]) float32, bilinear between the ``grid_points`` (constant past the
     outermost ones). grid_step 1: the values themselves."""
@@ -466,8 +476,7 @@ def mesh_warp_map(
     feather, blurred, weight = layout.feather, layout.blurred, layout.weight
     rows_count, cols_count = index.shape
     if step > 1:  # the TPS at the grid points (block centres), bilinearly
-        grid_x, grid_y = np.meshgrid(grid_points(cols_count, step).astype(np.float32),
-                                     grid_points(rows_count, step).astype(np.float32))
+        grid_x, grid_y = _grid_coordinates(rows_count, cols_count, step)
         fallback_grid = np.stack([cv2.remap(values, grid_x, grid_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
                                   for values in (fallback.map_x, fallback.map_y)], axis=-1)  # (h, w, 2)
     else:

@@ -25,6 +25,7 @@ stays put.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import inspect
 
 import cv2
@@ -89,11 +90,22 @@ class ThinPlateSpline:
 
         About 5x faster; on face warps it differs from the float64 evaluation by under 0.01 px
         (tests/landmarks/warp/test_tps.py), far below the bilinear sampling it feeds."""
+        return self.apply(self.basis(points))
+
+    def basis(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What ``dense`` evaluates at ``points`` that depends on the control points alone: (the kernel block
+        (M, N) float32, the normalised points (M, 2) float64). Every spline fitted on the same control points
+        (another lambda, other values) shares it: ``apply`` then costs one small product."""
         normalised = (np.asarray(points, np.float64) - self.centre) / self.scale
         small, control = normalised.astype(np.float32), self.control.astype(np.float32)
         squared = np.sum(small**2, axis=1)[:, None] + np.sum(control**2, axis=1)[None, :] - 2.0 * small @ control.T
         kernel = np.log(np.maximum(squared, np.float32(1e-30)))
         kernel *= np.maximum(squared, 0.0)
+        return kernel, normalised
+
+    def apply(self, basis: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """``dense`` at the points of ``basis`` (``self.basis``, or that of a spline on the same control points)."""
+        kernel, normalised = basis
         return kernel @ self.weights.astype(np.float32) + (self.affine[0] + normalised @ self.affine[1:])
 
 
@@ -169,11 +181,27 @@ def border_points(height: int, width: int) -> np.ndarray:
 
 
 def folded_fraction(map_x: np.ndarray, map_y: np.ndarray) -> float:
-    """Share of pixels where the dense map (H, W) x 2 folds: Jacobian determinant <= 0."""
-    dx_du, dx_dv = np.gradient(map_x, axis=1), np.gradient(map_x, axis=0)
-    dy_du, dy_dv = np.gradient(map_y, axis=1), np.gradient(map_y, axis=0)
+    """Share of pixels where the dense map (H, W) x 2 folds: Jacobian determinant <= 0 (``np.gradient``'s
+    differences: central inside, one-sided at the edges)."""
+    dx_du, dx_dv = _gradient(map_x, 1), _gradient(map_x, 0)
+    dy_du, dy_dv = _gradient(map_y, 1), _gradient(map_y, 0)
     determinant = dx_du * dy_dv - dx_dv * dy_du
     return float(np.mean(~(determinant > 0)))
+
+
+def _gradient(values: np.ndarray, axis: int) -> np.ndarray:
+    """``np.gradient(values, axis=axis)`` of a 2-D array with at least 2 samples along ``axis``, the same numbers
+    (its unit spacing: central differences halved inside, one-sided at the ends) without its general set-up."""
+    values = np.asarray(values)
+    if values.shape[axis] < 3:
+        return np.gradient(values, axis=axis)
+    moved = np.moveaxis(values, axis, 0)
+    out = np.empty(moved.shape, np.result_type(values.dtype, np.float64) if values.dtype.kind in "iub" else values.dtype)
+    np.subtract(moved[2:], moved[:-2], out=out[1:-1])
+    out[1:-1] /= 2.0
+    out[0] = moved[1] - moved[0]
+    out[-1] = moved[-1] - moved[-2]
+    return np.moveaxis(out, 0, axis)
 
 
 def fit_similarity(control_points: np.ndarray, values: np.ndarray) -> np.ndarray | None:
@@ -281,6 +309,16 @@ class _Grid:
         return self._rows @ values.astype(np.float32) @ self._cols.T
 
 
+
+@functools.lru_cache(maxsize=8)
+def _grid(height: int, width: int, step: int) -> _Grid:
+    """The ``_Grid`` of an (H, W) frame at ``step``, made once (its arrays read-only): a video's frames share it."""
+    grid = _Grid(height, width, step)
+    for values in vars(grid).values():
+        if isinstance(values, np.ndarray):
+            values.setflags(write=False)
+    return grid
+
 def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
     return cv2.remap(image, map_x.astype(np.float32), map_y.astype(np.float32), INTERPOLATION,
                      borderMode=cv2.BORDER_REPLICATE)
@@ -337,27 +375,47 @@ def tps_grid_map(source_points: np.ndarray, target_points: np.ndarray, height: i
         fixed = border_points(height, width)
         control, values = np.concatenate([control, fixed]), np.concatenate([values, fixed])
     control, values = merge_close_points(control, values, merge_distance)
-    grid = _Grid(height, width, grid_step)
+    return _grid_map(control, values, landmark_targets, landmark_sources, _grid(height, width, grid_step),
+                     regularization, max_condition, max_folded_fraction)
+
+
+def _grid_map(control: np.ndarray, values: np.ndarray, landmark_targets: np.ndarray, landmark_sources: np.ndarray,
+              grid: _Grid, regularization: float, max_condition: float, max_folded_fraction: float) -> GridMap:
+    """``tps_grid_map`` from its merged control points (N, 2) and values (N, 2) on: the TPS with lambda
+    ``regularization`` times each of ``RETRY_FACTORS`` until one neither fails nor folds (every try on the same
+    kernel, ``ThinPlateSpline.basis``), then the similarity of the landmarks, then the identity."""
     reasons: list[str] = []
+    basis = None
     for attempt, factor in enumerate(RETRY_FACTORS):
         try:
             spline = fit_tps(control, values, regularization * factor, max_condition)
         except DegenerateTpsError as exc:
             reasons.append(str(exc))
             break  # more regularisation does not help a system without spread / affine rank
-        map_x, map_y = grid.evaluate(spline.dense)  # source x, y per output pixel (on the grid)
+        basis = spline.basis(grid.points) if basis is None else basis
+        mapped = spline.apply(basis)  # source x, y per output pixel (on the grid)
+        map_x, map_y = mapped[:, 0].reshape(grid.shape), mapped[:, 1].reshape(grid.shape)
         folds = folded_fraction(map_x, map_y)  # judged on the grid
         if np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)) and folds <= max_folded_fraction:
             method = "tps" if attempt == 0 else "tps_stronger"
             return GridMap(map_x, map_y, method, regularization * factor, folds, "; ".join(reasons), grid)
-        reasons.append(f"lambda {regularization * factor:.3g}: {folds:.2%} of pixels folded")
+        reasons.append(_folded_reason(regularization * factor, folds))
+    return _rigid_map(landmark_targets, landmark_sources, grid, reasons)
+
+
+def _rigid_map(landmark_targets: np.ndarray, landmark_sources: np.ndarray, grid: _Grid, reasons: list[str]) -> GridMap:
+    """Where every TPS try failed: the least-squares similarity of the landmarks, else the identity."""
     matrix = fit_similarity(landmark_targets, landmark_sources) if len(landmark_targets) >= 2 else None
     if matrix is not None:  # affine: bilinear densifying is exact
         map_x, map_y = grid.evaluate(lambda p: p @ matrix[:, :2].T + matrix[:, 2])
         return GridMap(map_x, map_y, "similarity", 0.0, 0.0, "; ".join(reasons), grid)
-    reasons.append("no similarity: landmarks have no spread")
+    reasons = [*reasons, "no similarity: landmarks have no spread"]
     map_x, map_y = grid.evaluate(lambda p: p)
     return GridMap(map_x, map_y, "identity", 0.0, 0.0, "; ".join(reasons), grid)
+
+
+def _folded_reason(regularization: float, folds: float) -> str:
+    return f"lambda {regularization:.3g}: {folds:.2%} of pixels folded"
 
 
 # tps_map's keyword options and their defaults: the settings every warp of this module forwards
@@ -371,8 +429,9 @@ def tps_maps(source_sets: list[np.ndarray], target_points: np.ndarray, height: i
     The control points of a backward TPS are the *target* points, so the references of a frame (all warped onto
     its landmarks) share the merge, the TPS system (one solve, two right-hand columns per set) and the kernel on
     the grid; only the fold check and the dense maps are per set. Same maps as ``tps_map`` per set up to float
-    rounding; a set whose missing points differ from the target's, or whose first-try map is rejected (ill-
-    conditioned, folded), goes through ``tps_map`` alone (with its retries and fallbacks).
+    rounding. The sets whose map folds go on to ``tps_map``'s stronger tries together (one solve per try on the same
+    kernel) and its fallbacks; a set whose missing points differ from the target's, or whose first try is
+    ill-conditioned or not finite, goes through ``tps_map`` alone.
     """
     # settings: the keyword options of ``tps_map`` (its defaults where not given)
     unknown = set(settings) - set(_TPS_MAP_DEFAULTS)
@@ -394,19 +453,42 @@ def tps_maps(source_sets: list[np.ndarray], target_points: np.ndarray, height: i
             fixed = border_points(height, width)
             control, values = np.concatenate([control, fixed]), np.concatenate([values, np.tile(fixed, len(shared))])
         control, values = merge_close_points(control, values, merge_distance)
-        try:
-            spline = fit_tps(control, values, regularization, max_condition)
-        except DegenerateTpsError:
-            spline = None
-        if spline is not None:
-            grid = _Grid(height, width, grid_step)
-            mapped = spline.dense(grid.points)  # (grid points, 2 * sets)
-            for slot, index in enumerate(shared):
-                map_x = mapped[:, 2 * slot].reshape(grid.shape)
-                map_y = mapped[:, 2 * slot + 1].reshape(grid.shape)
+        grid, basis = _grid(height, width, grid_step), None
+        pending = list(range(len(shared)))  # slots of the sets still without a map
+        reasons: list[list[str]] = [[] for _ in shared]
+        for attempt, factor in enumerate(RETRY_FACTORS):  # tps_map's tries, each one solve for every set left
+            columns = np.concatenate([values[:, 2 * slot:2 * slot + 2] for slot in pending], axis=1)
+            try:
+                spline = fit_tps(control, columns, regularization * factor, max_condition)
+            except DegenerateTpsError as exc:
+                if attempt == 0:
+                    pending = []  # every set through tps_map alone, below
+                for slot in pending:
+                    reasons[slot].append(str(exc))
+                break
+            basis = spline.basis(grid.points) if basis is None else basis  # the same control points every try
+            mapped = spline.apply(basis)  # (grid points, 2 * sets left)
+            left = []
+            for column, slot in enumerate(pending):
+                map_x = mapped[:, 2 * column].reshape(grid.shape)
+                map_y = mapped[:, 2 * column + 1].reshape(grid.shape)
+                finite = bool(np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)))
+                if attempt == 0 and not finite:
+                    continue  # through tps_map alone, below
                 folds = folded_fraction(map_x, map_y)
-                if np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)) and folds <= max_folded_fraction:
-                    maps[index] = WarpMap(grid.densify(map_x), grid.densify(map_y), "tps", regularization, folds, "")
+                if finite and folds <= max_folded_fraction:
+                    maps[shared[slot]] = WarpMap(grid.densify(map_x), grid.densify(map_y),
+                                                 "tps" if attempt == 0 else "tps_stronger", regularization * factor,
+                                                 folds, "; ".join(reasons[slot]))
+                else:
+                    reasons[slot].append(_folded_reason(regularization * factor, folds))
+                    left.append(slot)
+            pending = left
+            if not pending:
+                break
+        for slot in pending:  # every try folded or failed: the similarity, as tps_map falls back
+            index = shared[slot]
+            maps[index] = _rigid_map(target[found], sources[index][found], grid, reasons[slot]).dense()
     return [found_map if found_map is not None else tps_map(sources[index], target, height, width, **options)
             for index, found_map in enumerate(maps)]
 

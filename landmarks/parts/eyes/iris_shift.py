@@ -95,11 +95,11 @@ def iris_along(map_x: np.ndarray, map_y: np.ndarray, iris: np.ndarray, landmarks
     return float((point - centre) @ axis / width) if np.isfinite(point).all() else float("nan")
 
 
-def shift_iris(map_x: np.ndarray, map_y: np.ndarray, landmarks: np.ndarray, eye: int, start: float, end: float
-               ) -> tuple[np.ndarray, np.ndarray]:
+def shift_iris(map_x: np.ndarray, map_y: np.ndarray, landmarks: np.ndarray, eye: int, start: float, end: float,
+               in_place: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The backward map with eye ``eye`` of the target's 68 points ``landmarks`` bent so that what it showed at
     ``start`` along the corner line (eye widths from the eye's centre) shows at ``end`` (module docstring). Maps
-    (H, W) float32 -> new (H, W) float32 maps (the inputs untouched)."""
+    (H, W) float32 -> new (H, W) float32 maps (the inputs untouched), or with ``in_place`` the inputs bent."""
     centre, axis, width = eye_axes(landmarks, eye)
     end = float(np.clip(end, start - MAX_SHIFT, start + MAX_SHIFT))
     plateau = min(PLATEAU, REACH - 0.05 - max(abs(start), abs(end)))
@@ -120,9 +120,9 @@ def shift_iris(map_x: np.ndarray, map_y: np.ndarray, landmarks: np.ndarray, eye:
     shift = weight * (moved - u) * width  # pixels along the axis, output -> where its map is read
     sample_x = (xs + shift * axis[0]).astype(np.float32)
     sample_y = (ys + shift * axis[1]).astype(np.float32)
-    out_x, out_y = map_x.copy(), map_y.copy()
-    for source, out in ((map_x, out_x), (map_y, out_y)):
-        out[y0:y1, x0:x1] = cv2.remap(source, sample_x, sample_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out_x, out_y = (map_x, map_y) if in_place else (map_x.copy(), map_y.copy())
+    for out in (out_x, out_y):  # the remap reads the box's rim too: read all of it before writing
+        out[y0:y1, x0:x1] = cv2.remap(out, sample_x, sample_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return out_x, out_y
 
 
@@ -136,12 +136,15 @@ def align_irises(maps: list[tuple[np.ndarray, np.ndarray]], irises: np.ndarray, 
     irises = np.asarray(irises, np.float64)
     if irises.shape != (len(maps), 2, 2):
         raise ValueError(f"irises must be ({len(maps)}, 2, 2), got {irises.shape}")
-    aligned = list(maps)
+    aligned, owned = list(maps), [False] * len(maps)  # owned: a copy made here, bent in place from then on
     for eye in range(2):
         starts = [iris_along(*warp, iris[eye], landmarks, eye) for warp, iris in zip(maps, irises)]
         end = float(gaze[eye, 0]) if gaze is not None and np.isfinite(gaze[eye, 0]) else starts[0]
         if not np.isfinite(end):
             continue
-        aligned = [shift_iris(*warp, landmarks, eye, start, end) if np.isfinite(start) else warp
-                   for warp, start in zip(aligned, starts)]
+        for number, start in enumerate(starts):
+            if np.isfinite(start):
+                bent = shift_iris(*aligned[number], landmarks, eye, start, end, in_place=owned[number])
+                owned[number] = owned[number] or bent[0] is not aligned[number][0]
+                aligned[number] = bent
     return aligned

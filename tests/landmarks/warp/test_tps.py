@@ -82,6 +82,17 @@ def test_folded_fraction_detects_a_mirrored_map():
     assert tps.folded_fraction(-grid_x, grid_y) == 1.0
 
 
+def test_folded_fraction_reads_the_determinant_as_np_gradient_does(rng):
+    """The fold check's own differences give np.gradient's numbers, so a map on the edge of folding is judged alike."""
+    for shape in [(65, 65), (3, 40), (2, 9)]:
+        map_x, map_y = (rng.normal(size=shape).astype(np.float32) for _ in range(2))
+        determinant = (np.gradient(map_x, axis=1) * np.gradient(map_y, axis=0)
+                       - np.gradient(map_x, axis=0) * np.gradient(map_y, axis=1))
+        assert tps.folded_fraction(map_x, map_y) == float(np.mean(~(determinant > 0)))
+        for axis in (0, 1):
+            np.testing.assert_array_equal(tps._gradient(map_x, axis), np.gradient(map_x, axis=axis))
+
+
 def test_fold_triggers_stronger_regularisation_or_fallback(rng):
     image = _image(rng)
     target = np.array([[30, 48], [66, 48], [48, 30], [48, 66]], float)

@@ -120,8 +120,9 @@ def test_bad_references_requests_raise():
 
 @pytest.mark.parametrize("step", [1, 4])
 def test_shared_maps_equal_one_map_per_set_including_the_fallbacks(step):
-    """tps_maps (one system for every set warped onto the same target) gives tps_map's maps and methods, also for
-    a set with a missing point and a set that folds (both go through tps_map alone)."""
+    """tps_maps (one system for every set warped onto the same target) gives tps_map's maps, methods, lambdas and
+    reasons, also for a set with a missing point (through tps_map alone) and sets that fold (their stronger tries
+    solved together, then the similarity)."""
     rng = np.random.default_rng(7)
     size = 96
     target = _face(8.0, -4.0, size=size)
@@ -130,14 +131,17 @@ def test_shared_maps_equal_one_map_per_set_including_the_fallbacks(step):
     missing[40] = np.nan
     folded = target.copy()
     folded[[36, 45]] = folded[[45, 36]]  # the eye corners swapped: the map must fold
-    sets += [missing, folded]
+    crossed = target.copy()
+    crossed[[42, 45]] = crossed[[45, 42]]  # one eye's corners swapped: a stronger lambda unfolds it
+    sets += [missing, folded, crossed]
     shared = tps.tps_maps(sets, target, size, size, grid_step=step)
     for points, got in zip(sets, shared, strict=True):
         expected = tps.tps_map(points, target, size, size, grid_step=step)
-        assert got.method == expected.method
+        assert (got.method, got.regularization, got.reason) == (expected.method, expected.regularization,
+                                                                expected.reason)
         np.testing.assert_allclose(got.map_x, expected.map_x, atol=2e-3)
         np.testing.assert_allclose(got.map_y, expected.map_y, atol=2e-3)
-    assert shared[-1].method != "tps"  # the folding set really went through the fallbacks
+    assert [got.method for got in shared[-2:]] == ["similarity", "tps_stronger"]  # both fallbacks really taken
 
 
 def test_dense_evaluation_agrees_with_float64_to_a_hundredth_of_a_pixel():
