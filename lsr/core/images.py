@@ -7,8 +7,12 @@ import numpy as np
 
 
 def to_network(images: np.ndarray) -> np.ndarray:
-    """(..., S, S, 3) uint8 -> (..., 3, S, S) float32 in [-1, 1] (black = -1, as in training)."""
-    return np.moveaxis(images, -1, -3).astype(np.float32) / np.float32(127.5) - np.float32(1.0)
+    """(..., S, S, 3) uint8 -> (..., 3, S, S) float32 in [-1, 1] (black = -1, as in training), C-contiguous (the
+    channels moved while still bytes: the runtimes take it without another copy)."""
+    values = np.ascontiguousarray(np.moveaxis(images, -1, -3)).astype(np.float32)
+    values /= np.float32(127.5)
+    values -= np.float32(1.0)
+    return values
 
 
 def from_network(image: np.ndarray) -> np.ndarray:
