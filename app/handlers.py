@@ -417,13 +417,16 @@ def panel_path(panels_dir: str | os.PathLike, index: int) -> Path:
 
 def run_reenactment(store: ModelStore, limits: Limits, run_dir: Path, source_files, k: int, driver, *,
                     motion: str = "relative", smooth: bool = True, paste_back: bool = False, finetune_steps: int = 0,
-                    runtime: str = "torch", watermark: bool = True) -> RunResult:
-    """Shots -> subject latents (K-shot average) -> one output frame per driver frame, written as the app shows them."""
+                    runtime: str = "auto", watermark: bool = True) -> RunResult:
+    """Shots -> subject latents (K-shot average) -> one output frame per driver frame, written as the app shows them.
+    runtime: as ``lsr reenact --runtime`` (``lsr.config.inference.resolve_runtime``)."""
     from landmarks.parts.coverage import coverage_picture
     from landmarks.exceptions import InputFileError
     from landmarks.io.image_files import write_image
+    from lsr.config.inference import resolve_runtime
     from lsr.writer import stage_table, write_reenactment
 
+    runtime = resolve_runtime(runtime, int(finetune_steps))
     reenactor = store.reenactor(runtime)  # first: without a model nothing else matters
     driver_paths = upload_paths(driver)
     if not driver_paths:

@@ -249,8 +249,8 @@ def build_app(cfg: AppConfig) -> tuple[gr.Blocks, handlers.ModelStore, handlers.
                         finetune_steps = gr.Slider(0, 200, value=DEFAULT_FINETUNE_STEPS, step=1,
                                                    label="Fine-tuning steps on the source",
                                                    info="thesis §4.3.5; torch runtime only (ONNX skips it)")
-                        runtime = gr.Radio(["torch", "onnx"], value="torch", label="Runtime",
-                                           info="onnx needs an `lsr export` bundle in WEIGHTS/onnx")
+                        runtime = gr.Radio(["auto", "torch", "onnx"], value="auto", label="Runtime",
+                                           info="auto: onnx (the same frames, faster), torch when fine-tuning")
                         watermark = gr.Checkbox(True, label="Visible 'SYNTHETIC' watermark")
                     run_button = gr.Button("Re-enact" if store.weights is not None else "Re-enact (no model loaded: see the top)",
                                            variant="primary", elem_id="run", interactive=store.weights is not None)

@@ -157,7 +157,7 @@ def make_reenactor(cfg: ReenactConfig) -> ReenactorBase:
     weights = resolve_weights(cfg.weights)
     threads = network_threads(cfg.threads)
     reenactor: ReenactorBase
-    if cfg.runtime == "onnx":
+    if cfg.resolved_runtime == "onnx":
         from deploy.runtime import OnnxReenactor
 
         reenactor = OnnxReenactor(onnx_bundle_folder(weights), threads=threads, detector=cfg.detector)
@@ -177,7 +177,7 @@ def make_reenactor(cfg: ReenactConfig) -> ReenactorBase:
 def run_job(reenactor: ReenactorBase, job: Job, cfg, *, side_by_side: Path | None = None) -> ReenactStats:
     """Re-enact one job into ``job.output`` (atomic). The subject must already be encoded."""
     written = write_reenactment(
-        reenactor, job.driver, job.output, runtime=cfg.runtime,
+        reenactor, job.driver, job.output, runtime=cfg.resolved_runtime,
         mode=cfg.motion, paste_back=cfg.paste_back, scene=cfg.scene, watermark=cfg.watermark, fps=cfg.fps,
         landmark_space=cfg.landmark_space, progress=cfg.progress, side_by_side=side_by_side,
     )

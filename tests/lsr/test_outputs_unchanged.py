@@ -1,5 +1,6 @@
 """The house may move; what it draws may not (issue 64): frames of ``lsr demo`` and of ``lsr reenact --paste-back``
-on the shared clips, hashed and compared with the digests recorded before the move.
+on the shared clips, hashed and compared with the digests recorded before the move (the torch runtime; the default
+onnx one is held to the same frames' statistics).
 
 ``python tests/lsr/test_outputs_unchanged.py --record`` rewrites ``outputs_unchanged.json`` (only when a change of
 output is meant). The digests are bit-exact on the machine kind they were recorded on (torch's CPU capability and
@@ -29,7 +30,8 @@ def machine_key() -> str:
     return f"torch {torch.__version__} {torch.backends.cpu.get_cpu_capability()}"
 
 
-def frame_digests(source: Path, driver: Path, *, side_by_side: bool, frames: int = FRAMES) -> dict:
+def frame_digests(source: Path, driver: Path, *, side_by_side: bool, frames: int = FRAMES,
+                  runtime: str = "torch") -> dict:
     """Re-enact ``frames`` frames as ``lsr reenact --paste-back`` (and the demo) do, one thread; each frame's
     sha256 and its (mean, std) per channel, and the side-by-side panels' when asked. numpy's BLAS on one thread, as
     the ``lsr`` command sets it (``single_blas_thread``): its rounding depends on its thread count."""
@@ -42,7 +44,7 @@ def frame_digests(source: Path, driver: Path, *, side_by_side: bool, frames: int
     from lsr.weights import resolve_weights
 
     cfg = ReenactConfig(weights=resolve_weights(None), source=source, driver=driver, out=Path("unused.mp4"),
-                        k=8, paste_back=True, threads=1, progress=False)
+                        k=8, paste_back=True, threads=1, progress=False, runtime=runtime)
     cfg.validate()
     reenactor = make_reenactor(cfg)
     reenactor.encode_subject(source, k=cfg.k)
@@ -91,6 +93,19 @@ def _check(name: str, source: Path, driver: Path, side_by_side: bool) -> None:
 def test_demo_frames_unchanged():
     source, driver, side_by_side = cases(None)["demo"]
     _check("demo", source, driver, side_by_side)
+
+
+@pytest.mark.slow
+def test_the_default_runtime_draws_the_recorded_demo_frames():
+    """The default (--runtime auto: the exported graphs on onnxruntime) draws the frames recorded with torch, to the
+    rounding of the last bit (each frame's mean and spread per channel)."""
+    from lsr.config import ReenactConfig
+
+    assert ReenactConfig().resolved_runtime == "onnx"
+    source, driver, side_by_side = cases(None)["demo"]
+    got = frame_digests(source, driver, side_by_side=side_by_side, runtime="onnx")
+    expected = json.loads(RECORD.read_text())["cases"]["demo"]
+    np.testing.assert_allclose(got["stats"], expected["stats"], atol=0.05)
 
 
 @pytest.mark.slow

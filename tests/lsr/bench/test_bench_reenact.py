@@ -40,6 +40,9 @@ def test_warp_guided_model_is_timed_on_both_runtimes(tmp_path):
         assert cells[4] == "driver" and cells[5] == "drawn"  # the driver's mouth interior, the subject's drawn lids
         assert int(cells[6]) == 4 and float(cells[15]) > 0  # frames, end-to-end fps
     assert "`" in table.splitlines()[0]  # the model named as given, not a random preset
+    default = next(line for line in table.splitlines() if line.startswith("`lsr reenact` as it runs"))
+    onnx_fps, torch_fps = (float(row.split("|")[16]) for row in (rows[2], rows[0]))  # the mesh rows
+    assert f"{onnx_fps:.2f} fps end to end, {onnx_fps / torch_fps:.2f}x" in default  # onnx, the default, on torch
 
 
 def test_the_drawn_mouth_and_eyes_are_timed_against_the_path_without_them(tmp_path):

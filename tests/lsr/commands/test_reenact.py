@@ -348,6 +348,25 @@ def test_pipeline_finetune_changes_generator_not_latents(weights, inputs):
     assert reenactor.subject is subject and np.isfinite(result.l1_after)
 
 
+def test_the_default_runtime_is_onnx_and_torch_where_fine_tuning_is_asked(weights):
+    """--runtime auto (the default) runs the exported graphs, and the torch model where fine-tuning must train it."""
+    from deploy.runtime import OnnxReenactor
+    from lsr.commands.reenact import make_reenactor
+    from lsr.config import ReenactConfig
+    from lsr.config.inference import resolve_runtime
+    from lsr.pipeline import Reenactor
+
+    assert isinstance(make_reenactor(ReenactConfig(weights=weights)), OnnxReenactor)
+    assert isinstance(make_reenactor(ReenactConfig(weights=weights, finetune_steps=3)), Reenactor)
+    assert ReenactConfig().resolved_runtime == "onnx"
+    assert ReenactConfig(finetune_steps=0).resolved_runtime == "onnx"
+    assert ReenactConfig(finetune_steps=5).resolved_runtime == "torch"
+    ReenactConfig(source=Path("a.png"), driver=Path("b.mp4"), out=Path("c.mp4"), finetune_steps=5).validate_options()
+    assert [resolve_runtime(name, 5) for name in ("torch", "onnx")] == ["torch", "onnx"]  # as given
+    with pytest.raises(ConfigError, match="auto, torch or onnx"):
+        resolve_runtime("tensorrt", 0)
+
+
 def test_default_finetune_steps_follow_the_runtime():
     """Fine-tuning follows the default where it can run (torch) and is off for the ONNX runtime, which cannot train."""
     from lsr.config import DEFAULT_FINETUNE_STEPS, ReenactConfig
