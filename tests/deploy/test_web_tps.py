@@ -93,6 +93,29 @@ def test_degenerate_landmarks_fall_back_as_python(web, real_shots):
     assert np.mean(got["warped"] == expected[0]) > 0.999 and np.mean(got["masks"] == expected[1]) > 0.999
 
 
+def test_shared_maps_take_each_fallback_as_python(web, real_shots):
+    """tpsMaps (one solve per try for every set onto one target): the sets that fold go on to the stronger tries
+    together, then the similarity; a set with a missing point alone. Each as Python's tps_maps: the same method,
+    lambda, reason and map."""
+    target = real_shots[1][9]
+    sets = [real_shots[1][k] for k in range(3)]
+    for first, second in ((37, 41), (36, 45), (30, 33)):  # an eye's lids, the eyes' outer corners, the nose: folds
+        swapped = target.copy()
+        swapped[[first, second]] = swapped[[second, first]]
+        sets.append(swapped)
+    missing = sets[0].copy()
+    missing[40] = np.nan
+    sets.append(missing)
+    got = web.call("tpsMaps", sets, target, SIDE, SIDE, {"gridStep": 4})
+    expected = tps.tps_maps(sets, target, SIDE, SIDE, grid_step=4)
+    for mine, theirs in zip(got, expected, strict=True):
+        assert (mine["method"], mine["reason"]) == (theirs.method, theirs.reason)
+        assert mine["regularization"] == pytest.approx(theirs.regularization)
+        np.testing.assert_allclose(mine["mapX"].reshape(SIDE, SIDE), theirs.map_x, atol=2e-3)
+        np.testing.assert_allclose(mine["mapY"].reshape(SIDE, SIDE), theirs.map_y, atol=2e-3)
+    assert [theirs.method for theirs in expected[3:6]] == ["tps_stronger", "similarity", "tps_stronger"]
+
+
 def test_nearest_shots_and_landmark_distance_match_python(web, real_shots):
     points = real_shots[1].copy()
     points[2] = np.nan  # a shot without a face comes last

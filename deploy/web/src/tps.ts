@@ -460,9 +460,17 @@ export function tpsGridMap(sourcePoints: Tensor, targetPoints: Tensor, height: n
       return { mapX, mapY, method: attempt === 0 ? "tps" : "tps_stronger", regularization: lambda,
                foldedFraction: folds, reason: reasons.join("; "), grid };
     }
-    reasons.push(`lambda ${formatG(lambda)}: ${(folds * 100).toFixed(2)}% of pixels folded`);
+    reasons.push(foldedReason(lambda, folds));
   }
-  const matrix = found.length >= 2 ? fitSimilarity(targets, sources) : null;
+  return rigidGridMap(targets, sources, found.length, grid, reasons);
+}
+
+/** Where every TPS try failed (landmarks.warp.tps._rigid_map): the least-squares similarity of the landmarks
+ * (targets, sources: `count` rows), else the identity, on the grid. */
+function rigidGridMap(targets: Float64Array, sources: Float64Array, count: number, grid: CoarseGrid,
+                      reasons: string[]): GridMap {
+  const rows = grid.ys.length, cols = grid.xs.length;
+  const matrix = count >= 2 ? fitSimilarity(targets, sources) : null;
   const mapX = new Float64Array(rows * cols), mapY = new Float64Array(rows * cols);
   for (let j = 0, p = 0; j < rows; j++) {
     for (let i = 0; i < cols; i++, p++) {
@@ -471,9 +479,14 @@ export function tpsGridMap(sourcePoints: Tensor, targetPoints: Tensor, height: n
       mapY[p] = matrix ? matrix[3] * x + matrix[4] * y + matrix[5] : y;
     }
   }
-  if (!matrix) reasons.push("no similarity: landmarks have no spread");
+  const why = matrix ? reasons : [...reasons, "no similarity: landmarks have no spread"];
   return { mapX, mapY, method: matrix ? "similarity" : "identity", regularization: 0, foldedFraction: 0,
-           reason: reasons.join("; "), grid };
+           reason: why.join("; "), grid };
+}
+
+/** Why a try was rejected: its map folds (landmarks.warp.tps._folded_reason). */
+function foldedReason(lambda: number, folds: number): string {
+  return `lambda ${formatG(lambda)}: ${(folds * 100).toFixed(2)}% of pixels folded`;
 }
 
 function dense(map: GridMap): WarpMap {
@@ -488,8 +501,9 @@ export function tpsMap(sourcePoints: Tensor, targetPoints: Tensor, height: numbe
 }
 
 /** tps_map of several source point sets onto one target, sharing the merge, one solve and the kernel on the grid
- * (landmarks.warp.tps.tps_maps); a set with other missing points than the target's, or whose first-try map is
- * rejected, goes through tpsMap alone (with its retries and fallbacks). */
+ * (landmarks.warp.tps.tps_maps): the sets whose map folds go on to the stronger tries together (one solve per try)
+ * and the fallbacks; a set with other missing points than the target's, or whose first try is ill-conditioned or
+ * not finite, goes through tpsMap alone. */
 export function tpsMaps(sourceSets: Tensor[], targetPoints: Tensor, height: number, width: number,
                         settings: TpsSettings = {}): WarpMap[] {
   return tpsGridMaps(sourceSets, targetPoints, height, width, settings).map(dense);
@@ -513,22 +527,46 @@ export function tpsGridMaps(sourceSets: Tensor[], targetPoints: Tensor, height: 
     const sets = shared.map((index) => sourceSets[index]);
     const [control, values] = mergeClosePoints(...controlPoints(targetPoints, sets, rows, fixed), columns,
                                                o.mergeDistance);
-    let spline: ThinPlateSpline | null = null;
-    try {
-      spline = solveTps(control, values, columns, o.regularization, o.maxCondition);
-    } catch (error) {
-      if (!(error instanceof DegenerateTpsError)) throw error;
-    }
-    if (spline) {
-      const grid = coarseGrid(height, width, o.gridStep), mapped = evaluate(spline, grid.points);
-      shared.forEach((index, slot) => {
-        const [mapX, mapY, finite] = slotMap(mapped, columns, slot);
+    const grid = coarseGrid(height, width, o.gridStep), count = control.length / 2;
+    let pending = shared.map((_, slot) => slot);  // the sets still without a map
+    const reasons: string[][] = shared.map(() => []);
+    for (let attempt = 0; attempt < RETRY_FACTORS.length && pending.length > 0; attempt++) {
+      // tpsGridMap's tries, each one solve for every set left, on the same control points
+      const lambda = o.regularization * RETRY_FACTORS[attempt], span = 2 * pending.length;
+      const picked = new Float64Array(count * span);
+      for (let r = 0; r < count; r++) {
+        pending.forEach((slot, column) => {
+          picked[r * span + 2 * column] = values[r * columns + 2 * slot];
+          picked[r * span + 2 * column + 1] = values[r * columns + 2 * slot + 1];
+        });
+      }
+      let spline: ThinPlateSpline;
+      try {
+        spline = solveTps(control, picked, span, lambda, o.maxCondition);
+      } catch (error) {
+        if (!(error instanceof DegenerateTpsError)) throw error;
+        if (attempt === 0) pending = [];  // every set through tpsGridMap alone, below
+        for (const slot of pending) reasons[slot].push(error.message);
+        break;
+      }
+      const mapped = evaluate(spline, grid.points), left: number[] = [];
+      pending.forEach((slot, column) => {
+        const [mapX, mapY, finite] = slotMap(mapped, span, column);
+        if (attempt === 0 && !finite) return;  // through tpsGridMap alone, below
         const folds = foldedFraction(mapX, mapY, grid.ys.length, grid.xs.length);
         if (finite && folds <= o.maxFoldedFraction) {
-          maps[index] = { mapX, mapY, method: "tps", regularization: o.regularization, foldedFraction: folds,
-                          reason: "", grid };
+          maps[shared[slot]] = { mapX, mapY, method: attempt === 0 ? "tps" : "tps_stronger", regularization: lambda,
+                                 foldedFraction: folds, reason: reasons[slot].join("; "), grid };
+        } else {
+          reasons[slot].push(foldedReason(lambda, folds));
+          left.push(slot);
         }
       });
+      pending = left;
+    }
+    for (const slot of pending) {  // every try folded or failed: the similarity, as tpsGridMap falls back
+      const [targets, sources] = controlPoints(targetPoints, [sets[slot]], rows, []);
+      maps[shared[slot]] = rigidGridMap(targets, sources, rows.length, grid, reasons[slot]);
     }
   }
   return maps.map((map, index) => map ?? tpsGridMap(sourceSets[index], targetPoints, height, width, o));
