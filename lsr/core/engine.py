@@ -367,11 +367,14 @@ class ReenactorBase:
         with_layout = with_layout and self.backend.layout_kind != "none"
         self.last_stats = stats = ReenactStats()
         into_source = paste_back and scene == "source" and not same_input(subject.source, driver)
+        tracks = self.part_tracks(subject, relative)  # first: a video source's bank pass tracks its frames once
         scenes = None
         if into_source:
             from lsr.core.scene import SourceScene
 
-            scenes = SourceScene(subject.shots, self.crop_size, detector=self.detector, fps=info.fps, smooth=smooth)
+            tracked_by, track = subject.video_track or (None, None)
+            scenes = SourceScene(subject.shots, self.crop_size, detector=self.detector, fps=info.fps, smooth=smooth,
+                                 track=track if tracked_by is self.detector else None, frames_needed=info.frames or None)
         if info.kind == "landmarks":
             read_landmark_array(driver, landmark_space=landmark_space, landmark_size=landmark_size)  # fail early
             frames = self._landmark_driver(driver, info, relative, smooth, landmark_space, landmark_size, stats, scenes)
@@ -379,7 +382,7 @@ class ReenactorBase:
             frames = self._frame_driver(info, relative, smooth, paste_back and not into_source, stats, scenes, retarget)
         # three overlapping stages: the frames prepared (decoded, tracked, retargeted, the shots warped) on a thread
         # ahead, the network here, each frame's paste-back on a worker behind (lsr.core.overlap)
-        frames = finish_behind(self._synthesized(prefetch(frames), with_layout, stats, self.part_tracks(subject, relative)))
+        frames = finish_behind(self._synthesized(prefetch(frames), with_layout, stats, tracks))
         return _with_progress(frames, info.frames) if progress else frames  # checks above run now; frames lazily
 
     __call__ = reenact

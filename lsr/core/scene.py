@@ -74,14 +74,18 @@ class SourceScene:
     """An endless stream of ``SceneFrame``s of a subject's source (module docstring)."""
 
     def __init__(self, shots: SubjectShots, crop_size: int, *, detector=None, fps: float = 25.0,
-                 smooth: bool = True) -> None:
+                 smooth: bool = True, track: list[np.ndarray | None] | None = None,
+                 frames_needed: int | None = None) -> None:
+        """track: a video source's points per frame as ``detector``'s tracker reads them (``Subject.video_track``),
+        so that they are not tracked again; frames_needed: how many scene frames will be asked for, when known (a
+        driver no longer than the video never plays it back, so its frames are not kept for the way back)."""
         from landmarks.align import crop_transform
 
         self.crop_size = int(crop_size)
         self._anchor = np.asarray(shots.landmarks[shots.anchor], np.float64)
         self._frames: Iterator[SceneFrame] | None = None
         if shots.video is not None:
-            self._frames = self._video_frames(shots, detector, fps, smooth)
+            self._frames = self._video_frames(shots, detector, fps, smooth, track, frames_needed)
             self._still = None
             return
         if shots.anchor_frame is not None:
@@ -107,24 +111,35 @@ class SourceScene:
         motion = similarity_procrustes(self._anchor[rigid], transform_landmarks(points, matrix)[rigid])
         return SceneFrame(image, points, matrix, motion)
 
-    def _video_frames(self, shots: SubjectShots, detector, fps: float, smooth: bool) -> Iterator[SceneFrame]:
+    def _video_frames(self, shots: SubjectShots, detector, fps: float, smooth: bool,
+                      track: list[np.ndarray | None] | None = None,
+                      frames_needed: int | None = None) -> Iterator[SceneFrame]:
         from landmarks.motion.smooth import OneEuroFilter
         from landmarks.detect.registry import make_tracker
-        from landmarks.io.video import iter_frames
+        from landmarks.io.video import iter_frames, probe_video
 
-        tracker = make_tracker(detector)
+        tracker = make_tracker(detector) if track is None else None
         one_euro = OneEuroFilter(fps) if smooth else None
-        cache: list[tuple[bytes, np.ndarray | None]] = []
+        keep = frames_needed is None or frames_needed > probe_video(shots.video).frames  # the way back is needed
+        encoded: list[bytes] = []
+        places: list[np.ndarray | None] = []
         last = None
-        for image in iter_frames(shots.video):
-            points = tracker.update(image)
+        for index, image in enumerate(iter_frames(shots.video)):
+            if tracker is not None:
+                points = tracker.update(image)
+            else:
+                points = track[index] if index < len(track) else None  # type: ignore[index]
             if points is not None and np.isfinite(points).all():
                 last = one_euro(points) if one_euro is not None else np.asarray(points, np.float64)
-            ok, encoded = cv2.imencode(".jpg", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
-            cache.append((encoded.tobytes() if ok else b"", last))
+            if keep:
+                encoded.append(_jpeg(image))
+            places.append(last)
             yield self._frame(image, last)  # a face-less stretch keeps the last face's place
-        if not cache:
+        if not places:
             raise ValueError(f"the source video {shots.video} decoded no frames")
+        if not keep:  # the driver ran past the video after all (its frame count was short): read it again
+            encoded = [_jpeg(image) for image in iter_frames(shots.video)]
+        cache = list(zip(encoded, places))
         first = next((points for _, points in cache if points is not None), None)
         order = list(range(len(cache) - 2, 0, -1)) + list(range(0, len(cache) - 1))  # back, then forth again
         while True:
@@ -133,6 +148,12 @@ class SourceScene:
                 image = cv2.cvtColor(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
                 yield self._frame(image, points if points is not None else first)
             order = list(range(len(cache) - 1, 0, -1)) + list(range(0, len(cache) - 1))
+
+
+def _jpeg(image: np.ndarray) -> bytes:
+    """A scene frame (H, W, 3) uint8 RGB kept for the way back: JPEG at ``JPEG_QUALITY`` (b"" where it fails)."""
+    ok, encoded = cv2.imencode(".jpg", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    return encoded.tobytes() if ok else b""
 
 
 # ---- the engine's finishers: each frame's paste-back, run behind the network (lsr.core.overlap) --------

@@ -31,6 +31,10 @@ class Subject:
     """Resolved source path when the source was one file or folder (decides the default mode)."""
     banks: dict[str, tuple[EyeBank | None, MouthBank | None]] = dataclasses.field(default_factory=dict, repr=False)
     """Its part banks, by ``lsr.core.finish.BANKS`` scope, built on first use (``part_banks``)."""
+    video_track: tuple[object, list[np.ndarray | None]] | None = dataclasses.field(default=None, repr=False)
+    """A video source's (the detector its tracker ran with, each frame's 68 points or None) as the "all" banks' pass
+    tracked them: the scene's stream (``lsr.core.scene.SourceScene``) takes them for the same detector instead of
+    tracking the same frames again."""
 
     def part_banks(self, scope: str, detector=None) -> tuple[EyeBank | None, MouthBank | None]:
         """Its eyes and mouths, indexed (``landmarks.parts``): scope "shots", its K shots; "all", every frame of a
@@ -40,7 +44,9 @@ class Subject:
             raise ValueError(f"a part bank's scope must be 'all' or 'shots', got {scope!r}")
         if scope not in self.banks:
             if scope == "all" and self.shots.video is not None:
-                self.banks[scope] = video_part_banks(self.shots.video, detector)
+                track: list[np.ndarray | None] = []
+                self.banks[scope] = video_part_banks(self.shots.video, detector, track=track)
+                self.video_track = (detector, track)
             else:
                 shots = self.shots
                 self.banks[scope] = (build_eye_bank(zip(shots.frames, shots.landmarks, self.found_irises[0])),
@@ -91,11 +97,13 @@ class Subject:
         return meshes[self.shots.anchor]
 
 
-def video_part_banks(video, detector=None, max_entries: int = 600) -> tuple[EyeBank | None, MouthBank | None]:
+def video_part_banks(video, detector=None, max_entries: int = 600, track: list | None = None
+                     ) -> tuple[EyeBank | None, MouthBank | None]:
     """The eye and mouth banks of every frame of a video (``landmarks.parts``), in one pass, each frame cut into both
     banks' rows as it is decoded (memory bounded by ``landmarks.parts.bank_rows.BankRows``): tracked with
     ``detector``'s tracker (``landmarks.detect.registry.make_tracker``), whose iris net's irises come with its faces (the
-    mesh tracker); other trackers' irises are found per frame (``landmarks.parts.eyes.iris.find_irises``)."""
+    mesh tracker); other trackers' irises are found per frame (``landmarks.parts.eyes.iris.find_irises``). track: a
+    list that gets each frame's points as tracked (None where no face was found)."""
     from landmarks.detect.registry import make_tracker
     from landmarks.parts.eyes.iris import find_irises
     from landmarks.io.video import iter_frames
@@ -104,6 +112,8 @@ def video_part_banks(video, detector=None, max_entries: int = 600) -> tuple[EyeB
     eyes, mouths = BankRows(max_entries), BankRows(max_entries)
     for frame in iter_frames(video):
         points = tracker.update(frame)
+        if track is not None:
+            track.append(None if points is None else np.array(points))  # as tracked, its own dtype
         if points is None or not np.isfinite(points).all():
             continue
         points = np.asarray(points, np.float64)

@@ -242,3 +242,47 @@ def test_a_live_session_takes_the_banks_eyes_and_chooses_afresh_after_a_face_les
 def test_a_bank_scope_other_than_all_or_shots_is_a_value_error(driven):
     with pytest.raises(ValueError, match="scope must be 'all' or 'shots', got 'none'"):
         driven.subject.part_banks("none")
+
+
+# ---- the source's scene takes the bank pass's tracking --------------------------------------------------------
+
+
+def test_the_scene_of_a_video_source_streams_the_bank_pass_points_as_if_it_tracked_them(reenactor, driven):
+    """The "all" banks' pass keeps each source frame's points (None for the black frame). The scene streamed with them
+    is the scene that tracks the video itself, frame for frame, past the video's end too (the way back); and so is
+    one told the driver is shorter than it turns out to be (its frames are then read again for the way back)."""
+    from lsr.core.scene import SourceScene
+
+    subject = driven.subject
+    tracked_by, track = subject.video_track
+    assert tracked_by is reenactor.detector and len(track) == SOURCE_FACES + 1 and track[BLANK_AT] is None
+    count = 2 * (SOURCE_FACES + 1) + 3  # forth, back, and forth again
+
+    def stream(**options):
+        scene = SourceScene(subject.shots, reenactor.crop_size, detector=reenactor.detector, **options)
+        return [next(scene) for _ in range(count)]
+
+    tracked = stream()
+    for options in ({"track": track}, {"track": track, "frames_needed": 2}):
+        for own, given in zip(tracked, stream(**options), strict=True):
+            np.testing.assert_array_equal(own.image, given.image)
+            assert (own.landmarks is None) == (given.landmarks is None)
+            if own.landmarks is not None:
+                np.testing.assert_array_equal(own.landmarks, given.landmarks)
+
+
+def test_the_frame_loop_gives_the_scene_the_bank_pass_points_and_the_drivers_length(reenactor, driven, clips,
+                                                                                  monkeypatch):
+    import lsr.core.scene as scene_module
+
+    given = {}
+    original = scene_module.SourceScene.__init__
+
+    def spy(self, *args, **options):
+        given.update(options)
+        original(self, *args, **options)
+
+    monkeypatch.setattr(scene_module.SourceScene, "__init__", spy)
+    monkeypatch.setattr(reenactor, "subject", driven.subject)  # the video source (another test drives a photo)
+    frames = list(reenactor.reenact(clips.short_driver, paste_back=True))
+    assert len(frames) == 4 and given["track"] is driven.subject.video_track[1] and given["frames_needed"] == 4
