@@ -186,11 +186,13 @@ def _source_candidates(source: SourceInput, k: int | None) -> Iterator[tuple[str
                 yield str(image_path), image
         elif is_video(path):
             from landmarks.io.video import iter_frames, probe_video
+            from lsr.core.overlap import prefetch
 
             total = probe_video(path).frames
             wanted = set(spread(total, CANDIDATES_PER_SHOT * (k or DEFAULT_K)))
-            for index, frame in enumerate(iter_frames(path)):
-                if index in wanted:
+            candidates = ((index, frame) for index, frame in enumerate(iter_frames(path)) if index in wanted)
+            with contextlib.closing(prefetch(candidates)) as frames:  # decoded on a thread beside the detection
+                for index, frame in frames:
                     yield f"{path}#{index}", frame
         elif path.suffix.lower() in IMAGE_SUFFIXES:
             yield str(path), read_image(path)

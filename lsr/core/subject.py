@@ -104,20 +104,24 @@ def video_part_banks(video, detector=None, max_entries: int = 600, track: list |
     ``detector``'s tracker (``landmarks.detect.registry.make_tracker``), whose iris net's irises come with its faces (the
     mesh tracker); other trackers' irises are found per frame (``landmarks.parts.eyes.iris.find_irises``). track: a
     list that gets each frame's points as tracked (None where no face was found)."""
+    import contextlib
+
     from landmarks.detect.registry import make_tracker
     from landmarks.parts.eyes.iris import find_irises
     from landmarks.io.video import iter_frames
+    from lsr.core.overlap import prefetch
 
     tracker = make_tracker(detector)
     eyes, mouths = BankRows(max_entries), BankRows(max_entries)
-    for frame in iter_frames(video):
-        points = tracker.update(frame)
-        if track is not None:
-            track.append(None if points is None else np.array(points))  # as tracked, its own dtype
-        if points is None or not np.isfinite(points).all():
-            continue
-        points = np.asarray(points, np.float64)
-        irises = getattr(tracker, "irises", None)
-        eyes.add(eye_row(frame, points, irises if irises is not None else find_irises(frame, points)))
-        mouths.add(mouth_row(frame, points))
+    with contextlib.closing(prefetch(iter_frames(video))) as frames:  # decoded on a thread beside the tracking
+        for frame in frames:
+            points = tracker.update(frame)
+            if track is not None:
+                track.append(None if points is None else np.array(points))  # as tracked, its own dtype
+            if points is None or not np.isfinite(points).all():
+                continue
+            points = np.asarray(points, np.float64)
+            irises = getattr(tracker, "irises", None)
+            eyes.add(eye_row(frame, points, irises if irises is not None else find_irises(frame, points)))
+            mouths.add(mouth_row(frame, points))
     return eye_bank_of(eyes.spread()), mouth_bank_of(mouths.spread())
