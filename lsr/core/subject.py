@@ -122,6 +122,7 @@ def video_part_banks(video, detector=None, max_entries: int = 600, track: list |
                 continue
             points = np.asarray(points, np.float64)
             irises = getattr(tracker, "irises", None)
-            eyes.add(eye_row(frame, points, irises if irises is not None else find_irises(frame, points)))
-            mouths.add(mouth_row(frame, points))
+            row = eye_row(frame, points, irises if irises is not None else find_irises(frame, points))
+            eyes.add(row)
+            mouths.add(mouth_row(frame, points, None if row is None else row[-1]))  # the head turn read once
     return eye_bank_of(eyes.spread()), mouth_bank_of(mouths.spread())

@@ -104,15 +104,16 @@ def own_lips(landmarks: np.ndarray) -> np.ndarray:
     return points[LIPS] @ matrix[:, :2].T + matrix[:, 2]
 
 
-def mouth_row(frame: np.ndarray, points: np.ndarray | None) -> tuple | None:
+def mouth_row(frame: np.ndarray, points: np.ndarray | None, turn: np.ndarray | None = None) -> tuple | None:
     """One frame's entry of a mouth bank: (patch, own lips, opening, head turn), or None where it has no face or its
-    mouth is narrower than ``MIN_WIDTH`` (``build_mouth_bank``)."""
+    mouth is narrower than ``MIN_WIDTH`` (``build_mouth_bank``). turn: the face's ``head_turn`` when the caller has
+    it already (the eye bank's row of the same frame)."""
     face = usable_face(frame, points)
     if face is None or np.hypot(*(face[1][CORNERS[1]] - face[1][CORNERS[0]])) < MIN_WIDTH:
         return None
     frame, points = face
     patch = cv2.warpAffine(frame, mouth_affine(points), PATCH, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return patch, own_lips(points), float(mouth_opening(points)), head_turn(points)
+    return patch, own_lips(points), float(mouth_opening(points)), head_turn(points) if turn is None else turn
 
 
 def mouth_bank_of(rows: list[tuple]) -> MouthBank | None:

@@ -196,6 +196,15 @@ def test_the_bank_holds_each_frames_mouth_cut_level_in_its_own_frame_with_what_w
     assert np.abs(bank.patches[2, centre_y + 3, centre_x].astype(int) - LIP).max() < 20  # shut: lips there
 
 
+def test_a_row_given_the_head_turn_read_already_is_the_row_that_reads_it():
+    from landmarks.parts.mouth.mouth_bank import mouth_row
+
+    frame, points = _sample(*OPEN)
+    own, given = mouth_row(frame, points), mouth_row(frame, points, head_turn(points))
+    for mine, theirs in zip(own, given, strict=True):
+        np.testing.assert_array_equal(mine, theirs)
+
+
 def test_frames_without_a_face_or_with_a_mouth_too_small_are_skipped_and_none_leaves_no_bank():
     frame, points = _sample(*OPEN)
     nan_points = points.copy()
