@@ -196,7 +196,8 @@ def _gradient(values: np.ndarray, axis: int) -> np.ndarray:
     if values.shape[axis] < 3:
         return np.gradient(values, axis=axis)
     moved = np.moveaxis(values, axis, 0)
-    out = np.empty(moved.shape, np.result_type(values.dtype, np.float64) if values.dtype.kind in "iub" else values.dtype)
+    kind = np.result_type(values.dtype, np.float64) if values.dtype.kind in "iub" else values.dtype  # as np.gradient
+    out = np.empty(moved.shape, kind)
     np.subtract(moved[2:], moved[:-2], out=out[1:-1])
     out[1:-1] /= 2.0
     out[0] = moved[1] - moved[0]
@@ -309,7 +310,6 @@ class _Grid:
         return self._rows @ values.astype(np.float32) @ self._cols.T
 
 
-
 @functools.lru_cache(maxsize=8)
 def _grid(height: int, width: int, step: int) -> _Grid:
     """The ``_Grid`` of an (H, W) frame at ``step``, made once (its arrays read-only): a video's frames share it."""
@@ -318,6 +318,7 @@ def _grid(height: int, width: int, step: int) -> _Grid:
         if isinstance(values, np.ndarray):
             values.setflags(write=False)
     return grid
+
 
 def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
     return cv2.remap(image, map_x.astype(np.float32), map_y.astype(np.float32), INTERPOLATION,
@@ -375,32 +376,48 @@ def tps_grid_map(source_points: np.ndarray, target_points: np.ndarray, height: i
         fixed = border_points(height, width)
         control, values = np.concatenate([control, fixed]), np.concatenate([values, fixed])
     control, values = merge_close_points(control, values, merge_distance)
-    return _grid_map(control, values, landmark_targets, landmark_sources, _grid(height, width, grid_step),
-                     regularization, max_condition, max_folded_fraction)
+    return _grid_maps(control, values, landmark_targets, [landmark_sources], _grid(height, width, grid_step),
+                      regularization, max_condition, max_folded_fraction)[0]
 
 
-def _grid_map(control: np.ndarray, values: np.ndarray, landmark_targets: np.ndarray, landmark_sources: np.ndarray,
-              grid: _Grid, regularization: float, max_condition: float, max_folded_fraction: float) -> GridMap:
-    """``tps_grid_map`` from its merged control points (N, 2) and values (N, 2) on: the TPS with lambda
-    ``regularization`` times each of ``RETRY_FACTORS`` until one neither fails nor folds (every try on the same
-    kernel, ``ThinPlateSpline.basis``), then the similarity of the landmarks, then the identity."""
-    reasons: list[str] = []
-    basis = None
+def _grid_maps(control: np.ndarray, values: np.ndarray, landmark_targets: np.ndarray,
+               landmark_sources: list[np.ndarray], grid: _Grid, regularization: float, max_condition: float,
+               max_folded_fraction: float) -> list[GridMap]:
+    """``tps_grid_map``'s tries for one or more sets of values on the same merged control points (N, 2): values
+    (N, 2 * sets). The TPS with lambda ``regularization`` times each of ``RETRY_FACTORS`` until one neither fails nor
+    folds, each try one solve for every set still without a map, all on one kernel (``ThinPlateSpline.basis``);
+    a set whose tries all fail or fold takes the similarity of its landmarks (``landmark_targets``, its
+    ``landmark_sources``), else the identity (``_rigid_map``)."""
+    count = values.shape[1] // 2
+    maps: list[GridMap | None] = [None] * count
+    reasons: list[list[str]] = [[] for _ in range(count)]
+    pending, basis = list(range(count)), None
     for attempt, factor in enumerate(RETRY_FACTORS):
+        columns = values[:, [column for slot in pending for column in (2 * slot, 2 * slot + 1)]]
         try:
-            spline = fit_tps(control, values, regularization * factor, max_condition)
+            spline = fit_tps(control, columns, regularization * factor, max_condition)
         except DegenerateTpsError as exc:
-            reasons.append(str(exc))
+            for slot in pending:
+                reasons[slot].append(str(exc))
             break  # more regularisation does not help a system without spread / affine rank
         basis = spline.basis(grid.points) if basis is None else basis
-        mapped = spline.apply(basis)  # source x, y per output pixel (on the grid)
-        map_x, map_y = mapped[:, 0].reshape(grid.shape), mapped[:, 1].reshape(grid.shape)
-        folds = folded_fraction(map_x, map_y)  # judged on the grid
-        if np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)) and folds <= max_folded_fraction:
-            method = "tps" if attempt == 0 else "tps_stronger"
-            return GridMap(map_x, map_y, method, regularization * factor, folds, "; ".join(reasons), grid)
-        reasons.append(_folded_reason(regularization * factor, folds))
-    return _rigid_map(landmark_targets, landmark_sources, grid, reasons)
+        mapped = spline.apply(basis)  # source x, y per output pixel (on the grid), two columns per set left
+        left = []
+        for column, slot in enumerate(pending):
+            map_x, map_y = mapped[:, 2 * column].reshape(grid.shape), mapped[:, 2 * column + 1].reshape(grid.shape)
+            folds = folded_fraction(map_x, map_y)  # judged on the grid
+            if np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)) and folds <= max_folded_fraction:
+                maps[slot] = GridMap(map_x, map_y, "tps" if attempt == 0 else "tps_stronger",
+                                     regularization * factor, folds, "; ".join(reasons[slot]), grid)
+            else:
+                reasons[slot].append(_folded_reason(regularization * factor, folds))
+                left.append(slot)
+        pending = left
+        if not pending:
+            break
+    for slot in pending:
+        maps[slot] = _rigid_map(landmark_targets, landmark_sources[slot], grid, reasons[slot])
+    return maps  # type: ignore[return-value]
 
 
 def _rigid_map(landmark_targets: np.ndarray, landmark_sources: np.ndarray, grid: _Grid, reasons: list[str]) -> GridMap:
@@ -429,9 +446,8 @@ def tps_maps(source_sets: list[np.ndarray], target_points: np.ndarray, height: i
     The control points of a backward TPS are the *target* points, so the references of a frame (all warped onto
     its landmarks) share the merge, the TPS system (one solve, two right-hand columns per set) and the kernel on
     the grid; only the fold check and the dense maps are per set. Same maps as ``tps_map`` per set up to float
-    rounding. The sets whose map folds go on to ``tps_map``'s stronger tries together (one solve per try on the same
-    kernel) and its fallbacks; a set whose missing points differ from the target's, or whose first try is
-    ill-conditioned or not finite, goes through ``tps_map`` alone.
+    rounding: the same tries and fallbacks (``_grid_maps``), those that fold going on together, one solve per try.
+    A set whose missing points differ from the target's goes through ``tps_map`` alone.
     """
     # settings: the keyword options of ``tps_map`` (its defaults where not given)
     unknown = set(settings) - set(_TPS_MAP_DEFAULTS)
@@ -453,42 +469,10 @@ def tps_maps(source_sets: list[np.ndarray], target_points: np.ndarray, height: i
             fixed = border_points(height, width)
             control, values = np.concatenate([control, fixed]), np.concatenate([values, np.tile(fixed, len(shared))])
         control, values = merge_close_points(control, values, merge_distance)
-        grid, basis = _grid(height, width, grid_step), None
-        pending = list(range(len(shared)))  # slots of the sets still without a map
-        reasons: list[list[str]] = [[] for _ in shared]
-        for attempt, factor in enumerate(RETRY_FACTORS):  # tps_map's tries, each one solve for every set left
-            columns = np.concatenate([values[:, 2 * slot:2 * slot + 2] for slot in pending], axis=1)
-            try:
-                spline = fit_tps(control, columns, regularization * factor, max_condition)
-            except DegenerateTpsError as exc:
-                if attempt == 0:
-                    pending = []  # every set through tps_map alone, below
-                for slot in pending:
-                    reasons[slot].append(str(exc))
-                break
-            basis = spline.basis(grid.points) if basis is None else basis  # the same control points every try
-            mapped = spline.apply(basis)  # (grid points, 2 * sets left)
-            left = []
-            for column, slot in enumerate(pending):
-                map_x = mapped[:, 2 * column].reshape(grid.shape)
-                map_y = mapped[:, 2 * column + 1].reshape(grid.shape)
-                finite = bool(np.all(np.isfinite(map_x)) and np.all(np.isfinite(map_y)))
-                if attempt == 0 and not finite:
-                    continue  # through tps_map alone, below
-                folds = folded_fraction(map_x, map_y)
-                if finite and folds <= max_folded_fraction:
-                    maps[shared[slot]] = WarpMap(grid.densify(map_x), grid.densify(map_y),
-                                                 "tps" if attempt == 0 else "tps_stronger", regularization * factor,
-                                                 folds, "; ".join(reasons[slot]))
-                else:
-                    reasons[slot].append(_folded_reason(regularization * factor, folds))
-                    left.append(slot)
-            pending = left
-            if not pending:
-                break
-        for slot in pending:  # every try folded or failed: the similarity, as tps_map falls back
-            index = shared[slot]
-            maps[index] = _rigid_map(target[found], sources[index][found], grid, reasons[slot]).dense()
+        shared_maps = _grid_maps(control, values, target[found], [sources[index][found] for index in shared],
+                                 _grid(height, width, grid_step), regularization, max_condition, max_folded_fraction)
+        for index, grid_map in zip(shared, shared_maps):
+            maps[index] = grid_map.dense()
     return [found_map if found_map is not None else tps_map(sources[index], target, height, width, **options)
             for index, found_map in enumerate(maps)]
 

@@ -35,6 +35,11 @@ def reenact_defaults() -> tuple[str, str]:
     return options.resolved_runtime, options.detector
 
 
+def _parts(reenactor) -> tuple[str, str, str, str]:
+    """A reenactor's mouth, eyes, mouth interior and lids."""
+    return reenactor.mouth, reenactor.eyes, reenactor.mouth_interior, reenactor.lids
+
+
 def synthesis_only_ms(reenactor, repeats: int = 20) -> float:
     """Median ms of one frame's synthesis at the subject's anchor pose (after one warm-up): what ``lsr reenact``
     times as its synthesis stage (the landmark image, a warp-guided model's warps of its nearest shots, the network,
@@ -104,10 +109,9 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
 
                 torch.set_num_threads(threads)
                 reenactor = Reenactor(weights, device=device, detector=detector)
-            model_parts = (reenactor.mouth, reenactor.eyes, reenactor.mouth_interior, reenactor.lids)
+            model_parts = _parts(reenactor)
             set_parts(reenactor, mouth=mouth, eyes=eyes, mouth_interior=interior, lids=lids)
-            as_default = (detector == default_detector  # what `lsr reenact` runs when told nothing
-                          and (reenactor.mouth, reenactor.eyes, reenactor.mouth_interior, reenactor.lids) == model_parts)
+            as_default = detector == default_detector and _parts(reenactor) == model_parts  # lsr reenact told nothing
             started = time.perf_counter()
             reenactor.encode_subject(clip, k=cfg.k)
             encode_subject_s = time.perf_counter() - started
@@ -170,7 +174,8 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
         *([f"`lsr reenact` as it runs when told nothing (--runtime auto = {default_runtime}, the {default_detector} "
            f"tracker, the model's parts): {default_fps[default_runtime]:.2f} fps end to end, "
            f"{default_fps[default_runtime] / default_fps['torch']:.2f}x the same with --runtime torch "
-           f"({default_fps['torch']:.2f} fps, same run)."] if default_runtime != "torch" and {default_runtime, "torch"} <= set(default_fps) else []),
+           f"({default_fps['torch']:.2f} fps, same run)."]
+          if default_runtime != "torch" and {default_runtime, "torch"} <= set(default_fps) else []),
         "",
         "Stages overlap (lsr.core.overlap), each ms its time on its own thread, sharing the cores: decoding and "
         "tracking on one thread, smoothing, retargeting and the warps of the nearest shots on a second (landmarks ms "

@@ -51,8 +51,8 @@ DEFAULT_FINETUNE_STEPS = 0
 
 
 def resolve_runtime(runtime: str, finetune_steps: int | None) -> str:
-    """``--runtime``: "auto" runs onnx (the exported graphs on onnxruntime: the same frames as torch, and about 1.5x
-    its frame rate end to end, ``lsr bench reenact``), or torch when fine-tuning steps are asked (only the torch
+    """``--runtime``: "auto" runs onnx (the exported graphs on onnxruntime: the same frames as torch, and 1.3-1.5x
+    its frame rate end to end in ``lsr bench reenact``), or torch when fine-tuning steps are asked (only the torch
     model trains); "torch" and "onnx" as given."""
     if runtime not in ("auto", "torch", "onnx"):
         raise ConfigError(f"--runtime must be auto, torch or onnx, got {runtime!r}")
@@ -272,7 +272,7 @@ class JobOptions:
     watermark: bool = False
     """Draw a visible 'SYNTHETIC' mark in the corner (container metadata always marks outputs as synthetic)."""
     runtime: Literal["auto", "torch", "onnx"] = "auto"
-    """onnx: the exported graphs on onnxruntime (the same frames as torch, about 1.5x faster end to end); torch: the
+    """onnx: the exported graphs on onnxruntime (the same frames as torch, 1.3-1.5x faster end to end); torch: the
     model itself (a CUDA GPU when one is visible; fine-tuning); auto: torch when --finetune-steps asks for
     fine-tuning, else onnx."""
     finetune_steps: OptionalInt = None

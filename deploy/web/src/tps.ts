@@ -442,27 +442,51 @@ export function tpsGridMap(sourcePoints: Tensor, targetPoints: Tensor, height: n
   const fixed = o.fixBorder ? borderPoints(height, width) : [];
   const [control, values] = mergeClosePoints(...controlPoints(targetPoints, [sourcePoints], found, fixed), 2,
                                              o.mergeDistance);
-  const grid = coarseGrid(height, width, o.gridStep), rows = grid.ys.length, cols = grid.xs.length;
-  const reasons: string[] = [];
-  for (let attempt = 0; attempt < RETRY_FACTORS.length; attempt++) {
-    const lambda = o.regularization * RETRY_FACTORS[attempt];
+  const grid = coarseGrid(height, width, o.gridStep);
+  return gridTries(control, values, 1, grid, o,
+                   (_, reasons) => rigidGridMap(targets, sources, found.length, grid, reasons))[0];
+}
+
+/** tpsGridMap's tries for `sets` sets of values (two columns each) on the same merged control points
+ * (landmarks.warp.tps._grid_maps): lambda times each of RETRY_FACTORS until one neither fails nor folds, each try one
+ * solve for every set still without a map; a set whose tries all fail or fold takes `fallback(slot, reasons)`. */
+function gridTries(control: Float64Array, values: Float64Array, sets: number, grid: CoarseGrid,
+                   o: Required<TpsSettings>, fallback: (slot: number, reasons: string[]) => GridMap): GridMap[] {
+  const maps: (GridMap | null)[] = new Array(sets).fill(null), reasons: string[][] = maps.map(() => []);
+  const count = control.length / 2, columns = 2 * sets;
+  let pending = maps.map((_, slot) => slot);
+  for (let attempt = 0; attempt < RETRY_FACTORS.length && pending.length > 0; attempt++) {
+    const lambda = o.regularization * RETRY_FACTORS[attempt], span = 2 * pending.length;
+    const picked = new Float64Array(count * span);
+    for (let r = 0; r < count; r++) {
+      pending.forEach((slot, column) => {
+        picked[r * span + 2 * column] = values[r * columns + 2 * slot];
+        picked[r * span + 2 * column + 1] = values[r * columns + 2 * slot + 1];
+      });
+    }
     let spline: ThinPlateSpline;
     try {
-      spline = solveTps(control, values, 2, lambda, o.maxCondition);
+      spline = solveTps(control, picked, span, lambda, o.maxCondition);
     } catch (error) {
       if (!(error instanceof DegenerateTpsError)) throw error;
-      reasons.push(error.message);
+      for (const slot of pending) reasons[slot].push(error.message);
       break;  // more regularisation does not help a system without spread / affine rank
     }
-    const [mapX, mapY, finite] = slotMap(evaluate(spline, grid.points), 2, 0);
-    const folds = foldedFraction(mapX, mapY, rows, cols);
-    if (finite && folds <= o.maxFoldedFraction) {
-      return { mapX, mapY, method: attempt === 0 ? "tps" : "tps_stronger", regularization: lambda,
-               foldedFraction: folds, reason: reasons.join("; "), grid };
-    }
-    reasons.push(foldedReason(lambda, folds));
+    const mapped = evaluate(spline, grid.points), left: number[] = [];
+    pending.forEach((slot, column) => {
+      const [mapX, mapY, finite] = slotMap(mapped, span, column);
+      const folds = foldedFraction(mapX, mapY, grid.ys.length, grid.xs.length);
+      if (finite && folds <= o.maxFoldedFraction) {
+        maps[slot] = { mapX, mapY, method: attempt === 0 ? "tps" : "tps_stronger", regularization: lambda,
+                       foldedFraction: folds, reason: reasons[slot].join("; "), grid };
+      } else {
+        reasons[slot].push(foldedReason(lambda, folds));
+        left.push(slot);
+      }
+    });
+    pending = left;
   }
-  return rigidGridMap(targets, sources, found.length, grid, reasons);
+  return maps.map((map, slot) => map ?? fallback(slot, reasons[slot]));
 }
 
 /** Where every TPS try failed (landmarks.warp.tps._rigid_map): the least-squares similarity of the landmarks
@@ -501,9 +525,8 @@ export function tpsMap(sourcePoints: Tensor, targetPoints: Tensor, height: numbe
 }
 
 /** tps_map of several source point sets onto one target, sharing the merge, one solve and the kernel on the grid
- * (landmarks.warp.tps.tps_maps): the sets whose map folds go on to the stronger tries together (one solve per try)
- * and the fallbacks; a set with other missing points than the target's, or whose first try is ill-conditioned or
- * not finite, goes through tpsMap alone. */
+ * (landmarks.warp.tps.tps_maps): the same tries and fallbacks (gridTries), those that fold going on together, one
+ * solve per try; a set with other missing points than the target's goes through tpsMap alone. */
 export function tpsMaps(sourceSets: Tensor[], targetPoints: Tensor, height: number, width: number,
                         settings: TpsSettings = {}): WarpMap[] {
   return tpsGridMaps(sourceSets, targetPoints, height, width, settings).map(dense);
@@ -527,47 +550,12 @@ export function tpsGridMaps(sourceSets: Tensor[], targetPoints: Tensor, height: 
     const sets = shared.map((index) => sourceSets[index]);
     const [control, values] = mergeClosePoints(...controlPoints(targetPoints, sets, rows, fixed), columns,
                                                o.mergeDistance);
-    const grid = coarseGrid(height, width, o.gridStep), count = control.length / 2;
-    let pending = shared.map((_, slot) => slot);  // the sets still without a map
-    const reasons: string[][] = shared.map(() => []);
-    for (let attempt = 0; attempt < RETRY_FACTORS.length && pending.length > 0; attempt++) {
-      // tpsGridMap's tries, each one solve for every set left, on the same control points
-      const lambda = o.regularization * RETRY_FACTORS[attempt], span = 2 * pending.length;
-      const picked = new Float64Array(count * span);
-      for (let r = 0; r < count; r++) {
-        pending.forEach((slot, column) => {
-          picked[r * span + 2 * column] = values[r * columns + 2 * slot];
-          picked[r * span + 2 * column + 1] = values[r * columns + 2 * slot + 1];
-        });
-      }
-      let spline: ThinPlateSpline;
-      try {
-        spline = solveTps(control, picked, span, lambda, o.maxCondition);
-      } catch (error) {
-        if (!(error instanceof DegenerateTpsError)) throw error;
-        if (attempt === 0) pending = [];  // every set through tpsGridMap alone, below
-        for (const slot of pending) reasons[slot].push(error.message);
-        break;
-      }
-      const mapped = evaluate(spline, grid.points), left: number[] = [];
-      pending.forEach((slot, column) => {
-        const [mapX, mapY, finite] = slotMap(mapped, span, column);
-        if (attempt === 0 && !finite) return;  // through tpsGridMap alone, below
-        const folds = foldedFraction(mapX, mapY, grid.ys.length, grid.xs.length);
-        if (finite && folds <= o.maxFoldedFraction) {
-          maps[shared[slot]] = { mapX, mapY, method: attempt === 0 ? "tps" : "tps_stronger", regularization: lambda,
-                                 foldedFraction: folds, reason: reasons[slot].join("; "), grid };
-        } else {
-          reasons[slot].push(foldedReason(lambda, folds));
-          left.push(slot);
-        }
-      });
-      pending = left;
-    }
-    for (const slot of pending) {  // every try folded or failed: the similarity, as tpsGridMap falls back
+    const grid = coarseGrid(height, width, o.gridStep);
+    const got = gridTries(control, values, shared.length, grid, o, (slot, reasons) => {
       const [targets, sources] = controlPoints(targetPoints, [sets[slot]], rows, []);
-      maps[shared[slot]] = rigidGridMap(targets, sources, rows.length, grid, reasons[slot]);
-    }
+      return rigidGridMap(targets, sources, rows.length, grid, reasons);
+    });
+    shared.forEach((index, slot) => { maps[index] = got[slot]; });
   }
   return maps.map((map, index) => map ?? tpsGridMap(sourceSets[index], targetPoints, height, width, o));
 }
