@@ -18,6 +18,10 @@ from app.handlers import DISPLAY_SIDE, Limits, ModelStore, load_shots, upload_pa
 
 LIVE_FPS_SMOOTHING = 0.2  # weight of the newest frame interval in the fps shown
 LIVE_TRACE: list[tuple[int, float]] | None = None
+LIVE_LAYOUT_EVERY = 5
+"""The live tab redraws its latent-layout picture on every this-many-th frame shown. A second picture each frame
+(its JPEG, its transfer, the browser's redraw) cost the stream 1.13x of its rate with the browser on the same two
+cores: 14.0 fps against 12.4 (``lsr bench live``'s browser run, 15 s each, medians of three alternated runs)."""
 """Set to a list by ``lsr bench live`` (which serves the app in its own process): each camera frame's (index, time in
 ms since the epoch) as the live handler takes it up, to match the browser's timestamps against."""
 EDIT_SLIDERS = (  # name, minimum, maximum, neutral, step, label (landmarks.shape.edit.edit_landmarks' keywords)
@@ -142,7 +146,8 @@ def live_frame(store: ModelStore, limits: Limits, stream: LiveStream | None, fra
     fps = stream.tick()
     status = (f"{'–' if fps is None else f'{fps:.1f}'} fps · {1000 * shown.seconds:.0f} ms per frame · "
               f"frame {shown.index}" + (f" · {shown.note}" if shown.note else ""))
-    return shown.image, stream.layout_picture(shown.layout), status, stream
+    layout = stream.layout_picture(shown.layout) if shown.index % LIVE_LAYOUT_EVERY == 0 else gr_skip()
+    return shown.image, layout, status, stream
 
 
 def gr_skip():

@@ -46,10 +46,11 @@ and the output.
 Drag the slider to scrub through the frames."""
 
 
-LIVE_HELP = """Your **webcam drives the person** of the first tab (the photos you gave there, or the example person
+LIVE_HELP = f"""Your **webcam drives the person** of the first tab (the photos you gave there, or the example person
 when there are none), live. Allow the camera and press its record button. Frames that arrive while the last one is
 still being made are dropped, never queued, so what you see stays close to now; the line under the result shows
-the rate, the time per frame and the frame count. Without a face in view the last good frame stays. The network runs
+the rate, the time per frame and the frame count. The latent layout beside it is redrawn on every
+{live.LIVE_LAYOUT_EVERY}th frame. Without a face in view the last good frame stays. The network runs
 on onnxruntime (the first start exports it, a few seconds). Outputs carry the visible 'SYNTHETIC' mark unless it is
 switched off in the first tab's options."""
 EDIT_HELP = """**Sliders edit the person's face** (the photos of the first tab, or the example person): head yaw,

@@ -224,3 +224,27 @@ def test_photos_of_another_person_are_left_out_and_named(app_inputs, tmp_path, m
     assert shots.names == ["shot0.png", "shot1.png", "shot3.png"]
     assert notes[0] == "using 3 of 3 shot(s) with a face of the person (K=4)"
     assert any("left out 1 of 4 chosen source frame(s) showing another person's face" in note for note in notes)
+
+
+def test_the_live_layout_picture_is_redrawn_every_few_frames(tiny_app_weights, app_inputs, tmp_path):
+    """The live tab sends its latent-layout picture on every LIVE_LAYOUT_EVERY-th frame shown and leaves it as it is
+    between (a second picture each frame costs the stream its rate); every frame gets its re-enacted image."""
+    import gradio as gr
+
+    from app import live_tab as live
+    from lsr.data.synth import render_video
+
+    store = handlers.ModelStore(tiny_app_weights, "cpu")
+    frames = render_video(12, 2 * live.LIVE_LAYOUT_EVERY + 2, 128).frames
+    stream, seen = None, []
+    for frame in frames:
+        image, layout, status, stream = live.live_frame(store, handlers.Limits(), stream, frame,
+                                                        [str(app_inputs["source"])], 1, tmp_path / "examples")
+        assert isinstance(image, np.ndarray) and image.ndim == 3
+        index = int(re.search(r"frame (\d+)", status).group(1))
+        seen.append((index, isinstance(layout, np.ndarray)))
+        if not isinstance(layout, np.ndarray):
+            assert layout == gr.skip()
+    stream.close()
+    assert [drawn for _, drawn in seen] == [index % live.LIVE_LAYOUT_EVERY == 0 for index, _ in seen]
+    assert any(drawn for _, drawn in seen) and not all(drawn for _, drawn in seen)
