@@ -365,9 +365,11 @@ class ExportConfig:
     int8: bool = False
     """Also write a frame generator whose network convolutions are int8, calibrated on real frames; prints its error vs fp32."""
     calibration_source: OptionalPath = None
-    """--int8: source (image/folder/video) whose latents calibrate; default the shared tpsmm_driving.mp4."""
+    """--int8: source (image/folder/video) whose latents calibrate; default the bundled example person
+    (lsr/examples), never an evaluation clip."""
     calibration_driver: OptionalPath = None
-    """--int8: driving video whose landmark images calibrate; default --calibration-source."""
+    """--int8: driving video whose landmark images calibrate; default --calibration-source, or the bundled example
+    driver when that is not given."""
     calibration_frames: int = 32
     calibration_k: OptionalInt = None
     web: OptionalPath = None

@@ -279,14 +279,6 @@ def calibration_inputs(weights: str | os.PathLike | LSRModel, source, driver, *,
     return feeds
 
 
-def default_calibration_clip() -> Path | None:
-    """The shared real clip used for calibration when none is given (None when absent)."""
-    repo_root = Path(__file__).resolve().parents[2]
-    shared = Path(os.environ.get("LSR_SHARED_DATA", repo_root.parent / "shared" / "data"))
-    clip = shared / "clips" / "tpsmm_driving.mp4"
-    return clip if clip.is_file() else None
-
-
 def run_export(cfg: ExportConfig) -> ExportResult:
     """Entry point of ``lsr export`` (``lsr.config.ExportConfig``)."""
     from landmarks.io.image_files import check_output_path
@@ -299,10 +291,12 @@ def run_export(cfg: ExportConfig) -> ExportResult:
     print(f"wrote {', '.join(p.name for p in result.files)} to {result.folder} "
           f"(opset {ONNX_OPSET}, preset {result.metadata['preset']}, {result.metadata['resolution']}^2)")
     if cfg.int8:
-        source = cfg.calibration_source or default_calibration_clip()
-        driver = cfg.calibration_driver or source
-        if source is None:
-            raise ConfigError("--int8 needs real calibration frames: pass --calibration-source (and --calibration-driver)")
+        from lsr.examples import REAL_DRIVER, REAL_SOURCE
+
+        # by default the bundled example (a woman driven by a man: the frames a user's run feeds the graph), never
+        # an evaluation clip: calibrating is choosing the int8 ranges
+        source = cfg.calibration_source or REAL_SOURCE
+        driver = cfg.calibration_driver or (source if cfg.calibration_source is not None else REAL_DRIVER)
         feeds = calibration_inputs(model, source, driver, k=cfg.calibration_k, frames=cfg.calibration_frames)
         int8_path = quantize_frame_generator(result.folder / FRAME_GENERATOR_FILE,
                                              result.folder / FRAME_GENERATOR_INT8_FILE, feeds)

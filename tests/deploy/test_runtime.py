@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -201,3 +202,18 @@ def test_warp_guided_torch_and_onnx_give_the_same_frames(tmp_path):
         assert all(f.image.shape == (128, 128, 3) and f.layout.shape[1:] == (64, 64) for f in frames)
         outputs.append(np.stack([f.image for f in frames]))
     assert np.abs(outputs[0].astype(int) - outputs[1]).max() <= 1
+
+
+@pytest.mark.slow
+def test_export_int8_calibrates_on_the_bundled_example_without_shared_data(tmp_path, monkeypatch, capsys):
+    """`lsr export --int8` with no calibration clip given: the bundled example person and driver calibrate it (never an
+    evaluation clip), so it works from a clean checkout without ../shared/data."""
+    import onnx
+
+    from lsr.cli import main
+
+    monkeypatch.setenv("LSR_SHARED_DATA", str(tmp_path / "absent"))
+    assert main(["export", "--int8", "--out", str(tmp_path / "onnx"), "--calibration-frames", "4"]) == 0
+    int8_path = tmp_path / "onnx" / "frame_generator.int8.onnx"
+    assert any(node.op_type == "QLinearConv" for node in onnx.load(str(int8_path)).graph.node)
+    assert re.search(r"over 4 calibration frame\(s\): max abs error [0-9.e-]+", capsys.readouterr().out)
