@@ -3,7 +3,9 @@
 * Image sources (one image, a folder, arrays): the anchor shot's full-resolution frame, every frame (or the
   anchor crop itself when the shots came as crops).
 * A video source: its own frames in order, tracked like a driver, played back and forth when the driver is
-  longer (frames are kept JPEG-compressed in memory for the way back, about 50 kB each).
+  longer. For the way back the first pass's scene frames are kept as they are, with the matte and plate their
+  composite made, when the whole video fits ``KEPT_BYTES``; a longer one is kept JPEG-compressed (about 50 kB a
+  frame) and its layers are made again.
 
 Each scene frame comes with its landmarks and crop transform. The driven face keeps the source's head pose of
 that frame: ``place`` moves the target landmarks (in the anchor's crop coordinates) by the rigid motion from the
@@ -26,6 +28,10 @@ if TYPE_CHECKING:
     from landmarks.scene.compositing import SceneLayers
 
 JPEG_QUALITY = 95
+KEPT_BYTES = 512 * 2**20
+"""A video source whose frames, with their person matte (float32) and background plate, take at most this many
+bytes is played back from memory: about 10 bytes a pixel, so 75 GRID frames (360x288) take 78 MB and a 550-frame
+576x768 video would take 2.4 GB (kept as JPEG). Each layer made once, not again on every way back and forth."""
 
 
 @dataclasses.dataclass
@@ -120,7 +126,10 @@ class SourceScene:
 
         tracker = make_tracker(detector) if track is None else None
         one_euro = OneEuroFilter(fps) if smooth else None
-        keep = frames_needed is None or frames_needed > probe_video(shots.video).frames  # the way back is needed
+        info = probe_video(shots.video)
+        keep = frames_needed is None or frames_needed > info.frames  # the way back is needed
+        in_memory = info.frames * info.width * info.height * 10 <= KEPT_BYTES
+        kept: list[SceneFrame] = []
         encoded: list[bytes] = []
         places: list[np.ndarray | None] = []
         last = None
@@ -131,23 +140,38 @@ class SourceScene:
                 points = track[index] if index < len(track) else None  # type: ignore[index]
             if points is not None and np.isfinite(points).all():
                 last = one_euro(points) if one_euro is not None else np.asarray(points, np.float64)
-            if keep:
-                encoded.append(_jpeg(image))
             places.append(last)
-            yield self._frame(image, last)  # a face-less stretch keeps the last face's place
+            scene = self._frame(image, last)  # a face-less stretch keeps the last face's place
+            if keep and in_memory:
+                kept.append(scene)  # its layers too, once its composite has made them
+            elif keep:
+                encoded.append(_jpeg(image))
+            yield scene
         if not places:
             raise ValueError(f"the source video {shots.video} decoded no frames")
         if not keep:  # the driver ran past the video after all (its frame count was short): read it again
-            encoded = [_jpeg(image) for image in iter_frames(shots.video)]
-        cache = list(zip(encoded, places))
-        first = next((points for _, points in cache if points is not None), None)
-        order = list(range(len(cache) - 2, 0, -1)) + list(range(0, len(cache) - 1))  # back, then forth again
-        while True:
-            for index in order or [0]:
-                data, points = cache[index]
-                image = cv2.cvtColor(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-                yield self._frame(image, points if points is not None else first)
-            order = list(range(len(cache) - 1, 0, -1)) + list(range(0, len(cache) - 1))
+            if in_memory:
+                kept = [self._frame(image, points) for image, points in zip(iter_frames(shots.video), places)]
+            else:
+                encoded = [_jpeg(image) for image in iter_frames(shots.video)]
+        first = next((points for points in places if points is not None), None)
+        if in_memory:  # a frame before the first face takes the first face's place
+            kept = [scene if scene.landmarks is not None or first is None else self._frame(scene.image, first)
+                    for scene in kept]
+            for index in _back_and_forth(len(kept)):
+                yield kept[index]
+        for index in _back_and_forth(len(encoded)):
+            image = cv2.cvtColor(cv2.imdecode(np.frombuffer(encoded[index], np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+            yield self._frame(image, places[index] if places[index] is not None else first)
+
+
+def _back_and_forth(count: int) -> Iterator[int]:
+    """The frame indices of a video played back from its last frame, then forth again, for ever (each end shown
+    once, not twice)."""
+    order = list(range(count - 2, 0, -1)) + list(range(0, count - 1))
+    while True:
+        yield from order or [0]
+        order = list(range(count - 1, 0, -1)) + list(range(0, count - 1))
 
 
 def _jpeg(image: np.ndarray) -> bytes:

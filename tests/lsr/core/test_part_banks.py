@@ -271,6 +271,37 @@ def test_the_scene_of_a_video_source_streams_the_bank_pass_points_as_if_it_track
                 np.testing.assert_array_equal(own.landmarks, given.landmarks)
 
 
+def test_a_video_scene_that_fits_in_memory_plays_its_own_frames_back_with_their_layers(reenactor, driven,
+                                                                                       monkeypatch):
+    """The way back of a video that fits ``KEPT_BYTES`` shows the first pass's own scene frames (the very pixels, and
+    the matte and plate their composite made, not made again); a longer one shows JPEG copies of them."""
+    import lsr.core.scene as scene_module
+
+    subject = driven.subject
+    frames = SOURCE_FACES + 1
+    count = 2 * frames + 1
+
+    def stream():
+        scene = scene_module.SourceScene(subject.shots, reenactor.crop_size, detector=reenactor.detector,
+                                         track=subject.video_track[1])
+        return [next(scene) for _ in range(count)]
+
+    kept = stream()
+    back = kept[frames:]  # frames - 2 .. 1, then 0 .. frames - 2 again
+    order = list(range(frames - 2, 0, -1)) + list(range(0, frames - 1))
+    faces = [index for index in order if kept[index].landmarks is not None]
+    assert faces and all(back[order.index(index)] is kept[index] for index in faces)
+    monkeypatch.setattr(scene_module, "KEPT_BYTES", 0)
+    copies = stream()
+    differences = []
+    for index in faces:
+        copy = copies[frames + order.index(index)]
+        assert copy is not kept[index] and copy.layers is None
+        np.testing.assert_array_equal(copy.landmarks, kept[index].landmarks)
+        differences.append(np.abs(copy.image.astype(int) - kept[index].image.astype(int)).mean())
+    assert 0 < np.mean(differences) < 2.0  # JPEG at quality 95 (the black frame among them is exact)
+
+
 def test_the_frame_loop_gives_the_scene_the_bank_pass_points_and_the_drivers_length(reenactor, driven, clips,
                                                                                   monkeypatch):
     import lsr.core.scene as scene_module
