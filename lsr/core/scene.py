@@ -144,6 +144,8 @@ class SourceScene:
             scene = self._frame(image, last)  # a face-less stretch keeps the last face's place
             if keep and in_memory:
                 kept.append(scene)  # its layers too, once its composite has made them
+                if len(kept) * image.size * 10 // 3 > KEPT_BYTES:  # longer than its header said: JPEG after all
+                    encoded, kept, in_memory = [_jpeg(kept_scene.image) for kept_scene in kept], [], False
             elif keep:
                 encoded.append(_jpeg(image))
             yield scene
