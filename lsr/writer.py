@@ -95,7 +95,6 @@ def write_reenactment(reenactor: ReenactorBase, driver, output: Path, *, runtime
     """
     from landmarks.io.video import VideoWriter
     from lsr.core.overlap import Drain
-    from lsr.layout_view import load_layout_legend
 
     info = describe_driver(driver, fps=fps)
     metadata = provenance_metadata(__version__, runtime)
@@ -106,7 +105,11 @@ def write_reenactment(reenactor: ReenactorBase, driver, output: Path, *, runtime
                                landmark_space=landmark_space, landmark_size=landmark_size, progress=progress)
     first_landmarks, driven = None, []
     kind, size = reenactor.backend.layout_kind, reenactor.crop_size
-    legend = load_layout_legend(getattr(reenactor, "weights_path", None))
+    legend = None
+    if with_layout:  # layout_view imports torch: a run without the side-by-side on onnxruntime never does
+        from lsr.layout_view import load_layout_legend
+
+        legend = load_layout_legend(getattr(reenactor, "weights_path", None))
     encoded = [0.0]
 
     def encode(frame) -> None:  # on the encoding thread, in frame order, behind the synthesis

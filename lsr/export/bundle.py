@@ -33,17 +33,16 @@ import torch
 from landmarks.io.image_files import atomic_output, make_readable
 from lsr import __version__
 from lsr.errors import ConfigError, WeightsError
+from lsr.export.bundle_cache import FRAME_GENERATOR_FILE, SUBJECT_ENCODER_FILE, bundle_cache_folder, holds_bundle
 from lsr.export.graphs import SUBJECT_GRAPH_IO, FrameGeneratorGraph, export_onnx, frame_graph_io
 from lsr.pipeline import load_mouth, load_model
 from models_def import PRESET_NAMES, LSRModel, ModelConfig, preset_config
-from models_def.part_generator import MOUTH_FOLDER, PartGenerator
+from models_def.part_generator import PartGenerator
 
 if TYPE_CHECKING:
     from lsr.config import ExportConfig
 
 ONNX_OPSET = 17
-SUBJECT_ENCODER_FILE = "subject_encoder.onnx"
-FRAME_GENERATOR_FILE = "frame_generator.onnx"
 FRAME_GENERATOR_INT8_FILE = "frame_generator.int8.onnx"
 MOUTH_GENERATOR_FILE = "mouth_generator.onnx"
 LANDMARK_FORMAT = "ibug68-contour-rgb"  # landmarks.shape.raster.draw_landmarks at the model resolution, [-1, 1]
@@ -136,33 +135,16 @@ def export_graphs(model: LSRModel, out: str | os.PathLike, *, shots: int = 2,
     return ExportResult(out, files, metadata)
 
 
-def onnx_cache_root() -> Path:
-    """``$XDG_CACHE_HOME/lsr/onnx`` (default ``~/.cache/lsr/onnx``): bundles exported on first use."""
-    cache = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(cache) / "lsr" / "onnx"
-
-
 def cached_bundle(weights: str | os.PathLike, cache_root: str | os.PathLike | None = None) -> Path:
-    """The fp32 ONNX bundle of a model folder, exported on first use into the cache and reused after.
-
-    The cache key is a hash of config.json + model.safetensors and of the graphs' code (``models_def``'s sources):
-    new weights or a changed graph = a new bundle. The export goes into a temp folder that is renamed into place, so
-    a crashed or concurrent first use never leaves a half bundle.
+    """The fp32 ONNX bundle of a model folder, exported on first use into the cache and reused after
+    (``lsr.export.bundle_cache.bundle_cache_folder``: new weights or a changed graph = a new bundle). The export goes
+    into a temp folder that is renamed into place, so a crashed or concurrent first use never leaves a half bundle.
     """
-    import importlib.util
-
     weights = Path(weights)
-    digest = hashlib.sha256()
-    for name in ("config.json", "model.safetensors", f"{MOUTH_FOLDER}/config.json", f"{MOUTH_FOLDER}/model.safetensors"):
-        if (weights / name).is_file() or not name.startswith(MOUTH_FOLDER):
-            digest.update(name.encode() + (weights / name).read_bytes())
-    graphs = Path(importlib.util.find_spec("models_def").origin).parent  # not imported: a cache hit needs no torch
-    for source in sorted(graphs.glob("*.py")):  # the code the graphs are traced from
-        digest.update(source.name.encode() + source.read_bytes())
-    root = Path(cache_root) if cache_root is not None else onnx_cache_root()
-    folder = root / digest.hexdigest()[:20]
-    if (folder / SUBJECT_ENCODER_FILE).is_file() and (folder / FRAME_GENERATOR_FILE).is_file():
+    folder = bundle_cache_folder(weights, cache_root)
+    if holds_bundle(folder):
         return folder
+    root = folder.parent
     root.mkdir(parents=True, exist_ok=True)
     temp = Path(tempfile.mkdtemp(dir=root, prefix=f".{folder.name}.", suffix=".tmp"))
     try:

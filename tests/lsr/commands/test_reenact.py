@@ -295,6 +295,15 @@ def test_onnx_runtime_exports_a_model_folder_once_into_the_cache(weights, inputs
     assert "exporting" not in capsys.readouterr().out
     assert (bundles[0] / "frame_generator.onnx").stat().st_mtime_ns == stamp
     assert probe(tmp_path / "b.mp4")[:3] == (5, 20.0, True)
+    # a cache hit, as a user's run starts: no torch imported at all (it costs a short job a third of its time)
+    import subprocess
+    import sys
+
+    code = ("import sys; from lsr.cli import main; assert main(sys.argv[1:]) == 0; "
+            "assert 'torch' not in sys.modules, 'torch imported'")
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    subprocess.run([sys.executable, "-c", code, *args, "--out", str(tmp_path / "c.mp4")], check=True, env=env,
+                   cwd=Path(__file__).resolve().parents[3], capture_output=True)
 
 
 @pytest.mark.slow

@@ -115,3 +115,12 @@ def test_int8_graph_quantises_the_network_convolutions_only(exported, tmp_path):
     for feeds, bound in ((calibration, 0.02), (held_out, 0.05)):  # mean abs error of images in [-1, 1]
         max_abs, mean_abs = graph_error(fp32_path, int8_path, feeds)
         assert 0 < mean_abs <= min(bound, max_abs)
+
+
+def test_the_torch_free_bundle_cache_names_the_mouth_folder_as_the_model_does():
+    """``lsr.export.bundle_cache`` keys a cached bundle by the mouth generator's files without importing torch, so it
+    names their folder itself: the same as ``models_def.part_generator``."""
+    from lsr.export.bundle_cache import MOUTH_FOLDER
+    from models_def.part_generator import MOUTH_FOLDER as MODEL_MOUTH_FOLDER
+
+    assert MOUTH_FOLDER == MODEL_MOUTH_FOLDER
