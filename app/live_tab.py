@@ -18,12 +18,12 @@ from app.handlers import DISPLAY_SIDE, Limits, ModelStore, load_shots, upload_pa
 
 LIVE_FPS_SMOOTHING = 0.2  # weight of the newest frame interval in the fps shown
 LIVE_TRACE: list[tuple[int, float]] | None = None
+"""Set to a list by ``lsr bench live`` (which serves the app in its own process): each camera frame's (index, time in
+ms since the epoch) as the live handler takes it up, to match the browser's timestamps against."""
 LIVE_LAYOUT_EVERY = 5
 """The live tab redraws its latent-layout picture on every this-many-th frame shown. A second picture each frame
 (its JPEG, its transfer, the browser's redraw) cost the stream 1.13x of its rate with the browser on the same two
 cores: 14.0 fps against 12.4 (``lsr bench live``'s browser run, 15 s each, medians of three alternated runs)."""
-"""Set to a list by ``lsr bench live`` (which serves the app in its own process): each camera frame's (index, time in
-ms since the epoch) as the live handler takes it up, to match the browser's timestamps against."""
 EDIT_SLIDERS = (  # name, minimum, maximum, neutral, step, label (landmarks.shape.edit.edit_landmarks' keywords)
     ("yaw", -30.0, 30.0, 0.0, 1.0, "head yaw (°)"),
     ("pitch", -20.0, 20.0, 0.0, 1.0, "head pitch (°)"),

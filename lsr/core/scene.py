@@ -29,9 +29,11 @@ if TYPE_CHECKING:
 
 JPEG_QUALITY = 95
 KEPT_BYTES = 512 * 2**20
-"""A video source whose frames, with their person matte (float32) and background plate, take at most this many
-bytes is played back from memory: about 10 bytes a pixel, so 75 GRID frames (360x288) take 78 MB and a 550-frame
+"""A video source whose frames, with their person matte and background plate, take at most this many bytes is
+played back from memory (``KEPT_PIXEL_BYTES`` a pixel), so 75 GRID frames (360x288) take 78 MB and a 550-frame
 576x768 video would take 2.4 GB (kept as JPEG). Each layer made once, not again on every way back and forth."""
+KEPT_PIXEL_BYTES = 10
+"""A kept scene frame's bytes a pixel: its RGB, its person matte (float32) and its background plate (RGB)."""
 
 
 @dataclasses.dataclass
@@ -128,7 +130,7 @@ class SourceScene:
         one_euro = OneEuroFilter(fps) if smooth else None
         info = probe_video(shots.video)
         keep = frames_needed is None or frames_needed > info.frames  # the way back is needed
-        in_memory = info.frames * info.width * info.height * 10 <= KEPT_BYTES
+        in_memory = info.frames * info.width * info.height * KEPT_PIXEL_BYTES <= KEPT_BYTES
         kept: list[SceneFrame] = []
         encoded: list[bytes] = []
         places: list[np.ndarray | None] = []
@@ -144,7 +146,7 @@ class SourceScene:
             scene = self._frame(image, last)  # a face-less stretch keeps the last face's place
             if keep and in_memory:
                 kept.append(scene)  # its layers too, once its composite has made them
-                if len(kept) * image.size * 10 // 3 > KEPT_BYTES:  # longer than its header said: JPEG after all
+                if len(kept) * image.shape[0] * image.shape[1] * KEPT_PIXEL_BYTES > KEPT_BYTES:  # longer than its header said: JPEG after all
                     encoded, kept, in_memory = [_jpeg(kept_scene.image) for kept_scene in kept], [], False
             elif keep:
                 encoded.append(_jpeg(image))
