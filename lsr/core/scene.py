@@ -130,7 +130,7 @@ class SourceScene:
         one_euro = OneEuroFilter(fps) if smooth else None
         info = probe_video(shots.video)
         keep = frames_needed is None or frames_needed > info.frames  # the way back is needed
-        in_memory = info.frames * info.width * info.height * KEPT_PIXEL_BYTES <= KEPT_BYTES
+        in_memory = _fits_in_memory(info.frames, info.height, info.width)
         kept: list[SceneFrame] = []
         encoded: list[bytes] = []
         places: list[np.ndarray | None] = []
@@ -146,7 +146,7 @@ class SourceScene:
             scene = self._frame(image, last)  # a face-less stretch keeps the last face's place
             if keep and in_memory:
                 kept.append(scene)  # its layers too, once its composite has made them
-                if len(kept) * image.shape[0] * image.shape[1] * KEPT_PIXEL_BYTES > KEPT_BYTES:  # longer than its header said: JPEG after all
+                if not _fits_in_memory(len(kept), *image.shape[:2]):  # longer than its header said: JPEG after all
                     encoded, kept, in_memory = [_jpeg(kept_scene.image) for kept_scene in kept], [], False
             elif keep:
                 encoded.append(_jpeg(image))
@@ -167,6 +167,11 @@ class SourceScene:
         for index in _back_and_forth(len(encoded)):
             image = cv2.cvtColor(cv2.imdecode(np.frombuffer(encoded[index], np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
             yield self._frame(image, places[index] if places[index] is not None else first)
+
+
+def _fits_in_memory(frames: int, height: int, width: int) -> bool:
+    """Whether ``frames`` scene frames of ``height`` x ``width`` pixels, with their layers, fit ``KEPT_BYTES``."""
+    return frames * height * width * KEPT_PIXEL_BYTES <= KEPT_BYTES
 
 
 def _back_and_forth(count: int) -> Iterator[int]:

@@ -18,7 +18,6 @@ lsr version, opset. Opset is fixed (``ONNX_OPSET``) so that every bundle runs on
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import os
 import shutil
