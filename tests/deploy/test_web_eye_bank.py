@@ -161,6 +161,9 @@ def test_a_track_chooses_the_entries_python_chooses(web, python_bank, made_up, r
     assert all(choice.eyes == (False, True) for choice in expected[22:25])
     if not relative:
         assert expected[15].shut == (True, True)
+    # the gaze sweeps past where the person's eyes were seen looking: those irises stop at the bank's span
+    moved = [(choice.gazes[0], asked) for choice, asked in zip(expected, gazes[:, 0, 0]) if choice is not None]
+    assert any(np.isfinite(g) and g != asked for g, asked in moved) and any(g == asked for g, asked in moved)
 
 
 def test_the_eyes_are_laid_in_as_python_lays_them(web, python_bank, made_up):

@@ -27,7 +27,7 @@ import { EYE_FEATHER, EYE_RING, ellipseMask } from "./eyes.js";
 import { eyeAxes, gazeOffsets } from "./gaze.js";
 import { cropTransform, transformPoints } from "./geometry.js";
 import { EntryTrack } from "./hysteresis.js";
-import { checkLandmarks, matchLight } from "./interior.js";
+import { checkLandmarks, matchLight, percentile } from "./interior.js";
 import { shiftIris } from "./iris_warp.js";
 import { estimateHeadPose } from "./pose.js";
 import { gaussianBlurF32, openCvInverse, remapCubic, roundHalfEven, warpAffineLinear } from "./remap.js";
@@ -46,6 +46,9 @@ export const BANK_STRETCH = 1.3;
 /** An eye that no entry shows within STRETCH takes the entries whose stretch lies within this factor of the least
  * one's (NEAREST). */
 export const BANK_NEAREST = 1.1;
+/** A bank eye's iris is moved toward the target's gaze only within these percentiles of the gazes the bank shows
+ * (GAZE_SPAN, gazeSpan). */
+export const BANK_GAZE_SPAN: [number, number] = [2.0, 98.0];
 /** The ellipse laid in over each eye: semi-axes along and across the corner line, in eye widths. */
 export const BANK_REGION: [number, number] = [1.0, 0.6];
 /** The crop side the head's turn is read in (eye_bank.POSE_CROP). */
@@ -253,15 +256,35 @@ export interface EyeChoice {
  * reference: the subject's face at rest ((68, 2), the anchor shot's), where the target's lids were retargeted from a
  * driver (relative motion): a real eye follows the driver's own lid motion (driverShare). null: the target's lids as
  * they are. */
+/** Each eye's (least, most) gaze along its corner line that the bank's entries show, flat (2, 2): BANK_GAZE_SPAN's
+ * percentiles, NaN where no entry's iris of that eye was read (gaze_span). */
+export function gazeSpan(bank: EyeBank): Float64Array {
+  const n = bankSize(bank), g = bank.gazes.data, span = new Float64Array(4).fill(NaN);
+  for (let eye = 0; eye < 2; eye++) {
+    const known = Array.from({ length: n }, (_, i) => g[4 * i + 2 * eye]).filter(Number.isFinite);
+    if (known.length > 0) BANK_GAZE_SPAN.forEach((q, k) => { span[2 * eye + k] = percentile(known, q); });
+  }
+  return span;
+}
+
 export class EyeBankTrack {
   readonly reference: ArrayLike<number> | null;
   readonly entries = new EntryTrack();
+  readonly gazeSpan: Float64Array;
 
   constructor(readonly bank: EyeBank, reference: Tensor | ArrayLike<number> | null = null) {
     checkEyeBank(bank);
     const points = reference === null ? null : flat(reference);
     if (points !== null && points.length !== 136) throw new Error(`reference must be (68, 2), got ${points.length} values`);
     this.reference = points !== null && finite(points) ? Float64Array.from(points) : null;
+    this.gazeSpan = gazeSpan(bank);
+  }
+
+  /** An eye's gaze clipped to the bank's gazeSpan (NaN stays NaN; an eye the bank has no gaze of, as it is). */
+  withinSpan(gaze: number, eye: number): number {
+    const [least, most] = [this.gazeSpan[2 * eye], this.gazeSpan[2 * eye + 1]];
+    return Number.isFinite(least) && Number.isFinite(most) && !Number.isNaN(gaze) ? Math.min(Math.max(gaze, least), most)
+      : gaze;
   }
 
   /** How often the entry changed. */
@@ -329,7 +352,8 @@ export class EyeBankTrack {
     const shut = [0, 1].map((e) => eyes[e] && apertures[e] < own[2 * entry + e] / BANK_STRETCH);
     return {
       entry, previous, previousWeight, eyes: [eyes[0], eyes[1]], apertures: [apertures[0], apertures[1]],
-      gazes: gazes === null ? [NaN, NaN] : [gazes[0], gazes[2]], shut: [shut[0], shut[1]], bank: this.bank,
+      gazes: gazes === null ? [NaN, NaN] : [this.withinSpan(gazes[0], 0), this.withinSpan(gazes[2], 1)],
+      shut: [shut[0], shut[1]], bank: this.bank,
     };
   }
 }

@@ -104,7 +104,7 @@ export function lipAffine(from: Tensor | ArrayLike<number>, to: Tensor | ArrayLi
 }
 
 /** np.percentile (linear) of `values`. */
-function percentile(values: Float32Array, q: number): number {
+export function percentile(values: ArrayLike<number>, q: number): number {
   const sorted = Float64Array.from(values).sort(), at = (q / 100) * (sorted.length - 1), low = Math.floor(at);
   return low + 1 < sorted.length ? sorted[low] + (sorted[low + 1] - sorted[low]) * (at - low) : sorted[low];
 }

@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from landmarks.parts.eyes.eye_bank import (PATCH, STRETCH, EyeBank, EyeBankTrack, EyeChoice, build_eye_bank, head_turn,
-                                     paste_bank_eyes, state_cost)
+from landmarks.parts.eyes.eye_bank import (PATCH, STRETCH, EyeBank, EyeBankTrack, EyeChoice, build_eye_bank, gaze_span,
+                                     head_turn, paste_bank_eyes, state_cost)
 from landmarks.parts.hysteresis import FADE, SWITCH
 from landmarks.parts.eyes.eye_realism import eye_realism, realism_patches
 from landmarks.shape.measures import eye_apertures, eye_axes
@@ -211,6 +211,24 @@ def test_the_track_takes_the_entry_nearest_the_targets_aperture_and_gaze():
     # an unknown gaze (a closing eye) asks nothing of the gaze
     half_known = np.array([[np.nan, np.nan], [0.13, 0.0]])
     assert EyeBankTrack(by_gaze)(_points(), half_known).entry == 2
+
+
+def test_the_iris_is_moved_no_further_than_the_gazes_the_bank_shows():
+    # the person's eyes were seen looking between -0.05 and 0.1 along the corner line: a target looking further
+    # gets its iris moved to the nearest of those, one within them where it looks, an unknown gaze stays unknown
+    bank = _bank([((0.3, 0.3), ((g, 0.0), (g, 0.0))) for g in np.linspace(-0.05, 0.1, 31)])
+    span = gaze_span(bank)
+    assert span.shape == (2, 2) and np.all(span[:, 0] > -0.05) and np.all(span[:, 1] < 0.1)
+    np.testing.assert_allclose(span, [[-0.047, 0.097], [-0.047, 0.097]], atol=1e-9)
+    asked = np.array([[-0.2, 0.0], [0.03, 0.0]])
+    choice = EyeBankTrack(bank)(_points(), asked)
+    assert choice.gazes == (pytest.approx(span[0, 0]), pytest.approx(0.03))
+    assert np.isnan(EyeBankTrack(bank)(_points(), np.array([[np.nan, 0.0], [0.5, 0.0]])).gazes[0])
+    assert EyeBankTrack(bank)(_points(), np.array([[np.nan, 0.0], [0.5, 0.0]])).gazes[1] == pytest.approx(span[1, 1])
+    # a bank with no iris read leaves the target's gaze as asked (the entries' irises cannot be moved anyway)
+    blind = dataclasses.replace(bank, gazes=np.full_like(bank.gazes, np.nan))
+    assert np.isnan(gaze_span(blind)).all()
+    assert EyeBankTrack(blind)(_points(), asked).gazes == (-0.2, 0.03)
 
 
 def test_the_track_prefers_an_entry_whose_head_turns_as_the_targets():
