@@ -251,11 +251,6 @@ export interface EyeChoice {
   bank: EyeBank | null;
 }
 
-/** One driven sequence's choice of bank entries, frame by frame (EyeBankTrack; the module comment).
- *
- * reference: the subject's face at rest ((68, 2), the anchor shot's), where the target's lids were retargeted from a
- * driver (relative motion): a real eye follows the driver's own lid motion (driverShare). null: the target's lids as
- * they are. */
 /** Each eye's (least, most) gaze along its corner line that the bank's entries show, flat (2, 2): BANK_GAZE_SPAN's
  * percentiles, NaN where no entry's iris of that eye was read (gaze_span). */
 export function gazeSpan(bank: EyeBank): Float64Array {
@@ -267,6 +262,11 @@ export function gazeSpan(bank: EyeBank): Float64Array {
   return span;
 }
 
+/** One driven sequence's choice of bank entries, frame by frame (EyeBankTrack; the module comment).
+ *
+ * reference: the subject's face at rest ((68, 2), the anchor shot's), where the target's lids were retargeted from a
+ * driver (relative motion): a real eye follows the driver's own lid motion (driverShare). null: the target's lids as
+ * they are. */
 export class EyeBankTrack {
   readonly reference: ArrayLike<number> | null;
   readonly entries = new EntryTrack();
@@ -283,8 +283,8 @@ export class EyeBankTrack {
   /** An eye's gaze clipped to the bank's gazeSpan (NaN stays NaN; an eye the bank has no gaze of, as it is). */
   withinSpan(gaze: number, eye: number): number {
     const [least, most] = [this.gazeSpan[2 * eye], this.gazeSpan[2 * eye + 1]];
-    return Number.isFinite(least) && Number.isFinite(most) && !Number.isNaN(gaze) ? Math.min(Math.max(gaze, least), most)
-      : gaze;
+    const known = Number.isFinite(least) && Number.isFinite(most) && !Number.isNaN(gaze);
+    return known ? Math.min(Math.max(gaze, least), most) : gaze;
   }
 
   /** How often the entry changed. */

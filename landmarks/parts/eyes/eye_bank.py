@@ -16,9 +16,10 @@ and each output frame takes its eyes from one real frame of the person, moved in
   further than every entry shows takes the nearest extreme, its stretch bounded, and where it is shut further, the
   lids are drawn down over it afterwards (``EyeChoice.shut``).
 * ``paste_bank_eyes``: each chosen eye mapped onto the target's corners, its lid opening stretched toward the
-  target's by at most ``STRETCH``, its iris moved toward the target's gaze no further than this person's
-  own eyes were seen looking (``GAZE_SPAN``), lit as the skin around it (``landmarks.parts.lay_in.match_light``) and laid in
-  under the feathered ellipse of ``landmarks.parts.eyes.driver_lids`` (lids, crease and lash line, not the brow).
+  target's by at most ``STRETCH``, its iris moved toward the target's gaze no further than this person's own
+  eyes were seen looking (``GAZE_SPAN``), lit as the skin around it (``landmarks.parts.lay_in.match_light``) and
+  laid in under the feathered ellipse of ``landmarks.parts.eyes.driver_lids`` (lids, crease and lash line, not
+  the brow).
 
 How far an output eye lies from the person's real ones is ``landmarks.parts.eyes.eye_realism``.
 
