@@ -66,8 +66,12 @@ def test_the_browser_re_enacts_fixed_camera_frames_as_the_python_live_session(pa
 def test_the_fake_camera_drives_the_person_live_with_the_mark_and_the_layout(page, tmp_path):
     page.click("#start")
     page.wait_for_function(f"window.lsr.stats.faces >= {SHOWN}")
-    stats = page.evaluate("({faces: window.lsr.stats.faces, latency: window.lsr.stats.latency})")
+    stats = page.evaluate("({faces: window.lsr.stats.faces, latency: window.lsr.stats.latency, "
+                          "grabbed: window.lsr.stats.grabbed, shown: window.lsr.stats.shown})")
     assert stats["faces"] >= SHOWN and all(ms > 0 for ms in stats["latency"])
+    grabbed, shown = np.array(stats["grabbed"]), np.array(stats["shown"])
+    assert (np.diff(grabbed) > 0).all(), "the camera's frames are shown in the order they came, each once"
+    assert (grabbed[1:] < shown[:-1]).any(), "the next frame is under way before the one before it is shown"
     assert "fps" in page.inner_text("#stats") and "ms per frame" in page.inner_text("#stats")
     assert page.inner_text("#legend").strip()  # the layout panel's legend names its parts
     page.screenshot(path=str(tmp_path / "web.png"))

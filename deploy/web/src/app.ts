@@ -193,12 +193,30 @@ async function main(): Promise<void> {
   let session = new LiveSession(site, site.config.layout !== "none");
   let running = false;
 
+  // Every camera frame is read as it comes and kept until the tracker is free: the tracker takes the newest one at
+  // once instead of waiting for the camera's next frame after each of its own (up to a frame period lost each time).
   const grabCanvas = document.createElement("canvas");
   const grabContext = grabCanvas.getContext("2d", { willReadFrequently: true })!;
-  const nextFrame = () => new Promise<void>((resolve) => {
-    if ("requestVideoFrameCallback" in video) video.requestVideoFrameCallback(() => resolve());
-    else requestAnimationFrame(() => resolve());
-  });
+  let latest: { pixels: ImageData; grabbed: number } | null = null;
+  let arrived: (() => void) | null = null;
+  const onVideoFrame = (next: () => void) => {
+    if ("requestVideoFrameCallback" in video) video.requestVideoFrameCallback(() => next());
+    else requestAnimationFrame(() => next());
+  };
+  const capture = () => {
+    if (!running) return;
+    if (video.videoWidth) {
+      if (grabCanvas.width !== video.videoWidth || grabCanvas.height !== video.videoHeight) {
+        grabCanvas.width = video.videoWidth; grabCanvas.height = video.videoHeight;
+      }
+      const grabbed = performance.now();
+      grabContext.drawImage(video, 0, 0);
+      latest = { pixels: grabContext.getImageData(0, 0, grabCanvas.width, grabCanvas.height), grabbed };
+      arrived?.();
+      arrived = null;
+    }
+    onVideoFrame(capture);
+  };
 
   const record = (result: LiveFrame, grabbed: number) => {
     show(result.image);
@@ -215,38 +233,41 @@ async function main(): Promise<void> {
       (result.face ? "" : " · no face in the camera: showing the last frame");
   };
 
+  /** The newest camera frame not tracked yet (waiting for one if there is none) and its face. */
   const grab = async () => {
-    await nextFrame();
-    while (!video.videoWidth) await nextFrame();
-    grabCanvas.width = video.videoWidth; grabCanvas.height = video.videoHeight;
-    const grabbed = performance.now();
-    grabContext.drawImage(video, 0, 0);
-    const pixels = grabContext.getImageData(0, 0, grabCanvas.width, grabCanvas.height);
+    while (latest === null) await new Promise<void>((resolve) => { arrived = resolve; });
+    const { pixels, grabbed } = latest;
+    latest = null;
+    const tracking = performance.now();
     // the tracker's worker takes the canvas's RGBA pixels as they are (it drops the alpha)
     const face = await (workers.tracker ? workers.tracker.updateRgba(pixels) : site.tracker.update(fromImageData(pixels)));
-    return { grabbed, face, track: performance.now() - grabbed };
+    return { grabbed, face, track: performance.now() - tracking };
   };
 
-  /** Three frames in flight, each stage on its own thread: the tracker's worker finds the face in the newest camera
-   * frame, this thread retargets and warps the shots of the one before, and onnxruntime's worker runs the network of
-   * the one before that. Frames are shown in order. */
+  /** Frames in flight on three threads: the tracker's worker finds the face in the newest camera frame, this
+   * thread retargets it and warps the shots, onnxruntime's worker runs the network of the frame before, and as soon
+   * as a frame leaves the network this thread completes it (mouth, eyes, composite) and shows it, while the next
+   * frame's network runs: the network's worker, the slowest stage, never waits for the composite. Frames are shown
+   * in order; a frame without a face shows the last good output when its turn comes. */
   async function loop(): Promise<void> {
-    let finishing: Promise<void> = Promise.resolve();
+    let networkFree: Promise<unknown> = Promise.resolve();  // the frame before has left the network
+    let shown: Promise<void> = Promise.resolve();  // the frame before has been shown
     let tracking = grab();
     while (running) {
       const { grabbed, face, track } = await tracking;
       tracking = grab();
       const current = session;  // a person chosen meanwhile takes over from the next frame
       const prepared = current.fromFace(face, grabbed / 1000, grabbed, track);
-      await finishing;
+      await networkFree;
       if ("image" in prepared) {
-        record(prepared, grabbed);
-        finishing = Promise.resolve();
-      } else {
-        finishing = current.finish(prepared).then((result) => record(result, grabbed));
+        shown = shown.then(() => record({ ...prepared, image: current.last?.image ?? prepared.image }, grabbed));
+        continue;
       }
+      const synthesized = current.synthesize(prepared);
+      networkFree = synthesized;
+      shown = Promise.all([synthesized, shown]).then(([frame]) => record(current.complete(frame), grabbed));
     }
-    await finishing;
+    await shown;
     await tracking;
   }
 
@@ -263,6 +284,7 @@ async function main(): Promise<void> {
     status.textContent = "Live: your face drives the person.";
     recentre.disabled = false;
     running = true;
+    capture();
     void loop();
   }
 

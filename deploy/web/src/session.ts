@@ -18,7 +18,7 @@ import { DriverGaze, trackedIrises } from "./gaze.js";
 import { drawLids, shotLidGaps } from "./lids.js";
 import { DriverMouth, cutDriverMouth, pasteInterior } from "./interior.js";
 import { finishMouthNearest } from "./mouth.js";
-import { FrameGenerator, GeneratorSizes, Latents } from "./network.js";
+import { FrameGenerator, GeneratorSizes, Latents, Synthesis } from "./network.js";
 import { drawLandmarks } from "./raster.js";
 import { DriverReference, liveTarget } from "./retarget.js";
 import { LiveSmoother } from "./smooth.js";
@@ -254,13 +254,26 @@ export class LiveSession {
     return this.finish(this.inputs(target));
   }
 
-  /** The second half (LiveSession.finish): the network, the nearest mouth, the camera's mouth interior and shut
-   * eyes, the composite into the scene. */
+  /** The second half (LiveSession.finish): the network (`synthesize`), then the nearest mouth, the camera's mouth
+   * interior and shut eyes and the composite into the scene (`complete`). */
   async finish(prepared: Prepared): Promise<LiveFrame> {
-    const { config, person, generator } = this.site;
-    const { target, landmarkImage, references } = prepared;
+    return this.complete(await this.synthesize(prepared));
+  }
+
+  /** The network of `finish`. The page's loop starts the next frame's network as soon as this one returns and
+   * completes this frame on its own thread meanwhile: onnxruntime's worker never waits for the composite. */
+  async synthesize(prepared: Prepared): Promise<Synthesized> {
+    const { person, generator } = this.site;
     const starting = now();
-    const synthesis = await generator.run(landmarkImage, person.latents, references.warped, references.masks, this.withLayout);
+    const synthesis = await generator.run(prepared.landmarkImage, person.latents, prepared.references.warped,
+                                          prepared.references.masks, this.withLayout);
+    return { prepared, synthesis, network: now() - starting };
+  }
+
+  /** The rest of `finish` after the network, for the frame `synthesize` gave. */
+  complete({ prepared, synthesis, network }: Synthesized): LiveFrame {
+    const { config, person } = this.site;
+    const { target, landmarkImage, references } = prepared;
     const generated = now();
     const mouthed = config.mouth === "nearest"
       ? finishMouthNearest(synthesis.image, references.warped, references.masks, references.indices, target,
@@ -279,16 +292,18 @@ export class LiveSession {
                                     face as Tensor<Uint8Array>, person.sceneMatrix, person.layers);
     const done = now();
     this.faces += 1;
+    const stages = { ...prepared.stages, network, mouth: interiored - generated, composite: done - interiored };
     const frame: LiveFrame = {
       image: composite.frame, face: true, layout: synthesis.layout, landmarkImage, target,
-      ms: done - starting + Object.values(prepared.stages).reduce((a, b) => a + (b ?? 0), 0),
-      stages: { ...prepared.stages, network: generated - starting, mouth: interiored - generated,
-               composite: done - interiored },
+      ms: Object.values(stages).reduce((a, b) => a + (b ?? 0), 0), stages,
     };
     this.last = frame;
     return frame;
   }
 }
+
+/** A frame out of the network, between LiveSession.synthesize and LiveSession.complete: its ms in the network. */
+export interface Synthesized { prepared: Prepared; synthesis: Synthesis; network: number }
 
 /** A frame's network inputs, between LiveSession.prepare and LiveSession.finish. */
 export interface Prepared {
