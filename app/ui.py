@@ -57,7 +57,7 @@ EDIT_HELP = """**Sliders edit the person's face** (the photos of the first tab, 
 pitch and roll, mouth and eyes open, smile and brows move the landmarks of their most neutral shot, and the model
 draws them in that shot's scene, with the latent layout beside it. *Save the pose* writes a landmark driver
 (the neutral face, then the edit) that `lsr reenact --source SHOTS --driver pose.npy` accepts."""
-LIVE_STREAM_EVERY = 0.04  # s between camera frames offered (caps the rate at 25 fps, a webcam's); the server keeps only the newest
+LIVE_STREAM_EVERY = 0.05  # s between camera frames offered (caps the rate at 20 fps); the server keeps only the newest
 LIVE_TIME_LIMIT = 600  # s a stream may run before the camera has to be started again
 LIVE_STREAMS = 2  # live streams served at once (each holds a subject and a tracker)
 LIVE_CAMERA_SIZE = (320, 240)  # asked of the camera: enough for a face filling a webcam frame, and a quarter of the
