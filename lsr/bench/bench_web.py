@@ -12,6 +12,8 @@ shown:
 
 and the rate is the frames shown per second over the measured window (after a warm-up). The live tab is measured as
 ``lsr bench live`` does (camera grab to picture loaded; the browser and the app's server share these cores).
+Over the site's window every Chromium thread's CPU time is read too (``lsr.bench.thread_cpu``): how many of the
+cores the page kept busy, and where, which tells a page bound by the CPU from one held by its own waits.
 """
 
 from __future__ import annotations
@@ -33,12 +35,14 @@ STAGES = ("track", "retarget", "warps", "network", "mouth", "composite")
 
 
 def measure_site(folder: Path, y4m: Path, seconds: float, warmup: float, screenshot: Path | None
-                 ) -> tuple[LiveMeasure, dict[str, float], int]:
+                 ) -> tuple[LiveMeasure, dict[str, float], int, str, dict[str, float]]:
     """The site in ``folder`` served statically and opened in Chromium with ``y4m`` as the camera, its stream
     measured: (the measure, median ms of each stage, WASM threads, the frame generator's backend as the page names it:
-    WASM, WebGPU or WebNN, ``deploy/web/src/backend.ts``)."""
+    WASM, WebGPU or WebNN, ``deploy/web/src/backend.ts``, the cores Chromium's threads kept busy over the window,
+    ``lsr.bench.thread_cpu.core_shares``: {} where /proc cannot be read)."""
     from deploy.web_serve import serve_folder
     from landmarks.io.image_files import atomic_output
+    from lsr.bench.thread_cpu import core_shares, thread_times
     from lsr.errors import LsrError
 
     with serve_folder(folder) as url, camera_page(y4m, viewport=(1300, 900)) as page:
@@ -50,9 +54,9 @@ def measure_site(folder: Path, y4m: Path, seconds: float, warmup: float, screens
         page.click("#start")
         page.wait_for_function("window.lsr.stats.faces >= 1")
         page.wait_for_timeout(warmup * 1000)
-        begin = page.evaluate("performance.now()")
+        begin, cpu_before = page.evaluate("performance.now()"), thread_times(CHROMIUM.name)
         page.wait_for_timeout(seconds * 1000)
-        end = page.evaluate("performance.now()")
+        end, cpu_after = page.evaluate("performance.now()"), thread_times(CHROMIUM.name)
         stats = page.evaluate("window.lsr.stats")
         threads = int(page.evaluate("window.lsr.threads"))
         backend = str(page.evaluate("window.lsr.backend"))
@@ -66,11 +70,15 @@ def measure_site(folder: Path, y4m: Path, seconds: float, warmup: float, screens
                          [stats["latency"][i] for i in window], [stats["ms"][i] for i in window])
     stages = {name: statistics.median(values) for name in STAGES
               if (values := [stats["stages"][i][name] for i in window if name in stats["stages"][i]])}
-    return result, stages, threads, backend
+    return result, stages, threads, backend, core_shares(cpu_before, cpu_after, (end - begin) / 1000)
 
 
 def web_markdown(web: LiveMeasure, live: LiveMeasure, stages: dict[str, float], threads: int, backend: str, camera: str,
-                 site_mib: float, machine: str) -> str:
+                 site_mib: float, machine: str, cpu: dict[str, float] | None = None, cores: int | None = None) -> str:
+    """The section's text. cpu: the cores Chromium kept busy while the site ran (``measure_site``); {} or None: no
+    such line."""
+    from lsr.bench.thread_cpu import shares_line
+
     def row(what: str, result: LiveMeasure, latency: str) -> str:
         p90 = f"{np.percentile(result.latency_ms, 90):.0f}" if result.latency_ms else "–"
         median = lambda values: f"{statistics.median(values):.0f}" if values else "–"  # noqa: E731
@@ -90,8 +98,10 @@ def web_markdown(web: LiveMeasure, live: LiveMeasure, stages: dict[str, float], 
              f"**Ratios, same run:** frame rate {fps_ratio:.2f}x the live tab's (goal >= 0.8x); median latency "
              f"{web_latency / live_latency:.2f}x (goal <= 1x).", "",
              "In the browser, median ms per frame of each stage: " +
-             ", ".join(f"{name} {ms:.1f}" for name, ms in stages.items()) + ".", "", machine]
-    return "\n".join(lines)
+             ", ".join(f"{name} {ms:.1f}" for name, ms in stages.items()) + ".", ""]
+    if line := shares_line(cpu or {}, cores):
+        lines += [line, ""]
+    return "\n".join([*lines, machine])
 
 
 def run_bench_web(cfg: BenchWebConfig) -> tuple[LiveMeasure, LiveMeasure]:
@@ -99,7 +109,7 @@ def run_bench_web(cfg: BenchWebConfig) -> tuple[LiveMeasure, LiveMeasure]:
     from lsr.errors import ConfigError
     from lsr.eval import sections
     from lsr.export.web_site import write_site
-    from lsr.eval.machine import machine_markdown, shown_path
+    from lsr.eval.machine import machine_markdown, shown_path, usable_cores
     from lsr.weights import resolve_weights
 
     if not CHROMIUM.is_file():
@@ -109,10 +119,10 @@ def run_bench_web(cfg: BenchWebConfig) -> tuple[LiveMeasure, LiveMeasure]:
         site = write_site(resolve_weights(cfg.weights), temp / "site")
         site_mib = sum(path.stat().st_size for path in site.files) / 2**20
         y4m = camera_file(temp / "camera.y4m", cfg.camera_video, cfg.seconds + cfg.warmup)
-        web, stages, threads, backend = measure_site(site.folder, y4m, cfg.seconds, cfg.warmup, cfg.screenshot)
+        web, stages, threads, backend, cpu = measure_site(site.folder, y4m, cfg.seconds, cfg.warmup, cfg.screenshot)
         live = live_tab(cfg.weights, y4m, cfg.seconds, cfg.warmup, None, temp / "examples")
     camera = ("a synthetic talking person (lsr.data.synth)" if cfg.camera_video is None
               else f"`{shown_path(cfg.camera_video)}`")
-    text = web_markdown(web, live, stages, threads, backend, camera, site_mib, machine_markdown())
+    text = web_markdown(web, live, stages, threads, backend, camera, site_mib, machine_markdown(), cpu, usable_cores())
     sections.publish(cfg, "lsr bench web", SECTION, "The web site: everything in the browser (`lsr bench web`)", text)
     return web, live

@@ -33,17 +33,21 @@ def _load_average() -> tuple[float, ...]:
         return ()
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity on Linux), else the logical CPU count (0: unknown)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 0
+
+
 def machine_info() -> dict[str, str]:
     """CPU, cores, OS, Python and library versions, date. Versions come from package metadata
     (no heavy imports); libraries that are not installed are left out."""
-    try:
-        usable_cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        usable_cores = os.cpu_count() or 0
     info = {
         "date": datetime.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z"),
         "cpu": cpu_model(),
-        "cores": f"{usable_cores} usable / {os.cpu_count()} logical",
+        "cores": f"{usable_cores()} usable / {os.cpu_count()} logical",
         "os": f"{platform.system()} {platform.release()}",
         # Timings on a shared machine scale with its load: quote it beside them.
         "load average (1/5/15 min)": " / ".join(f"{load:.1f}" for load in _load_average()),
