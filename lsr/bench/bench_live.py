@@ -10,13 +10,16 @@ changes) and when its picture has loaded; the server notes when its handler take
 
 (the page sends frames at the camera's pace; the server keeps only the newest, so that grab is the frame shown, to
 within one camera frame). The rate is distinct frames shown per second over the measured window (after a warm-up). The table gives medians with the processing
-time per frame that the server reports, and a screenshot of the tab is written with ``--screenshot``.
+time per frame that the server reports, and a screenshot of the tab is written with ``--screenshot``. Over the
+window every thread's CPU time of the app and of Chromium is read too (``lsr.bench.thread_cpu``): how many of the
+cores each kept busy.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 import statistics
 import tempfile
 import time
@@ -28,6 +31,7 @@ import numpy as np
 from app.ui import LIVE_CAMERA_SIZE
 
 if TYPE_CHECKING:
+    from lsr.bench.thread_cpu import ThreadKey
     from lsr.config import BenchLiveConfig
 
 SECTION = "live"
@@ -77,6 +81,9 @@ class LiveMeasure:
     screenshot: Path | None = None
     output: np.ndarray | None = None
     """(H, W, 3) uint8 RGB: the last re-enacted picture on the page."""
+    cores: dict[str, float] | None = None
+    """Cores kept busy over the window by the app (this process) and by Chromium (``lsr.bench.thread_cpu``; {}: /proc
+    unreadable)."""
 
 
 def write_y4m(path: Path, frames: np.ndarray, fps: int = CAMERA_FPS) -> Path:
@@ -146,14 +153,33 @@ def wait_for_first_result(page) -> None:
     page.wait_for_function("() => window.__live && window.__live.shown.length > 0", timeout=START_TIMEOUT_MS)
 
 
+LIVE_GROUPS = ("the app", "Chromium")
+
+
+def _app_or_browser(key: ThreadKey) -> str:
+    return "the app" if key[0] == os.getpid() else "Chromium"
+
+
+def _cpu_snapshot() -> dict[ThreadKey, float]:
+    """CPU seconds of every thread of Chromium and of this process (the app served here)."""
+    from lsr.bench.thread_cpu import process_thread_times, thread_times
+
+    return {**thread_times(CHROMIUM.name), **process_thread_times(os.getpid(), "the app")}
+
+
 def measure(page, seconds: float, warmup: float, trace: list[tuple[int, float]]) -> LiveMeasure:
-    """Wait for the first result, warm up, then measure ``seconds`` of the running stream."""
+    """Wait for the first result, warm up, then measure ``seconds`` of the running stream (and the cores the app,
+    served by this process, and Chromium kept busy meanwhile)."""
+    from lsr.bench.thread_cpu import core_shares
+
     wait_for_first_result(page)
     time.sleep(warmup)
-    begin = page.evaluate("() => Date.now()")
+    begin, cpu_before = page.evaluate("() => Date.now()"), _cpu_snapshot()
     time.sleep(seconds)
-    end = page.evaluate("() => Date.now()")
-    return summarise(page.evaluate("() => window.__live"), trace, begin, end)
+    end, cpu_after = page.evaluate("() => Date.now()"), _cpu_snapshot()
+    result = summarise(page.evaluate("() => window.__live"), trace, begin, end)
+    result.cores = core_shares(cpu_before, cpu_after, (end - begin) / 1000, _app_or_browser, LIVE_GROUPS)
+    return result
 
 
 def _status_line(text: str) -> tuple[int, float | None] | None:
@@ -268,6 +294,8 @@ def slider_updates(weights: Path | None, examples_dir: Path, count: int = SLIDER
 
 def live_markdown(browser: LiveMeasure, server: LiveMeasure | None, label: str, camera: str, machine: str,
                   sliders: list[float] | None = None, no_bank: LiveMeasure | None = None) -> str:
+    from lsr.eval.machine import usable_cores
+
     def row(what: str, result: LiveMeasure, latency: str) -> str:
         p90 = f"{np.percentile(result.latency_ms, 90):.0f}" if result.latency_ms else "–"
         return (f"| {what} | {result.frames} | {result.seconds:.1f} | {result.fps:.1f} | {_median(result.latency_ms)} "
@@ -288,11 +316,14 @@ def live_markdown(browser: LiveMeasure, server: LiveMeasure | None, label: str, 
     if sliders:
         lines += ["", f"Expression sliders: one update (edit the anchor's landmarks, synthesise, composite, colour the "
                       f"layout) takes {statistics.median(sliders):.0f} ms, median of {len(sliders)} (goal: <= 100 ms)."]
+    if browser.cores:
+        cores = browser.cores
+        lines += ["", f"Over the window the app kept {cores['the app']:.2f} cores busy and Chromium "
+                      f"{cores['Chromium']:.2f}, {cores['all']:.2f} of {usable_cores()} (per-thread CPU time from /proc)."]
     lines += ["",
               "Server ms per frame: tracking, retargeting, the warps, the network (onnxruntime, one thread) and the "
               "composite, of one frame (the handler overlaps one frame's network with the next one's tracking and "
-              "warps, so calls come faster than this). With the browser on the same 2 cores, Chromium and its "
-              "driver take about one of them.",
+              "warps, so calls come faster than this).",
               "Goals: >= 15 fps and <= 200 ms (beyond: 20 fps, 150 ms).", "", machine]
     return "\n".join(lines)
 

@@ -9,13 +9,14 @@ the two apart: it is how the page's tracker was found waiting for the camera's n
 * ``main thread``: each renderer process's main thread (the page's own JavaScript, its canvases);
 * ``the rest``: every other Chromium thread (compositor, GPU process, camera capture, network, the browser).
 
+``lsr bench live`` reads the app (its own process, ``process_thread_times``) beside Chromium the same way.
 Elsewhere than Linux, or where ``/proc`` cannot be read, a snapshot is empty and no shares are given.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 ThreadKey = tuple[int, int, str, str]
@@ -38,18 +39,20 @@ def _process(pid_dir: Path) -> tuple[str, str] | None:
     return os.path.basename(words[0]), kind
 
 
-def thread_times(program: str | Callable[[str], bool], proc: Path = Path("/proc")) -> dict[ThreadKey, float]:
+def thread_times(program: str | Callable[[str], bool], proc: Path = Path("/proc"),
+                 pids: Iterable[int] | None = None) -> dict[ThreadKey, float]:
     """CPU seconds (user + system) of every thread of every process whose executable's file name is ``program``
-    (or for which it returns True): {(pid, tid, process type, thread name): seconds}. Empty where ``proc`` cannot be
-    read."""
+    (or for which it returns True), among ``pids`` when given: {(pid, tid, process type, thread name): seconds}.
+    Empty where ``proc`` cannot be read."""
     matches = (lambda name: name == program) if isinstance(program, str) else program
     ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
     times: dict[ThreadKey, float] = {}
     try:
-        pids = [entry for entry in proc.iterdir() if entry.name.isdigit()]
+        folders = ([proc / str(pid) for pid in pids] if pids is not None
+                   else [entry for entry in proc.iterdir() if entry.name.isdigit()])
     except OSError:
         return times
-    for pid_dir in pids:
+    for pid_dir in folders:
         process = _process(pid_dir)
         if process is None or not matches(process[0]):
             continue
@@ -68,6 +71,12 @@ def thread_times(program: str | Callable[[str], bool], proc: Path = Path("/proc"
     return times
 
 
+def process_thread_times(pid: int, kind: str = "this process", proc: Path = Path("/proc")) -> dict[ThreadKey, float]:
+    """``thread_times`` of the one process ``pid``, its threads' process type given as ``kind``."""
+    times = thread_times(lambda name: True, proc, pids=[pid])
+    return {(p, tid, kind, name): seconds for (p, tid, _, name), seconds in times.items()}
+
+
 def group_of(key: ThreadKey) -> str:
     """The ``GROUPS`` entry of one Chromium thread."""
     pid, tid, kind, name = key
@@ -79,13 +88,13 @@ def group_of(key: ThreadKey) -> str:
 
 
 def core_shares(before: dict[ThreadKey, float], after: dict[ThreadKey, float], seconds: float,
-                group: Callable[[ThreadKey], str] = group_of) -> dict[str, float]:
-    """Cores each group kept busy between two snapshots ``seconds`` apart (a thread born in between counts from 0;
-    one that ended in between is not counted: its time leaves ``/proc``), in ``GROUPS`` order, with "all" last; {}
-    when either snapshot is empty or ``seconds`` is not positive."""
+                group: Callable[[ThreadKey], str] = group_of, groups: Sequence[str] = GROUPS) -> dict[str, float]:
+    """Cores each group (``group`` of a thread, one of ``groups``) kept busy between two snapshots ``seconds`` apart
+    (a thread born in between counts from 0; one that ended in between is not counted: its time leaves ``/proc``),
+    in ``groups`` order, with "all" last; {} when either snapshot is empty or ``seconds`` is not positive."""
     if not before or not after or not seconds > 0:
         return {}
-    shares = dict.fromkeys(GROUPS, 0.0)
+    shares = dict.fromkeys(groups, 0.0)
     for key, spent in after.items():
         used = spent - before.get(key, 0.0)
         if used > 0:

@@ -22,3 +22,13 @@ def test_the_table_gives_the_bank_less_row_and_the_banks_cost_as_a_ratio():
 def test_without_the_bank_less_measure_the_table_has_no_ratio(server):
     text = live_markdown(measure(10.0), server, "the shipped default", "a camera", "machine")
     assert "without the eye bank" not in text and "The eye bank's cost" not in text
+
+
+def test_the_cores_the_app_and_chromium_kept_busy_are_given_when_measured():
+    browser = measure(20.0)
+    browser.cores = {"the app": 0.95, "Chromium": 0.85, "all": 1.80}
+    text = live_markdown(browser, None, "the shipped default", "a camera", "machine")
+    assert "Over the window the app kept 0.95 cores busy and Chromium 0.85, 1.80 of " in text
+    for cores in (None, {}):  # not measured, or /proc unreadable
+        browser.cores = cores
+        assert "cores busy" not in live_markdown(browser, None, "the shipped default", "a camera", "machine")

@@ -8,7 +8,7 @@ import pytest
 
 from lsr.bench.bench_live import LiveMeasure
 from lsr.bench.bench_web import web_markdown
-from lsr.bench.thread_cpu import GROUPS, core_shares, group_of, shares_line, thread_times
+from lsr.bench.thread_cpu import GROUPS, core_shares, group_of, process_thread_times, shares_line, thread_times
 
 LINUX = Path("/proc/self/task").is_dir()
 
@@ -34,6 +34,9 @@ def test_a_chromium_rewritten_command_line_and_a_thread_name_with_spaces_are_rea
     assert times == {(40, 40, "renderer", "chromium"): 1.0, (40, 41, "renderer", "DedicatedWorker (x)"): 3.0}
     assert thread_times("python3", tmp_path) == {(50, 50, "browser", "python3"): 5.0}
     assert thread_times("chromium", tmp_path / "missing") == {}
+    # one process by its pid, its threads' process type named by the caller
+    assert process_thread_times(50, "the app", tmp_path) == {(50, 50, "the app", "python3"): 5.0}
+    assert process_thread_times(99, "the app", tmp_path) == {}
 
 
 @pytest.mark.skipif(not LINUX, reason="reads /proc")
@@ -86,6 +89,8 @@ def test_core_shares_are_the_time_spent_over_the_window_by_group():
              (3, 3, "gpu-process", "chromium"): 1.5}
     shares = core_shares(before, after, 2.0)
     assert list(shares) == [*GROUPS, "all"]
+    by_process = core_shares(before, after, 2.0, lambda key: "page" if key[0] == 7 else "gpu", ("page", "gpu"))
+    assert by_process == pytest.approx({"page": 2.0, "gpu": 0.25, "all": 2.25})
     assert shares == pytest.approx({"workers": 1.5, "main thread": 0.5, "the rest": 0.25, "all": 2.25})
     assert core_shares({}, after, 2.0) == {} and core_shares(before, after, 0.0) == {}
 
