@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import os
 import statistics
 import tempfile
 import time
@@ -31,7 +30,6 @@ import numpy as np
 from app.ui import LIVE_CAMERA_SIZE
 
 if TYPE_CHECKING:
-    from lsr.bench.thread_cpu import ThreadKey
     from lsr.config import BenchLiveConfig
 
 SECTION = "live"
@@ -153,32 +151,26 @@ def wait_for_first_result(page) -> None:
     page.wait_for_function("() => window.__live && window.__live.shown.length > 0", timeout=START_TIMEOUT_MS)
 
 
-LIVE_GROUPS = ("the app", "Chromium")
-
-
-def _app_or_browser(key: ThreadKey) -> str:
-    return "the app" if key[0] == os.getpid() else "Chromium"
-
-
-def _cpu_snapshot() -> dict[ThreadKey, float]:
-    """CPU seconds of every thread of Chromium and of this process (the app served here)."""
-    from lsr.bench.thread_cpu import process_thread_times, thread_times
-
-    return {**thread_times(CHROMIUM.name), **process_thread_times(os.getpid(), "the app")}
-
-
 def measure(page, seconds: float, warmup: float, trace: list[tuple[int, float]]) -> LiveMeasure:
     """Wait for the first result, warm up, then measure ``seconds`` of the running stream (and the cores the app,
     served by this process, and Chromium kept busy meanwhile)."""
-    from lsr.bench.thread_cpu import core_shares
+    from lsr.bench.thread_cpu import core_shares, thread_times
 
     wait_for_first_result(page)
     time.sleep(warmup)
-    begin, cpu_before = page.evaluate("() => Date.now()"), _cpu_snapshot()
+    begin = page.evaluate("() => Date.now()")
+    app_before, browser_before = time.process_time(), thread_times(CHROMIUM.name)
     time.sleep(seconds)
-    end, cpu_after = page.evaluate("() => Date.now()"), _cpu_snapshot()
+    end = page.evaluate("() => Date.now()")
+    app_after, browser_after = time.process_time(), thread_times(CHROMIUM.name)
     result = summarise(page.evaluate("() => window.__live"), trace, begin, end)
-    result.cores = core_shares(cpu_before, cpu_after, (end - begin) / 1000, _app_or_browser, LIVE_GROUPS)
+    window = (end - begin) / 1000
+    browser = core_shares(browser_before, browser_after, window)
+    if browser and window > 0:  # the app's threads come and go: its process's time counts those that ended too
+        app = (app_after - app_before) / window
+        result.cores = {"the app": app, "Chromium": browser["all"], "all": app + browser["all"]}
+    else:
+        result.cores = {}
     return result
 
 
@@ -319,7 +311,8 @@ def live_markdown(browser: LiveMeasure, server: LiveMeasure | None, label: str, 
     if browser.cores:
         cores = browser.cores
         lines += ["", f"Over the window the app kept {cores['the app']:.2f} cores busy and Chromium "
-                      f"{cores['Chromium']:.2f}, {cores['all']:.2f} of {usable_cores()} (per-thread CPU time from /proc)."]
+                      f"{cores['Chromium']:.2f}, {cores['all']:.2f} of {usable_cores()} (CPU time: the app's process, "
+                      "Chromium's threads from /proc)."]
     lines += ["",
               "Server ms per frame: tracking, retargeting, the warps, the network (onnxruntime, one thread) and the "
               "composite, of one frame (the handler overlaps one frame's network with the next one's tracking and "

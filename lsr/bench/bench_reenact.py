@@ -66,7 +66,7 @@ def _job_options(paste_back: bool, runtime: str):
 def run_bench_reenact(cfg: BenchReenactConfig) -> str:
     from lsr.export.bundle import export_graphs
     from lsr.core.overlap import network_threads
-    from lsr.eval.machine import machine_markdown, shown_path
+    from lsr.eval.machine import machine_markdown, shown_path, usable_cores
     from lsr.pipeline import Reenactor, load_mouth
     from lsr.weights import resolve_weights
     from lsr.devices import resolve_device
@@ -120,12 +120,13 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
                 run_job(reenactor, Job(clip, clip, temp / f"warm_{runtime}_{detector}.mp4"),
                         _job_options(cfg.paste_back, runtime))
             synth_ms = synthesis_only_ms(reenactor)
-            started = time.perf_counter()
+            started, cpu_started = time.perf_counter(), time.process_time()
             synthesis_ms.setdefault((runtime, detector), {})[reenactor.mouth] = synth_ms
             name = (f"out_{runtime}_{detector}_{reenactor.mouth}_{reenactor.eyes}_{reenactor.mouth_interior}_"
                     f"{reenactor.lids}.mp4")
             stats = run_job(reenactor, Job(clip, clip, temp / name), _job_options(cfg.paste_back, runtime))
             wall = time.perf_counter() - started
+            cores = (time.process_time() - cpu_started) / wall  # the process's CPU time, every thread's, over the job
             rate = stats.frames / wall  # end to end: the rows and every ratio below read this one number
             fps.setdefault((runtime, detector, reenactor.mouth), {})[reenactor.eyes] = rate
             inside_fps.setdefault((runtime, detector, reenactor.mouth, reenactor.eyes), {})[reenactor.mouth_interior] = rate
@@ -141,7 +142,7 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
                 f"{stats.frames} | {stats.no_face} | {per_frame['decode']:.1f} | {per_frame['landmarks']:.1f} | "
                 f"{encode_subject_s:.2f} | {per_frame['warps']:.1f} | {per_frame['synthesis']:.1f} | {per_frame['paste_back']:.1f} | "
                 f"{per_frame['encode']:.1f} | {rate:.2f} | {synth_ms:.1f} ({1000 / synth_ms:.2f} fps) | "
-                f"{rate * synth_ms / 1000:.2f} |"
+                f"{rate * synth_ms / 1000:.2f} | {cores:.2f} |"
             )
             if (runtime == "torch" and detector == cfg.detectors[0] and mouth == mouths[0] and eyes == eyes_choices[0]
                     and interior == interiors[0] and lids == lids_choices[0]):
@@ -153,8 +154,8 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
         "",
         "| runtime | detector | mouth | eyes | mouth interior | lids | frames | no face | decode ms | landmarks ms "
         "| subject encoding s | warps ms | network ms | paste-back ms | encode ms | end-to-end fps | synthesis only ms "
-        "| end-to-end / synthesis-only |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| end-to-end / synthesis-only | cores busy |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
         *[f"Synthesis only, {runtime} / {detector}: the drawn mouth costs {times['drawn'] / times['nearest']:.2f}x "
           f"the per-frame path without it ({times['drawn']:.1f} against {times['nearest']:.1f} ms, same run)."
@@ -183,7 +184,8 @@ def run_bench_reenact(cfg: BenchReenactConfig) -> str:
         "calling thread with all cores but one (network ms = the network and its mouth step; decode ms = what it "
         "waited for), each frame's paste-back on a worker behind it and encoding behind that. numpy's BLAS runs on "
         "one thread (lsr.core.overlap.single_blas_thread). Synthesis only = the warps and the network of one frame, "
-        "one after the other.",
+        "one after the other. Cores busy = the process's CPU time over the job's wall time (every thread's): near the "
+        f"machine's {usable_cores()}, the job is bound by the CPU; well under, by its stages' waits.",
         "Goals: end-to-end >= 20 fps and >= 0.8 x synthesis-only; the per-frame path <= 25 ms at 256^2.",
         *notes,
         "",

@@ -9,14 +9,15 @@ the two apart: it is how the page's tracker was found waiting for the camera's n
 * ``main thread``: each renderer process's main thread (the page's own JavaScript, its canvases);
 * ``the rest``: every other Chromium thread (compositor, GPU process, camera capture, network, the browser).
 
-``lsr bench live`` reads the app (its own process, ``process_thread_times``) beside Chromium the same way.
+``lsr bench live`` reads Chromium the same way beside the app (its own process, by ``time.process_time``, which
+also counts the threads that ended within the window: an ended thread's time leaves ``/proc/PID/task``).
 Elsewhere than Linux, or where ``/proc`` cannot be read, a snapshot is empty and no shares are given.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 ThreadKey = tuple[int, int, str, str]
@@ -39,17 +40,15 @@ def _process(pid_dir: Path) -> tuple[str, str] | None:
     return os.path.basename(words[0]), kind
 
 
-def thread_times(program: str | Callable[[str], bool], proc: Path = Path("/proc"),
-                 pids: Iterable[int] | None = None) -> dict[ThreadKey, float]:
+def thread_times(program: str | Callable[[str], bool], proc: Path = Path("/proc")) -> dict[ThreadKey, float]:
     """CPU seconds (user + system) of every thread of every process whose executable's file name is ``program``
-    (or for which it returns True), among ``pids`` when given: {(pid, tid, process type, thread name): seconds}.
-    Empty where ``proc`` cannot be read."""
+    (or for which it returns True): {(pid, tid, process type, thread name): seconds}. Empty where ``proc`` cannot be
+    read."""
     matches = (lambda name: name == program) if isinstance(program, str) else program
     ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
     times: dict[ThreadKey, float] = {}
     try:
-        folders = ([proc / str(pid) for pid in pids] if pids is not None
-                   else [entry for entry in proc.iterdir() if entry.name.isdigit()])
+        folders = [entry for entry in proc.iterdir() if entry.name.isdigit()]
     except OSError:
         return times
     for pid_dir in folders:
@@ -69,12 +68,6 @@ def thread_times(program: str | Callable[[str], bool], proc: Path = Path("/proc"
             fields = stat[stat.rindex(")") + 2:].split()  # from the state, field 3 of proc(5)
             times[(int(pid_dir.name), int(task.name), process[1], name)] = (int(fields[11]) + int(fields[12])) / ticks
     return times
-
-
-def process_thread_times(pid: int, kind: str = "this process", proc: Path = Path("/proc")) -> dict[ThreadKey, float]:
-    """``thread_times`` of the one process ``pid``, its threads' process type given as ``kind``."""
-    times = thread_times(lambda name: True, proc, pids=[pid])
-    return {(p, tid, kind, name): seconds for (p, tid, _, name), seconds in times.items()}
 
 
 def group_of(key: ThreadKey) -> str:

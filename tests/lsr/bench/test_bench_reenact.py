@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 pytestmark = pytest.mark.slow
@@ -39,6 +41,7 @@ def test_warp_guided_model_is_timed_on_both_runtimes(tmp_path):
         assert cells[2] == "nearest" and cells[3] == "warped"  # the defaults: no mouth generator, warped irises
         assert cells[4] == "driver" and cells[5] == "drawn"  # the driver's mouth interior, the subject's drawn lids
         assert int(cells[6]) == 4 and float(cells[15]) > 0  # frames, end-to-end fps
+        assert 0 < float(cells[18]) <= os.cpu_count() + 0.5  # cores busy: the process's CPU time over its wall time
     assert "`" in table.splitlines()[0]  # the model named as given, not a random preset
     default = next(line for line in table.splitlines() if line.startswith("`lsr reenact` as it runs"))
     onnx_fps, torch_fps = (float(row.split("|")[16]) for row in (rows[2], rows[0]))  # the mesh rows

@@ -8,7 +8,7 @@ import pytest
 
 from lsr.bench.bench_live import LiveMeasure
 from lsr.bench.bench_web import web_markdown
-from lsr.bench.thread_cpu import GROUPS, core_shares, group_of, process_thread_times, shares_line, thread_times
+from lsr.bench.thread_cpu import GROUPS, core_shares, group_of, shares_line, thread_times
 
 LINUX = Path("/proc/self/task").is_dir()
 
@@ -34,9 +34,6 @@ def test_a_chromium_rewritten_command_line_and_a_thread_name_with_spaces_are_rea
     assert times == {(40, 40, "renderer", "chromium"): 1.0, (40, 41, "renderer", "DedicatedWorker (x)"): 3.0}
     assert thread_times("python3", tmp_path) == {(50, 50, "browser", "python3"): 5.0}
     assert thread_times("chromium", tmp_path / "missing") == {}
-    # one process by its pid, its threads' process type named by the caller
-    assert process_thread_times(50, "the app", tmp_path) == {(50, 50, "the app", "python3"): 5.0}
-    assert process_thread_times(99, "the app", tmp_path) == {}
 
 
 @pytest.mark.skipif(not LINUX, reason="reads /proc")
