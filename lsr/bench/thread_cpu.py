@@ -17,7 +17,7 @@ Elsewhere than Linux, or where ``/proc`` cannot be read, a snapshot is empty and
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 
 ThreadKey = tuple[int, int, str, str]
@@ -80,18 +80,17 @@ def group_of(key: ThreadKey) -> str:
     return "the rest"
 
 
-def core_shares(before: dict[ThreadKey, float], after: dict[ThreadKey, float], seconds: float,
-                group: Callable[[ThreadKey], str] = group_of, groups: Sequence[str] = GROUPS) -> dict[str, float]:
-    """Cores each group (``group`` of a thread, one of ``groups``) kept busy between two snapshots ``seconds`` apart
-    (a thread born in between counts from 0; one that ended in between is not counted: its time leaves ``/proc``),
-    in ``groups`` order, with "all" last; {} when either snapshot is empty or ``seconds`` is not positive."""
+def core_shares(before: dict[ThreadKey, float], after: dict[ThreadKey, float], seconds: float) -> dict[str, float]:
+    """Cores each of ``GROUPS`` kept busy between two snapshots ``seconds`` apart (a thread born in between counts
+    from 0; one that ended in between is not counted: its time leaves ``/proc``), in ``GROUPS`` order, with "all"
+    last; {} when either snapshot is empty or ``seconds`` is not positive."""
     if not before or not after or not seconds > 0:
         return {}
-    shares = dict.fromkeys(groups, 0.0)
+    shares = dict.fromkeys(GROUPS, 0.0)
     for key, spent in after.items():
         used = spent - before.get(key, 0.0)
         if used > 0:
-            shares[group(key)] = shares.get(group(key), 0.0) + used / seconds
+            shares[group_of(key)] += used / seconds
     shares["all"] = sum(shares.values())
     return shares
 

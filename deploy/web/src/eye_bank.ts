@@ -27,12 +27,12 @@ import { EYE_FEATHER, EYE_RING, ellipseMask } from "./eyes.js";
 import { eyeAxes, gazeOffsets } from "./gaze.js";
 import { cropTransform, transformPoints } from "./geometry.js";
 import { EntryTrack } from "./hysteresis.js";
-import { checkLandmarks, matchLight, percentile } from "./interior.js";
+import { checkLandmarks, matchLight } from "./interior.js";
 import { shiftIris } from "./iris_warp.js";
 import { estimateHeadPose } from "./pose.js";
 import { gaussianBlurF32, openCvInverse, remapCubic, roundHalfEven, warpAffineLinear } from "./remap.js";
 import { closedGap, driverShare, finite, flat, interOcularDistance, lidGaps } from "./retarget.js";
-import { Affine, Tensor, tensor } from "./tensor.js";
+import { Affine, Tensor, percentile, tensor } from "./tensor.js";
 
 /** An eye's width (corner to corner) in the bank's patches, in pixels. */
 export const BANK_CANON_WIDTH = 32.0;

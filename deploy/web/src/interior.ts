@@ -10,7 +10,7 @@ import { pointBox, polygonMask } from "./mouth.js";
 import { estimateHeadPose } from "./pose.js";
 import { dilateEllipse, gaussianBlurF32, roundHalfEven, warpAffineCubic } from "./remap.js";
 import { finite, flat, interOcularDistance, mouthOpening } from "./retarget.js";
-import { Affine, Tensor, tensor } from "./tensor.js";
+import { Affine, Tensor, percentile, tensor } from "./tensor.js";
 
 export const OPEN: [number, number] = [0.02, 0.04];
 export const REACH = 0.35;
@@ -103,11 +103,6 @@ export function lipAffine(from: Tensor | ArrayLike<number>, to: Tensor | ArrayLi
   return [...solve(atx), ...solve(aty)] as Affine;
 }
 
-/** np.percentile (linear) of `values`. */
-export function percentile(values: ArrayLike<number>, q: number): number {
-  const sorted = Float64Array.from(values).sort(), at = (q / 100) * (sorted.length - 1), low = Math.floor(at);
-  return low + 1 < sorted.length ? sorted[low] + (sorted[low + 1] - sorted[low]) * (at - low) : sorted[low];
-}
 
 /** colour_scale: `warped` ((h, w, 3) float32) with each pixel's colour (its channels less their mean) scaled by the
  * target's colourfulness over the patch's (the mean length of that colour over the skin, `grown` less `lips`), at

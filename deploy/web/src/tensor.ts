@@ -34,3 +34,9 @@ export function median(values: number[]): number {
   const sorted = [...values].sort((a, b) => a - b), middle = sorted.length >> 1;
   return sorted.length % 2 ? sorted[middle] : (sorted[middle - 1] + sorted[middle]) / 2;
 }
+
+/** np.percentile (linear) of `values`. */
+export function percentile(values: ArrayLike<number>, q: number): number {
+  const sorted = Float64Array.from(values).sort(), at = (q / 100) * (sorted.length - 1), low = Math.floor(at);
+  return low + 1 < sorted.length ? sorted[low] + (sorted[low + 1] - sorted[low]) * (at - low) : sorted[low];
+}

@@ -86,8 +86,6 @@ def test_core_shares_are_the_time_spent_over_the_window_by_group():
              (3, 3, "gpu-process", "chromium"): 1.5}
     shares = core_shares(before, after, 2.0)
     assert list(shares) == [*GROUPS, "all"]
-    by_process = core_shares(before, after, 2.0, lambda key: "page" if key[0] == 7 else "gpu", ("page", "gpu"))
-    assert by_process == pytest.approx({"page": 2.0, "gpu": 0.25, "all": 2.25})
     assert shares == pytest.approx({"workers": 1.5, "main thread": 0.5, "the rest": 0.25, "all": 2.25})
     assert core_shares({}, after, 2.0) == {} and core_shares(before, after, 0.0) == {}
 
