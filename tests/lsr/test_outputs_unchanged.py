@@ -25,9 +25,20 @@ SHARED = {"shared_sun_by_tpsmm": ("clips/musetalk_sun.mp4", "clips/tpsmm_driving
 
 
 def machine_key() -> str:
+    """torch's version and CPU capability, and the CPU's family and model where Linux says them: two AMD EPYC kinds
+    with AVX-512 (the same key without the model) drew the demo's frames a last bit apart."""
     import torch
 
-    return f"torch {torch.__version__} {torch.backends.cpu.get_cpu_capability()}"
+    return f"torch {torch.__version__} {torch.backends.cpu.get_cpu_capability()}{_cpu_model()}"
+
+
+def _cpu_model() -> str:
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return ""
+    found = {key.strip(): value.strip() for key, _, value in (line.partition(":") for line in lines[:30])}
+    return f" cpu {found.get('vendor_id', '?')} family {found.get('cpu family', '?')} model {found.get('model', '?')}"
 
 
 def frame_digests(source: Path, driver: Path, *, side_by_side: bool, frames: int = FRAMES,

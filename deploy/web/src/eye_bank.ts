@@ -1,7 +1,8 @@
 // The person's own eyes, from every frame they give (issue 63): landmarks/parts/eyes/eye_bank.py (eye_affine,
 // eye_corners, cut_eyes, head_turn, eye_state, eye_row, eye_bank_of, build_eye_bank, state_cost, EyeBankTrack,
-// paste_bank_eyes, _placed), with landmarks.shape.measures.eye_apertures. The page lays one real frame's eyes over
-// each synthesised face, as the live session does after the parts' other steps (lsr/core/finish.py finish_parts):
+// paste_bank_eyes, lid_stretch, _placed), with landmarks.shape.measures.eye_apertures. The page lays one real frame's
+// eyes over each synthesised face, as the live session does after the parts' other steps (lsr/core/finish.py
+// finish_parts):
 //
 // * the bank: per frame of the person (the example person's video, written by `lsr export --web`; a user's own
 //   photos, cut here), both eyes cut into the eye's own frame (eyeAffine: the corner line levelled, CANON_WIDTH
@@ -15,11 +16,11 @@
 //   live session's targets are retargeted from a driver), the opening asked is the driver's own lid motion, its
 //   small motions' gain undone (retarget.ts driverShare);
 // * the paste: each chosen eye mapped onto the target's corners, its opening stretched toward the target's by at
-//   most STRETCH, its iris moved along the eye to the target's gaze (iris_warp.ts shiftIris), bicubic (remap.ts
-//   remapCubic), lit as the skin around it (interior.ts matchLight, skin on skin) and laid in under the feathered
-//   ellipse of eyes.ts (its FEATHER and RING, this module's REGION).
+//   most STRETCH (its lids alone: lidStretch), its iris moved along the eye to the target's gaze (iris_warp.ts
+//   shiftIris), bicubic (remap.ts remapCubic), lit as the skin around it (interior.ts matchLight, skin on skin) and
+//   laid in under the feathered ellipse of eyes.ts (its FEATHER and RING, this module's REGION).
 //
-// The module's CANON_WIDTH, PATCH, SCALES, STRETCH, NEAREST and REGION are BANK_CANON_WIDTH, ... here.
+// The module's CANON_WIDTH, PATCH, SCALES, STRETCH, NEAREST, LID_BAND and REGION are BANK_CANON_WIDTH, ... here.
 
 import { BankRows, usableFace } from "./bank_rows.js";
 import { folderReader } from "./files.js";
@@ -49,6 +50,9 @@ export const BANK_NEAREST = 1.1;
 /** A bank eye's iris is moved toward the target's gaze only within these percentiles of the gazes the bank shows
  * (GAZE_SPAN, gazeSpan). */
 export const BANK_GAZE_SPAN: [number, number] = [2.0, 98.0];
+/** Where a bank eye's lid opening is stretched (lidStretch): wholly within this share of the entry's own aperture of
+ * the corner line, fading to nothing over the next this many eye widths (LID_BAND). */
+export const BANK_LID_BAND: [number, number] = [0.75, 0.25];
 /** The ellipse laid in over each eye: semi-axes along and across the corner line, in eye widths. */
 export const BANK_REGION: [number, number] = [1.0, 0.6];
 /** The crop side the head's turn is read in (eye_bank.POSE_CROP). */
@@ -95,15 +99,14 @@ export function bankSize(bank: EyeBank): number {
 
 /** The (2, 3) affine taking image pixels to an eye's own frame (eye_affine): the corners [x0, y0, x1, y1] (image-left
  * corner first) onto the patch's centre line, CANON_WIDTH apart, around the centre of a patch of `size` (width,
- * height); lengths across the corner line divided by `stretch`. */
-export function eyeAffine(corners: Tensor | ArrayLike<number>, size: [number, number] = BANK_PATCH, stretch = 1.0
-                          ): Affine {
+ * height). */
+export function eyeAffine(corners: Tensor | ArrayLike<number>, size: [number, number] = BANK_PATCH): Affine {
   const c = flat(corners), alongX = c[2] - c[0], alongY = c[3] - c[1];
   const width = Math.hypot(alongX, alongY);
   if (!(width > 0)) throw new Error("an eye's corners must be apart");
   const ux = alongX / width, uy = alongY / width, scale = BANK_CANON_WIDTH / width;
   // image offsets -> patch offsets: along the corners, then across them (down in the image for a level eye)
-  const l00 = ux * scale, l01 = uy * scale, l10 = (-uy * scale) / stretch, l11 = (ux * scale) / stretch;
+  const l00 = ux * scale, l01 = uy * scale, l10 = -uy * scale, l11 = ux * scale;
   const cx = (c[0] + c[2]) / 2, cy = (c[1] + c[3]) / 2;
   return [l00, l01, size[0] / 2.0 - (l00 * cx + l01 * cy), l10, l11, size[1] / 2.0 - (l10 * cx + l11 * cy)];
 }
@@ -358,15 +361,29 @@ export class EyeBankTrack {
   }
 }
 
+/** A backward map's rows in an eye's own frame (eyeAffine: the corner line at the patch's middle row), in place, with
+ * the eye's lid opening stretched by `stretch` within BANK_LID_BAND of the corner line (`aperture`: the eye's own, in
+ * eye widths), fading to the unstretched map beyond it (a smoothstep; lid_stretch). */
+export function lidStretch(mapY: Float32Array, stretch: number, aperture: number): void {
+  if (stretch === 1.0 || !Number.isFinite(aperture)) return;
+  const middle = BANK_PATCH[1] / 2.0, inner = BANK_LID_BAND[0] * aperture * BANK_CANON_WIDTH;
+  const band = BANK_LID_BAND[1] * BANK_CANON_WIDTH, squeeze = 1.0 - 1.0 / stretch;
+  for (let i = 0; i < mapY.length; i++) {
+    const offset = mapY[i] - middle;
+    const fade = Math.min(Math.max((Math.abs(offset) - inner) / band, 0.0), 1.0);
+    mapY[i] = middle + offset * (1.0 - squeeze * (1.0 - fade * fade * (3.0 - 2.0 * fade)));
+  }
+}
+
 /** Entry `entry`'s eye `eye` mapped onto the target's 68 points `points` (box pixels, flat): by its corners, its lid
- * opening stretched toward `aperture` within STRETCH, its iris moved along the eye from where the entry looked to
- * `gaze` (NaN: left) -> (box[0], box[1], 3) float32 (_placed). */
+ * opening stretched toward `aperture` within STRETCH (lidStretch), its iris moved along the eye from where the entry
+ * looked to `gaze` (NaN: left) -> (box[0], box[1], 3) float32 (_placed). */
 export function placedEye(bank: EyeBank, entry: number, eye: number, points: Float64Array, aperture: number,
                           gaze: number, box: [number, number]): Float32Array {
   const own = bank.apertures.data[2 * entry + eye];
   const stretch = own > 0 && Number.isFinite(aperture)
     ? Math.min(Math.max(aperture / own, 1.0 / BANK_STRETCH), BANK_STRETCH) : 1.0;
-  const m = eyeAffine(eyeCorners(points).subarray(4 * eye, 4 * eye + 4), BANK_PATCH, stretch);  // box -> patch pixels
+  const m = eyeAffine(eyeCorners(points).subarray(4 * eye, 4 * eye + 4), BANK_PATCH);  // box -> patch pixels
   const [h, w] = box, mapX = new Float32Array(h * w), mapY = new Float32Array(h * w);
   for (let y = 0; y < h; y++) {
     for (let x = 0; x < w; x++) {
@@ -374,6 +391,7 @@ export function placedEye(bank: EyeBank, entry: number, eye: number, points: Flo
       mapY[y * w + x] = m[3] * x + m[4] * y + m[5];
     }
   }
+  lidStretch(mapY, stretch, own);
   const start = bank.gazes.data[4 * entry + 2 * eye];
   if (Number.isFinite(start) && Number.isFinite(gaze)) {
     shiftIris({ mapX: tensor(mapX, [h, w]), mapY: tensor(mapY, [h, w]) }, tensor(points, [68, 2]), eye, start, gaze);

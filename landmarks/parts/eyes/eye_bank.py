@@ -16,10 +16,10 @@ and each output frame takes its eyes from one real frame of the person, moved in
   further than every entry shows takes the nearest extreme, its stretch bounded, and where it is shut further, the
   lids are drawn down over it afterwards (``EyeChoice.shut``).
 * ``paste_bank_eyes``: each chosen eye mapped onto the target's corners, its lid opening stretched toward the
-  target's by at most ``STRETCH``, its iris moved toward the target's gaze no further than this person's own
-  eyes were seen looking (``GAZE_SPAN``), lit as the skin around it (``landmarks.parts.lay_in.match_light``) and
-  laid in under the feathered ellipse of ``landmarks.parts.eyes.driver_lids`` (lids, crease and lash line, not
-  the brow).
+  target's by at most ``STRETCH`` (its lids alone, ``LID_BAND``: not the crease, the brow or the cheek), its iris
+  moved toward the target's gaze no further than this person's own eyes were seen looking (``GAZE_SPAN``), lit as
+  the skin around it (``landmarks.parts.lay_in.match_light``) and laid in under the feathered ellipse of
+  ``landmarks.parts.eyes.driver_lids`` (lids, crease and lash line, not the brow).
 
 How far an output eye lies from the person's real ones is ``landmarks.parts.eyes.eye_realism``.
 
@@ -70,6 +70,14 @@ each clip driven by the next, the "all" bank) the output eyes' realism distance 
 times the real frames' for the two GRID people, whose eyes barely glance, the gaze correlation moving 0.02 -> 0.03
 and 0.40 -> 0.38; with the K shots as the bank 1.55 -> 0.64 and 6.06 -> 4.46, gaze 0.45 / 0.37 / 0.29 ->
 0.42 / 0.34 / 0.24. The percentiles, not the extremes, so that one misread iris does not widen the span."""
+LID_BAND = (0.75, 0.25)
+"""Where a bank eye's lid opening is stretched (``lid_stretch``): wholly within this share of the entry's own
+aperture of the corner line (its lids and what lies between them), fading to nothing over the next this many eye
+widths, so that the crease, the brow and the cheek stay where the real eye has them. The whole patch stretched put
+the output eyes of the validation people (``lsr bench eyes``, the "all" bank) at 0.93 / 0.63 / 5.06 / 1.46 times the
+real frames' realism distance, this at 0.76 / 0.58 / 3.94 / 1.42, the judged eye correlation 0.11 / 0.71 / 0.44 /
+0.61 against 0.03 / 0.69 / 0.43 / 0.61 (the first pair's agreement is -0.04); 0.6 of the aperture moved the lids
+less (0.71 -> 0.62 on real033, the eye gain 1.50 -> 1.19)."""
 REGION = (1.0, 0.6)
 """The ellipse laid in over each eye: semi-axes along and across the corner line, in eye widths, centred between
 the corners: the lids, the crease, the lash line and the skin around them, so that no synthesised lid line shows at
@@ -107,10 +115,9 @@ class EyeBank:
         return np.nanmin(self.apertures, axis=0)
 
 
-def eye_affine(corners: np.ndarray, size: tuple[int, int] = PATCH, stretch: float = 1.0) -> np.ndarray:
+def eye_affine(corners: np.ndarray, size: tuple[int, int] = PATCH) -> np.ndarray:
     """The (2, 3) affine taking image pixels to an eye's own frame: the corners (2, 2) (image-left corner first) onto
-    the patch's centre line, ``CANON_WIDTH`` apart, around the centre of a patch of ``size`` (width, height); lengths
-    across the corner line divided by ``stretch`` (an eye opened by ``stretch`` lands as the unstretched one)."""
+    the patch's centre line, ``CANON_WIDTH`` apart, around the centre of a patch of ``size`` (width, height)."""
     corners = np.asarray(corners, np.float64)
     along = corners[1] - corners[0]
     width = float(np.hypot(*along))
@@ -119,7 +126,7 @@ def eye_affine(corners: np.ndarray, size: tuple[int, int] = PATCH, stretch: floa
     unit = along / width
     across = np.array([-unit[1], unit[0]])  # down in the image for a level eye
     scale = CANON_WIDTH / width
-    linear = np.stack([unit * scale, across * scale / stretch])  # (2, 2): image offsets -> patch offsets
+    linear = np.stack([unit * scale, across * scale])  # (2, 2): image offsets -> patch offsets
     centre = corners.mean(axis=0)
     shift = np.array([size[0] / 2.0, size[1] / 2.0]) - linear @ centre
     return np.hstack([linear, shift[:, None]])
@@ -354,19 +361,35 @@ def paste_bank_eyes(image: np.ndarray, landmarks: np.ndarray, bank: EyeBank | No
     return result
 
 
+def lid_stretch(map_y: np.ndarray, stretch: float, aperture: float) -> np.ndarray:
+    """A backward map's rows in an eye's own frame (``eye_affine``: the corner line at the patch's middle row) with
+    the eye's lid opening stretched by ``stretch`` within ``LID_BAND`` of the corner line (``aperture``: the eye's
+    own, in eye widths), fading to the unstretched map beyond it (a smoothstep; monotonic for stretches within
+    ``STRETCH`` of apertures under 0.6) -> a new float32 map, or ``map_y`` itself for no stretch."""
+    if stretch == 1.0 or not np.isfinite(aperture):
+        return map_y
+    middle = PATCH[1] / 2.0
+    offset = map_y - np.float32(middle)
+    inner = LID_BAND[0] * aperture * CANON_WIDTH
+    fade = np.clip((np.abs(offset) - inner) / (LID_BAND[1] * CANON_WIDTH), 0.0, 1.0)
+    kept = 1.0 - (1.0 - 1.0 / stretch) * (1.0 - fade * fade * (3.0 - 2.0 * fade))
+    return (middle + offset * kept).astype(np.float32)
+
+
 def _placed(bank: EyeBank, entry: int, eye: int, points: np.ndarray, aperture: float, gaze: float,
             box: tuple[int, int]) -> np.ndarray:
     """Entry ``entry``'s eye ``eye`` mapped onto the target's 68 ``points`` (box pixels): by its corners, its lid
-    opening stretched toward ``aperture`` within ``STRETCH``, its iris moved along the eye from where the entry
-    looked to ``gaze`` (``landmarks.parts.eyes.iris_shift.shift_iris``; NaN: left) -> (box[0], box[1], 3) float32."""
+    opening stretched toward ``aperture`` within ``STRETCH`` (``lid_stretch``), its iris moved along the eye from
+    where the entry looked to ``gaze`` (``landmarks.parts.eyes.iris_shift.shift_iris``; NaN: left) -> (box[0],
+    box[1], 3) float32."""
     from landmarks.parts.eyes.iris_shift import shift_iris
 
     own = bank.apertures[entry, eye]
     stretch = float(np.clip(aperture / own, 1.0 / STRETCH, STRETCH)) if own > 0 and np.isfinite(aperture) else 1.0
-    matrix = eye_affine(eye_corners(points)[eye], PATCH, stretch)  # box pixels -> patch pixels
+    matrix = eye_affine(eye_corners(points)[eye], PATCH)  # box pixels -> patch pixels
     ys, xs = np.mgrid[0:box[0], 0:box[1]].astype(np.float32)
     map_x = (matrix[0, 0] * xs + matrix[0, 1] * ys + matrix[0, 2]).astype(np.float32)
-    map_y = (matrix[1, 0] * xs + matrix[1, 1] * ys + matrix[1, 2]).astype(np.float32)
+    map_y = lid_stretch((matrix[1, 0] * xs + matrix[1, 1] * ys + matrix[1, 2]).astype(np.float32), stretch, own)
     start = bank.gazes[entry, eye, 0]
     if np.isfinite(start) and np.isfinite(gaze):
         map_x, map_y = shift_iris(map_x, map_y, points, eye, float(start), float(gaze))

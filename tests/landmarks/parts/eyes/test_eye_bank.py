@@ -10,8 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from landmarks.parts.eyes.eye_bank import (PATCH, STRETCH, EyeBank, EyeBankTrack, EyeChoice, build_eye_bank, gaze_span,
-                                     head_turn, paste_bank_eyes, state_cost)
+from landmarks.parts.eyes.eye_bank import (CANON_WIDTH, LID_BAND, PATCH, STRETCH, EyeBank, EyeBankTrack, EyeChoice,
+                                           build_eye_bank, gaze_span, head_turn, lid_stretch, paste_bank_eyes,
+                                           state_cost)
 from landmarks.parts.hysteresis import FADE, SWITCH
 from landmarks.parts.eyes.eye_realism import eye_realism, realism_patches
 from landmarks.shape.measures import eye_apertures, eye_axes
@@ -450,6 +451,26 @@ def test_a_cross_fade_lies_between_its_two_entries():
 
 
 # ---- eye realism -----------------------------------------------------------------------------------------------
+
+
+def test_a_bank_eye_is_stretched_at_its_lids_alone():
+    """The lids and what lies between them move by the whole stretch, the crease, brow and cheek beyond LID_BAND
+    stay where the real eye has them, and the map never folds over (a monotonic map of rows)."""
+    middle = PATCH[1] / 2.0
+    rows = np.linspace(-PATCH[1], 2 * PATCH[1], 2001, dtype=np.float32)[:, None]  # the map's rows, patch pixels
+    assert lid_stretch(rows, 1.0, 0.3) is rows
+    assert lid_stretch(rows, STRETCH, math.nan) is rows
+    for aperture in (0.1, 0.3, 0.6):
+        inner = LID_BAND[0] * aperture * CANON_WIDTH
+        outer = inner + LID_BAND[1] * CANON_WIDTH
+        offset = rows[:, 0] - middle
+        for stretch in (STRETCH, 1.0 / STRETCH):
+            moved = lid_stretch(rows, stretch, aperture)[:, 0]
+            lids = np.abs(offset) <= inner
+            np.testing.assert_allclose(moved[lids] - middle, offset[lids] / stretch, atol=1e-4)
+            beyond = np.abs(offset) >= outer
+            np.testing.assert_allclose(moved[beyond], rows[beyond, 0], atol=1e-4)
+            assert (np.diff(moved) > 0).all(), (aperture, stretch)
 
 
 def test_eye_realism_is_zero_for_the_same_eyes_and_rises_when_they_are_excluded():
