@@ -9,14 +9,23 @@ import platform
 from pathlib import Path
 
 
+def cpu_fields() -> dict[str, str]:
+    """The first processor's fields of /proc/cpuinfo ("model name", "vendor_id", "cpu family", "model", ...); {}
+    where it cannot be read (not Linux)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text(errors="replace")
+    except OSError:
+        return {}
+    fields: dict[str, str] = {}
+    for line in text.split("\n\n", 1)[0].splitlines():
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip().lower(), value.strip())
+    return fields
+
+
 def cpu_model() -> str:
     """CPU model name from /proc/cpuinfo (Linux), else what ``platform`` knows."""
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.is_file():
-        for line in cpuinfo.read_text(errors="replace").splitlines():
-            if line.lower().startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    return platform.processor() or platform.machine() or "unknown"
+    return cpu_fields().get("model name") or platform.processor() or platform.machine() or "unknown"
 
 
 def _version(distribution: str) -> str | None:

@@ -29,16 +29,12 @@ def machine_key() -> str:
     with AVX-512 (the same key without the model) drew the demo's frames a last bit apart."""
     import torch
 
-    return f"torch {torch.__version__} {torch.backends.cpu.get_cpu_capability()}{_cpu_model()}"
+    from lsr.eval.machine import cpu_fields
 
-
-def _cpu_model() -> str:
-    try:
-        lines = Path("/proc/cpuinfo").read_text().splitlines()
-    except OSError:
-        return ""
-    found = {key.strip(): value.strip() for key, _, value in (line.partition(":") for line in lines[:30])}
-    return f" cpu {found.get('vendor_id', '?')} family {found.get('cpu family', '?')} model {found.get('model', '?')}"
+    cpu = cpu_fields()
+    kind = (f" cpu {cpu.get('vendor_id', '?')} family {cpu.get('cpu family', '?')} model {cpu.get('model', '?')}"
+            if cpu else "")
+    return f"torch {torch.__version__} {torch.backends.cpu.get_cpu_capability()}{kind}"
 
 
 def frame_digests(source: Path, driver: Path, *, side_by_side: bool, frames: int = FRAMES,

@@ -103,7 +103,6 @@ export function lipAffine(from: Tensor | ArrayLike<number>, to: Tensor | ArrayLi
   return [...solve(atx), ...solve(aty)] as Affine;
 }
 
-
 /** colour_scale: `warped` ((h, w, 3) float32) with each pixel's colour (its channels less their mean) scaled by the
  * target's colourfulness over the patch's (the mean length of that colour over the skin, `grown` less `lips`), at
  * most 1; `warped` itself where the target is as colourful or more. */
