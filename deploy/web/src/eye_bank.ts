@@ -53,6 +53,9 @@ export const BANK_GAZE_SPAN: [number, number] = [2.0, 98.0];
 /** Where a bank eye's lid opening is stretched (lidStretch): wholly within this share of the entry's own aperture of
  * the corner line, fading to nothing over the next this many eye widths (LID_BAND). */
 export const BANK_LID_BAND: [number, number] = [0.75, 0.25];
+/** The two eyes are shut together (shutBeyondEntry) unless the target's lid openings, each over its entry's, differ
+ * by more than this: a wink (WINK). */
+export const BANK_WINK = 0.5;
 /** The ellipse laid in over each eye: semi-axes along and across the corner line, in eye widths. */
 export const BANK_REGION: [number, number] = [1.0, 0.6];
 /** The crop side the head's turn is read in (eye_bank.POSE_CROP). */
@@ -352,13 +355,23 @@ export class EyeBankTrack {
     const state = stateCost(this.bank, apertures, gazes, headTurn(points));
     const cost = Float64Array.from(state, (value, i) => (usable[i] ? value : Infinity));
     const [entry, previous, previousWeight] = this.entries.step(cost);
-    const shut = [0, 1].map((e) => eyes[e] && apertures[e] < own[2 * entry + e] / BANK_STRETCH);
+    const shut = shutBeyondEntry(apertures, [own[2 * entry], own[2 * entry + 1]], eyes);
     return {
       entry, previous, previousWeight, eyes: [eyes[0], eyes[1]], apertures: [apertures[0], apertures[1]],
       gazes: gazes === null ? [NaN, NaN] : [this.withinSpan(gazes[0], 0), this.withinSpan(gazes[2], 1)],
       shut: [shut[0], shut[1]], bank: this.bank,
     };
   }
+}
+
+/** Which of the eyes taking the bank's the target shuts further than their entry's lids stretch (STRETCH), from the
+ * apertures asked over the entry's own (eye_bank.shut_beyond_entry): both go by the more shut of the two unless they
+ * differ by more than WINK, so one blink is never drawn as a wink. */
+export function shutBeyondEntry(apertures: ArrayLike<number>, own: ArrayLike<number>, eyes: boolean[]): boolean[] {
+  const ratios = [0, 1].map((e) => (eyes[e] ? apertures[e] / own[e] : NaN));
+  const together = ratios.every(Number.isFinite) && Math.abs(ratios[0] - ratios[1]) <= BANK_WINK;
+  const least = Math.min(ratios[0], ratios[1]);
+  return [0, 1].map((e) => eyes[e] && (together ? least : ratios[e]) < 1.0 / BANK_STRETCH);
 }
 
 /** A backward map's rows in an eye's own frame (eyeAffine: the corner line at the patch's middle row), in place, with

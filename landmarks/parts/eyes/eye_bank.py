@@ -14,7 +14,7 @@ and each output frame takes its eyes from one real frame of the person, moved in
   clearly nearer and cross-faded in when it changes (``landmarks.parts.hysteresis``), so the eyes do not pop. An
   entry whose lid opening reaches the target's within ``STRETCH`` is shown where there is one; an eye opened or shut
   further than every entry shows takes the nearest extreme, its stretch bounded, and where it is shut further, the
-  lids are drawn down over it afterwards (``EyeChoice.shut``).
+  lids are drawn down over it afterwards (``EyeChoice.shut``; both eyes together unless the target winks, ``WINK``).
 * ``paste_bank_eyes``: each chosen eye mapped onto the target's corners, its lid opening stretched toward the
   target's by at most ``STRETCH`` (its lids alone, ``LID_BAND``: not the crease, the brow or the cheek), its iris
   moved toward the target's gaze no further than this person's own eyes were seen looking (``GAZE_SPAN``), lit as
@@ -78,6 +78,12 @@ the output eyes of the validation people (``lsr bench eyes``, the "all" bank) at
 real frames' realism distance, this at 0.76 / 0.58 / 3.94 / 1.42, the judged eye correlation 0.11 / 0.71 / 0.44 /
 0.61 against 0.03 / 0.69 / 0.43 / 0.61 (the first pair's agreement is -0.04); 0.6 of the aperture moved the lids
 less (0.71 -> 0.62 on real033, the eye gain 1.50 -> 1.19)."""
+WINK = 0.5
+"""The two eyes are shut together (``shut_beyond_entry``) unless the target's lid openings, each over its entry's,
+differ by more than this: a wink. The face mesh reads the two lids of one blink apart (a lowered or turned head,
+lids that never meet): in the validation drivers' blinks (an eye under 0.6 of its median opening) the two eyes'
+openings over their medians differed by up to 0.5, while one eye shut wholly and the other at rest reads about 0.6
+apart. Decided eye by eye, one blink was drawn with one eye shut and the other open."""
 REGION = (1.0, 0.6)
 """The ellipse laid in over each eye: semi-axes along and across the corner line, in eye widths, centred between
 the corners: the lids, the crease, the lash line and the skin around them, so that no synthesised lid line shows at
@@ -240,8 +246,9 @@ class EyeChoice:
     """Where each iris is moved, along the corner line in eye widths (the target's gaze within the bank's
     ``gaze_span``; NaN: left where it is)."""
     shut: tuple[bool, bool] = (False, False)
-    """Which eyes the target shuts further than the entry's lids stretch (``STRETCH``): the bank has no eye that shut,
-    so the lids are drawn down over the entry's (``lsr.core.finish.finish_parts``)."""
+    """Which eyes the target shuts further than the entry's lids stretch (``STRETCH``; both together unless a wink,
+    ``shut_beyond_entry``): the bank has no eye that shut, so the lids are drawn down over the entry's
+    (``lsr.core.finish.finish_parts``)."""
     bank: EyeBank | None = dataclasses.field(default=None, compare=False, repr=False)
     """The bank it was chosen from (``EyeBankTrack``): what ``paste_bank_eyes`` lays in when given no other."""
 
@@ -310,8 +317,7 @@ class EyeBankTrack:
             usable = shows[:, eyes].all(axis=1)
         cost = np.where(usable, state_cost(self.bank, apertures, gazes, head_turn(points)), np.inf)
         entry, previous, weight = self.entries(cost)
-        with np.errstate(invalid="ignore"):
-            shut = eyes & (apertures < self.bank.apertures[entry] / STRETCH)
+        shut = shut_beyond_entry(apertures, self.bank.apertures[entry], eyes)
         along = (np.full(2, np.nan) if gazes is None else np.asarray(gazes, np.float64)[:, 0])
         known = np.isfinite(self.gaze_span).all(axis=1)
         along = np.where(known, np.clip(along, self.gaze_span[:, 0], self.gaze_span[:, 1]), along)  # GAZE_SPAN
@@ -319,6 +325,17 @@ class EyeBankTrack:
                          apertures=tuple(float(a) for a in apertures),  # type: ignore[arg-type]
                          gazes=tuple(float(g) for g in along), shut=tuple(bool(e) for e in shut),  # type: ignore
                          bank=self.bank)
+
+
+def shut_beyond_entry(apertures: np.ndarray, own: np.ndarray, eyes: np.ndarray) -> np.ndarray:
+    """(2,) bool: which of the ``eyes`` (2,) bool taking the bank's the target shuts further than their entry's lids
+    stretch (``STRETCH``), from the apertures asked (2,) over the entry's ``own`` (2,). Both eyes go by the more shut
+    of the two unless they differ by more than ``WINK``: one blink is never drawn as a wink."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratios = np.where(eyes, np.asarray(apertures, np.float64) / np.asarray(own, np.float64), np.nan)
+    if np.isfinite(ratios).all() and abs(ratios[0] - ratios[1]) <= WINK:
+        ratios = np.full(2, ratios.min())
+    return np.asarray(eyes, bool) & (ratios < 1.0 / STRETCH)
 
 
 def paste_bank_eyes(image: np.ndarray, landmarks: np.ndarray, bank: EyeBank | None, choice: EyeChoice | None

@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from landmarks.parts.eyes.eye_bank import (CANON_WIDTH, LID_BAND, PATCH, STRETCH, EyeBank, EyeBankTrack, EyeChoice,
-                                           build_eye_bank, gaze_span, head_turn, lid_stretch, paste_bank_eyes,
-                                           state_cost)
+from landmarks.parts.eyes.eye_bank import (CANON_WIDTH, LID_BAND, PATCH, STRETCH, WINK, EyeBank, EyeBankTrack,
+                                           EyeChoice, build_eye_bank, gaze_span, head_turn, lid_stretch,
+                                           paste_bank_eyes, shut_beyond_entry, state_cost)
 from landmarks.parts.hysteresis import FADE, SWITCH
 from landmarks.parts.eyes.eye_realism import eye_realism, realism_patches
 from landmarks.shape.measures import eye_apertures, eye_axes
@@ -332,6 +332,24 @@ def test_a_target_shut_beyond_a_bank_of_open_eyes_takes_its_least_open_entry_mar
     # one eye shut: that eye is marked, the other not
     winking = EyeBankTrack(bank)(_points((0.1, 0.3)))
     assert winking.eyes == (True, True) and winking.shut == (True, False)
+
+
+def test_one_blink_read_apart_shuts_both_eyes_and_a_wink_one():
+    bank = _bank([((0.3, 0.3), STRAIGHT), ((0.25, 0.25), STRAIGHT)])
+    # the mesh reads a lowered head's blink as one eye at 0.44 of the entry's opening, the other at 0.92: both shut,
+    # not one eye shut and the other open
+    blink = EyeBankTrack(bank)(_points((0.11, 0.23)))
+    assert blink.entry == 1 and blink.shut == (True, True)
+    assert shut_beyond_entry(np.array([0.11, 0.23]), np.array([0.25, 0.25]), np.array([True, True])).tolist() == [
+        True, True]
+    # apart by more than WINK: a wink, the open eye left open
+    apart = 0.25 * (1.0 / STRETCH - 0.05 + WINK + 0.02)
+    assert shut_beyond_entry(np.array([0.25 * (1.0 / STRETCH - 0.05), apart]), np.array([0.25, 0.25]),
+                             np.array([True, True])).tolist() == [True, False]
+    # both within the stretch: neither; an eye that takes no bank eye is never shut, nor sets the other's
+    assert not shut_beyond_entry(np.array([0.21, 0.25]), np.array([0.25, 0.25]), np.array([True, True])).any()
+    one = shut_beyond_entry(np.array([0.05, 0.25]), np.array([0.25, 0.25]), np.array([False, True]))
+    assert one.tolist() == [False, False]
 
 
 def test_no_reading_of_an_eye_in_the_bank_takes_no_bank_eye():
