@@ -21,7 +21,8 @@ channels: a gain per channel matched the skin's tone too, which turned the drive
 
 
 def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: int, cast: float = CAST,
-                fade: float | None = FADE, colourful: bool = True) -> np.ndarray:
+                fade: float | None = FADE, colourful: bool = True,
+                lights: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The driver's mapped patch ``warped`` (h, w, 3) float32 lit as the target is, against ``region`` (h, w, 3)
     float32, the synthesis there, whose outer lips cover ``lips`` (h, w) bool with a skin ring ``ring`` pixels wide
     around them -> a new (h, w, 3) float32: scaled by one gain so that the ring's brightness matches (clipped to
@@ -29,7 +30,9 @@ def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: 
     fading out toward the synthesis' brightest there (``fade``; None: no fading, skin laid on skin). The patch as it
     is where there is no ring. colourful False: another person's patch, first made no more colourful than the
     target (``colour_scale``), so that a greyscale video takes a grey interior where a shift of the mean cast left a
-    colourful driver's red lips and blue make-up inside it.
+    colourful driver's red lips and blue make-up inside it. lights: the target's and the patch's mean colours (3,)
+    over skin elsewhere (``landmarks.parts.mouth.interior.nose_light``: a beard rings a bearded mouth), matched in
+    place of the rings'.
 
     Tried and dropped: blurring the patch until no sharper than the synthesis, and softening its highlights above
     the synthesis' brightest. On a crisp driver's teeth in a dim, soft video (the FSTH sample's id00017) they looked
@@ -40,9 +43,14 @@ def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: 
     skin = grown & ~lips
     if not skin.any():
         return warped
+    lit = None if lights is None else [np.asarray(light, np.float64) for light in lights]
     if not colourful:
+        scale = colour_ratio(warped, region, skin)
         warped = colour_scale(warped, region, skin)
-    means = [values[skin].mean(axis=0, dtype=np.float64) for values in (region, warped)]  # (3,) each
+        if lit is not None:  # the driver's light as colourless as its patch now is
+            lit[1] = lit[1] - (1.0 - scale) * (lit[1] - lit[1].mean())
+    means = (lit if lit is not None
+             else [values[skin].mean(axis=0, dtype=np.float64) for values in (region, warped)])  # (3,) each
     gain = float(np.clip((means[0].mean() + 1.0) / (means[1].mean() + 1.0), *GAIN))
     shift = ((means[0] - means[0].mean()) - gain * (means[1] - means[1].mean())) * cast
     result = warped * np.float32(gain)
@@ -53,16 +61,21 @@ def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: 
     return (result + fading * shift.astype(np.float32)).astype(np.float32)
 
 
-def colour_scale(warped: np.ndarray, region: np.ndarray, skin: np.ndarray) -> np.ndarray:
-    """``warped`` (h, w, 3) float32 with each pixel's colour (its channels less their mean) scaled by the target's
-    colourfulness over the patch's (the mean length of that colour over ``skin`` (h, w) bool, in ``region`` and in
-    ``warped``), at most 1: a new (h, w, 3) float32, or ``warped`` itself where the target is as colourful or more."""
+def colour_ratio(warped: np.ndarray, region: np.ndarray, skin: np.ndarray) -> float:
+    """The target's colourfulness over the patch's, at most 1: the mean length of each pixel's colour (its channels
+    less their mean) over ``skin`` (h, w) bool, in ``region`` over in ``warped`` (both (h, w, 3) float32)."""
     colour = [values - values.mean(axis=-1, keepdims=True) for values in (region, warped)]
     target, driven = (float(np.linalg.norm(c[skin], axis=-1).mean(dtype=np.float64)) for c in colour)
-    scale = min(1.0, target / driven) if driven > 0 else 1.0
+    return min(1.0, target / driven) if driven > 0 else 1.0
+
+
+def colour_scale(warped: np.ndarray, region: np.ndarray, skin: np.ndarray) -> np.ndarray:
+    """``warped`` (h, w, 3) float32 with each pixel's colour (its channels less their mean) scaled by
+    ``colour_ratio``: a new (h, w, 3) float32, or ``warped`` itself where the target is as colourful or more."""
+    scale = colour_ratio(warped, region, skin)
     if scale >= 1.0:
         return warped
-    return (warped - (1.0 - np.float32(scale)) * colour[1]).astype(np.float32)
+    return (warped - (1.0 - np.float32(scale)) * (warped - warped.mean(axis=-1, keepdims=True))).astype(np.float32)
 
 
 def ellipse_mask(centre: np.ndarray, axes: tuple[float, float], along: np.ndarray, shape: tuple[int, int]

@@ -33,6 +33,7 @@ def test_the_driver_mouth_is_cut_as_python_cuts_it(web, driven):
         np.testing.assert_allclose(mouth["lips"], expected.lips, atol=1e-9)
         assert mouth["opening"] == pytest.approx(expected.opening, abs=1e-12)
         assert mouth["yaw"] == pytest.approx(expected.yaw, abs=0.5)  # the head pose, degrees
+        np.testing.assert_allclose(mouth["light"], expected.light, atol=1e-9)
     assert sum(m is not None for m in got) >= 4  # most of FRAMES show an open mouth
 
 
@@ -41,8 +42,8 @@ def test_the_interior_is_laid_in_as_python_lays_it(web, driven):
 
     image, frames = driven
     mouths = [cut_driver_mouth(frame, points) for frame, points, _ in frames]
-    wire = [None if m is None else {"patch": m.patch, "lips": m.lips, "opening": m.opening, "yaw": m.yaw}
-            for m in mouths]
+    wire = [None if m is None else {"patch": m.patch, "lips": m.lips, "opening": m.opening, "yaw": m.yaw,
+                                    "light": m.light.tolist()} for m in mouths]
     targets = [target for *_, target in frames]
     got = web.calls(*[("pasteInterior", [image, target, mouth]) for target, mouth in zip(targets, wire)],
                     *[("lipAffine", [t[48:68].ravel(), m.lips.ravel()]) for t, m in zip(targets, mouths) if m])
@@ -67,7 +68,8 @@ def test_a_greyscale_target_takes_a_grey_interior_as_python_gives_it(web, driven
     grey = np.repeat(image.mean(axis=-1, keepdims=True).round().astype(np.uint8), 3, axis=-1)
     frame, points, target = frames[3]  # the driver's widest mouth
     mouth = cut_driver_mouth(frame, points)
-    wire = {"patch": mouth.patch, "lips": mouth.lips, "opening": mouth.opening, "yaw": mouth.yaw}
+    wire = {"patch": mouth.patch, "lips": mouth.lips, "opening": mouth.opening, "yaw": mouth.yaw,
+            "light": mouth.light.tolist()}
     (result,) = web.calls(("pasteInterior", [grey, target, wire]))
     expected = paste_interior(grey, target, mouth)
     assert expected is not grey

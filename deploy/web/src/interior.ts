@@ -2,9 +2,9 @@
 // interior_strength, lip_affine, paste_interior), as the live session finishes a frame with mouth_interior "driver".
 // The driver's frame around its lips is cut where the frame is (the tracker's worker, or this thread), mapped onto
 // the target by the affine fit of the target's 20 lip points to the driver's (bicubic, as cv2.warpAffine with
-// WARP_INVERSE_MAP), lit as the target is (matchLight: no more colourful than the skin around the lips, its
-// brightness and, away from its highlights, half its colour cast from that skin), and laid inside the target's inner
-// lips.
+// WARP_INVERSE_MAP), lit as the target is (matchLight: no more colourful than the skin around the lips, then the
+// brightness and, away from its highlights, half the colour cast of the target's nose against the driver's:
+// noseLight), and laid inside the target's inner lips.
 
 import { pointBox, polygonMask } from "./mouth.js";
 import { estimateHeadPose } from "./pose.js";
@@ -20,6 +20,9 @@ export const FEATHER = 0.012;
 export const TURN: [number, number] = [35.0, 50.0];
 export const CAST = 0.5;
 export const FADE = 2.0;
+/** The nose as a polygon of the 68 points (the top of its bridge, then its base): the skin whose light the interior
+ * takes (interior.NOSE; noseLight). */
+export const NOSE = [27, 31, 32, 33, 34, 35];
 
 const f32 = Math.fround;
 
@@ -33,6 +36,8 @@ export interface DriverMouth {
   opening: number;
   /** The driver's head yaw in degrees (NaN: not found). */
   yaw: number;
+  /** (3,) the driver's mean colour over its nose (noseLight); null (or absent): the skin ring around its lips. */
+  light?: Float64Array | null;
 }
 
 /** One face's (68, 2) points, flat (an Error for another shape). */
@@ -70,7 +75,25 @@ export function cutDriverMouth(frame: Tensor<Uint8Array>, landmarks: Tensor): Dr
   const lips = new Float64Array(40);
   for (let i = 0; i < 20; i++) { lips[2 * i] = p[2 * (48 + i)] - cut.x0; lips[2 * i + 1] = p[2 * (48 + i) + 1] - cut.y0; }
   const yaw = estimateHeadPose(landmarks, frame.shape[0], frame.shape[1])[0];
-  return { patch: cut.patch, lips: tensor(lips, [20, 2]), opening, yaw };
+  return { patch: cut.patch, lips: tensor(lips, [20, 2]), opening, yaw, light: noseLight(frame, p) };
+}
+
+/** nose_light: the mean colour of `image` (H, W, 3) uint8 inside the nose polygon (NOSE) of the (68, 2) points `p`
+ * (flat, its pixels), or null where it covers no pixel. */
+export function noseLight(image: Tensor, p: ArrayLike<number>): Float64Array | null {
+  const nose = new Float64Array(2 * NOSE.length);
+  NOSE.forEach((point, i) => { nose[2 * i] = p[2 * point]; nose[2 * i + 1] = p[2 * point + 1]; });
+  const cut = cutAround(image as Tensor<Uint8Array>, nose, 0, NOSE.length, 2.0);
+  if (cut === null) return null;
+  const [h, w] = cut.patch.shape, inside = polygonMask(nose, 0, NOSE.length, cut.x0, cut.y0, w, h);
+  const sum = [0, 0, 0];
+  let count = 0;
+  for (let k = 0; k < w * h; k++) {
+    if (inside[k] < 128) continue;  // coverage / 255 > 0.5
+    for (let c = 0; c < 3; c++) sum[c] += cut.patch.data[3 * k + c];
+    count++;
+  }
+  return count ? Float64Array.from(sum, (v) => v / count) : null;
 }
 
 /** interior_strength: the lesser opening of the target's (68, 2) points and the driver's, OPEN[0] -> 0, OPEN[1] -> 1,
@@ -107,7 +130,7 @@ export function lipAffine(from: Tensor | ArrayLike<number>, to: Tensor | ArrayLi
  * target's colourfulness over the patch's (the mean length of that colour over the skin, `grown` less `lips`), at
  * most 1; `warped` itself where the target is as colourful or more. */
 function colourScale(warped: Float32Array, region: Float32Array, grown: Uint8Array, lips: Uint8Array, w: number,
-                     h: number): Float32Array {
+                     h: number): [Float32Array, number] {
   const length = (values: Float32Array, k: number) => {
     const mean = f32(f32(f32(values[3 * k] + values[3 * k + 1]) + values[3 * k + 2]) / 3);
     const d = [0, 1, 2].map((c) => f32(values[3 * k + c] - mean));
@@ -118,13 +141,13 @@ function colourScale(warped: Float32Array, region: Float32Array, grown: Uint8Arr
     if (!grown[k] || lips[k]) continue;
     target += length(region, k); driven += length(warped, k); skin++;
   }
-  if (!skin || !(driven > 0) || target >= driven) return warped;
+  if (!skin || !(driven > 0) || target >= driven) return [warped, 1];
   const keep = f32(1 - f32(target / driven)), result = new Float32Array(warped.length);
   for (let k = 0; k < w * h; k++) {
     const mean = f32(f32(f32(warped[3 * k] + warped[3 * k + 1]) + warped[3 * k + 2]) / 3);
     for (let c = 0; c < 3; c++) result[3 * k + c] = f32(warped[3 * k + c] - f32(keep * f32(warped[3 * k + c] - mean)));
   }
-  return result;
+  return [result, target / driven];
 }
 
 /** match_light: the driver's mapped patch `warped` ((h, w, 3) float32) lit as the target is, against `region`, the
@@ -132,11 +155,21 @@ function colourScale(warped: Float32Array, region: Float32Array, grown: Uint8Arr
  * gain for the ring's brightness (clipped to GAIN), then `cast` of the rings' colour-cast difference, fading out
  * toward the synthesis' brightest there (`fade`; null: no fading, skin laid on skin); the patch as it is where
  * there is no ring. colourful false: another person's patch, first made no more colourful than the target
- * (colourScale). */
+ * (colourScale). lights: the target's and the patch's mean colours over skin elsewhere (the noses': noseLight), in
+ * place of the rings'. */
 export function matchLight(warped: Float32Array, region: Float32Array, lips: Uint8Array, w: number, h: number,
-                           ring: number, cast = CAST, fade: number | null = FADE, colourful = true): Float32Array {
+                           ring: number, cast = CAST, fade: number | null = FADE, colourful = true,
+                           lights: [ArrayLike<number>, ArrayLike<number>] | null = null): Float32Array {
   const grown = dilateEllipse(lips, w, h, ring);
-  if (!colourful) warped = colourScale(warped, region, grown, lips, w, h);
+  const lit = lights === null ? null : lights.map((light) => Array.from(light));
+  if (!colourful) {
+    const [scaled, scale] = colourScale(warped, region, grown, lips, w, h);
+    warped = scaled;
+    if (lit !== null) {  // the driver's light as colourless as its patch now is
+      const grey = (lit[1][0] + lit[1][1] + lit[1][2]) / 3;
+      lit[1] = lit[1].map((v) => v - (1 - scale) * (v - grey));
+    }
+  }
   const means = [[0, 0, 0], [0, 0, 0]], brightest: number[] = [];
   let skin = 0;
   for (let k = 0; k < w * h; k++) {
@@ -147,7 +180,7 @@ export function matchLight(warped: Float32Array, region: Float32Array, lips: Uin
     skin++;
   }
   if (!skin) return warped;
-  const [target, driven] = means.map((m) => m.map((v) => v / skin));
+  const [target, driven] = lit ?? means.map((m) => m.map((v) => v / skin));
   const grey = [target, driven].map((m) => (m[0] + m[1] + m[2]) / 3);
   const gain = Math.min(Math.max((grey[0] + 1) / (grey[1] + 1), GAIN[0]), GAIN[1]), g = f32(gain);
   const shift = [0, 1, 2].map((c) => f32(((target[c] - grey[0]) - gain * (driven[c] - grey[1])) * cast));
@@ -191,7 +224,9 @@ export function pasteInterior(image: Tensor, landmarks: Tensor, mouth: DriverMou
     region.set(source.subarray(3 * ((y0 + y) * width + x0), 3 * ((y0 + y) * width + x1)), 3 * y * w);
   }
   for (let i = 0; i < mapped.length; i++) mapped[i] = warped[i];
-  const laid = matchLight(mapped, region, lipArea, w, h, ring, CAST, FADE, false);
+  const targetLight = mouth!.light ? noseLight(image, p) : null;
+  const laid = matchLight(mapped, region, lipArea, w, h, ring, CAST, FADE, false,
+                          targetLight === null ? null : [targetLight, mouth!.light!]);
   const inner = polygonMask(local, 12, 20, 0, 0, w, h), unit = f32(1.0 / 255.0), coverage = new Float32Array(w * h);
   for (let i = 0; i < coverage.length; i++) coverage[i] = f32(inner[i] * unit);
   const weight = gaussianBlurF32(coverage, w, h, 1, sigma), s = f32(strength);

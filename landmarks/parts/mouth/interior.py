@@ -12,7 +12,8 @@ driver's mouth interior:
 * ``paste_interior``: that patch mapped onto the target by the affine map that best takes the target's 20 lip
   points onto the driver's (least squares; each target pixel reads the patch there, bicubic), lit as the target
   is (``match_light``: no more colourful than the skin around the target's lips, so a greyscale video takes a grey
-  interior, then its brightness and, away from its highlights, half its colour cast taken from that skin), and laid inside the target's inner-lip polygon, feathered by ``FEATHER`` eye
+  interior, then the brightness and, away from its highlights, half the colour cast of the target's nose against
+  the driver's, ``nose_light``), and laid inside the target's inner-lip polygon, feathered by ``FEATHER`` eye
   distances, as far as both mouths are open and the driver faces the camera (``interior_strength``).
 
 The lips stay the synthesis' (the subject's), and so does everything outside them. A closed mouth is left as it is.
@@ -46,6 +47,11 @@ RING = 0.12
 less the lips."""
 FEATHER = 0.012
 """The inner-lip polygon's edge is feathered by a Gaussian of this fraction of the target's eye distance."""
+NOSE = (27, 31, 32, 33, 34, 35)
+"""The nose as a polygon of the 68 points (the top of its bridge, then its base): the skin whose light the interior
+takes (``nose_light``). The skin ring around the lips is a beard's on a bearded face: a bearded driver's dark ring
+brightened his teeth to a glare in a dim video (the FSTH sample's id00061 driving id00017: gain 1.30, the teeth
+at 233-244 where the synthesis' brightest around the lips is 131-135)."""
 TURN = (35.0, 50.0)
 """Degrees of the driver's head yaw: from the first the interior fades, at the second it is gone. A mouth seen from
 the side shows its teeth edge-on; mapped onto a mouth seen from the front it drew a white blob (on the FSTH sample,
@@ -62,6 +68,8 @@ class DriverMouth:
     """The driver's mouth opening (``landmarks.shape.expression.mouth_opening``)."""
     yaw: float = 0.0
     """The driver's head yaw in degrees (``landmarks.motion.head_pose.estimate_head_pose`` of its 68 points; NaN: not found)."""
+    light: np.ndarray | None = None
+    """(3,) float64: the driver's mean colour over its nose (``nose_light``); None: the skin ring around its lips."""
 
 
 def cut_around(frame: np.ndarray, points: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -91,7 +99,18 @@ def cut_driver_mouth(frame: np.ndarray, landmarks: np.ndarray) -> DriverMouth | 
     if cut is None:
         return None
     yaw = float(estimate_head_pose(points, frame.shape[:2])[0])
-    return DriverMouth(cut[0], points[LIPS] - cut[1], opening, yaw)
+    return DriverMouth(cut[0], points[LIPS] - cut[1], opening, yaw, nose_light(frame, points))
+
+
+def nose_light(image: np.ndarray, points: np.ndarray) -> np.ndarray | None:
+    """(3,) float64: the mean colour of ``image`` (H, W, 3) uint8 inside the nose polygon (``NOSE``) of the 68
+    ``points`` (its pixels), or None where it covers no pixel."""
+    nose = points[list(NOSE)]
+    cut = cut_around(image, nose, 2.0)
+    if cut is None:
+        return None
+    inside = _polygon(nose - cut[1], cut[0].shape[:2]) > 0.5
+    return cut[0][inside].mean(axis=0, dtype=np.float64) if inside.any() else None
 
 
 def interior_strength(landmarks: np.ndarray, mouth: DriverMouth) -> float:
@@ -147,7 +166,9 @@ def paste_interior(image: np.ndarray, landmarks: np.ndarray, mouth: DriverMouth 
                             flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
                             ).astype(np.float32)
     region = image[y0:y1, x0:x1].astype(np.float32)
-    warped = match_light(warped, region, _polygon(local[OUTER], box) > 0.5, ring, colourful=False)
+    target_light = nose_light(image, points) if mouth.light is not None else None
+    lights = None if target_light is None else (target_light, mouth.light)
+    warped = match_light(warped, region, _polygon(local[OUTER], box) > 0.5, ring, colourful=False, lights=lights)
     weight = cv2.GaussianBlur(_polygon(local[INNER], box), (0, 0), sigma) * strength
     result = image.copy()
     mixed = weight[..., None] * warped + (1.0 - weight[..., None]) * region

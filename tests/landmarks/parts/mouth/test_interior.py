@@ -21,11 +21,13 @@ def _points(opening: float, scale: float = 0.5, shift=(0.0, 0.0)) -> np.ndarray:
     return set_mouth_opening(face, opening) + shift
 
 
-def _face(points: np.ndarray, inside, skin=SKIN, lips=LIPS, teeth: bool = False) -> np.ndarray:
-    """A flat face: skin, the outer-lip polygon in lip colour, the inner-lip polygon filled with ``inside`` (and a
-    white band along its top edge: teeth)."""
-    image = np.zeros((SIDE, SIDE, 3), np.uint8)
-    image[:] = skin
+def _face(points: np.ndarray, inside, skin=SKIN, lips=LIPS, teeth: bool = False,
+          base: np.ndarray | None = None) -> np.ndarray:
+    """A flat face: skin (or ``base``, a copy), the outer-lip polygon in lip colour, the inner-lip polygon filled
+    with ``inside`` (and a white band along its top edge: teeth)."""
+    image = np.zeros((SIDE, SIDE, 3), np.uint8) if base is None else base.copy()
+    if base is None:
+        image[:] = skin
     cv2.fillPoly(image, [np.round(points[48:60]).astype(np.int32)], lips)
     cv2.fillPoly(image, [np.round(points[60:68]).astype(np.int32)], inside)
     if teeth:
@@ -59,7 +61,7 @@ def test_the_driver_interior_fills_the_target_inner_lips_and_nothing_else_moves(
     assert np.array_equal(result[lip_line[1], lip_line[0]], target[lip_line[1], lip_line[0]])
 
 
-def test_the_interior_takes_the_target_light_from_the_skin_around_the_lips():
+def test_the_interior_takes_the_target_light_from_the_skin():
     driver_points = target_points = _points(0.35)
     driver = _face(driver_points, (100, 100, 100), skin=tuple(int(0.7 * c) for c in SKIN))  # a darker room
     target = _face(target_points, (190, 90, 100))
@@ -79,6 +81,23 @@ def test_the_interior_takes_the_target_light_from_the_skin_around_the_lips():
     bright = _face(driver_points, (100, 100, 100), skin=(255, 255, 255))  # a gain below GAIN[0] is clipped
     clipped = paste_interior(target, target_points, cut_driver_mouth(bright, driver_points))
     assert clipped[y, x].mean() >= 100 * GAIN[0] - 1  # in grey: the cast adds nothing to it
+
+
+def test_a_bearded_driver_lends_its_interior_lit_by_its_nose_not_its_beard():
+    points = _points(0.35)
+    y, x = _centre(points)
+    beard = cv2.dilate(cv2.fillPoly(np.zeros((SIDE, SIDE), np.uint8), [np.round(points[48:60]).astype(np.int32)], 1),
+                       cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (11, 11))) > 0
+    driver = _face(points, (100, 100, 100))
+    driver[beard] = (60, 45, 40)  # a dark beard all around the mouth, in the same light as the target
+    driver = _face(points, (100, 100, 100), skin=None, base=driver)
+    target = _face(points, (190, 90, 100))
+    mouth = cut_driver_mouth(driver, points)
+    assert mouth.light is not None and np.abs(mouth.light - SKIN).max() < 1  # the nose: skin, not beard
+    laid = paste_interior(target, points, mouth)[y, x].astype(float)
+    assert np.abs(laid.mean() - 100) <= 3  # as bright as the driver shows it (the beard ring: x1.6, clipped)
+    ringed = paste_interior(target, points, DriverMouth(mouth.patch, mouth.lips, mouth.opening, mouth.yaw))[y, x]
+    assert ringed.mean() > 150  # what the ring around the lips gave
 
 
 def test_a_closed_mouth_is_left_as_it_is():
