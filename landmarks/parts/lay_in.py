@@ -46,7 +46,7 @@ def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: 
     lit = None if lights is None else [np.asarray(light, np.float64) for light in lights]
     if not colourful:
         scale = colour_ratio(warped, region, skin)
-        warped = colour_scale(warped, region, skin)
+        warped = _desaturated(warped, scale)
         if lit is not None:  # the driver's light as colourless as its patch now is
             lit[1] = lit[1] - (1.0 - scale) * (lit[1] - lit[1].mean())
     means = (lit if lit is not None
@@ -72,7 +72,11 @@ def colour_ratio(warped: np.ndarray, region: np.ndarray, skin: np.ndarray) -> fl
 def colour_scale(warped: np.ndarray, region: np.ndarray, skin: np.ndarray) -> np.ndarray:
     """``warped`` (h, w, 3) float32 with each pixel's colour (its channels less their mean) scaled by
     ``colour_ratio``: a new (h, w, 3) float32, or ``warped`` itself where the target is as colourful or more."""
-    scale = colour_ratio(warped, region, skin)
+    return _desaturated(warped, colour_ratio(warped, region, skin))
+
+
+def _desaturated(warped: np.ndarray, scale: float) -> np.ndarray:
+    """``warped`` with each pixel's colour scaled by ``scale``: a new float32 array, or ``warped`` itself at 1."""
     if scale >= 1.0:
         return warped
     return (warped - (1.0 - np.float32(scale)) * (warped - warped.mean(axis=-1, keepdims=True))).astype(np.float32)
