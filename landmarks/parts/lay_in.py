@@ -29,7 +29,7 @@ def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: 
     ``GAIN``), then shifted by ``cast`` of the difference of the rings' colour casts (mean colour less mean grey),
     fading out toward the synthesis' brightest there (``fade``; None: no fading, skin laid on skin). The patch as it
     is where there is no ring. colourful False: another person's patch, first made no more colourful than the
-    target (``colour_scale``), so that a greyscale video takes a grey interior where a shift of the mean cast left a
+    target (``colour_ratio``, ``desaturated``), so that a greyscale video takes a grey interior where a shift of the mean cast left a
     colourful driver's red lips and blue make-up inside it. lights: the target's and the patch's mean colours (3,)
     over skin elsewhere (``landmarks.parts.mouth.interior.nose_light``: a beard rings a bearded mouth), matched in
     place of the rings'.
@@ -46,7 +46,7 @@ def match_light(warped: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: 
     lit = None if lights is None else [np.asarray(light, np.float64) for light in lights]
     if not colourful:
         scale = colour_ratio(warped, region, skin)
-        warped = _desaturated(warped, scale)
+        warped = desaturated(warped, scale)
         if lit is not None:  # the driver's light as colourless as its patch now is
             lit[1] = lit[1] - (1.0 - scale) * (lit[1] - lit[1].mean())
     means = (lit if lit is not None
@@ -69,14 +69,9 @@ def colour_ratio(warped: np.ndarray, region: np.ndarray, skin: np.ndarray) -> fl
     return min(1.0, target / driven) if driven > 0 else 1.0
 
 
-def colour_scale(warped: np.ndarray, region: np.ndarray, skin: np.ndarray) -> np.ndarray:
-    """``warped`` (h, w, 3) float32 with each pixel's colour (its channels less their mean) scaled by
-    ``colour_ratio``: a new (h, w, 3) float32, or ``warped`` itself where the target is as colourful or more."""
-    return _desaturated(warped, colour_ratio(warped, region, skin))
-
-
-def _desaturated(warped: np.ndarray, scale: float) -> np.ndarray:
-    """``warped`` with each pixel's colour scaled by ``scale``: a new float32 array, or ``warped`` itself at 1."""
+def desaturated(warped: np.ndarray, scale: float) -> np.ndarray:
+    """``warped`` (h, w, 3) float32 with each pixel's colour (its channels less their mean) scaled by ``scale``
+    (``colour_ratio``): a new float32 array, or ``warped`` itself at 1 or more."""
     if scale >= 1.0:
         return warped
     return (warped - (1.0 - np.float32(scale)) * (warped - warped.mean(axis=-1, keepdims=True))).astype(np.float32)

@@ -126,9 +126,9 @@ export function lipAffine(from: Tensor | ArrayLike<number>, to: Tensor | ArrayLi
   return [...solve(atx), ...solve(aty)] as Affine;
 }
 
-/** colour_scale: `warped` ((h, w, 3) float32) with each pixel's colour (its channels less their mean) scaled by the
- * target's colourfulness over the patch's (the mean length of that colour over the skin, `grown` less `lips`), at
- * most 1; `warped` itself where the target is as colourful or more. */
+/** colour_ratio and desaturated: [`warped` ((h, w, 3) float32) with each pixel's colour (its channels less their
+ * mean) scaled by the target's colourfulness over the patch's (the mean length of that colour over the skin, `grown`
+ * less `lips`), at most 1, and that ratio]; `warped` itself and 1 where the target is as colourful or more. */
 function colourScale(warped: Float32Array, region: Float32Array, grown: Uint8Array, lips: Uint8Array, w: number,
                      h: number): [Float32Array, number] {
   const length = (values: Float32Array, k: number) => {

@@ -1,12 +1,12 @@
 """Laying a real patch into the synthesis (landmarks.parts.lay_in): another person's patch no more colourful than the
-target (colour_scale, match_light's colourful=False)."""
+target (colour_ratio and desaturated, match_light's colourful=False)."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from landmarks.parts.lay_in import colour_scale, match_light
+from landmarks.parts.lay_in import colour_ratio, desaturated, match_light
 
 SIZE = 40
 
@@ -24,9 +24,10 @@ def lips() -> np.ndarray:
 
 
 def match_colourfulness(patch: np.ndarray, region: np.ndarray, lips: np.ndarray, ring: int) -> np.ndarray:
-    """colour_scale over the skin ring ``ring`` pixels wide around ``lips``, as match_light takes it."""
+    """The patch made no more colourful than the target over the skin ring ``ring`` pixels wide around ``lips``, as
+    match_light makes it."""
     grown = cv2.dilate(lips.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring + 1,) * 2)) > 0
-    return colour_scale(patch, region, grown & ~lips)
+    return desaturated(patch, colour_ratio(patch, region, grown & ~lips))
 
 
 def colourfulness(values: np.ndarray) -> float:
