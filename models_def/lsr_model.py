@@ -44,6 +44,8 @@ class FrameOutputs(NamedTuple):
     """warp_guided: (B, N + 1, H_ref, W_ref) per-pixel weights of the N warped references and the generated image."""
     generated: torch.Tensor | None = None
     """warp_guided: (B, 3, H, W) in [-1, 1], G^s's own image before the blend."""
+    blend_logits: torch.Tensor | None = None
+    """warp_guided: (B, N + 1, H, W), G^s's logits of the blend's softmax (the references', then its image's)."""
 
 
 class FrameGenerator(nn.Module):
@@ -159,11 +161,11 @@ class FrameGenerator(nn.Module):
         if exporting:
             image, weights = blend_with_reference_detail(references, reference_masks, generated, blend_logits, sigma,
                                                          half_references)
-            return FrameOutputs(image, layout, layout_logits, aux_rgb, weights, generated)
+            return FrameOutputs(image, layout, layout_logits, aux_rgb, weights, generated, blend_logits)
         image, weights = blend_references(references, reference_masks, generated, blend_logits)
         if sigma > 0:  # the references' consensus detail on the blend's low band
             image = add_reference_detail(image, references, reference_masks, weights[:, count:], sigma)
-        return FrameOutputs(image, layout, layout_logits, aux_rgb, weights, generated)
+        return FrameOutputs(image, layout, layout_logits, aux_rgb, weights, generated, blend_logits)
 
     def _check_references(
         self, references: torch.Tensor | None, reference_masks: torch.Tensor | None, batch: int

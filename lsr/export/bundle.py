@@ -5,6 +5,9 @@ Built on ``lsr.export.graphs`` (graph wrappers and the generic atomic ``export_o
   dynamic B and K;
 * ``frame_generator.onnx``: (landmark_image (B, 3, S, S), layout_latent, style_latent) -> image (B, 3, S, S)
   [, layout (B, C_l, S, S) as a second output when the variant has one], dynamic B;
+* ``frame_network.onnx`` for a warp-guided model whose composite the web page runs (``page_composite_sigma``): the
+  same graph ending at G^s, its references and masks taken at S (pooled by the caller), its output ``network``
+  (B, N + 4, S, S) its image and blend logits;
 * with ``--int8``: ``frame_generator.int8.onnx``, static int8 quantisation of the network's dense convolutions but
   the SPADE heads (QOperator QLinearConv, per-channel int8 weights, uint8 activations), calibrated on real frames'
   landmark images and latents; the composite (the warp-guided blend, its depthwise blurs and element-wise ops)
@@ -28,12 +31,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from landmarks.io.image_files import atomic_output, make_readable
 from lsr import __version__
 from lsr.errors import ConfigError, WeightsError
-from lsr.export.bundle_cache import FRAME_GENERATOR_FILE, SUBJECT_ENCODER_FILE, bundle_cache_folder, holds_bundle
-from lsr.export.graphs import SUBJECT_GRAPH_IO, FrameGeneratorGraph, export_onnx, frame_graph_io
+from lsr.export.bundle_cache import (FRAME_GENERATOR_FILE, FRAME_NETWORK_FILE, SUBJECT_ENCODER_FILE,
+                                     bundle_cache_folder, holds_bundle)
+from lsr.export.graphs import SUBJECT_GRAPH_IO, FrameGeneratorGraph, export_onnx, frame_graph_io, page_composite_sigma
 from lsr.pipeline import load_mouth, load_model
 from models_def import PRESET_NAMES, LSRModel, ModelConfig, preset_config
 from models_def.part_generator import PartGenerator
@@ -121,6 +126,13 @@ def export_graphs(model: LSRModel, out: str | os.PathLike, *, shots: int = 2,
     frame_path = export_onnx(graph, frame_inputs, out / FRAME_GENERATOR_FILE,
                              *frame_graph_io(model.frame_generator, with_layout), opset=ONNX_OPSET)
     files = [subject_path, frame_path]
+    if config.uses_references and page_composite_sigma(config, int(metadata["crop_size"])) is not None:
+        network = FrameGeneratorGraph(model.frame_generator, with_layout=with_layout, network_only=True)
+        pooled = (F.avg_pool2d(frame_inputs[3].flatten(1, 2), crop // size).view(1, count, 3, size, size),
+                  torch.ones(1, count, 1, size, size))  # the references at the network's side
+        files.append(export_onnx(network, (*frame_inputs[:3], *pooled), out / FRAME_NETWORK_FILE,
+                                 *frame_graph_io(model.frame_generator, with_layout, network_only=True),
+                                 opset=ONNX_OPSET))
     if mouth_generator is not None:
         part = mouth_generator.eval().float().cpu()
         size = part.config.size

@@ -11,6 +11,8 @@ from pathlib import Path
 
 SUBJECT_ENCODER_FILE = "subject_encoder.onnx"
 FRAME_GENERATOR_FILE = "frame_generator.onnx"
+FRAME_NETWORK_FILE = "frame_network.onnx"
+"""The frame graph ending at G^s (``lsr.export.graphs.page_composite_sigma``), for the web page."""
 MOUTH_FOLDER = "mouth"
 """``models_def.part_generator.MOUTH_FOLDER`` (a model's mouth generator, when it has one), named here without
 importing torch."""
@@ -24,15 +26,17 @@ def onnx_cache_root() -> Path:
 
 def bundle_cache_folder(weights: str | os.PathLike, cache_root: str | os.PathLike | None = None) -> Path:
     """Where ``lsr.export.bundle.cached_bundle`` keeps a model folder's bundle: keyed by a hash of config.json +
-    model.safetensors (and its mouth generator's) and of the graphs' code (``models_def``'s sources, read, not
-    imported): new weights or a changed graph = a new bundle."""
+    model.safetensors (and its mouth generator's) and of the graphs' code (``models_def``'s sources and the exporter's,
+    read, not imported): new weights or a changed graph = a new bundle."""
     weights = Path(weights)
     digest = hashlib.sha256()
     for name in ("config.json", "model.safetensors", f"{MOUTH_FOLDER}/config.json", f"{MOUTH_FOLDER}/model.safetensors"):
         if (weights / name).is_file() or not name.startswith(MOUTH_FOLDER):
             digest.update(name.encode() + (weights / name).read_bytes())
     graphs = Path(importlib.util.find_spec("models_def").origin).parent
-    for source in sorted(graphs.glob("*.py")):  # the code the graphs are traced from
+    export = Path(__file__).resolve().parent
+    # the code the graphs are traced from, and the code that traces them (which graphs, at which input sizes)
+    for source in [*sorted(graphs.glob("*.py")), export / "graphs.py", export / "bundle.py"]:
         digest.update(source.name.encode() + source.read_bytes())
     root = Path(cache_root) if cache_root is not None else onnx_cache_root()
     return root / digest.hexdigest()[:20]

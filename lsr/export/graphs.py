@@ -29,14 +29,20 @@ class FrameGeneratorGraph(nn.Module):
     A warp_guided graph takes its references at one fixed crop side (the export's ``crop_size``).
 
     ``with_layout`` adds SPADE's layout input as a second output (for display); it needs a variant that has one.
+    ``network_only`` (warp_guided, ``page_composite_sigma``): the graph ends at G^s, its output ``network``
+    (B, N + 4, S, S) its image (3) then its blend logits (N + 1); traced with references at the network's side S,
+    it takes them pooled (2 x 2 means to S, as the whole graph pools them). The web page composites its outputs over
+    the references (deploy/web/src/blend_wasm.ts) as ``models_def.composite.blend_with_reference_detail`` does.
     """
 
-    def __init__(self, frame_generator: FrameGenerator, with_layout: bool = False) -> None:
+    def __init__(self, frame_generator: FrameGenerator, with_layout: bool = False, network_only: bool = False) -> None:
         super().__init__()
         variant = frame_generator.config.variant
         if with_layout and variant in ("baseline", "spade_landmarks"):
             raise ValueError(f"variant {variant!r} has no layout map; export it with with_layout=False")
-        self.frame_generator, self.with_layout = frame_generator, with_layout
+        if network_only and frame_generator.config.reference_flow > 0 or network_only and variant != "warp_guided":
+            raise ValueError("only a warp_guided model without a residual flow has a network graph")
+        self.frame_generator, self.with_layout, self.network_only = frame_generator, with_layout, network_only
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         if not self.frame_generator.config.uses_layout_predictor:
@@ -50,10 +56,27 @@ class FrameGeneratorGraph(nn.Module):
                                                       references=references, reference_masks=reference_masks)
         else:
             outputs = self.frame_generator.synthesize(*inputs)
-        return (outputs.image, outputs.layout) if self.with_layout else outputs.image
+        image = torch.cat([outputs.generated, outputs.blend_logits], dim=1) if self.network_only else outputs.image
+        return (image, outputs.layout) if self.with_layout else image
 
 
-def frame_graph_io(frame_generator: FrameGenerator, with_layout: bool) -> tuple[list[str], list[str], dict]:
+def page_composite_sigma(config, crop_size: int) -> float | None:
+    """The detail split in pixels (0: none) of the composite the web page runs itself for this model at references
+    of ``crop_size`` (deploy/web/src/blend_wasm.ts ``composesInWasm``: 1, 3 or 5 references, no residual flow, the
+    crop a power of two times the network's side, a multiple of 4, the detail at half resolution), or None where the
+    site keeps the whole frame graph."""
+    from models_def.composite import HALF_RESOLUTION_MIN_SIGMA
+
+    sigma, factor = config.reference_detail * crop_size, crop_size // config.resolution
+    if (config.variant != "warp_guided" or config.reference_flow > 0 or config.warp_references not in (1, 3, 5)
+            or config.resolution % 4 or crop_size != factor * config.resolution or factor < 2 or factor & (factor - 1)
+            or 0 < sigma < HALF_RESOLUTION_MIN_SIGMA):
+        return None
+    return float(sigma)
+
+
+def frame_graph_io(frame_generator: FrameGenerator, with_layout: bool, network_only: bool = False
+                   ) -> tuple[list[str], list[str], dict]:
     """Input names, output names and dynamic axes (batch) of the frame graph of this variant."""
     inputs = ["landmark_image", "layout_latent", "style_latent"]
     if not frame_generator.config.uses_layout_predictor:
@@ -62,7 +85,7 @@ def frame_graph_io(frame_generator: FrameGenerator, with_layout: bool) -> tuple[
         inputs.append("oracle_segmentation")
     if frame_generator.config.uses_references:
         inputs += ["references", "reference_masks"]
-    outputs = ["image", "layout"] if with_layout else ["image"]
+    outputs = ["network" if network_only else "image"] + (["layout"] if with_layout else [])
     return inputs, outputs, {name: {0: "batch"} for name in inputs + outputs}
 
 

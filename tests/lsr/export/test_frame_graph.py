@@ -1,6 +1,6 @@
 """The exported per-frame graph of a warp-guided model shaped like the shipped one (5 references, a crop 4x the
-network's side, the reference detail): parity with torch, the ops issue 65 put in it, and the int8 graph that
-quantises only the network's dense convolutions."""
+network's side, the reference detail): parity with torch, the ops issue 65 put in it, the int8 graph that
+quantises only the network's dense convolutions, and the graph ending at G^s that the web page composites."""
 
 from __future__ import annotations
 
@@ -10,12 +10,14 @@ import torch
 
 from lsr.export.bundle import (
     FRAME_GENERATOR_FILE,
+    FRAME_NETWORK_FILE,
     INT8_QUANTIZATION,
     export_graphs,
     graph_error,
     quantize_frame_generator,
     quantized_convolutions,
 )
+from lsr.export.graphs import page_composite_sigma
 from models_def import LSRModel, preset_config
 from models_def.composite import CHANNEL_BLOCK
 from models_def.norms import SPADE, AdaIN
@@ -72,6 +74,39 @@ def test_frame_graph_matches_torch_eager(exported):
         image = session.run(["image"], feed)[0]
         assert image.shape == (1, 3, 256, 256)
         assert np.abs(image - expected.numpy()).max() <= 1e-4
+
+
+def test_the_network_graph_is_g_s_on_the_pooled_references(exported):
+    """frame_network.onnx: the same G^s, its image then its blend logits, from the references pooled to its side."""
+    import torch.nn.functional as F
+
+    model, folder = exported
+    session = _session(folder / FRAME_NETWORK_FILE)
+    size = model.config.resolution
+    assert [o.name for o in session.get_outputs()] == ["network", "layout"]
+    for feed in _feeds(model, 2, seed=2):
+        references, masks = torch.from_numpy(feed["references"]), torch.from_numpy(feed["reference_masks"])
+        with torch.no_grad():
+            outputs = model.frame_generator.synthesize(*(torch.from_numpy(feed[name]) for name in
+                                                         ("landmark_image", "layout_latent", "style_latent")),
+                                                       references=references, reference_masks=masks)
+        factor = references.shape[-1] // size
+        pooled = {**feed, "references": F.avg_pool2d(references.flatten(1, 2), factor).view(1, COUNT, 3, size, size).numpy(),
+                  "reference_masks": F.avg_pool2d(masks.flatten(1, 2), factor).view(1, COUNT, 1, size, size).numpy()}
+        network = session.run(["network"], pooled)[0]
+        assert network.shape == (1, COUNT + 4, size, size)
+        assert np.abs(network[:, :3] - outputs.generated.numpy()).max() <= 1e-4
+        assert np.abs(network[:, 3:] - outputs.blend_logits.numpy()).max() <= 1e-4
+
+
+def test_the_page_composites_only_what_its_kernel_runs():
+    config = preset_config("tiny", variant="warp_guided", warp_references=5, crop_scale=4, reference_detail=0.0117)
+    assert page_composite_sigma(config, 256) == pytest.approx(2.9952)
+    assert page_composite_sigma(config.replace(reference_detail=0.0), 256) == 0.0
+    for other, crop in [(config.replace(warp_references=4), 256), (config.replace(reference_flow=0.02), 256),
+                        (config.replace(reference_detail=0.005), 256), (config, 192), (config, 64),
+                        (preset_config("tiny"), 256)]:
+        assert page_composite_sigma(other, crop) is None
 
 
 def test_frame_graph_holds_the_ops_onnxruntime_runs_well(exported):
