@@ -5,7 +5,8 @@ What it writes (``OUT``):
 
 * ``index.html``, ``app.js`` (the web runtime, ``deploy/web``, built with npm by ``deploy.web_build``), and
   onnxruntime-web's module and WASM files;
-* ``models/``: the frame generator and the subject encoder of the model (``lsr export``'s graphs), the face models
+* ``models/``: the frame generator and the subject encoder of the model (``lsr export``'s graphs; the frame graph
+  ending at G^s where the page runs the warp-guided composite itself, ``site.json``'s ``detail_sigma``), the face models
   the tracker runs (MediaPipe's detector, mesh and iris nets, and the 68-from-mesh mapping, as in
   ``landmarks/assets``) and MediaPipe's selfie segmenter: the page encodes a user's own photos with them
   (``deploy/web/src/encode.ts``);
@@ -163,6 +164,7 @@ def write_site(weights: Path, out: Path, k: int | None = None) -> WebSite:
     from deploy.web_build import ensure_built, onnxruntime_files
     from landmarks.io.image_files import atomic_folder
     from lsr.export.bundle import cached_bundle
+    from lsr.export.bundle_cache import FRAME_GENERATOR_FILE, FRAME_NETWORK_FILE
     from lsr.layout_view import LAYOUT_PALETTE, load_layout_legend
 
     dist = ensure_built()
@@ -176,7 +178,9 @@ def write_site(weights: Path, out: Path, k: int | None = None) -> WebSite:
             shutil.copy2(path, temp / path.name)
         models = temp / "models"
         (models / "mediapipe").mkdir(parents=True)
-        shutil.copy2(bundle / "frame_generator.onnx", models / "frame_generator.onnx")
+        # the page's frame generator: the graph ending at G^s where the page composites itself (blend_wasm.ts)
+        composes = (bundle / FRAME_NETWORK_FILE).is_file()
+        shutil.copy2(bundle / (FRAME_NETWORK_FILE if composes else FRAME_GENERATOR_FILE), models / "frame_generator.onnx")
         shutil.copy2(bundle / SUBJECT_ENCODER, models / SUBJECT_ENCODER)  # the page encodes a user's own photos
         assets = Path(__file__).resolve().parents[2] / "landmarks" / "assets"
         for name in (*TRACKER_ASSETS, SEGMENTER):
@@ -193,6 +197,8 @@ def write_site(weights: Path, out: Path, k: int | None = None) -> WebSite:
             "layout": backend.layout_kind, "layout_palette": LAYOUT_PALETTE.tolist(), "layout_legend": legend,
             "mouth": reenactor.mouth, "mouth_interior": reenactor.mouth_interior, "lids": reenactor.lids,
             "eyes": reenactor.eyes, "bank": scope if eye_bank is not None else "none", "k": person["k"],
+            # the detail split (pixels of the crop) of the composite the page runs, or null: the graph's own
+            "detail_sigma": (float(backend.config["reference_detail"]) * int(reenactor.crop_size) if composes else None),
         })
         (temp / "NOTICE.md").write_text(_notice())
         for path in temp.rglob("*"):  # readable by any static server

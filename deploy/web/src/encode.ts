@@ -33,7 +33,7 @@ import { composeAffine, cropTransform, invertAffine, transformPoints } from "./g
 import { MESH_POINTS } from "./facemesh.js";
 import { BankFace, buildEyeBank } from "./eye_bank.js";
 import { findShotIrises, gazeOffsets, shotIrisCentres } from "./gaze.js";
-import { FrameGenerator, toNetwork } from "./network.js";
+import { FrameGenerator, generatorSizes, toNetwork } from "./network.js";
 import { pickAnchor } from "./pose.js";
 import { drawLandmarks } from "./raster.js";
 import { openCvInverse, roundHalfEven, warpAffineCubic } from "./remap.js";
@@ -317,8 +317,7 @@ export async function renderEncodedTargets(siteFolder: string, photos: Tensor<Ui
                                            options: EncodeOptions = {}) {
   const { read, config, models } = await siteParts(siteFolder);
   const person = await encodePerson(splitPhotos(photos), models, config, options);
-  const generator = await FrameGenerator.create(await read("models/frame_generator.onnx"), {
-    resolution: config.resolution, cropSize: config.crop_size, references: config.references });
+  const generator = await FrameGenerator.create(await read("models/frame_generator.onnx"), generatorSizes(config));
   const site: Site = { config, person, generator, tracker: { update: async () => null } };
   const session = new LiveSession(site, false);
   const count = targets.shape[0], [height, width] = person.scene.shape, size = height * width * 3;

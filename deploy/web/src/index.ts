@@ -30,3 +30,4 @@ export * from "./backend.js";
 export { useWebAssembly } from "./wasm.js";
 export { remapsInWasm } from "./remap_wasm.js";
 export { splinesInWasm } from "./tps_wasm.js";
+export { composeReferences, composesInWasm } from "./blend_wasm.js";

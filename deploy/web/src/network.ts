@@ -5,14 +5,23 @@
 import * as ort from "onnxruntime-web";
 
 import { Backend, OnBackend, askedBackend, chooseBackends, onFirstBackend, probeBrowser } from "./backend.js";
+import { PageComposite } from "./blend_wasm.js";
 import { folderReader } from "./files.js";
 import { Tensor, tensor } from "./tensor.js";
 
 /** An onnxruntime-web module: the page's WASM build, or the GPU one (backend.ts GPU_RUNTIME). */
 export type Runtime = typeof ort;
 
-/** The frame generator's sizes (site.json): its network's side S, its crop's side C, its N references. */
-export interface GeneratorSizes { resolution: number; cropSize: number; references: number }
+/** The frame generator's sizes (site.json): its network's side S, its crop's side C, its N references, and where
+ * its graph ends at G^s (output "network"), the detail split of the composite the page runs (blend_wasm.ts). */
+export interface GeneratorSizes { resolution: number; cropSize: number; references: number; detailSigma?: number | null }
+
+/** site.json's sizes of the frame generator. */
+export function generatorSizes(config: { resolution: number; crop_size: number; references: number;
+                                         detail_sigma?: number | null }): GeneratorSizes {
+  return { resolution: config.resolution, cropSize: config.crop_size, references: config.references,
+           detailSigma: config.detail_sigma ?? null };
+}
 
 /** The most grey levels a GPU backend's check frame may be from WASM's: fp32 sums in another order move a pixel by
  * one level at most (the JSEP build on Chromium's software WebGPU); the miscomputing build (backend.ts), by 123. */
@@ -58,6 +67,10 @@ export function fromNetwork(image: Float32Array, side: number): Tensor<Uint8Arra
 
 export interface Synthesis { image: Tensor<Uint8Array>; layout: Tensor<Float32Array> | null }
 
+/** A frame out of onnxruntime (FrameGenerator.runNetwork): `finish()` gives its synthesis (on a graph ending at G^s,
+ * composited here then; the same result on later calls). */
+export interface PendingSynthesis { finish(): Synthesis }
+
 /** The frame graph: landmark image (S, S, 3) uint8, latents, and for a warp-guided model the N warped references
  * (N, C, C, 3) uint8 with their masks (N, C, C) in {0, 1} -> the (C, C, 3) face [and the (C_l, S, S) layout]. */
 export class FrameGenerator {
@@ -66,8 +79,13 @@ export class FrameGenerator {
   readonly references: number;
   readonly hasLayout: boolean;
 
+  private turn = 0;  // which of the two composites the next run takes
+  private readonly unfinished: (Promise<void> | null)[] = [null, null];  // each composite's frame not finished yet
+
+  /** composites: none for a graph that composites itself; else two, taken in turn, so that the next frame's network
+   * runs while this frame is composited. */
   private constructor(readonly session: ort.InferenceSession, sizes: GeneratorSizes, readonly backend: Backend,
-                      private readonly runtime: Runtime) {
+                      private readonly runtime: Runtime, private readonly composites: PageComposite[]) {
     this.resolution = sizes.resolution;
     this.cropSize = sizes.cropSize;
     this.references = sizes.references;
@@ -80,7 +98,19 @@ export class FrameGenerator {
                       runtime: Runtime = ort): Promise<FrameGenerator> {
     const session = await runtime.InferenceSession.create(model, { executionProviders: [backend],
                                                                    graphOptimizationLevel: "all" });
-    return new FrameGenerator(session, sizes, backend, runtime);
+    const composites: PageComposite[] = [];
+    if (session.outputNames.includes("network")) {  // the graph ends at G^s: the composite runs here
+      for (let k = 0; k < 2; k++) {
+        const composite = PageComposite.create(sizes.references, sizes.cropSize, sizes.resolution, sizes.detailSigma ?? NaN);
+        if (composite === null) {
+          await session.release();
+          throw new Error(`this frame generator's composite (${sizes.references} references, detail_sigma `
+                          + `${sizes.detailSigma}) needs WebAssembly SIMD and 1, 3 or 5 references`);
+        }
+        composites.push(composite);
+      }
+    }
+    return new FrameGenerator(session, sizes, backend, runtime, composites);
   }
 
   release(): Promise<void> {
@@ -89,7 +119,23 @@ export class FrameGenerator {
 
   async run(landmarkImage: Tensor, latents: Latents, references?: Tensor, masks?: Tensor,
             withLayout = false): Promise<Synthesis> {
-    const s = this.resolution, c = this.cropSize;
+    return (await this.runNetwork(landmarkImage, latents, references, masks, withLayout)).finish();
+  }
+
+  /** `run` up to onnxruntime's outputs: the next frame's network may start as soon as this resolves, before
+   * `finish()` composites this one (at most two frames between the two). */
+  async runNetwork(landmarkImage: Tensor, latents: Latents, references?: Tensor, masks?: Tensor,
+                   withLayout = false): Promise<PendingSynthesis> {
+    const s = this.resolution, c = this.cropSize, slot = this.turn;
+    let composite: PageComposite | null = null, finished = () => {};
+    if (this.composites.length > 0) {  // this frame's composite, once the frame that had it is finished
+      this.turn = 1 - slot;
+      while (this.unfinished[slot] !== null) await this.unfinished[slot];
+      composite = this.composites[slot];
+      this.unfinished[slot] = new Promise<void>((resolve) => {
+        finished = () => { this.unfinished[slot] = null; resolve(); };
+      });
+    }
     const OrtTensor = this.runtime.Tensor;  // a session takes its own build's tensors
     const feed: Record<string, ort.Tensor> = {
       landmark_image: new OrtTensor("float32", toNetwork(landmarkImage.data as Uint8Array, 1, s), [1, 3, s, s]),
@@ -97,16 +143,44 @@ export class FrameGenerator {
       style_latent: new OrtTensor("float32", latents.style.slice(), [1, latents.style.length]),
     };
     if (this.references > 0) {
-      if (!references || !masks) throw new Error("a warp-guided frame generator needs the warped references and masks");
+      if (!references || !masks) {
+        finished();
+        throw new Error("a warp-guided frame generator needs the warped references and masks");
+      }
       const n = this.references;
-      feed.references = new OrtTensor("float32", toNetwork(references.data as Uint8Array, n, c), [1, n, 3, c, c]);
-      feed.reference_masks = new OrtTensor("float32", Float32Array.from(masks.data as ArrayLike<number>), [1, n, 1, c, c]);
+      if (composite) {  // the references into the composite's memory; the network takes them pooled to its side
+        const inputs = composite.inputs();
+        toNetwork(references.data as Uint8Array, n, c, inputs.references as Float32Array<ArrayBuffer>);
+        inputs.masks.set(masks.data as ArrayLike<number>);
+        const pooled = composite.pooled();
+        feed.references = new OrtTensor("float32", pooled.references as Float32Array<ArrayBuffer>, [1, n, 3, s, s]);
+        feed.reference_masks = new OrtTensor("float32", pooled.masks as Float32Array<ArrayBuffer>, [1, n, 1, s, s]);
+      } else {
+        feed.references = new OrtTensor("float32", toNetwork(references.data as Uint8Array, n, c), [1, n, 3, c, c]);
+        feed.reference_masks = new OrtTensor("float32", Float32Array.from(masks.data as ArrayLike<number>), [1, n, 1, c, c]);
+      }
     }
-    const wanted = withLayout && this.hasLayout ? ["image", "layout"] : ["image"];
-    const outputs = await this.session.run(feed, wanted);
-    const image = fromNetwork(outputs.image.data as Float32Array, c);
+    const first = composite ? "network" : "image";
+    const wanted = withLayout && this.hasLayout ? [first, "layout"] : [first];
+    let outputs: ort.InferenceSession.OnnxValueMapType;
+    try {
+      outputs = await this.session.run(feed, wanted);
+    } catch (error) {
+      finished();
+      throw error;
+    }
     const layout = outputs.layout ? tensor(new Float32Array(outputs.layout.data as Float32Array), outputs.layout.dims.slice(1) as number[]) : null;
-    return { image, layout };
+    const values = outputs[first].data as Float32Array;
+    let synthesis: Synthesis | null = null;
+    return {
+      finish: () => {
+        if (synthesis === null) {
+          synthesis = { image: fromNetwork(composite ? composite.compose(values) : values, c), layout };
+          finished();
+        }
+        return synthesis;
+      },
+    };
   }
 }
 
@@ -168,7 +242,7 @@ function skewedRuntime(skew: number): Runtime {
     Object.assign(session, {
       run: async (...args: Parameters<typeof run>) => {
         const outputs = await run(...args);
-        const image = outputs.image.data as Float32Array;
+        const image = (outputs.image ?? outputs.network).data as Float32Array;  // a network graph's: all its planes
         for (let i = 0; i < image.length; i++) image[i] += skew;
         return outputs;
       },
@@ -188,7 +262,7 @@ export async function frameGeneratorInBrowser(siteFolder: string, browser: { gpu
   const config = JSON.parse(new TextDecoder().decode(await read("site.json")));
   const subject = JSON.parse(new TextDecoder().decode(await read("person/subject.json")));
   const latents = { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) };
-  const sizes = { resolution: config.resolution, cropSize: config.crop_size, references: config.references };
+  const sizes = generatorSizes(config);
   const standIn = { gpu: browser.gpu ? { requestAdapter: async () => ({}) } : undefined,
                     ml: browser.ml ? { createContext: async () => ({}) } : undefined };
   const backends = chooseBackends(await probeBrowser(standIn), askedBackend(asked === null ? "" : `?backend=${asked}`));

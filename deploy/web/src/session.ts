@@ -18,7 +18,7 @@ import { DriverGaze, trackedIrises } from "./gaze.js";
 import { drawLids, shotLidGaps } from "./lids.js";
 import { DriverMouth, cutDriverMouth, pasteInterior } from "./interior.js";
 import { finishMouthNearest } from "./mouth.js";
-import { FrameGenerator, GeneratorSizes, Latents, Synthesis } from "./network.js";
+import { FrameGenerator, GeneratorSizes, Latents, PendingSynthesis, generatorSizes } from "./network.js";
 import { drawLandmarks } from "./raster.js";
 import { DriverReference, liveTarget } from "./retarget.js";
 import { LiveSmoother } from "./smooth.js";
@@ -43,6 +43,8 @@ export interface SiteConfig {
                   // person's video, "shots": its shots; a user's photos either way); "none", or a site written before
                   // the bank (none), keeps the synthesis' eyes
   k: number;
+  detail_sigma?: number | null;  // where the frame graph ends at G^s, the detail split of the composite the page runs
+                                 // (blend_wasm.ts); null or absent: the graph composites
 }
 
 /** The example person encoded ahead of time (person/ of the site). */
@@ -119,7 +121,7 @@ export async function loadSite(read: Reader,
   const matte = new Float32Array(matte8.data.length);
   for (let i = 0; i < matte.length; i++) matte[i] = matte8.data[i] / 255;
   const latents = { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) };
-  const sizes = { resolution: config.resolution, cropSize: config.crop_size, references: config.references };
+  const sizes = generatorSizes(config);
   const model = await read("models/frame_generator.onnx");
   const generator = await (makeGenerator ? makeGenerator(model, sizes, latents) : FrameGenerator.create(model, sizes));
   const assets = await loadTrackerAssets((path) => read(`models/${path}`));
@@ -261,20 +263,24 @@ export class LiveSession {
   }
 
   /** The network of `finish`. The page's loop starts the next frame's network as soon as this one returns and
-   * completes this frame on its own thread meanwhile: onnxruntime's worker never waits for the composite. */
+   * completes this frame on its own thread meanwhile: onnxruntime's worker never waits for the composite (on a graph
+   * ending at G^s, the warp-guided blend is part of `complete`, counted in the network's ms). */
   async synthesize(prepared: Prepared): Promise<Synthesized> {
     const { person, generator } = this.site;
     const starting = now();
-    const synthesis = await generator.run(prepared.landmarkImage, person.latents, prepared.references.warped,
-                                          prepared.references.masks, this.withLayout);
-    return { prepared, synthesis, network: now() - starting };
+    const pending = await generator.runNetwork(prepared.landmarkImage, person.latents, prepared.references.warped,
+                                               prepared.references.masks, this.withLayout);
+    return { prepared, pending, network: now() - starting };
   }
 
   /** The rest of `finish` after the network, for the frame `synthesize` gave. */
-  complete({ prepared, synthesis, network }: Synthesized): LiveFrame {
+  complete({ prepared, pending, network }: Synthesized): LiveFrame {
     const { config, person } = this.site;
     const { target, landmarkImage, references } = prepared;
+    const blending = now();
+    const synthesis = pending.finish();
     const generated = now();
+    network += generated - blending;
     const mouthed = config.mouth === "nearest"
       ? finishMouthNearest(synthesis.image, references.warped, references.masks, references.indices, target,
                            person.shotLandmarks, true) as Tensor<Uint8Array>
@@ -303,7 +309,7 @@ export class LiveSession {
 }
 
 /** A frame out of the network, between LiveSession.synthesize and LiveSession.complete: its ms in the network. */
-export interface Synthesized { prepared: Prepared; synthesis: Synthesis; network: number }
+export interface Synthesized { prepared: Prepared; pending: PendingSynthesis; network: number }
 
 /** A frame's network inputs, between LiveSession.prepare and LiveSession.finish. */
 export interface Prepared {
