@@ -117,7 +117,9 @@ class TestWriterCarriesNoRotation:
             assert container.metadata.get("comment") == "kept"
             first = next(container.decode(stream))
             assert first.rotation == 0 and (first.width, first.height) == (WIDTH, HEIGHT)
-            assert not any(side.type.name == "DISPLAYMATRIX" for side in first.side_data)
+            # PyAV 18.1.0 iterates side data entries, 18.1.1 (a Mapping) their types
+            kinds = [getattr(entry, "type", entry) for entry in first.side_data]
+            assert not any(kind.name == "DISPLAYMATRIX" for kind in kinds)
         info = probe_video(out)
         assert (info.width, info.height, info.rotation) == (WIDTH, HEIGHT, 0)
         for frame in iter_frames(out):
