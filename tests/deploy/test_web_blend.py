@@ -61,3 +61,19 @@ def test_the_page_keeps_the_whole_graph_where_its_kernel_cannot_compose(web):
              (5, 192, 64, 3.0), (5, 256, 64, 1.0), (5, 64, 64, 3.0), (5, 120, 30, 3.0)]
     got = web.calls(*(("composesInWasm", list(case)) for case in cases))
     assert got == [True, True, True, False, False, False, False, False, False]
+
+
+def test_the_sites_graph_and_blend_draw_the_whole_graphs_face(web, site):
+    """The page on the site's graph (ending at G^s) and its own blend against the page on the bundle's whole frame
+    graph, the check frame (landmark image and references of noise): within one grey level."""
+    import json
+
+    from lsr.export.bundle import cached_bundle
+    from lsr.export.bundle_cache import FRAME_GENERATOR_FILE
+    from lsr.weights import resolve_weights
+
+    config = json.loads((site.folder / "site.json").read_text())
+    assert config["detail_sigma"] == pytest.approx(0.0117 * 256)
+    whole = cached_bundle(resolve_weights(None)) / FRAME_GENERATOR_FILE
+    ours = site.folder / "models" / "frame_generator.onnx"
+    assert web.call("frameGraphsDifference", str(site.folder), str(whole), str(ours)) <= 1

@@ -275,3 +275,17 @@ export async function frameGeneratorInBrowser(siteFolder: string, browser: { gpu
   const difference = await checkFrameDifference(chosen.value, onWasm, latents);
   return { backends, backend: chosen.backend, failures: chosen.failures, logged, difference };
 }
+
+/** Node, for the tests: the most grey levels apart that two frame graphs of one model draw the check frame
+ * (checkFrameDifference) in the site `siteFolder` (its sizes and person's latents): a whole graph (`first`, e.g. the
+ * bundle's frame_generator.onnx) against one ending at G^s whose blend the page runs (`second`, the site's). */
+export async function frameGraphsDifference(siteFolder: string, first: string, second: string): Promise<number> {
+  const read = await folderReader(siteFolder);
+  const config = JSON.parse(new TextDecoder().decode(await read("site.json")));
+  const subject = JSON.parse(new TextDecoder().decode(await read("person/subject.json")));
+  const latents = { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) };
+  ort.env.wasm.numThreads = 1;
+  const whole = await FrameGenerator.create(await (await folderReader("/"))(first), generatorSizes(config));
+  const network = await FrameGenerator.create(await (await folderReader("/"))(second), generatorSizes(config));
+  return checkFrameDifference(whole, network, latents);
+}
