@@ -246,8 +246,8 @@ async function main(): Promise<void> {
 
   /** Frames in flight on three threads: the tracker's worker finds the face in the newest camera frame, this
    * thread retargets it and warps the shots, onnxruntime's worker runs the network of the frame before, and as soon
-   * as a frame leaves the network this thread completes it (mouth, eyes, composite) and shows it, while the next
-   * frame's network runs: the network's worker, the slowest stage, never waits for the composite. Frames are shown
+   * as a frame leaves the network this thread completes it (the warp-guided blend, mouth, eyes, composite) and shows
+   * it, while the next frame's network runs: the network's worker, the slowest stage, never waits for the composite. Frames are shown
    * in order; a frame without a face shows the last good output when its turn comes. */
   async function loop(): Promise<void> {
     let networkFree: Promise<unknown> = Promise.resolve();  // the frame before has left the network
