@@ -77,3 +77,11 @@ def test_the_sites_graph_and_blend_draw_the_whole_graphs_face(web, site):
     whole = cached_bundle(resolve_weights(None)) / FRAME_GENERATOR_FILE
     ours = site.folder / "models" / "frame_generator.onnx"
     assert web.call("frameGraphsDifference", str(site.folder), str(whole), str(ours)) <= 1
+
+
+def test_a_frame_that_fails_leaves_the_generator_drawing(web, site):
+    """References of the wrong size: one clear error, and the frames after it are drawn (the failed frames free the
+    two composites the generator takes in turn; a leak would hang the next run on them)."""
+    got = web.call("generatorAfterABadFrame", str(site.folder))
+    assert got["message"] == "the references must be (5, 256, 256, 3) and their masks (5, 256, 256)"
+    assert got["drawn"] == 0  # the same frame twice, drawn each time

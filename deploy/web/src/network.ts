@@ -126,7 +126,7 @@ export class FrameGenerator {
    * `finish()` composites this one (at most two frames between the two). */
   async runNetwork(landmarkImage: Tensor, latents: Latents, references?: Tensor, masks?: Tensor,
                    withLayout = false): Promise<PendingSynthesis> {
-    const s = this.resolution, c = this.cropSize, slot = this.turn;
+    const c = this.cropSize, slot = this.turn;
     let composite: PageComposite | null = null, finished = () => {};
     if (this.composites.length > 0) {  // this frame's composite, once the frame that had it is finished
       this.turn = 1 - slot;
@@ -136,35 +136,11 @@ export class FrameGenerator {
         finished = () => { this.unfinished[slot] = null; resolve(); };
       });
     }
-    const OrtTensor = this.runtime.Tensor;  // a session takes its own build's tensors
-    const feed: Record<string, ort.Tensor> = {
-      landmark_image: new OrtTensor("float32", toNetwork(landmarkImage.data as Uint8Array, 1, s), [1, 3, s, s]),
-      layout_latent: new OrtTensor("float32", latents.layout.slice(), [1, latents.layout.length]),
-      style_latent: new OrtTensor("float32", latents.style.slice(), [1, latents.style.length]),
-    };
-    if (this.references > 0) {
-      if (!references || !masks) {
-        finished();
-        throw new Error("a warp-guided frame generator needs the warped references and masks");
-      }
-      const n = this.references;
-      if (composite) {  // the references into the composite's memory; the network takes them pooled to its side
-        const inputs = composite.inputs();
-        toNetwork(references.data as Uint8Array, n, c, inputs.references as Float32Array<ArrayBuffer>);
-        inputs.masks.set(masks.data as ArrayLike<number>);
-        const pooled = composite.pooled();
-        feed.references = new OrtTensor("float32", pooled.references as Float32Array<ArrayBuffer>, [1, n, 3, s, s]);
-        feed.reference_masks = new OrtTensor("float32", pooled.masks as Float32Array<ArrayBuffer>, [1, n, 1, s, s]);
-      } else {
-        feed.references = new OrtTensor("float32", toNetwork(references.data as Uint8Array, n, c), [1, n, 3, c, c]);
-        feed.reference_masks = new OrtTensor("float32", Float32Array.from(masks.data as ArrayLike<number>), [1, n, 1, c, c]);
-      }
-    }
     const first = composite ? "network" : "image";
-    const wanted = withLayout && this.hasLayout ? [first, "layout"] : [first];
     let outputs: ort.InferenceSession.OnnxValueMapType;
-    try {
-      outputs = await this.session.run(feed, wanted);
+    try {  // whatever fails frees the composite for the next frame
+      const feed = this.feed(landmarkImage, latents, references, masks, composite);
+      outputs = await this.session.run(feed, withLayout && this.hasLayout ? [first, "layout"] : [first]);
     } catch (error) {
       finished();
       throw error;
@@ -175,12 +151,46 @@ export class FrameGenerator {
     return {
       finish: () => {
         if (synthesis === null) {
-          synthesis = { image: fromNetwork(composite ? composite.compose(values) : values, c), layout };
-          finished();
+          try {
+            synthesis = { image: fromNetwork(composite ? composite.compose(values) : values, c), layout };
+          } finally {
+            finished();
+          }
         }
         return synthesis;
       },
     };
+  }
+
+  /** The graph's inputs for one frame; with `composite`, the references and masks written into it, the network
+   * given them pooled to its side. */
+  private feed(landmarkImage: Tensor, latents: Latents, references: Tensor | undefined, masks: Tensor | undefined,
+               composite: PageComposite | null): Record<string, ort.Tensor> {
+    const s = this.resolution, c = this.cropSize;
+    const OrtTensor = this.runtime.Tensor;  // a session takes its own build's tensors
+    const feed: Record<string, ort.Tensor> = {
+      landmark_image: new OrtTensor("float32", toNetwork(landmarkImage.data as Uint8Array, 1, s), [1, 3, s, s]),
+      layout_latent: new OrtTensor("float32", latents.layout.slice(), [1, latents.layout.length]),
+      style_latent: new OrtTensor("float32", latents.style.slice(), [1, latents.style.length]),
+    };
+    if (this.references === 0) return feed;
+    if (!references || !masks) throw new Error("a warp-guided frame generator needs the warped references and masks");
+    const n = this.references;
+    if (references.data.length !== n * c * c * 3 || masks.data.length !== n * c * c) {
+      throw new Error(`the references must be (${n}, ${c}, ${c}, 3) and their masks (${n}, ${c}, ${c})`);
+    }
+    if (composite) {  // the references into the composite's memory; the network takes them pooled to its side
+      const inputs = composite.inputs();
+      toNetwork(references.data as Uint8Array, n, c, inputs.references as Float32Array<ArrayBuffer>);
+      inputs.masks.set(masks.data as ArrayLike<number>);
+      const pooled = composite.pooled();
+      feed.references = new OrtTensor("float32", pooled.references as Float32Array<ArrayBuffer>, [1, n, 3, s, s]);
+      feed.reference_masks = new OrtTensor("float32", pooled.masks as Float32Array<ArrayBuffer>, [1, n, 1, s, s]);
+    } else {
+      feed.references = new OrtTensor("float32", toNetwork(references.data as Uint8Array, n, c), [1, n, 3, c, c]);
+      feed.reference_masks = new OrtTensor("float32", Float32Array.from(masks.data as ArrayLike<number>), [1, n, 1, c, c]);
+    }
+    return feed;
   }
 }
 
@@ -288,4 +298,28 @@ export async function frameGraphsDifference(siteFolder: string, first: string, s
   const whole = await FrameGenerator.create(await (await folderReader("/"))(first), generatorSizes(config));
   const network = await FrameGenerator.create(await (await folderReader("/"))(second), generatorSizes(config));
   return checkFrameDifference(whole, network, latents);
+}
+
+/** Node, for the tests: the site's frame generator given references of the wrong size (its error message), then the
+ * check frame twice: a failed frame must leave the generator's composites free for the frames after it. */
+export async function generatorAfterABadFrame(siteFolder: string): Promise<{ message: string; drawn: number }> {
+  const read = await folderReader(siteFolder);
+  const config = JSON.parse(new TextDecoder().decode(await read("site.json")));
+  const subject = JSON.parse(new TextDecoder().decode(await read("person/subject.json")));
+  const latents = { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) };
+  ort.env.wasm.numThreads = 1;
+  const generator = await FrameGenerator.create(await read("models/frame_generator.onnx"), generatorSizes(config));
+  const s = generator.resolution, n = generator.references, c = generator.cropSize;
+  let message = "";
+  for (let attempt = 0; attempt < 2; attempt++) {  // both composites in turn
+    try {
+      await generator.run(tensor(new Uint8Array(s * s * 3), [s, s, 3]), latents, tensor(new Uint8Array(3), [1, 1, 1, 3]),
+                          tensor(new Float32Array(n * c * c), [n, c, c]));
+    } catch (error) {
+      message = error instanceof Error ? error.message : String(error);
+    }
+  }
+  const first = await checkFrameDifference(generator, generator, latents);
+  const second = await checkFrameDifference(generator, generator, latents);
+  return { message, drawn: first + second };
 }
