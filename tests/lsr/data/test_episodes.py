@@ -97,8 +97,10 @@ def test_deterministic_per_seed(dataset_root: Path):
 
 
 def test_dataloader_two_workers_matches_single_process(dataset_root: Path):
+    """Workers from a fork server: forked from this test process, whose other threads (onnxruntime's, the iris net's,
+    torch's) may hold a lock at the fork, a worker once hung for good on it."""
     dataset = EpisodeDataset(dataset_root, shots=2, seed=3, episodes=6, augment=AugmentConfig())
-    loader = DataLoader(dataset, batch_size=3, num_workers=2, shuffle=False)
+    loader = DataLoader(dataset, batch_size=3, num_workers=2, shuffle=False, multiprocessing_context="forkserver")
     batches = list(loader)
     assert batches[0]["shots"].shape == (3, 2, 3, SIZE, SIZE)
     assert batches[1]["target_segmentation"].shape == (3, SIZE, SIZE)
