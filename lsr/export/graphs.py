@@ -40,7 +40,7 @@ class FrameGeneratorGraph(nn.Module):
         variant = frame_generator.config.variant
         if with_layout and variant in ("baseline", "spade_landmarks"):
             raise ValueError(f"variant {variant!r} has no layout map; export it with with_layout=False")
-        if network_only and frame_generator.config.reference_flow > 0 or network_only and variant != "warp_guided":
+        if network_only and (variant != "warp_guided" or frame_generator.config.reference_flow > 0):
             raise ValueError("only a warp_guided model without a residual flow has a network graph")
         self.frame_generator, self.with_layout, self.network_only = frame_generator, with_layout, network_only
 

@@ -36,11 +36,16 @@ function tools(emit: Emit) {
   const load = (offset = 0) => emit(simd(V.load), 2, unsigned(offset));  // the address on the stack
   const store = (offset = 0) => emit(simd(V.store), 2, unsigned(offset));  // address, value on the stack
   const splat = (value: number) => { f32(value); v(V.f32x4Splat); };
+  /** `product` (a v128 local) where `tap` is 0, else the v128 at out + xb plus it, on the stack: a blur's running sum */
+  const tapSum = (tap: number, out: number, xb: number, product: number) => {
+    get(tap); emit(op.if, V128); get(out); get(xb); emit(op.i32Add); load(); get(product); v(V.f32x4Add);
+    emit(op.else); get(product); emit(op.end);
+  };
   /** address = base + index * stride (locals), on the stack */
   const at = (base: number, index: number, stride: number) => {
     get(base); get(index); get(stride); emit(op.i32Mul, op.i32Add);
   };
-  return { get, set, i32, f32, v, increment, loop, load, store, splat, at };
+  return { get, set, i32, f32, v, increment, loop, load, store, splat, at, tapSum };
 }
 
 /** hlerp(src, dst, rows, inCols, outCols, table): dst[r, x] = wa[x] src[r, ia[x]] + wb[x] src[r, ib[x]] for `rows`
@@ -111,7 +116,7 @@ function poolFunction(): Func {
     const t = tools(emit);
     t.get(cols); t.i32(2); emit(op.i32Shl); t.set(rowBytes);
     t.get(src); t.set(top); t.get(dst); t.set(out);
-    t.loop(i, () => { t.get(rows); t.i32(1); emit(0x76); }, 1, () => {  // i32.shr_u: rows / 2
+    t.loop(i, () => { t.get(rows); t.i32(1); emit(op.i32ShrU); }, 1, () => {  // rows / 2
       t.loop(xb, rowBytes, 32, () => {
         t.get(top); t.get(xb); emit(op.i32Add); t.load(); t.set(A);
         t.get(top); t.get(xb); emit(op.i32Add); t.load(16); t.set(B);
@@ -138,11 +143,6 @@ function hblurFunction(): Func {
   const [W, PRODUCT] = [16, 17];
   return func([I32, I32, I32, I32, I32, I32, I32], [], [[9, I32], [2, V128]], (emit) => {
     const t = tools(emit);
-    // the first tap's product, else the sum so far plus it
-    const sumSoFar = () => {
-      t.get(tap); emit(op.if, V128); t.get(out); t.get(xb); emit(op.i32Add); t.load(); t.get(PRODUCT); t.v(V.f32x4Add);
-      emit(op.else); t.get(PRODUCT); emit(op.end);
-    };
     t.get(radius); t.i32(1); emit(op.i32Shl); t.i32(1); emit(op.i32Add); t.set(taps);
     t.get(cols); t.i32(2); emit(op.i32Shl); t.set(rowBytes);
     t.get(cols); t.i32(1); emit(op.i32Sub); t.set(last);
@@ -167,7 +167,7 @@ function hblurFunction(): Func {
           t.get(out); t.get(xb); emit(op.i32Add);
           t.get(W); t.get(pad); t.get(tap); t.i32(2); emit(op.i32Shl, op.i32Add); t.get(xb); emit(op.i32Add); t.load();
           t.v(V.f32x4Mul); t.set(PRODUCT);
-          sumSoFar();
+          t.tapSum(tap, out, xb, PRODUCT);
           t.store();
         });
       });
@@ -184,10 +184,6 @@ function vblurFunction(): Func {
   const [W, PRODUCT] = [18, 19];
   return func([I32, I32, I32, I32, I32, I32, I32], [], [[11, I32], [2, V128]], (emit) => {
     const t = tools(emit);
-    const sumSoFar = () => {  // as hblur's
-      t.get(tap); emit(op.if, V128); t.get(out); t.get(xb); emit(op.i32Add); t.load(); t.get(PRODUCT); t.v(V.f32x4Add);
-      emit(op.else); t.get(PRODUCT); emit(op.end);
-    };
     t.get(radius); t.i32(1); emit(op.i32Shl); t.i32(1); emit(op.i32Add); t.set(taps);
     t.get(cols); t.i32(2); emit(op.i32Shl); t.set(rowBytes);
     t.get(rows); t.i32(1); emit(op.i32Sub); t.set(last);
@@ -205,7 +201,7 @@ function vblurFunction(): Func {
           t.loop(xb, rowBytes, 16, () => {
             t.get(out); t.get(xb); emit(op.i32Add);
             t.get(W); t.get(from); t.get(xb); emit(op.i32Add); t.load(); t.v(V.f32x4Mul); t.set(PRODUCT);
-            sumSoFar();
+            t.tapSum(tap, out, xb, PRODUCT);
             t.store();
           });
         });
@@ -229,10 +225,11 @@ const EXP_POLYNOMIAL = [1.9875691500e-4, 1.3981999507e-3, 8.3334519073e-3, 4.166
  * weight (1 - the image's). */
 function blendFunction(count: number, penalty: number): Func {
   const [up, refs, masks, image, share, pixels] = [0, 1, 2, 3, 4, 5];
-  const [pb, planeBytes] = [6, 7];
-  // i32 locals from 8: per reference its logit's, mask's and three channels' plane addresses
-  const logitAt = (k: number) => 8 + 5 * k, maskAt = (k: number) => 9 + 5 * k, channelAt = (k: number, c: number) => 10 + 5 * k + c;
-  const integers = 2 + 5 * count;
+  const [pb, planeBytes, imageLogit] = [6, 7, 8];
+  // i32 locals from 9: per reference its logit's, mask's and three channels' plane addresses
+  const logitAt = (k: number) => 9 + 5 * k, maskAt = (k: number) => 10 + 5 * k;
+  const channelAt = (k: number, c: number) => 11 + 5 * k + c;
+  const integers = 3 + 5 * count;
   const vectors = 6 + integers;
   const [TOP, G, E, TOTAL, X, N, R, GR, B] = [0, 1, 2, 3, 4, 5, 6, 7, 8].map((i) => vectors + i);
   const L = (k: number) => vectors + 9 + k;  // the penalised logits
@@ -253,6 +250,7 @@ function blendFunction(count: number, penalty: number): Func {
     const plane = (base: number, index: number) => { t.get(base); t.get(planeBytes); t.i32(index); emit(op.i32Mul, op.i32Add); };
     const here = (address: number) => { t.get(address); t.get(pb); emit(op.i32Add); t.load(); };
     t.get(pixels); t.i32(2); emit(op.i32Shl); t.set(planeBytes);
+    plane(up, 3 + count); t.set(imageLogit);
     for (let k = 0; k < count; k++) {
       plane(up, 3 + k); t.set(logitAt(k));
       plane(masks, k); t.set(maskAt(k));
@@ -260,7 +258,7 @@ function blendFunction(count: number, penalty: number): Func {
     }
     t.loop(pb, planeBytes, 16, () => {
       // the image's logit, the references' penalised ones, the largest
-      plane(up, 3 + count); t.get(pb); emit(op.i32Add); t.load(); t.set(G);
+      here(imageLogit); t.set(G);
       t.get(G); t.set(TOP);
       for (let k = 0; k < count; k++) {
         here(logitAt(k)); here(maskAt(k)); t.splat(penalty); t.v(mul); t.v(add); t.set(L(k));
@@ -341,7 +339,7 @@ function detailFunction(count: 1 | 3 | 5): Func {
 // ---- the composite -----------------------------------------------------------------------------------------
 
 /** models_def.composite.INVALID_LOGIT_PENALTY */
-export const INVALID_LOGIT_PENALTY = 30.0;
+const INVALID_LOGIT_PENALTY = 30.0;
 /** models_def.composite.HALF_RESOLUTION_MIN_SIGMA */
 const HALF_RESOLUTION_MIN_SIGMA = 2.0;
 
@@ -368,7 +366,7 @@ function bilinearTaps(size: number, out: number): [number, number, number, numbe
 }
 
 /** models_def.composite.gaussian_blur's kernel of `sigma` pixels on a side of `side` (its float32 taps). */
-export function gaussianTaps(sigma: number, side: number): Float32Array {
+function gaussianTaps(sigma: number, side: number): Float32Array {
   const radius = Math.min(Math.max(1, Math.ceil(3 * sigma)), side - 1);
   const taps = Float32Array.from({ length: 2 * radius + 1 }, (_, i) => Math.exp(-0.5 * ((i - radius) / sigma) ** 2));
   const total = taps.reduce((sum, tap) => sum + tap, 0);

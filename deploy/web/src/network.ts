@@ -262,21 +262,26 @@ function skewedRuntime(skew: number): Runtime {
   return { ...ort, InferenceSession: { ...ort.InferenceSession, create } } as unknown as Runtime;
 }
 
+/** Node, for the tests: a site's reader, its frame generator's sizes and its person's latents (one WASM thread). */
+async function siteGeneratorParts(siteFolder: string) {
+  const read = await folderReader(siteFolder);
+  const config = JSON.parse(new TextDecoder().decode(await read("site.json")));
+  const subject = JSON.parse(new TextDecoder().decode(await read("person/subject.json")));
+  const latents = { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) };
+  ort.env.wasm.numThreads = 1;
+  return { read, sizes: generatorSizes(config), latents };
+}
+
 /** Node, for the tests: the site's frame generator made as the page makes it, in a browser stand-in with
  * `browser.gpu` (giving an adapter) and `browser.ml` (giving a context) and `?backend=asked` -> the backends chosen,
  * the one it runs on, the failures logged and its check frame's difference from WASM's. In Node onnxruntime-web has
  * WASM only, so the GPU backends fail, unless `skew` is given: then they run on skewedRuntime. */
 export async function frameGeneratorInBrowser(siteFolder: string, browser: { gpu: boolean; ml: boolean },
                                               asked: string | null, skew: number | null = null) {
-  const read = await folderReader(siteFolder);
-  const config = JSON.parse(new TextDecoder().decode(await read("site.json")));
-  const subject = JSON.parse(new TextDecoder().decode(await read("person/subject.json")));
-  const latents = { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) };
-  const sizes = generatorSizes(config);
+  const { read, sizes, latents } = await siteGeneratorParts(siteFolder);
   const standIn = { gpu: browser.gpu ? { requestAdapter: async () => ({}) } : undefined,
                     ml: browser.ml ? { createContext: async () => ({}) } : undefined };
   const backends = chooseBackends(await probeBrowser(standIn), askedBackend(asked === null ? "" : `?backend=${asked}`));
-  ort.env.wasm.numThreads = 1;
   const logged: string[] = [];
   const runtimeOf = async (backend: Backend) => (backend === "wasm" || skew === null ? ort : skewedRuntime(skew));
   const chosen = await createFrameGenerator(await read("models/frame_generator.onnx"), sizes, latents, backends,
@@ -290,25 +295,17 @@ export async function frameGeneratorInBrowser(siteFolder: string, browser: { gpu
  * (checkFrameDifference) in the site `siteFolder` (its sizes and person's latents): a whole graph (`first`, e.g. the
  * bundle's frame_generator.onnx) against one ending at G^s whose blend the page runs (`second`, the site's). */
 export async function frameGraphsDifference(siteFolder: string, first: string, second: string): Promise<number> {
-  const read = await folderReader(siteFolder);
-  const config = JSON.parse(new TextDecoder().decode(await read("site.json")));
-  const subject = JSON.parse(new TextDecoder().decode(await read("person/subject.json")));
-  const latents = { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) };
-  ort.env.wasm.numThreads = 1;
-  const whole = await FrameGenerator.create(await (await folderReader("/"))(first), generatorSizes(config));
-  const network = await FrameGenerator.create(await (await folderReader("/"))(second), generatorSizes(config));
+  const { sizes, latents } = await siteGeneratorParts(siteFolder), file = await folderReader("/");
+  const whole = await FrameGenerator.create(await file(first), sizes);
+  const network = await FrameGenerator.create(await file(second), sizes);
   return checkFrameDifference(whole, network, latents);
 }
 
 /** Node, for the tests: the site's frame generator given references of the wrong size (its error message), then the
  * check frame twice: a failed frame must leave the generator's composites free for the frames after it. */
 export async function generatorAfterABadFrame(siteFolder: string): Promise<{ message: string; drawn: number }> {
-  const read = await folderReader(siteFolder);
-  const config = JSON.parse(new TextDecoder().decode(await read("site.json")));
-  const subject = JSON.parse(new TextDecoder().decode(await read("person/subject.json")));
-  const latents = { layout: Float32Array.from(subject.layout_latent), style: Float32Array.from(subject.style_latent) };
-  ort.env.wasm.numThreads = 1;
-  const generator = await FrameGenerator.create(await read("models/frame_generator.onnx"), generatorSizes(config));
+  const { read, sizes, latents } = await siteGeneratorParts(siteFolder);
+  const generator = await FrameGenerator.create(await read("models/frame_generator.onnx"), sizes);
   const s = generator.resolution, n = generator.references, c = generator.cropSize;
   let message = "";
   for (let attempt = 0; attempt < 2; attempt++) {  // both composites in turn
