@@ -70,6 +70,33 @@ def test_warps_are_the_javascripts(web, real_shots):
         np.testing.assert_array_equal(webassembly["masks"], javascript["masks"])
 
 
+def test_remaps_are_the_javascripts_at_every_border(web, rng):
+    """The bicubic kernel (float32 lanes, the replicated border in the kernel, the other borders and far-off or NaN
+    positions left to remap.ts) against remap.ts alone, on positions inside, at the edges to the last float32 below
+    them, just outside, far outside and undefined; and both against OpenCV within a grey level up to 6 pixels outside
+    (further out OpenCV 5 reflects otherwise: remap.ts borderIndex)."""
+    import cv2
+
+    height, width = 19, 23
+    image = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
+    below = lambda value: float(np.nextafter(np.float32(value), np.float32(-np.inf)))  # noqa: E731
+    edges = [1.0, below(1.0), width - 2.0, below(width - 2.0), height - 2.0, below(height - 2.0), 0.0, -1e-30, -0.5,
+             -1.0, -2.5, width - 1.0, width + 0.25, height + 3.5, -40.0, 60.0, 9.99e6, -9.99e6, 1e7, -2e8]
+    xs = np.concatenate([rng.uniform(-6, width + 6, 3000), edges, rng.uniform(1, width - 2, 500), [np.nan, 5.0, np.inf]])
+    ys = np.concatenate([rng.uniform(-6, height + 6, 3000), edges[::-1], rng.uniform(1, height - 2, 500),
+                         [3.0, np.nan, 2.0]])
+    map_x, map_y = xs.astype(np.float32), ys.astype(np.float32)
+    modes = {"replicate": cv2.BORDER_REPLICATE, "reflect": cv2.BORDER_REFLECT, "reflect101": cv2.BORDER_REFLECT_101,
+             "constant": cv2.BORDER_CONSTANT}
+    for border, code in modes.items():
+        javascript, webassembly = _both(web, "remapImage", image, map_x, map_y, border)
+        np.testing.assert_array_equal(webassembly, javascript)
+        near = (map_x >= -6) & (map_x <= width + 6) & (map_y >= -6) & (map_y <= height + 6)
+        opencv = cv2.remap(image, map_x[near][None], map_y[near][None], cv2.INTER_CUBIC, borderMode=code)[0]
+        apart = np.abs(opencv.astype(int) - javascript[near].astype(int))
+        assert apart.max() <= 1 and (apart == 0).mean() > 0.999, (border, apart.max(), (apart == 0).mean())
+
+
 @pytest.fixture(scope="module")
 def real_frames() -> tuple[np.ndarray, np.ndarray]:
     """Two frames of the bundled real video (360 x 288) and their 68 points (the default detector)."""

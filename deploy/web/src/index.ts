@@ -28,6 +28,6 @@ export * from "./bank_rows.js";
 export * from "./eye_bank.js";
 export * from "./backend.js";
 export { useWebAssembly } from "./wasm.js";
-export { remapsInWasm } from "./remap_wasm.js";
+export { remapImage, remapsInWasm } from "./remap_wasm.js";
 export { splinesInWasm } from "./tps_wasm.js";
 export { composeReferences, composesInWasm } from "./blend_wasm.js";

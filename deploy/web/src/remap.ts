@@ -27,17 +27,23 @@ export function roundHalfEven(value: number): number {
 }
 
 // ---- bicubic (OpenCV 5: float weights at the exact float position, Keys' a = -0.75) -------------------------
+// In float32: each weight, product and sum rounded to float32 in the order below, as remap_wasm.ts's kernel does it
+// with a pixel's three channels in the lanes of one float32x4 (the same bytes). Sums in float64 would give a value
+// one grey level apart about twice in 100,000; OpenCV's differ from either as rarely.
 
-/** Keys' cubic weights (a = -0.75) of the 4 taps around a sample at fraction t in [0, 1), into w[o..o+3]. */
-function cubicWeights(t: number, w: Float64Array, o: number): void {
-  const A = -0.75, u = 1 - t, p = t + 1;
-  w[o] = ((A * p - 5 * A) * p + 8 * A) * p - 4 * A;
-  w[o + 1] = ((A + 2) * t - (A + 3)) * t * t + 1;
-  w[o + 2] = ((A + 2) * u - (A + 3)) * u * u + 1;
-  w[o + 3] = 1 - w[o] - w[o + 1] - w[o + 2];
+const f = Math.fround;
+
+/** Keys' cubic weights (a = -0.75) of the 4 taps around a sample at fraction t in [0, 1), in float32, into
+ * w[o..o+3]. */
+function cubicWeights(t: number, w: Float32Array, o: number): void {
+  const A = -0.75, u = f(1 - t), p = f(t + 1);
+  w[o] = f(f(f(f(f(f(A * p) - 5 * A) * p) + 8 * A) * p) - 4 * A);
+  w[o + 1] = f(f(f(f(f((A + 2) * t) - (A + 3)) * t) * t) + 1);
+  w[o + 2] = f(f(f(f(f((A + 2) * u) - (A + 3)) * u) * u) + 1);
+  w[o + 3] = f(f(f(1 - w[o]) - w[o + 1]) - w[o + 2]);
 }
 
-const weights = new Float64Array(8);
+const weights = new Float32Array(8);
 
 /** A uint8 array's bytes as a Uint8ClampedArray: a number stored there is rounded half to even and saturated to
  * [0, 255] (ECMAScript's ToUint8Clamp; NaN gives 0), as cvRound + saturate_cast<uchar> do, and far faster than
@@ -46,28 +52,28 @@ export function clampedView(array: Uint8Array): Uint8ClampedArray {
   return new Uint8ClampedArray(array.buffer, array.byteOffset, array.length);
 }
 
+/** One row's four taps (a, b, c, d) under the weights of x, in float32. */
+function taps(a: number, b: number, c: number, d: number, w0: number, w1: number, w2: number, w3: number): number {
+  return f(f(f(f(a * w0) + f(b * w1)) + f(c * w2)) + f(d * w3));
+}
+
 /** cubicAt for 3 channels at (x, y) whose 4 x 4 taps (from (ix - 1, iy - 1)) lie inside the image: the usual case.
- * dst: the output's clamped view (rounds and saturates). */
+ * x, y: float32 values; dst: the output's clamped view (rounds and saturates). */
 function cubicInside3(src: Uint8Array, stride: number, x: number, y: number, ix: number, iy: number,
                       dst: Uint8ClampedArray, o: number): void {
-  const A = -0.75, t = x - ix, u = 1 - t, p = t + 1, q = y - iy, v = 1 - q, r = q + 1;
-  const w0 = ((A * p - 5 * A) * p + 8 * A) * p - 4 * A, w1 = ((A + 2) * t - (A + 3)) * t * t + 1;
-  const w2 = ((A + 2) * u - (A + 3)) * u * u + 1, w3 = 1 - w0 - w1 - w2;
-  const h0 = ((A * r - 5 * A) * r + 8 * A) * r - 4 * A, h1 = ((A + 2) * q - (A + 3)) * q * q + 1;
-  const h2 = ((A + 2) * v - (A + 3)) * v * v + 1, h3 = 1 - h0 - h1 - h2;
+  const w = weights;
+  cubicWeights(x - ix, w, 0);
+  cubicWeights(y - iy, w, 4);
+  const w0 = w[0], w1 = w[1], w2 = w[2], w3 = w[3], h0 = w[4], h1 = w[5], h2 = w[6], h3 = w[7];
   const a = (iy - 1) * stride + (ix - 1) * 3, b = a + stride, c = b + stride, d = c + stride;
-  dst[o] = h0 * (src[a] * w0 + src[a + 3] * w1 + src[a + 6] * w2 + src[a + 9] * w3)
-    + h1 * (src[b] * w0 + src[b + 3] * w1 + src[b + 6] * w2 + src[b + 9] * w3)
-    + h2 * (src[c] * w0 + src[c + 3] * w1 + src[c + 6] * w2 + src[c + 9] * w3)
-    + h3 * (src[d] * w0 + src[d + 3] * w1 + src[d + 6] * w2 + src[d + 9] * w3);
-  dst[o + 1] = h0 * (src[a + 1] * w0 + src[a + 4] * w1 + src[a + 7] * w2 + src[a + 10] * w3)
-    + h1 * (src[b + 1] * w0 + src[b + 4] * w1 + src[b + 7] * w2 + src[b + 10] * w3)
-    + h2 * (src[c + 1] * w0 + src[c + 4] * w1 + src[c + 7] * w2 + src[c + 10] * w3)
-    + h3 * (src[d + 1] * w0 + src[d + 4] * w1 + src[d + 7] * w2 + src[d + 10] * w3);
-  dst[o + 2] = h0 * (src[a + 2] * w0 + src[a + 5] * w1 + src[a + 8] * w2 + src[a + 11] * w3)
-    + h1 * (src[b + 2] * w0 + src[b + 5] * w1 + src[b + 8] * w2 + src[b + 11] * w3)
-    + h2 * (src[c + 2] * w0 + src[c + 5] * w1 + src[c + 8] * w2 + src[c + 11] * w3)
-    + h3 * (src[d + 2] * w0 + src[d + 5] * w1 + src[d + 8] * w2 + src[d + 11] * w3);
+  for (let k = 0; k < 3; k++) {
+    const ak = a + k, bk = b + k, ck = c + k, dk = d + k;
+    const r0 = taps(src[ak], src[ak + 3], src[ak + 6], src[ak + 9], w0, w1, w2, w3);
+    const r1 = taps(src[bk], src[bk + 3], src[bk + 6], src[bk + 9], w0, w1, w2, w3);
+    const r2 = taps(src[ck], src[ck + 3], src[ck + 6], src[ck + 9], w0, w1, w2, w3);
+    const r3 = taps(src[dk], src[dk + 3], src[dk + 6], src[dk + 9], w0, w1, w2, w3);
+    dst[o + k] = f(f(f(f(r0 * h0) + f(r1 * h1)) + f(r2 * h2)) + f(r3 * h3));
+  }
 }
 
 /** One output pixel of OpenCV's bicubic at source (x, y): its `channels` values, rounded and saturated (dst: the
@@ -80,38 +86,24 @@ function cubicAt(src: Uint8Array, width: number, height: number, channels: numbe
   }
   const ix = Math.floor(x), iy = Math.floor(y), sx = ix - 1, sy = iy - 1, stride = width * channels;
   const w = weights;
-  cubicWeights(x - ix, w, 0);
-  cubicWeights(y - iy, w, 4);
-  if (sx >= 0 && sx < width - 3 && sy >= 0 && sy < height - 3) {
-    const base = sy * stride + sx * channels;
-    for (let k = 0; k < channels; k++) {
-      let sum = 0;
-      for (let r = 0, row = base + k; r < 4; r++, row += stride) {
-        sum += w[4 + r] * (src[row] * w[0] + src[row + channels] * w[1] + src[row + 2 * channels] * w[2]
-          + src[row + 3 * channels] * w[3]);
-      }
-      dst[dstOffset + k] = sum;
-    }
-    return;
-  }
+  cubicWeights(f(x - ix), w, 0);
+  cubicWeights(f(y - iy), w, 4);
   if (border === "constant" && (sx >= width || sx + 4 <= 0 || sy >= height || sy + 4 <= 0)) {
     for (let k = 0; k < channels; k++) dst[dstOffset + k] = 0;
     return;
   }
-  const x0 = borderIndex(sx, width, border), x1 = borderIndex(sx + 1, width, border);
-  const x2 = borderIndex(sx + 2, width, border), x3 = borderIndex(sx + 3, width, border);
-  const y0 = borderIndex(sy, height, border), y1 = borderIndex(sy + 1, height, border);
-  const y2 = borderIndex(sy + 2, height, border), y3 = borderIndex(sy + 3, height, border);
+  const inside = sx >= 0 && sx < width - 3 && sy >= 0 && sy < height - 3;
+  const x0 = inside ? sx : borderIndex(sx, width, border), x1 = inside ? sx + 1 : borderIndex(sx + 1, width, border);
+  const x2 = inside ? sx + 2 : borderIndex(sx + 2, width, border);
+  const x3 = inside ? sx + 3 : borderIndex(sx + 3, width, border);
   for (let k = 0; k < channels; k++) {
     let sum = 0;
     for (let r = 0; r < 4; r++) {
-      const yr = r === 0 ? y0 : r === 1 ? y1 : r === 2 ? y2 : y3;
-      if (yr < 0) continue;
-      const row = yr * stride + k;
-      sum += w[4 + r] * ((x0 >= 0 ? src[row + x0 * channels] * w[0] : 0)
-        + (x1 >= 0 ? src[row + x1 * channels] * w[1] : 0)
-        + (x2 >= 0 ? src[row + x2 * channels] * w[2] : 0)
-        + (x3 >= 0 ? src[row + x3 * channels] * w[3] : 0));
+      const yr = inside ? sy + r : borderIndex(sy + r, height, border), row = yr * stride + k;
+      const product = yr < 0 ? 0 : f(w[4 + r] * taps(
+        x0 >= 0 ? src[row + x0 * channels] : 0, x1 >= 0 ? src[row + x1 * channels] : 0,
+        x2 >= 0 ? src[row + x2 * channels] : 0, x3 >= 0 ? src[row + x3 * channels] : 0, w[0], w[1], w[2], w[3]));
+      sum = r === 0 ? product : f(sum + product);
     }
     dst[dstOffset + k] = sum;
   }
@@ -154,7 +146,7 @@ export function remapCubicListed(src: PixelImage<Uint8Array>, mapX: Float32Array
  * uint8: output (x, y) samples the source at m (x, y), the position in float32 as OpenCV 5 computes it. */
 export function warpAffineCubic(src: PixelImage<Uint8Array>, m: Affine, width: number, height: number,
                                 border: BorderMode): Uint8Array {
-  const f = Math.fround, channels = src.channels, m0 = f(m[0]), m3 = f(m[3]);
+  const channels = src.channels, m0 = f(m[0]), m3 = f(m[3]);
   const stride = src.width * channels, fast = channels === 3;
   const out = new Uint8Array(width * height * channels), clamped = clampedView(out);
   const uEnd = src.width - 2, vEnd = src.height - 2;
@@ -186,7 +178,7 @@ export function openCvInverse(m: Affine): Affine {
  * the bank's eye patches). A constant border reads 0. */
 export function warpAffineLinear(src: PixelImage<Uint8Array>, m: Affine, width: number, height: number,
                                  border: BorderMode): Uint8Array {
-  const f = Math.fround, { channels, data } = src, stride = src.width * channels;
+  const { channels, data } = src, stride = src.width * channels;
   const out = new Uint8Array(width * height * channels), clamped = clampedView(out);
   const lerp = (p: number, q: number, t: number) => f(p + f(t * f(q - p)));
   for (let y = 0; y < height; y++) {

@@ -3,117 +3,149 @@
 // (cv2.remap INTER_CUBIC of uint8 RGB: float weights at the exact position, Keys' a = -0.75, rounded half to even and
 // saturated), with the dense maps made from the coarse grid (remap.ts densifyGrid's second pass) and their validity
 // mask (tps.ts warpValidMask) beside it. Each source pixel is stored once as four float32 (R, G, B, 0), so that a
-// tap is two loads of a channel pair widened to float64, and the pairs go through the same float64 products and sums,
-// in the same order, as remap.ts's JavaScript (the weights of x and of y computed side by side in one register): the
-// same bytes out (the same float32 maps, the same masks). The pixels whose taps leave the source are listed and left
-// to remap.ts (remapCubicListed, with the border rule). The maps can be written straight into the module's memory
-// (`mapSlots`), so that nothing is copied in. Where WebAssembly or its SIMD is missing, `CubicSources.create` gives
-// null and the callers keep to remap.ts.
+// tap is one load and a pixel's three channels go through one float32x4 lane each: the same float32 weights,
+// products and sums, in the same order, as remap.ts's JavaScript (the weights of x and of y computed side by side in
+// one register): the same bytes out (the same float32 maps, the same masks). Pixels whose taps leave the source read
+// the nearest edge pixels there under the replicated border (the warps'); under the other borders, and far off, they
+// are listed and left to remap.ts (remapCubicListed, with the border rule). The maps can be written straight into the
+// module's memory (`mapSlots`), so that nothing is copied in. Where WebAssembly or its SIMD is missing,
+// `CubicSources.create` gives null and the callers keep to remap.ts.
 
-import { BorderMode, CoarseGrid, Interpolation, densifyRows, gridAcross, remapCubicListed } from "./remap.js";
-import { F32, F64, Func, I32, V, V128, compileModule, float64, func, op, reserveMemory, signed, simd, unsigned,
+import { BorderMode, CoarseGrid, Interpolation, densifyRows, gridAcross, remapCubic, remapCubicListed } from "./remap.js";
+import { Tensor, tensor } from "./tensor.js";
+import { F32, Func, I32, V, V128, compileModule, float32, func, op, reserveMemory, signed, simd, unsigned,
          webAssemblyWanted } from "./wasm.js";
 
 const PIXEL = 16;  // bytes of a source pixel: (R, G, B, 0) float32
 
-/** remap(src, width, mapX, mapY, dst, count, xEnd, yEnd, only, listed) -> listed count: for each i < count (where
- * `only` is 0, or only[i] is not), dst[3i .. 3i + 2] where (mapX[i], mapY[i]) lies in [1, xEnd) x [1, yEnd), else i
- * appended to the int32 list at `listed`. src: the source as (R, G, B, 0) float32 per pixel, `width` pixels a row;
- * mapX, mapY: float32; dst: uint8 RGB; only: uint8. Pixels not written are left as they are. */
+/** remap(src, width, height, mapX, mapY, dst, count, only, replicate, listed) -> listed count: for each i < count
+ * (where `only` is 0, or only[i] is not), dst[3i .. 3i + 2] from (mapX[i], mapY[i]) where its 4 x 4 taps lie inside
+ * the source, or where `replicate` is 1 and |x|, |y| < 1e7 (the taps outside read the nearest edge pixel, as
+ * remap.ts cubicAt's replicated border); else i appended to the int32 list at `listed`. src: the source as (R, G, B,
+ * 0) float32 per pixel, (height, width); mapX, mapY: float32; dst: uint8 RGB; only: uint8. Pixels not written are left
+ * as they are. A pixel's three channels are the lanes of one float32x4: its weights, each tap's product and each sum
+ * rounded to float32 in remap.ts cubicInside3's order (the same bytes). */
 function remapFunction(): Func {
-  // parameters 0-9, then the locals
-  const [src, width, mapX, mapY, dst, count, xEnd, yEnd, only, listed] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9];
-  const [i, n, ix, iy, row, rowBytes] = [10, 11, 12, 13, 14, 15];  // i32
-  const [x, y] = [16, 17];  // f64
-  // v128: the fractions (x, y), the four weights of x and of y side by side, each weight for x and for y in both lanes
-  const [T, S, W0, W1, W2, W3, X0, X1, X2, X3, Y0, Y1, Y2, Y3, RG, B] =
-    [18, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28, 29, 30, 31, 32, 33];
+  const params = [I32, I32, I32, I32, I32, I32, I32, I32, I32, I32];
+  const [src, width, height, mapX, mapY, dst, count, only, replicate, listed] = params.map((_, k) => k);
+  let next = params.length;
+  const take = (count: number) => Array.from({ length: count }, () => next++);
+  const [i, n, ix, iy, row, rowBytes, c0, c1, c2, c3, r0, r1, r2, r3] = take(14);  // i32
+  const [x, y, xEnd, yEnd] = take(4);  // f32
+  // v128: the fractions (x, y) in lanes 0 and 1, the four weights of x and of y side by side, each weight of x and of
+  // y in all four lanes, the sum, the bytes out
+  const [T, S, W0, W1, W2, W3, X0, X1, X2, X3, Y0, Y1, Y2, Y3, SUM, OUT] = take(16);
   const A = -0.75;
-  const params = [I32, I32, I32, I32, I32, I32, F64, F64, I32, I32];
-  const constants = [1, A, 5 * A, 8 * A, 4 * A, A + 2, A + 3, 0, 255, 2 ** 52];  // each in both lanes of a v128 local from 34
-  return func(params, [I32], [[6, I32], [2, F64], [16 + constants.length, V128]], (emit) => {
+  const constants = [1, A, 5 * A, 8 * A, 4 * A, A + 2, A + 3];  // each in every lane of a v128 local
+  const C = take(constants.length);
+  return func(params, [I32], [[14, I32], [4, F32], [16 + constants.length, V128]], (emit) => {
     const get = (l: number) => emit(op.get, l), set = (l: number) => emit(op.set, l);
     const i32 = (v: number) => emit(op.i32Const, signed(v));
-    const f64 = (v: number) => emit(op.f64Const, float64(v));
-    const both = (v: number) => get(34 + constants.indexOf(v));  // v in both lanes
-    constants.forEach((v, k) => { emit(simd(V.const), float64(v), float64(v)); set(34 + k); });
-    const [mul, add, sub] = [simd(V.f64x2Mul), simd(V.f64x2Add), simd(V.f64x2Sub)];
-    // w = ((A p - 5 A) p + 8 A) p - 4 A, p = t + 1 (remap.ts cubicInside3's first weight)
+    const f32 = (v: number) => emit(op.f32Const, float32(v));
+    const all = (v: number) => get(C[constants.indexOf(v)]);  // v in every lane
+    constants.forEach((v, k) => { emit(simd(V.const), [0, 1, 2, 3].flatMap(() => float32(v))); set(C[k]); });
+    const [mul, add, sub] = [simd(V.f32x4Mul), simd(V.f32x4Add), simd(V.f32x4Sub)];
+    // w = ((A p - 5 A) p + 8 A) p - 4 A, p = t + 1 (remap.ts cubicWeights' first weight)
     const outer = (into: number) => {
-      get(T); both(1); emit(add); set(S);
-      both(A); get(S); emit(mul); both(5 * A); emit(sub); get(S); emit(mul); both(8 * A); emit(add);
-      get(S); emit(mul); both(4 * A); emit(sub); set(into);
+      get(T); all(1); emit(add); set(S);
+      all(A); get(S); emit(mul); all(5 * A); emit(sub); get(S); emit(mul); all(8 * A); emit(add);
+      get(S); emit(mul); all(4 * A); emit(sub); set(into);
     };
     // w = ((A + 2) v - (A + 3)) v v + 1
     const inner = (value: number, into: number) => {
-      both(A + 2); get(value); emit(mul); both(A + 3); emit(sub); get(value); emit(mul); get(value); emit(mul);
-      both(1); emit(add); set(into);
+      all(A + 2); get(value); emit(mul); all(A + 3); emit(sub); get(value); emit(mul); get(value); emit(mul);
+      all(1); emit(add); set(into);
     };
-    // one lane of a weight in both lanes
+    // lane `at` of a weight in every lane
     const lane = (from: number, at: 0 | 1, into: number) => {
-      const bytes = Array.from({ length: 16 }, (_, k) => 8 * at + (k % 8));
+      const bytes = Array.from({ length: 16 }, (_, k) => 4 * at + (k % 4));
       get(from); get(from); emit(simd(V.shuffle), bytes); set(into);
     };
-    // one row's channel pair at byte `offset` of a pixel (0: R, G; 8: B, 0): sum over taps of pixel * X_j, in order
-    const taps = (offset: number) => {
-      [X0, X1, X2, X3].forEach((X, j) => {
-        get(row); emit(simd(V.load64Zero), 3, unsigned(offset + PIXEL * j), simd(V.f64x2Promote));
-        get(X); emit(mul);
-        if (j > 0) emit(add);
+    // the weights of T's fractions
+    const weights = () => {
+      outer(W0);
+      inner(T, W1);
+      all(1); get(T); emit(sub); set(S);
+      inner(S, W2);
+      all(1); get(W0); emit(sub); get(W1); emit(sub); get(W2); emit(sub); set(W3);
+      lane(W0, 0, X0); lane(W1, 0, X1); lane(W2, 0, X2); lane(W3, 0, X3);
+      lane(W0, 1, Y0); lane(W1, 1, Y1); lane(W2, 1, Y2); lane(W3, 1, Y3);
+    };
+    // sum over rows k of Y_k * (the sum over the row's taps j of pixel * X_j, in order); tap(k, j) pushes the
+    // address of tap (k, j) and gives the load's offset
+    const sum = (tap: (k: number, j: number) => number) => {
+      [Y0, Y1, Y2, Y3].forEach((Y, k) => {
+        if (k > 0) get(SUM);
+        [X0, X1, X2, X3].forEach((X, j) => {
+          emit(simd(V.load), 4, unsigned(tap(k, j)));
+          get(X); emit(mul);
+          if (j > 0) emit(add);
+        });
+        get(Y); emit(mul);
+        if (k > 0) emit(add);
+        set(SUM);
       });
     };
-    // saturated, then rounded half to even by adding 2^52 (where a float64's unit is 1): each lane's low byte is the
-    // value (the order does not matter: the bounds are integers)
-    const rounded = (sum: number) => {
-      get(sum); both(0); emit(simd(V.f64x2Pmax)); both(255); emit(simd(V.f64x2Pmin)); both(2 ** 52); emit(add);
+    // (value + shift) clamped to [0, last], into `into`
+    const clamped = (value: number, shift: number, last: number, into: number) => {
+      get(value); i32(shift); emit(op.i32Add); set(into);
+      i32(0); get(into); get(into); i32(0); emit(op.i32LtS, op.select); set(into);
+      get(last); get(into); get(into); get(last); emit(op.i32GtS, op.select); set(into);
     };
 
     get(width); i32(4); emit(op.i32Shl); set(rowBytes);
+    get(width); i32(2); emit(op.i32Sub, op.f32ConvertI32S); set(xEnd);
+    get(height); i32(2); emit(op.i32Sub, op.f32ConvertI32S); set(yEnd);
     emit(op.block, op.void, op.loop, op.void);
     get(i); get(count); emit(op.i32GeS, op.brIf, 1);
     emit(op.block, op.void);  // a pixel done (or left) goes on past this block
     get(only); emit(op.if, op.void);
     get(only); get(i); emit(op.i32Add, op.i32Load8U, 0, 0, op.i32Eqz, op.brIf, 1);
     emit(op.end);
-    get(mapX); get(i); i32(2); emit(op.i32Shl, op.i32Add, op.f32Load, 2, 0, op.f64PromoteF32); set(x);
-    get(mapY); get(i); i32(2); emit(op.i32Shl, op.i32Add, op.f32Load, 2, 0, op.f64PromoteF32); set(y);
-    get(x); f64(1); emit(op.f64Ge); get(x); get(xEnd); emit(op.f64Lt, op.i32And);
-    get(y); f64(1); emit(op.f64Ge, op.i32And); get(y); get(yEnd); emit(op.f64Lt, op.i32And, op.i32Eqz);
-    emit(op.if, op.void);  // taps outside the source (or NaN): listed
+    get(mapX); get(i); i32(2); emit(op.i32Shl, op.i32Add, op.f32Load, 2, 0); set(x);
+    get(mapY); get(i); i32(2); emit(op.i32Shl, op.i32Add, op.f32Load, 2, 0); set(y);
+    get(x); f32(1); emit(op.f32Ge); get(x); get(xEnd); emit(op.f32Lt, op.i32And);
+    get(y); f32(1); emit(op.f32Ge, op.i32And); get(y); get(yEnd); emit(op.f32Lt, op.i32And);
+    emit(op.if, op.void);  // the taps inside: from (ix - 1, iy - 1), row after row
+    get(x); emit(op.i32TruncF32S); set(ix);
+    get(y); emit(op.i32TruncF32S); set(iy);
+    get(x); get(ix); emit(op.f32ConvertI32S, op.f32Sub, simd(V.f32x4Splat));  // exact: x >= 1
+    get(y); get(iy); emit(op.f32ConvertI32S, op.f32Sub, simd(V.f32x4Replace), 1); set(T);
+    weights();
+    get(src); get(iy); i32(1); emit(op.i32Sub); get(width); emit(op.i32Mul); get(ix); emit(op.i32Add);
+    i32(1); emit(op.i32Sub); i32(4); emit(op.i32Shl, op.i32Add); set(r0);
+    get(r0); get(rowBytes); emit(op.i32Add); set(r1);
+    get(r1); get(rowBytes); emit(op.i32Add); set(r2);
+    get(r2); get(rowBytes); emit(op.i32Add); set(r3);
+    sum((k, j) => { get([r0, r1, r2, r3][k]); return PIXEL * j; });
+    emit(op.else);
+    // outside: the border replicated where asked and not far off (NaN fails these), else listed
+    get(replicate); get(x); emit(op.f32Abs); f32(1e7); emit(op.f32Lt, op.i32And);
+    get(y); emit(op.f32Abs); f32(1e7); emit(op.f32Lt, op.i32And, op.i32Eqz);
+    emit(op.if, op.void);
     get(listed); get(n); i32(2); emit(op.i32Shl, op.i32Add); get(i); emit(op.i32Store, 2, 0);
     get(n); i32(1); emit(op.i32Add); set(n);
-    emit(op.br, 1, op.end);
-    get(x); emit(op.i32TruncF64S); set(ix);
-    get(y); emit(op.i32TruncF64S); set(iy);
-    get(x); get(ix); emit(op.f64ConvertI32S, op.f64Sub, simd(V.f64x2Splat));
-    get(y); get(iy); emit(op.f64ConvertI32S, op.f64Sub, simd(V.f64x2Replace), 1); set(T);
-    outer(W0);
-    inner(T, W1);
-    both(1); get(T); emit(sub); set(S);
-    inner(S, W2);
-    both(1); get(W0); emit(sub); get(W1); emit(sub); get(W2); emit(sub); set(W3);
-    lane(W0, 0, X0); lane(W1, 0, X1); lane(W2, 0, X2); lane(W3, 0, X3);
-    lane(W0, 1, Y0); lane(W1, 1, Y1); lane(W2, 1, Y2); lane(W3, 1, Y3);
-    // the 4 x 4 taps from (ix - 1, iy - 1): sum over rows of Y_k * (the row's sum), for both channel pairs
-    get(src); get(iy); i32(1); emit(op.i32Sub); get(width); emit(op.i32Mul); get(ix); emit(op.i32Add);
-    i32(1); emit(op.i32Sub); i32(4); emit(op.i32Shl, op.i32Add); set(row);
-    [Y0, Y1, Y2, Y3].forEach((Y, k) => {
-      if (k > 0) get(RG);
-      taps(0); get(Y); emit(mul);
-      if (k > 0) emit(add);
-      set(RG);
-      if (k > 0) get(B);
-      taps(8); get(Y); emit(mul);
-      if (k > 0) emit(add);
-      set(B);
-      if (k < 3) { get(row); get(rowBytes); emit(op.i32Add); set(row); }
+    emit(op.br, 2, op.end);
+    get(x); emit(op.f32Floor, op.i32TruncF32S); set(ix);
+    get(y); emit(op.f32Floor, op.i32TruncF32S); set(iy);
+    get(x); get(x); emit(op.f32Floor, op.f32Sub, simd(V.f32x4Splat));
+    get(y); get(y); emit(op.f32Floor, op.f32Sub, simd(V.f32x4Replace), 1); set(T);
+    weights();
+    get(width); i32(1); emit(op.i32Sub); set(row);
+    [c0, c1, c2, c3].forEach((c, j) => { clamped(ix, j - 1, row, c); get(c); i32(4); emit(op.i32Shl); set(c); });
+    get(height); i32(1); emit(op.i32Sub); set(row);
+    [r0, r1, r2, r3].forEach((r, k) => {
+      clamped(iy, k - 1, row, r); get(src); get(r); get(rowBytes); emit(op.i32Mul, op.i32Add); set(r);
     });
-    // R, G and B as bytes 0-2 of S, stored at dst + 3 i
-    rounded(RG); rounded(B);
-    emit(simd(V.shuffle), [0, 8, 16, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]); set(S);
+    sum((k, j) => { get([r0, r1, r2, r3][k]); get([c0, c1, c2, c3][j]); emit(op.i32Add); return 0; });
+    emit(op.end);  // inside or outside
+    // rounded half to even, saturated to [0, 255] by the two narrowings: R, G and B as bytes 0-2, stored at dst + 3 i
+    get(SUM); emit(simd(V.f32x4Nearest), simd(V.i32x4TruncSatF32x4S)); set(OUT);
+    get(OUT); get(OUT); emit(simd(V.i16x8NarrowI32x4S)); set(OUT);
+    get(OUT); get(OUT); emit(simd(V.i8x16NarrowI16x8U)); set(OUT);
     get(dst); get(i); i32(3); emit(op.i32Mul, op.i32Add); set(row);
-    get(row); get(S); emit(simd(V.store16Lane), 0, 0, 0);
-    get(row); get(S); emit(simd(V.store8Lane), 0, 2, 2);
+    get(row); get(OUT); emit(simd(V.store16Lane), 0, 0, 0);
+    get(row); get(OUT); emit(simd(V.store8Lane), 0, 2, 2);
     emit(op.end);  // block
     get(i); i32(1); emit(op.i32Add); set(i);
     emit(op.br, 0, op.end, op.end);  // loop, block
@@ -211,6 +243,19 @@ function module(): WebAssembly.Module | null {
 /** Whether the remaps run in WebAssembly here (false: remap.ts's JavaScript). */
 export function remapsInWasm(): boolean {
   return webAssemblyWanted() && module() !== null;
+}
+
+/** remapCubic of one (H, W, 3) uint8 image through float32 maps of one shape: in WebAssembly where the kernels run
+ * (remapsInWasm), else in remap.ts; the same bytes either way -> (...the maps' shape, 3). */
+export function remapImage(image: Tensor<Uint8Array>, mapX: Tensor<Float32Array>, mapY: Tensor<Float32Array>,
+                           border: BorderMode): Tensor<Uint8Array> {
+  const [height, width, channels] = image.shape;
+  if (image.shape.length !== 3 || channels !== 3) throw new Error(`the image must be (H, W, 3), got [${image.shape}]`);
+  if (mapY.data.length !== mapX.data.length) throw new Error("mapX and mapY must be of one shape");
+  const out = new Uint8Array(mapX.data.length * 3), sources = CubicSources.create(image.data, 1, width, height);
+  if (sources) sources.remap(0, mapX.data, mapY.data, border, out);
+  else remapCubic({ data: image.data, width, height, channels: 3 }, mapX.data, mapY.data, border, out);
+  return tensor(out, [...mapX.shape, 3]);
 }
 
 /** Where things lie in a CubicSources' memory past the sources (byte offsets, 16-byte aligned): `slots` pairs of
@@ -391,8 +436,9 @@ export class CubicSources {
       new Uint8Array(buffer, at.only, values).set(only);
       new Uint8Array(buffer, at.dst, values * 3).set(dst);
     }
-    const listed = this.exports.remap(index * width * height * PIXEL, width, slot.mapX.byteOffset, slot.mapY.byteOffset,
-                                      at.dst, values, width - 2, height - 2, only ? at.only : 0, at.listed);
+    const listed = this.exports.remap(index * width * height * PIXEL, width, height, slot.mapX.byteOffset,
+                                      slot.mapY.byteOffset, at.dst, values, only ? at.only : 0,
+                                      border === "replicate" ? 1 : 0, at.listed);
     dst.set(new Uint8Array(buffer, at.dst, values * 3));
     const image = this.images.subarray(index * width * height * 3, (index + 1) * width * height * 3);
     remapCubicListed({ data: image, width, height, channels: 3 }, slot.mapX, slot.mapY, border, dst,

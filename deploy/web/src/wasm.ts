@@ -1,8 +1,9 @@
 // A small WebAssembly writer for the per-frame kernels written here opcode by opcode, without a toolchain
-// (remap_wasm.ts: the warps' and the head layer's bicubic remaps; tps_wasm.ts: the splines on their grids). Each kernel
-// does the same float64 operations in the same order as the JavaScript it stands in for, so that the bytes out are
-// the same; 128-bit SIMD (in every browser since 2021, and Node 16) carries two float64 lanes at once. Where
-// WebAssembly or its SIMD is missing, `compileModule` gives null and the callers keep to their JavaScript.
+// (remap_wasm.ts: the warps' and the head layer's bicubic remaps; tps_wasm.ts: the splines on their grids;
+// blend_wasm.ts: the page's composite). Each kernel does the same operations, in float32 or float64, in the same
+// order as the JavaScript it stands in for, so that the bytes out are the same; 128-bit SIMD (in every browser since
+// 2021, and Node 16) carries four float32 or two float64 lanes at once. Where WebAssembly or its SIMD is missing,
+// `compileModule` gives null and the callers keep to their JavaScript.
 
 export function unsigned(value: number): number[] {
   const out: number[] = [];
@@ -52,19 +53,20 @@ export const op = {
   get: 0x20, set: 0x21, tee: 0x22,
   i32Load: 0x28, f32Load: 0x2a, f64Load: 0x2b, i32Load8U: 0x2d, i32Store: 0x36, f32Store: 0x38, f64Store: 0x39,
   i32Const: 0x41, f32Const: 0x43, f64Const: 0x44,
-  i32Eqz: 0x45, i32Ne: 0x47, i32GtS: 0x4a, i32GeS: 0x4e, f64Lt: 0x63, f64Gt: 0x64, f64Ge: 0x66,
+  i32Eqz: 0x45, i32Ne: 0x47, i32GtS: 0x4a, i32GeS: 0x4e, f32Lt: 0x5d, f32Ge: 0x60, f64Lt: 0x63, f64Gt: 0x64,
+  f64Ge: 0x66,
   i32Add: 0x6a, i32Sub: 0x6b, i32Mul: 0x6c, i32And: 0x71, i32Shl: 0x74, i32ShrU: 0x76, i32LtS: 0x48,
-  f32Add: 0x92, f32Mul: 0x94,
+  select: 0x1b, f32Abs: 0x8b, f32Floor: 0x8e, f32Add: 0x92, f32Sub: 0x93, f32Mul: 0x94,
   f64Sub: 0xa1, f64Mul: 0xa2, f64Div: 0xa3, f64Add: 0xa0,
-  i32TruncF64S: 0xaa, f64ConvertI32S: 0xb7, f64PromoteF32: 0xbb,
+  i32TruncF32S: 0xa8, i32TruncF64S: 0xaa, f32ConvertI32S: 0xb2, f64ConvertI32S: 0xb7, f64PromoteF32: 0xbb,
 };
 /** A 128-bit SIMD instruction (prefix 0xfd). */
 export const simd = (code: number) => [0xfd, ...unsigned(code)];
 export const V = {
   load: 0x00, load64Splat: 0x0a, store: 0x0b, const: 0x0c, shuffle: 0x0d, f32x4Splat: 0x13, f64x2Splat: 0x14,
-  f32x4Extract: 0x1f, f64x2Replace: 0x22, f32x4Le: 0x45, f32x4Ge: 0x46, and: 0x4e, load32Lane: 0x56, store8Lane: 0x58,
-  store16Lane: 0x59, store64Lane: 0x5b, load32Zero: 0x5c, load64Zero: 0x5d, f32x4DemoteF64x2Zero: 0x5e,
-  f64x2Promote: 0x5f, load32Splat: 0x09, i32x4Splat: 0x11, f32x4Nearest: 0x6a, i32x4Shl: 0xab, i32x4Add: 0xae,
+  f32x4Extract: 0x1f, f32x4Replace: 0x20, f64x2Replace: 0x22, f32x4Le: 0x45, f32x4Ge: 0x46, and: 0x4e,
+  load32Lane: 0x56, store8Lane: 0x58, store16Lane: 0x59, store64Lane: 0x5b, load32Zero: 0x5c, load64Zero: 0x5d,
+  f32x4DemoteF64x2Zero: 0x5e, f64x2Promote: 0x5f, i8x16NarrowI16x8U: 0x66, i16x8NarrowI32x4S: 0x85, load32Splat: 0x09, i32x4Splat: 0x11, f32x4Nearest: 0x6a, i32x4Shl: 0xab, i32x4Add: 0xae,
   f32x4Add: 0xe4, f32x4Sub: 0xe5, f32x4Mul: 0xe6, f32x4Div: 0xe7, f32x4Min: 0xe8, f32x4Max: 0xe9,
   i32x4TruncSatF32x4S: 0xf8, f64x2Add: 0xf0, f64x2Sub: 0xf1, f64x2Mul: 0xf2, f64x2Pmin: 0xf6, f64x2Pmax: 0xf7,
 };
