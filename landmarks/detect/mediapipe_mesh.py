@@ -376,27 +376,96 @@ def eye_iris(eye_points: np.ndarray, iris: np.ndarray, region: Region, mirrored:
     return np.array([iris[0, 0], iris[0, 1], radius, gap])
 
 
-def refine_eyes(image: np.ndarray, mesh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def lid_gap(contour: np.ndarray) -> float:
+    """The gap between an eye contour's lids (corner, 7 lower-lid points, corner, 7 upper-lid points): the mean
+    distance of the middle three pairs, in the contour's units."""
+    return float(np.mean(np.linalg.norm(contour[11:14, :2] - contour[3:6, :2], axis=1)))
+
+
+BLOCK = 8  # the iris gate's blocks: 8 x 8 of the 64 x 64 input
+
+
+def block_change(tensor: np.ndarray, last: np.ndarray) -> float:
+    """The largest mean absolute change between two iris-net inputs ((1, 64, 64, 3) float32 in [0, 1]) over the
+    ``BLOCK`` x ``BLOCK`` pixel blocks of the crop: a glance moves the dark iris through a block even where the
+    whole crop's mean barely moves. Summed in float64, as deploy/web/src/facemesh.ts blockChange sums it."""
+    change = np.abs(tensor[0].astype(np.float64) - last[0].astype(np.float64)).sum(axis=2)
+    side = IRIS_SIZE // BLOCK
+    return float(change.reshape(side, BLOCK, side, BLOCK).sum(axis=(1, 3)).max()) / (BLOCK * BLOCK * 3)
+
+
+@dataclasses.dataclass
+class IrisGate:
+    """The iris net only where an eye changed (live tracking): per eye, the input, the mesh's own lid gap
+    (crop pixels) and the net's outputs of its last run. An eye whose input changed by less than ``max_change``
+    (``block_change``) and whose mesh lid gap moved by less than ``max_gap_change`` since that run takes those
+    outputs again, placed by this frame's square, at most ``max_skips`` frames in a row. Measured on the validation
+    clips (docs/decisions/2026-12-07-page-composite.md): it skips about half the runs on a still face and few on a
+    moving one; the judged eye correlation and gaze over whole clips move about as much as the tracker's own noise
+    moves them."""
+
+    max_change: float = 0.02
+    max_gap_change: float = 0.3
+    max_skips: int = 2
+    runs: int = 0
+    skips: int = 0
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the last runs (a lost face, a new detection): every eye runs next time."""
+        self.last: list[tuple[np.ndarray, float, tuple[np.ndarray, np.ndarray]] | None] = [None, None]
+        self.streak = [0, 0]
+
+    def kept(self, eye: int, tensor: np.ndarray, gap: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """The last run's outputs for ``eye`` where they still hold for this input and lid gap, else None."""
+        last = self.last[eye]
+        if last is None or self.streak[eye] >= self.max_skips or not abs(gap - last[1]) < self.max_gap_change:
+            return None
+        if not block_change(tensor, last[0]) < self.max_change:
+            return None
+        self.streak[eye] += 1
+        self.skips += 1
+        return last[2]
+
+    def ran(self, eye: int, tensor: np.ndarray, gap: float, outputs: tuple[np.ndarray, np.ndarray]) -> None:
+        """Keep a run of the net on ``eye``."""
+        self.last[eye] = (tensor, gap, outputs)
+        self.streak[eye] = 0
+        self.runs += 1
+
+
+def refine_eyes(image: np.ndarray, mesh: np.ndarray, gate: IrisGate | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``mesh`` with both eyes' 16 contour vertices (x, y) from the iris net (module docstring, step 3b), and the
     irises the net found on the way. image: (H, W, 3) uint8 RGB; mesh: (468, 3) frame pixels -> ((468, 3) float32
     (a copy; unchanged when the mesh is not finite or an eye's corners coincide), (2, 4) ``eye_iris`` rows, NaN
     where not run). The two eyes run at once, the second on another thread: the net is single-threaded and
     compute-bound, so both take about 3.2 ms on 2 cores where one after the other took 5.7 (and batching them,
-    5.6)."""
+    5.6). gate: an eye it keeps takes its last outputs instead of a run (``IrisGate``)."""
     refined = np.array(mesh, np.float32)
     irises = np.full((2, 4), np.nan)
     if not np.isfinite(refined).all():
+        if gate is not None:
+            gate.reset()
         return refined, irises
     eyes = []
     for eye, (corners, contour, mirrored) in enumerate(EYE_CONTOURS):  # the corners are not the other eye's
         region = eye_region(refined, corners)
         if region.side >= 1.0:
-            eyes.append((eye, region, contour, mirrored, eye_input(image, region, mirrored)))
-    second = eye_thread().submit(iris_outputs, eyes[1][4]) if len(eyes) > 1 else None
-    found = [iris_outputs(eyes[0][4])] if eyes else []
+            tensor, crop = eye_input(image, region, mirrored), eye_crop(region)
+            gap = lid_gap(refined[list(contour), :2].astype(np.float64) @ crop[:, :2].T + crop[:, 2])
+            kept = None if gate is None else gate.kept(eye, tensor, gap)
+            eyes.append((eye, region, contour, mirrored, tensor, gap, kept))
+    runs = [entry for entry in eyes if entry[6] is None]
+    second = eye_thread().submit(iris_outputs, runs[1][4]) if len(runs) > 1 else None
+    outputs = {runs[0][0]: iris_outputs(runs[0][4])} if runs else {}
     if second is not None:
-        found.append(second.result())
-    for (eye, region, contour, mirrored, _), (eye_points, iris) in zip(eyes, found):
+        outputs[runs[1][0]] = second.result()
+    for eye, region, contour, mirrored, tensor, gap, kept in eyes:
+        eye_points, iris = kept if kept is not None else outputs[eye]
+        if gate is not None and kept is None:
+            gate.ran(eye, tensor, gap, (eye_points, iris))
         points = eye_points[: len(contour), :2].astype(np.float64)
         if mirrored:
             points[:, 0] = IRIS_SIZE - points[:, 0]
@@ -411,9 +480,9 @@ def refine_eye_contours(image: np.ndarray, mesh: np.ndarray) -> np.ndarray:
     return refine_eyes(image, mesh)[0]
 
 
-def predict_mesh(image: np.ndarray, region: Region, eyes: bool = True) -> MeshResult:
+def predict_mesh(image: np.ndarray, region: Region, eyes: bool = True, gate: IrisGate | None = None) -> MeshResult:
     """Run the face-mesh net inside ``region`` of ``image`` ((H, W, 3) uint8 RGB); eyes: then refine both eyes'
-    contours with the iris net and keep its irises (``refine_eyes``)."""
+    contours with the iris net and keep its irises (``refine_eyes``, through ``gate`` where given)."""
     matrix = region.to_crop(MESH_SIZE)
     crop = cv2.warpAffine(image, matrix, (MESH_SIZE, MESH_SIZE), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     tensor = (crop.astype(np.float32) / 255.0)[None]  # (1, 192, 192, 3) in [0, 1]
@@ -426,7 +495,7 @@ def predict_mesh(image: np.ndarray, region: Region, eyes: bool = True) -> MeshRe
     presence = float(sigmoid(flag.reshape(-1)[0]))
     irises = None
     if eyes:
-        mesh, irises = refine_eyes(image, mesh)
+        mesh, irises = refine_eyes(image, mesh, gate)
     return MeshResult(mesh=mesh, presence=presence, region=region, irises=irises)
 
 

@@ -11,6 +11,8 @@ iris net's irises in ``tracker.irises``):
 3. Otherwise (and on the first frame) a full detection runs on that frame (whole frame, then tiles for small
    faces); after a loss, the face overlapping the last one is preferred. Nothing found: the frame is missing and
    detection runs again on the next one. No frame is dropped.
+4. With ``iris_gate`` (live tracking), the iris net reruns on an eye only where it changed
+   (``landmarks.detect.mediapipe_mesh.IrisGate``); after a detection every eye runs.
 """
 
 from __future__ import annotations
@@ -86,7 +88,9 @@ class MeshTracker(FrameTracker):
     """Tracks one face's mesh and its 68 points through frames (policy in the module docstring).
 
     The same interface as ``landmarks.detect.dlib_tracker.LandmarkTracker``: ``update``, ``track_frames``, ``reset``,
-    ``detections``; ``mesh`` holds the last frame's (468, 3) mesh (None when missing).
+    ``detections``; ``mesh`` holds the last frame's (468, 3) mesh (None when missing). iris_gate: rerun the iris net
+    on an eye only where it changed (``landmarks.detect.mediapipe_mesh.IrisGate``: a camera stream's frame budget;
+    off for videos, where every frame is refined).
     """
 
     def __init__(
@@ -96,8 +100,10 @@ class MeshTracker(FrameTracker):
         face_index: int = 0,
         max_scale_change: float = 0.3,
         max_shift: float = 0.4,
+        iris_gate: bool = False,
     ) -> None:
         self.detector = detector if detector is not None else MeshDetector()
+        self.gate = face_mesh.IrisGate() if iris_gate else None
         self.face_index = face_index
         self.max_scale_change = max_scale_change
         self.max_shift = max_shift
@@ -108,6 +114,8 @@ class MeshTracker(FrameTracker):
         self.irises: np.ndarray | None = None  # the last frame's (2, 4) ``landmarks.detect.mediapipe_mesh.eye_iris`` rows
         self.last_box: np.ndarray | None = None  # kept across losses: prefer the same face afterwards
         self.detections = 0
+        if self.gate is not None:
+            self.gate.reset()
 
     def _plausible(self, mesh: np.ndarray, previous: np.ndarray) -> bool:
         if not np.isfinite(mesh).all():
@@ -132,10 +140,12 @@ class MeshTracker(FrameTracker):
         frame = self.checked_frame(frame)
         kept = None
         if self.mesh is not None:
-            result = face_mesh.predict_mesh(frame, face_mesh.region_from_mesh(self.mesh))
+            result = face_mesh.predict_mesh(frame, face_mesh.region_from_mesh(self.mesh), gate=self.gate)
             if result.presence >= self.detector.min_presence and self._plausible(result.mesh, self.mesh):
                 kept = result
         if kept is None:
+            if self.gate is not None:
+                self.gate.reset()
             kept = self._detect(frame)
         mesh = self.mesh = None if kept is None else kept.mesh
         self.irises = None if kept is None else kept.irises

@@ -32,15 +32,16 @@ def make_detector(kind: DetectorKind | str = DEFAULT_DETECTOR, **options: Any) -
     raise ValueError(f"detector must be one of {', '.join(DETECTOR_KINDS)}, got {kind!r}")
 
 
-def make_tracker(detector: FaceDetector | str | None = None, **options: Any) -> FrameTracker:
+def make_tracker(detector: FaceDetector | str | None = None, *, live: bool = False, **options: Any) -> FrameTracker:
     """The tracker that goes with ``detector`` (a detector, a kind, or None for the default); ``options`` go to
-    the tracker (face_index, ...)."""
+    the tracker (face_index, ...). live: a camera stream, where the mesh tracker reruns the iris net only on an eye
+    that changed (its ``iris_gate``)."""
     if detector is None or isinstance(detector, str):
         detector = make_detector(detector or DEFAULT_DETECTOR)
     if detector.kind == "mesh":
         from landmarks.detect.mediapipe_tracker import MeshTracker
 
-        return MeshTracker(detector, **options)  # type: ignore[arg-type]
+        return MeshTracker(detector, iris_gate=live, **options)  # type: ignore[arg-type]
     from landmarks.detect.dlib_tracker import LandmarkTracker
 
     return LandmarkTracker(detector, **options)  # type: ignore[arg-type]

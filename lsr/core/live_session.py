@@ -73,7 +73,7 @@ class LiveSession:
         self.reenactor, self.subject = reenactor, subject
         self.with_layout = with_layout and reenactor.backend.layout_kind != "none"
         self.watermark = watermark
-        self.tracker = make_tracker(detector if detector is not None else reenactor.detector)
+        self.tracker = make_tracker(detector if detector is not None else reenactor.detector, live=True)
         self.one_euro = OneEuroFilter(25.0, driving_cutoffs()) if smooth else None
         self.scene = next(SourceScene(subject.shots, reenactor.crop_size)) if paste_back else None
         self.reference = DriverReference()

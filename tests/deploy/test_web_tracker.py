@@ -19,8 +19,8 @@ ASSETS = str(MAPPING_FILE.parent)  # landmarks/assets: mediapipe/*.onnx, mesh68.
 BLACK_AT = 12  # a face-less frame in the middle of the sequence: the face is lost, then detected again
 
 
-def _python_run(frames: np.ndarray) -> dict:
-    tracker = make_tracker("mesh")
+def _python_run(frames: np.ndarray, live: bool = False) -> dict:
+    tracker = make_tracker("mesh", live=live)
     tracker.reset()
     count = len(frames)
     out = {"landmarks": np.full((count, 68, 2), np.nan), "meshes": np.full((count, 468, 3), np.nan),
@@ -32,6 +32,7 @@ def _python_run(frames: np.ndarray) -> dict:
         if points is not None:
             out["landmarks"][index], out["meshes"][index], out["irises"][index] = points, tracker.mesh, tracker.irises
     out["detections"] = tracker.detections
+    out["gate"] = tracker.gate
     return out
 
 
@@ -87,6 +88,24 @@ def test_tracker_matches_python_on_a_second_video(web):
     assert not np.isnan(expected).any() and not np.isnan(got).any()
     error = np.linalg.norm(got - expected, axis=-1)
     assert error.mean() < 0.1 and error.max() < 0.5
+
+
+def test_the_live_trackers_iris_gates_skip_alike(web):
+    """The page's tracker as its worker makes it (irisGate: the iris net only where an eye changed) against Python's
+    live tracker on the bundled driver, a still face: about half the iris runs kept, the same count within a few (the
+    crops are sampled by each side's own bilinear sampler), the points within a fraction of a pixel of each other."""
+    from lsr.examples import REAL_DRIVER
+
+    frames = _frames(REAL_DRIVER, 30)
+    expected = _python_run(frames, live=True)
+    got = web.call("trackFramesDetailed", ASSETS, frames, {"irisGate": True})
+    runs, skips = expected["gate"].runs, expected["gate"].skips
+    assert runs + skips == got["irisRuns"] + got["irisSkips"] == 2 * (len(frames) - 1)  # the first frame detects
+    assert 0.3 < skips / (runs + skips) < 0.8 and abs(got["irisSkips"] - skips) <= 4
+    error = np.linalg.norm(got["landmarks"] - expected["landmarks"], axis=-1)
+    assert error.mean() < 0.1 and error.max() < 0.5
+    plain = web.call("trackFramesDetailed", ASSETS, frames[:3])
+    assert plain["irisRuns"] == plain["irisSkips"] == 0  # off unless asked: videos refine every frame
 
 
 def test_mesh_to_68_matches_python_on_turned_heads(web, source_runs):

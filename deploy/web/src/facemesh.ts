@@ -1,6 +1,7 @@
 // MediaPipe's 468-point face mesh and its iris-net eye refinement around their ONNX graphs: landmarks/detect/mediapipe_mesh.py
 // (Region.to_crop, region_from_detection, region_from_mesh, predict_mesh, to_frame, eye_region, eye_crop, eye_input,
-// iris_outputs, eye_iris, refine_eyes). Meshes are (468, 3) float32 flat: x, y in frame pixels, z at the same scale.
+// iris_outputs, eye_iris, refine_eyes, lid_gap, block_change, IrisGate). Meshes are (468, 3) float32 flat: x, y in
+// frame pixels, z at the same scale.
 // The crops are sampled like cv2.warpAffine with INTER_LINEAR (bilinear, pixel centres on integers).
 
 import * as ort from "onnxruntime-web";
@@ -141,16 +142,83 @@ function outputBySize(outputs: ort.InferenceSession.OnnxValueMapType, names: rea
   throw new Error(`no output of ${size} values among ${names.join(", ")}`);
 }
 
+/** The gap between an eye contour's lids (corner, 7 lower-lid points, corner, 7 upper-lid points; (16, 2) flat):
+ * the mean distance of the middle three pairs (landmarks.detect.mediapipe_mesh.lid_gap). */
+export function lidGap(contour: ArrayLike<number>): number {
+  let total = 0;
+  for (let k = 3; k < 6; k++) {
+    total += Math.hypot(contour[2 * (k + 8)] - contour[2 * k], contour[2 * (k + 8) + 1] - contour[2 * k + 1]);
+  }
+  return total / 3;
+}
+
+const BLOCK = 8;  // the iris gate's blocks: 8 x 8 of the 64 x 64 input
+
+/** The largest mean absolute change between two iris-net inputs ((64, 64, 3) float32 flat in [0, 1]) over the
+ * BLOCK x BLOCK pixel blocks of the crop, summed in float64 (landmarks.detect.mediapipe_mesh.block_change). */
+export function blockChange(input: Float32Array, last: Float32Array): number {
+  const side = IRIS_SIZE / BLOCK, sums = new Float64Array(side * side);
+  for (let y = 0, i = 0; y < IRIS_SIZE; y++) {
+    const row = Math.floor(y / BLOCK) * side;
+    for (let x = 0; x < IRIS_SIZE; x++, i += 3) {
+      sums[row + Math.floor(x / BLOCK)] += Math.abs(input[i] - last[i]) + Math.abs(input[i + 1] - last[i + 1])
+        + Math.abs(input[i + 2] - last[i + 2]);
+    }
+  }
+  let most = 0;
+  for (const sum of sums) most = Math.max(most, sum);
+  return most / (BLOCK * BLOCK * 3);
+}
+
+/** The iris net's outputs on one eye: its 71 eye points and 5 iris points (x, y, z flat) in its 64x64 crop. */
+export interface IrisOutputs { eye: Float32Array; iris: Float32Array }
+
+/** The iris net only where an eye changed (landmarks.detect.mediapipe_mesh.IrisGate; live tracking): an
+ * eye whose input changed by less than maxChange (blockChange) and whose mesh lid gap moved by less than maxGapChange
+ * crop pixels since its last run takes that run's outputs again, at most maxSkips frames in a row. */
+export class IrisGate {
+  runs = 0;
+  skips = 0;
+  private last: ({ input: Float32Array; gap: number; outputs: IrisOutputs } | null)[] = [null, null];
+  private streak = [0, 0];
+
+  constructor(readonly maxChange = 0.02, readonly maxGapChange = 0.3, readonly maxSkips = 2) {}
+
+  /** Forget the last runs (a lost face, a new detection): every eye runs next time. */
+  reset(): void {
+    this.last = [null, null];
+    this.streak = [0, 0];
+  }
+
+  /** The last run's outputs for `eye` where they still hold for this input and lid gap, else null. */
+  kept(eye: number, input: Float32Array, gap: number): IrisOutputs | null {
+    const last = this.last[eye];
+    if (last === null || this.streak[eye] >= this.maxSkips) return null;
+    if (!(Math.abs(gap - last.gap) < this.maxGapChange)) return null;
+    if (!(blockChange(input, last.input) < this.maxChange)) return null;
+    this.streak[eye] += 1;
+    this.skips += 1;
+    return last.outputs;
+  }
+
+  /** Keep a run of the net on `eye` (its input is kept as it is: pass a copy the caller does not reuse). */
+  ran(eye: number, input: Float32Array, gap: number, outputs: IrisOutputs): void {
+    this.last[eye] = { input, gap, outputs };
+    this.streak[eye] = 0;
+    this.runs += 1;
+  }
+}
+
 /** The face-mesh and iris nets' sessions with their input buffers (landmarks.detect.mediapipe_mesh's predict_mesh and refine_eyes). */
 export class FaceMesh {
   private readonly meshInput = new Float32Array(MESH_SIZE * MESH_SIZE * 3);
-  private readonly eyeInput = new Float32Array(IRIS_SIZE * IRIS_SIZE * 3);
+  private readonly eyeBuffer = new Float32Array(IRIS_SIZE * IRIS_SIZE * 3);
 
   constructor(readonly meshSession: ort.InferenceSession, readonly irisSession: ort.InferenceSession) {}
 
   /** The face-mesh net inside a region of the image (landmarks.detect.mediapipe_mesh.predict_mesh); eyes: then refine both eyes'
-   * contours with the iris net and keep its irises. */
-  async predictMesh(image: Tensor<Uint8Array>, region: Region, eyes = true): Promise<MeshResult> {
+   * contours with the iris net and keep its irises (through `gate` where given). */
+  async predictMesh(image: Tensor<Uint8Array>, region: Region, eyes = true, gate: IrisGate | null = null): Promise<MeshResult> {
     const matrix = regionToCrop(region, MESH_SIZE);
     warpAffineInto(image, matrix, MESH_SIZE, false, false, this.meshInput);
     const session = this.meshSession;
@@ -165,32 +233,57 @@ export class FaceMesh {
     }
     const presence = sigmoid(flag[0]);
     let irises: Float64Array | null = null;
-    if (eyes) ({ mesh, irises } = await this.refineEyes(image, mesh));
+    if (eyes) ({ mesh, irises } = await this.refineEyes(image, mesh, gate));
     return { mesh, presence, region, irises };
   }
 
-  /** The iris net on one eye's square (landmarks.detect.mediapipe_mesh.eye_input + iris_outputs): its 71 eye points and 5 iris points
-   * (x, y, z flat) in its 64x64 crop (mirrored for the image-right eye). */
-  async irisOutputs(image: Tensor<Uint8Array>, region: Region, mirrored: boolean): Promise<{ eye: Float32Array; iris: Float32Array }> {
-    warpAffineInto(image, eyeCrop(region), IRIS_SIZE, true, mirrored, this.eyeInput);
+  /** The iris net's input for one eye's square (landmarks.detect.mediapipe_mesh.eye_input): (64, 64, 3) float32 flat
+   * in [0, 1] (mirrored for the image-right eye), a fresh array. */
+  eyeInput(image: Tensor<Uint8Array>, region: Region, mirrored: boolean): Float32Array {
+    warpAffineInto(image, eyeCrop(region), IRIS_SIZE, true, mirrored, this.eyeBuffer);
+    return this.eyeBuffer.slice();
+  }
+
+  /** The iris net on one eye's input (landmarks.detect.mediapipe_mesh.iris_outputs). */
+  async irisOutputs(input: Float32Array): Promise<IrisOutputs> {
     const session = this.irisSession;
-    const outputs = await session.run({ [session.inputNames[0]]: new ort.Tensor("float32", this.eyeInput.slice(), [1, IRIS_SIZE, IRIS_SIZE, 3]) });
+    const outputs = await session.run({ [session.inputNames[0]]: new ort.Tensor("float32", input, [1, IRIS_SIZE, IRIS_SIZE, 3]) });
     return { eye: outputBySize(outputs, session.outputNames, 71 * 3), iris: outputBySize(outputs, session.outputNames, 5 * 3) };
   }
 
   /** The mesh (a copy) with both eyes' 16 contour vertices (x, y) from the iris net, and the irises it found
    * (landmarks.detect.mediapipe_mesh.refine_eyes; the two eyes run one after the other here). Unchanged when the mesh is not finite
-   * or an eye's corners coincide. */
-  async refineEyes(image: Tensor<Uint8Array>, mesh: Float32Array): Promise<{ mesh: Float32Array; irises: Float64Array }> {
+   * or an eye's corners coincide. gate: an eye it keeps takes its last outputs instead of a run (IrisGate). */
+  async refineEyes(image: Tensor<Uint8Array>, mesh: Float32Array, gate: IrisGate | null = null
+                   ): Promise<{ mesh: Float32Array; irises: Float64Array }> {
     const refined = Float32Array.from(mesh);
     const irises = new Float64Array(8).fill(NaN);
-    if (!refined.every(Number.isFinite)) return { mesh: refined, irises };
-    // both regions from the unrefined mesh, as the Python takes them before it writes either eye
+    if (!refined.every(Number.isFinite)) {
+      gate?.reset();
+      return { mesh: refined, irises };
+    }
+    // both regions (and the mesh's own lid gaps) from the unrefined mesh, as the Python takes them before it writes
+    // either eye
     const regions = EYE_CONTOURS.map(({ corners }) => eyeRegion(refined, corners));
+    const gaps = EYE_CONTOURS.map(({ contour }, eye) => {
+      const m = eyeCrop(regions[eye]), own = new Float64Array(2 * contour.length);
+      contour.forEach((vertex, k) => {
+        const x = refined[3 * vertex], y = refined[3 * vertex + 1];
+        own[2 * k] = m[0] * x + m[1] * y + m[2];
+        own[2 * k + 1] = m[3] * x + m[4] * y + m[5];
+      });
+      return lidGap(own);
+    });
     for (let eye = 0; eye < EYE_CONTOURS.length; eye++) {
       const { contour, mirrored } = EYE_CONTOURS[eye], region = regions[eye];
       if (!(region.side >= 1)) continue;
-      const { eye: points, iris } = await this.irisOutputs(image, region, mirrored);
+      const input = this.eyeInput(image, region, mirrored);
+      let outputs = gate?.kept(eye, input, gaps[eye]) ?? null;
+      if (outputs === null) {
+        outputs = await this.irisOutputs(input);
+        gate?.ran(eye, input, gaps[eye], outputs);
+      }
+      const { eye: points, iris } = outputs;
       const inverse = invertAffine(eyeCrop(region));
       const unmirror = (x: number) => (mirrored ? IRIS_SIZE - x : x);
       contour.forEach((vertex, k) => {

@@ -105,7 +105,7 @@ export async function findIrises(faceMesh: FaceMesh, image: Tensor<Uint8Array>, 
     const { centre, axis, width } = eyeAxes(points, eye), mirrored = IRIS_EYES[eye][2];
     if (width < 1) continue;
     const region = { centre, side: width * EYE_ROI_SCALE, rotation: Math.atan2(axis[1], axis[0]) };
-    const { eye: eyePoints, iris } = await faceMesh.irisOutputs(image, region, mirrored);
+    const { eye: eyePoints, iris } = await faceMesh.irisOutputs(faceMesh.eyeInput(image, region, mirrored));
     irises.set(eyeIris(eyePoints, iris, invertAffine(eyeCrop(region)), mirrored), 4 * eye);
   }
   return irises;

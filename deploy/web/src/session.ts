@@ -125,7 +125,8 @@ export async function loadSite(read: Reader,
   const model = await read("models/frame_generator.onnx");
   const generator = await (makeGenerator ? makeGenerator(model, sizes, latents) : FrameGenerator.create(model, sizes));
   const assets = await loadTrackerAssets((path) => read(`models/${path}`));
-  const tracker = makeTracker ? await makeTracker(assets) : localTracker(await createTracker(assets));
+  // a live session: the iris net only where an eye changed (tracker.ts irisGate), as in the worker
+  const tracker = makeTracker ? await makeTracker(assets) : localTracker(await createTracker(assets, { irisGate: true }));
   const eyeBank = banksEyes(config) ? await readEyeBank(read) : null;
   const person: Person = {
     shots: shots as Tensor<Uint8Array>,

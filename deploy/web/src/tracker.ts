@@ -11,7 +11,7 @@ import * as ort from "onnxruntime-web";
 
 import { Detection, FaceDetector } from "./facedetect.js";
 import { folderReader } from "./files.js";
-import { FaceMesh, MESH_POINTS, MeshResult, regionFromDetection, regionFromMesh } from "./facemesh.js";
+import { FaceMesh, IrisGate, MESH_POINTS, MeshResult, regionFromDetection, regionFromMesh } from "./facemesh.js";
 import { fusePRelu } from "./prelu.js";
 import { Tensor, tensor } from "./tensor.js";
 
@@ -187,6 +187,7 @@ export interface TrackerOptions {
   faceIndex?: number; // which face, largest first (0)
   maxScaleChange?: number; // 0.3
   maxShift?: number; // 0.4
+  irisGate?: boolean; // rerun the iris net on an eye only where it changed (facemesh.ts IrisGate): live tracking
 }
 
 /** One face's mesh and 68 points through frames (landmarks.detect.mediapipe_tracker.MeshTracker with its MeshDetector): the mesh
@@ -198,6 +199,7 @@ export class MeshTracker {
   lastBox: number[] | null = null; // kept across losses: prefer the same face afterwards
   detections = 0;
   readonly minPresence: number; readonly faceIndex: number; readonly maxScaleChange: number; readonly maxShift: number;
+  readonly gate: IrisGate | null;  // options.irisGate: the iris net only where an eye changed
 
   constructor(readonly detector: FaceDetector, readonly faceMesh: FaceMesh, readonly mapping: Mesh68Mapping,
               options: TrackerOptions = {}) {
@@ -205,11 +207,13 @@ export class MeshTracker {
     this.faceIndex = options.faceIndex ?? 0;
     this.maxScaleChange = options.maxScaleChange ?? 0.3;
     this.maxShift = options.maxShift ?? 0.4;
+    this.gate = options.irisGate ? new IrisGate() : null;
   }
 
   /** Forget the face: the next frame starts with a full detection. */
   reset(): void {
     this.mesh = null; this.irises = null; this.lastBox = null; this.detections = 0;
+    this.gate?.reset();
   }
 
   /** Mesh from a detection's region, then once more from the mesh's own region (landmarks.detect.mediapipe_tracker._refined). */
@@ -255,10 +259,13 @@ export class MeshTracker {
     }
     let kept: MeshResult | null = null;
     if (this.mesh !== null) {
-      const result = await this.faceMesh.predictMesh(frame, regionFromMesh(this.mesh));
+      const result = await this.faceMesh.predictMesh(frame, regionFromMesh(this.mesh), true, this.gate);
       if (result.presence >= this.minPresence && this.plausible(result.mesh, this.mesh)) kept = result;
     }
-    if (kept === null) kept = await this.detect(frame);
+    if (kept === null) {
+      this.gate?.reset();
+      kept = await this.detect(frame);
+    }
     this.mesh = kept === null ? null : kept.mesh;
     this.irises = kept === null ? null : kept.irises;
     if (this.mesh === null) return null;
@@ -296,9 +303,10 @@ export async function readTrackerAssets(folder: string): Promise<TrackerAssets> 
 }
 
 /** What trackFramesDetailed gives: (T, 68, 2) points, (T, 468, 3) meshes, (T, 2, 4) irises (NaN where no face), the
- * full detections run and each frame's update time in ms. */
+ * full detections run, each frame's update time in ms, and with the iris gate its runs and skips of the iris net. */
 export interface TrackRun {
   landmarks: Tensor<Float64Array>; meshes: Tensor<Float32Array>; irises: Tensor<Float64Array>; detections: number; ms: Float64Array;
+  irisRuns: number; irisSkips: number;
 }
 
 /** Node: track (T, H, W, 3) uint8 frames from a fresh start (landmarks.detect.dlib_tracker.FrameTracker.track_frames) with the
@@ -324,6 +332,7 @@ export async function trackFramesDetailed(assetsFolder: string, frames: Tensor<U
   return {
     landmarks: tensor(landmarks, [count, NUM_LANDMARKS, 2]), meshes: tensor(meshes, [count, MESH_POINTS, 3]),
     irises: tensor(irises, [count, 2, 4]), detections: tracker.detections, ms,
+    irisRuns: tracker.gate?.runs ?? 0, irisSkips: tracker.gate?.skips ?? 0,
   };
 }
 

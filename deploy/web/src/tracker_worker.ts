@@ -30,7 +30,7 @@ self.onmessage = async (event: MessageEvent) => {
     if (message.assets) {
       ort.env.wasm.wasmPaths = message.wasmPaths;
       ort.env.wasm.numThreads = 1;  // small nets: one thread each, beside the frame generator's
-      tracker = await createTracker(message.assets as TrackerAssets);
+      tracker = await createTracker(message.assets as TrackerAssets, { irisGate: true });  // a camera stream
       self.postMessage({ ready: true });
       return;
     }

@@ -302,3 +302,56 @@ def test_refined_lids_read_more_of_a_lid_that_moved(astronaut, mesh_detector):
             read.append((lid_gaps(found) - gaps).mean() / (lid_gaps(target) - gaps).mean())
         shares[eyes] = float(np.mean(read))
     assert 0.0 < shares[False] < shares[True] - 0.05, shares
+
+
+def test_block_change_sees_one_block_that_the_crops_mean_barely_moves():
+    """A dark iris moving through one 8 x 8 block changes that block's mean by its own contrast, while the whole
+    crop's mean moves 64 times less."""
+    rng = np.random.default_rng(0)
+    last = rng.uniform(0.3, 0.7, (1, 64, 64, 3)).astype(np.float32)
+    moved = last.copy()
+    moved[0, 24:32, 40:48] -= 0.2
+    assert face_mesh.block_change(last, last) == 0.0
+    assert face_mesh.block_change(moved, last) == pytest.approx(0.2, abs=1e-6)
+    assert np.abs(moved - last).mean() == pytest.approx(0.2 / 64, abs=1e-6)
+
+
+def test_the_iris_gate_keeps_an_unchanged_eye_at_most_twice_in_a_row():
+    """An eye keeps its last outputs while its input and lid gap hold, never more than ``max_skips`` frames in a
+    row; a changed block, a moved lid or a reset runs the net again."""
+    gate = face_mesh.IrisGate()
+    tensor = np.full((1, 64, 64, 3), 0.5, np.float32)
+    outputs = (np.zeros((71, 3), np.float32), np.ones((5, 3), np.float32))
+    assert gate.kept(0, tensor, 3.0) is None  # never run
+    gate.ran(0, tensor, 3.0, outputs)
+    assert gate.kept(1, tensor, 3.0) is None  # the other eye has its own runs
+    assert gate.kept(0, tensor + 0.01, 3.2) is outputs and gate.kept(0, tensor, 3.0) is outputs
+    assert gate.kept(0, tensor, 3.0) is None  # two in a row: the third runs
+    gate.ran(0, tensor, 3.0, outputs)
+    changed = tensor.copy()
+    changed[0, :8, :8] += 0.03
+    assert gate.kept(0, changed, 3.0) is None
+    assert gate.kept(0, tensor, 3.31) is None  # the mesh's lids moved by more than 0.3 crop pixels
+    gate.reset()
+    assert gate.kept(0, tensor, 3.0) is None
+    assert (gate.runs, gate.skips) == (2, 2)
+
+
+def test_a_live_tracker_skips_the_iris_net_on_a_still_face_and_reruns_it_after_a_loss(astronaut):
+    """``make_tracker(live=True)``: on a still face the iris net reruns every third frame, the points within a
+    fifth of a pixel of refining every frame (the kept outputs are placed by each frame's own eye squares, which
+    the tracker's region moves a little); a face-less frame forgets the last runs, so the face found after it runs
+    both eyes."""
+    frames = [astronaut] * 7
+    frames[4] = np.zeros_like(astronaut)
+    live, every = make_tracker(live=True), make_tracker()
+    assert isinstance(live, MeshTracker) and live.gate is not None and every.gate is None
+    for index, frame in enumerate(frames):
+        points, reference = live.update(frame), every.update(frame)
+        if index == 4:
+            assert points is None and live.gate.last == [None, None]
+            continue
+        assert np.abs(points - reference).max() < 0.2
+    # frame 0 detects (no gate), 1 runs both eyes, 2-3 keep them; on 4 the region of the last mesh is tried (a
+    # changed crop: both run) and the face is lost; 5 detects afresh, 6 runs both eyes
+    assert (live.gate.runs, live.gate.skips) == (6, 4)

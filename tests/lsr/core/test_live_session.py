@@ -54,6 +54,8 @@ def test_a_stream_drives_its_own_subject_into_its_scene_and_survives_a_lost_face
     assert session.reference.landmarks is None
     assert session.step(camera[3]).face and session.reference.landmarks is not None
     assert (session.frames, session.faces) == (9, 8)
+    # a camera stream: the mesh tracker reruns the iris net only on an eye that changed
+    assert session.tracker.gate is not None and session.tracker.gate.runs > 0
 
 
 def test_the_face_crop_instead_of_the_scene(reenactor, tmp_path):
