@@ -168,7 +168,8 @@ def test_a_track_chooses_the_entries_python_chooses(web, python_bank, made_up, r
 
 def test_the_eyes_are_laid_in_as_python_lays_them(web, python_bank, made_up):
     """At the track's choices (a cross-fade, one eye, irises moved to the gaze, openings stretched), on the source's
-    anchor crop: within 2 grey levels (bicubic and the Gaussian feather in float32, as eyes.ts's are)."""
+    anchor crop: within 2 grey levels (bicubic and the Gaussian feather in float32, as eyes.ts's are); the same bytes
+    with the remap in WebAssembly and in JavaScript."""
     image, anchor, targets, gazes = made_up
     expected_choices, _ = _python_choices(python_bank, anchor, targets, gazes)
     frames = [frame for frame, choice in enumerate(expected_choices) if choice is not None]
@@ -182,8 +183,11 @@ def test_the_eyes_are_laid_in_as_python_lays_them(web, python_bank, made_up):
                 "eyes": list(choice.eyes), "apertures": list(choice.apertures), "gazes": list(choice.gazes),
                 "shut": list(choice.shut), "bank": None}
 
-    got = web.calls(*[("pasteBankEyes", [image, targets[frame], bank, wire(expected_choices[frame])])
-                      for frame in picked])
+    calls = [("pasteBankEyes", [image, targets[frame], bank, wire(expected_choices[frame])]) for frame in picked]
+    results = web.calls(("useWebAssembly", [False]), *calls, ("useWebAssembly", [True]), *calls)
+    javascript, got = results[1:1 + len(calls)], results[2 + len(calls):]
+    for first, second in zip(javascript, got):  # the bank's eyes remapped in WebAssembly: the JavaScript's bytes
+        np.testing.assert_array_equal(second, first)
     scores = []
     for frame, pasted in zip(picked, got):
         expected = paste_bank_eyes(image, targets[frame], python_bank, expected_choices[frame])

@@ -32,6 +32,7 @@ import { checkLandmarks, matchLight } from "./interior.js";
 import { shiftIris } from "./iris_warp.js";
 import { estimateHeadPose } from "./pose.js";
 import { gaussianBlurF32, openCvInverse, remapCubic, roundHalfEven, warpAffineLinear } from "./remap.js";
+import { CubicSources } from "./remap_wasm.js";
 import { closedGap, driverShare, finite, flat, interOcularDistance, lidGaps } from "./retarget.js";
 import { Affine, Tensor, percentile, tensor } from "./tensor.js";
 
@@ -411,8 +412,15 @@ export function placedEye(bank: EyeBank, entry: number, eye: number, points: Flo
   }
   const [pw, ph] = BANK_PATCH, size = ph * pw * 3, at = (2 * entry + eye) * size;
   const patch = { data: bank.patches.data.subarray(at, at + size), width: pw, height: ph, channels: 3 };
-  return Float32Array.from(remapCubic(patch, mapX, mapY, "replicate"));
+  // in remap_wasm.ts's kernel where it runs (the same bytes): one instance, the patch loaded into it each time
+  const out = new Uint8Array(h * w * 3);
+  patchSources = CubicSources.reload(patchSources, patch.data, 1, pw, ph);
+  if (patchSources) patchSources.remap(0, mapX, mapY, "replicate", out);
+  else remapCubic(patch, mapX, mapY, "replicate", out);
+  return Float32Array.from(out);
 }
+
+let patchSources: CubicSources | null = null;  // placedEye's bank patch in WebAssembly memory
 
 /** `image` (S, S, 3) uint8, the synthesis for the target's (68, 2) points (its pixels), with the chosen bank eyes laid
  * over its own (paste_bank_eyes): `image` itself when there is no choice or the points are not finite, else a new
