@@ -244,10 +244,11 @@ export class FaceMesh {
     return this.eyeBuffer.slice();
   }
 
-  /** The iris net on one eye's input (landmarks.detect.mediapipe_mesh.iris_outputs). */
+  /** The iris net on one eye's input (landmarks.detect.mediapipe_mesh.iris_outputs); `input` stays the caller's (the
+   * net gets a copy: onnxruntime's proxy worker takes over what it is given). */
   async irisOutputs(input: Float32Array): Promise<IrisOutputs> {
-    const session = this.irisSession;
-    const outputs = await session.run({ [session.inputNames[0]]: new ort.Tensor("float32", input, [1, IRIS_SIZE, IRIS_SIZE, 3]) });
+    const session = this.irisSession, copy = input.slice();
+    const outputs = await session.run({ [session.inputNames[0]]: new ort.Tensor("float32", copy, [1, IRIS_SIZE, IRIS_SIZE, 3]) });
     return { eye: outputBySize(outputs, session.outputNames, 71 * 3), iris: outputBySize(outputs, session.outputNames, 5 * 3) };
   }
 

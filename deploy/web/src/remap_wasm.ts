@@ -29,7 +29,7 @@ function remapFunction(): Func {
   const params = [I32, I32, I32, I32, I32, I32, I32, I32, I32, I32];
   const [src, width, height, mapX, mapY, dst, count, only, replicate, listed] = params.map((_, k) => k);
   let next = params.length;
-  const take = (count: number) => Array.from({ length: count }, () => next++);
+  const take = (size: number) => Array.from({ length: size }, () => next++);
   const [i, n, ix, iy, row, rowBytes, c0, c1, c2, c3, r0, r1, r2, r3] = take(14);  // i32
   const [x, y, xEnd, yEnd] = take(4);  // f32
   // v128: the fractions (x, y) in lanes 0 and 1, the four weights of x and of y side by side, each weight of x and of
