@@ -85,3 +85,16 @@ def test_a_frame_that_fails_leaves_the_generator_drawing(web, site):
     got = web.call("generatorAfterABadFrame", str(site.folder))
     assert got["message"] == "the references must be (5, 256, 256, 3) and their masks (5, 256, 256)"
     assert got["drawn"] == 0  # the same frame twice, drawn each time
+
+
+def test_the_references_go_in_as_the_network_takes_them(web, rng):
+    """The warped references unpacked in the composite's module (four pixels at a time, v / 127.5 - 1 in float32)
+    are lsr.core.images.to_network's values exactly, every byte value among them."""
+    from lsr.core.images import to_network
+
+    references = rng.integers(0, 256, (5, 64, 64, 3), dtype=np.uint8)
+    references.reshape(-1)[:256] = np.arange(256)
+    got = web.call("loadedReferences", references, 16, 2.0)
+    expected = np.stack([to_network(picture) for picture in references])
+    assert got.dtype == np.float32 and got.shape == expected.shape == (5, 3, 64, 64)
+    np.testing.assert_array_equal(got, expected)

@@ -134,6 +134,37 @@ function poolFunction(): Func {
   });
 }
 
+/** unpack(src, count, pixels, dst): `count` pictures of `pixels` (a multiple of 4) uint8 RGB pixels each -> their
+ * (count, 3, pixels) float32 planes in [-1, 1], each value v / 127.5 - 1 in float32 (network.ts toNetwork's,
+ * lsr.core.images.to_network's), four pixels at a time (a load may read up to 4 bytes past the last picture). */
+function unpackFunction(): Func {
+  const [src, count, pixels, dst] = [0, 1, 2, 3];
+  const [picture, k, from, into, planeBytes] = [4, 5, 6, 7, 8];
+  const [BYTES] = [9];
+  const ZERO = 16;  // a lane of the all-zero second operand
+  return func([I32, I32, I32, I32], [], [[5, I32], [1, V128]], (emit) => {
+    const t = tools(emit);
+    t.get(pixels); t.i32(2); emit(op.i32Shl); t.set(planeBytes);
+    t.get(src); t.set(from); t.get(dst); t.set(into);
+    t.loop(picture, count, 1, () => {
+      t.loop(k, pixels, 4, () => {
+        t.get(from); t.load(); t.set(BYTES);
+        [0, 1, 2].forEach((channel) => {  // the channel's four bytes widened to int32 lanes, then to [-1, 1]
+          t.get(into);
+          if (channel > 0) { t.get(planeBytes); if (channel > 1) { t.i32(2); emit(op.i32Mul); } emit(op.i32Add); }
+          t.get(BYTES); emit(simd(V.const), Array(16).fill(0));
+          emit(simd(V.shuffle), [0, 1, 2, 3].flatMap((p) => [3 * p + channel, ZERO, ZERO, ZERO]));
+          t.v(V.f32x4ConvertI32x4S); t.splat(127.5); t.v(V.f32x4Div); t.splat(1); t.v(V.f32x4Sub);
+          t.store();
+        });
+        t.increment(from, 12);
+        t.increment(into, 16);
+      });
+      t.increment(into, () => { t.get(planeBytes); t.i32(2); emit(op.i32Mul); });  // past the G and B planes
+    });
+  });
+}
+
 /** hblur(src, dst, rows, cols, radius, weights, pad): each of `rows` rows of `cols` float32 (a multiple of 4)
  * convolved with the 2 radius + 1 `weights` (float32), its edges reflected without repeating the edge pixel (torch's
  * "reflect" padding): the row is copied padded into `pad`, then summed tap by tap, four outputs at a time. */
@@ -348,6 +379,7 @@ let compiled: WebAssembly.Module | null | undefined;
 function module(): WebAssembly.Module | null {
   if (compiled === undefined) {
     compiled = compileModule([["hlerp", hlerpFunction()], ["vlerp", vlerpFunction()], ["pool2", poolFunction()],
+                              ["unpack", unpackFunction()],
                               ["hblur", hblurFunction()], ["vblur", vblurFunction()],
                               ...([1, 3, 5] as const).flatMap((n) => [[`blend${n}`, blendFunction(n, INVALID_LOGIT_PENALTY)],
                                                                      [`detail${n}`, detailFunction(n)]] as [string, Func][])]);
@@ -400,7 +432,7 @@ export class PageComposite {
     this.blurRadius = (taps.length - 1) / 2;
     let end = 0;
     const take = (name: string, floats: number) => { this.at[name] = end; end += Math.ceil(floats / 4) * 16; };
-    take("refs", 3 * n * big); take("masks", n * big); take("network", (n + 4) * small); take("up", (n + 4) * big);
+    take("refs", 3 * n * big); take("bytes", (3 * n * big + 16) / 4); take("masks", n * big); take("network", (n + 4) * small); take("up", (n + 4) * big);
     take("rows", Math.max((n + 4) * resolution * crop, 3 * n * half * crop, 3 * n * quarter));
     take("half", 3 * n * quarter); take("small", 4 * n * small); take("blurred", 3 * n * quarter);
     take("lows", 3 * n * big);
@@ -429,6 +461,18 @@ export class PageComposite {
     } catch {
       return null;
     }
+  }
+
+  /** The N warped references (N, C, C, 3) uint8 and their masks (N, C, C) in: the references as `inputs()` holds
+   * them, each value network.ts toNetwork's float32 (unpacked in the module, four pixels at a time). */
+  loadReferences(references: Uint8Array, masks: ArrayLike<number>): void {
+    const n = this.references, big = this.crop * this.crop;
+    if (references.length !== 3 * n * big || masks.length !== n * big) {
+      throw new Error(`the references must be (${n}, ${this.crop}, ${this.crop}, 3) and their masks (${n}, ${this.crop}, ${this.crop})`);
+    }
+    new Uint8Array(this.memory.buffer, this.at.bytes, references.length).set(references);
+    this.exports.unpack(this.at.bytes, n, big, this.at.refs);
+    new Float32Array(this.memory.buffer, this.at.masks, n * big).set(masks);
   }
 
   /** Where the N references (N, 3, C, C) float32 in [-1, 1] and their masks (N, C, C) go before `compose`. */
@@ -496,4 +540,14 @@ export function composeReferences(references: Tensor, masks: Tensor, network: Te
   inputs.references.set(references.data);
   inputs.masks.set(masks.data);
   return tensor(composite.compose(Float32Array.from(network.data)).slice(), [3, c, c]);
+}
+
+/** Node, for the tests: warped references (N, C, C, 3) uint8 as the page's composite takes them in (loadReferences)
+ * -> (N, 3, C, C) float32 (null where the composite cannot run here; `resolution` and `sigma` as a site's). */
+export function loadedReferences(references: Tensor<Uint8Array>, resolution: number, sigma: number): Tensor<Float32Array> | null {
+  const [n, c] = references.shape;
+  const composite = PageComposite.create(n, c, resolution, sigma);
+  if (composite === null) return null;
+  composite.loadReferences(references.data, new Float32Array(n * c * c).fill(1));
+  return tensor(composite.inputs().references.slice(), [n, 3, c, c]);
 }

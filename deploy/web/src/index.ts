@@ -30,4 +30,4 @@ export * from "./backend.js";
 export { useWebAssembly } from "./wasm.js";
 export { remapImage, remapsInWasm } from "./remap_wasm.js";
 export { splinesInWasm } from "./tps_wasm.js";
-export { composeReferences, composesInWasm } from "./blend_wasm.js";
+export { composeReferences, composesInWasm, loadedReferences } from "./blend_wasm.js";

@@ -29,8 +29,9 @@ export const AGREEMENT = 3;
 
 export interface Latents { layout: Float32Array; style: Float32Array }
 
-/** Each uint8 value's float32 in [-1, 1], v / 127.5 - 1 (as to_network computes it, then rounded to float32). */
-const NETWORK_VALUES = Float32Array.from({ length: 256 }, (_, v) => v / 127.5 - 1);
+/** Each uint8 value's float32 in [-1, 1] as lsr.core.images.to_network computes it in float32: v / 127.5, then - 1,
+ * each rounded to float32. */
+const NETWORK_VALUES = Float32Array.from({ length: 256 }, (_, v) => Math.fround(v / 127.5) - 1);
 
 /** (..., H, W, 3) uint8 pictures -> (..., 3, H, W) float32 in [-1, 1] (lsr.core.images.to_network), into `out`. */
 export function toNetwork(images: ArrayLike<number>, count: number, side: number,
@@ -180,9 +181,7 @@ export class FrameGenerator {
       throw new Error(`the references must be (${n}, ${c}, ${c}, 3) and their masks (${n}, ${c}, ${c})`);
     }
     if (composite) {  // the references into the composite's memory; the network takes them pooled to its side
-      const inputs = composite.inputs();
-      toNetwork(references.data as Uint8Array, n, c, inputs.references as Float32Array<ArrayBuffer>);
-      inputs.masks.set(masks.data as ArrayLike<number>);
+      composite.loadReferences(references.data as Uint8Array, masks.data as ArrayLike<number>);
       const pooled = composite.pooled();
       feed.references = new OrtTensor("float32", pooled.references as Float32Array<ArrayBuffer>, [1, n, 3, s, s]);
       feed.reference_masks = new OrtTensor("float32", pooled.masks as Float32Array<ArrayBuffer>, [1, n, 1, s, s]);

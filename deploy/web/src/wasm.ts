@@ -66,9 +66,11 @@ export const V = {
   load: 0x00, load64Splat: 0x0a, store: 0x0b, const: 0x0c, shuffle: 0x0d, f32x4Splat: 0x13, f64x2Splat: 0x14,
   f32x4Extract: 0x1f, f32x4Replace: 0x20, f64x2Replace: 0x22, f32x4Le: 0x45, f32x4Ge: 0x46, and: 0x4e,
   load32Lane: 0x56, store8Lane: 0x58, store16Lane: 0x59, store64Lane: 0x5b, load32Zero: 0x5c, load64Zero: 0x5d,
-  f32x4DemoteF64x2Zero: 0x5e, f64x2Promote: 0x5f, i8x16NarrowI16x8U: 0x66, i16x8NarrowI32x4S: 0x85, load32Splat: 0x09, i32x4Splat: 0x11, f32x4Nearest: 0x6a, i32x4Shl: 0xab, i32x4Add: 0xae,
+  f32x4DemoteF64x2Zero: 0x5e, f64x2Promote: 0x5f, i8x16NarrowI16x8U: 0x66, i16x8NarrowI32x4S: 0x85,
+  load32Splat: 0x09, i32x4Splat: 0x11, f32x4Nearest: 0x6a, i32x4Shl: 0xab, i32x4Add: 0xae,
   f32x4Add: 0xe4, f32x4Sub: 0xe5, f32x4Mul: 0xe6, f32x4Div: 0xe7, f32x4Min: 0xe8, f32x4Max: 0xe9,
-  i32x4TruncSatF32x4S: 0xf8, f64x2Add: 0xf0, f64x2Sub: 0xf1, f64x2Mul: 0xf2, f64x2Pmin: 0xf6, f64x2Pmax: 0xf7,
+  i32x4TruncSatF32x4S: 0xf8, f32x4ConvertI32x4S: 0xfa, f64x2Add: 0xf0, f64x2Sub: 0xf1, f64x2Mul: 0xf2,
+  f64x2Pmin: 0xf6, f64x2Pmax: 0xf7,
 };
 
 /** One function's code: `params` then `locals` ([count, type] groups) numbered from 0, its `results`; `build` emits
