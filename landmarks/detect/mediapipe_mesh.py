@@ -362,6 +362,12 @@ def iris_outputs(tensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             next(out for out in outputs if out.size == 5 * 3).reshape(5, 3))
 
 
+def lid_gap(contour: np.ndarray) -> float:
+    """The gap between an eye contour's lids (corner, 7 lower-lid points, corner, 7 upper-lid points): the mean
+    distance of the middle three pairs, in the contour's units."""
+    return float(np.mean(np.linalg.norm(contour[11:14, :2] - contour[3:6, :2], axis=1)))
+
+
 def eye_iris(eye_points: np.ndarray, iris: np.ndarray, region: Region, mirrored: bool) -> np.ndarray:
     """``iris_outputs`` of one eye's square -> (4,) float64 [x, y, radius, aperture]: the iris centre and radius in
     frame pixels, and the lid gap of the net's own contour (corner, 7 lower-lid points, corner, 7 upper-lid points:
@@ -372,14 +378,8 @@ def eye_iris(eye_points: np.ndarray, iris: np.ndarray, region: Region, mirrored:
         contour[:, 0] = IRIS_SIZE - contour[:, 0]
     iris = to_frame(iris - 0.5, eye_crop(region))
     radius = float(np.mean(np.linalg.norm(iris[1:] - iris[0], axis=1)))
-    gap = float(np.mean(np.linalg.norm(contour[11:14] - contour[3:6], axis=1))) / IRIS_SIZE * EYE_ROI_SCALE
+    gap = lid_gap(contour) / IRIS_SIZE * EYE_ROI_SCALE
     return np.array([iris[0, 0], iris[0, 1], radius, gap])
-
-
-def lid_gap(contour: np.ndarray) -> float:
-    """The gap between an eye contour's lids (corner, 7 lower-lid points, corner, 7 upper-lid points): the mean
-    distance of the middle three pairs, in the contour's units."""
-    return float(np.mean(np.linalg.norm(contour[11:14, :2] - contour[3:6, :2], axis=1)))
 
 
 BLOCK = 8  # the iris gate's blocks: 8 x 8 of the 64 x 64 input
@@ -453,16 +453,17 @@ def refine_eyes(image: np.ndarray, mesh: np.ndarray, gate: IrisGate | None = Non
     for eye, (corners, contour, mirrored) in enumerate(EYE_CONTOURS):  # the corners are not the other eye's
         region = eye_region(refined, corners)
         if region.side >= 1.0:
-            tensor, crop = eye_input(image, region, mirrored), eye_crop(region)
-            gap = lid_gap(refined[list(contour), :2].astype(np.float64) @ crop[:, :2].T + crop[:, 2])
-            kept = None if gate is None else gate.kept(eye, tensor, gap)
-            eyes.append((eye, region, contour, mirrored, tensor, gap, kept))
-    runs = [entry for entry in eyes if entry[6] is None]
-    second = eye_thread().submit(iris_outputs, runs[1][4]) if len(runs) > 1 else None
-    outputs = {runs[0][0]: iris_outputs(runs[0][4])} if runs else {}
+            tensor, crop, gap, kept = eye_input(image, region, mirrored), eye_crop(region), 0.0, None
+            if gate is not None:  # the mesh's own lid gap in crop pixels, against the last run's
+                gap = lid_gap(refined[list(contour), :2].astype(np.float64) @ crop[:, :2].T + crop[:, 2])
+                kept = gate.kept(eye, tensor, gap)
+            eyes.append((eye, region, crop, contour, mirrored, tensor, gap, kept))
+    runs = [entry for entry in eyes if entry[-1] is None]
+    second = eye_thread().submit(iris_outputs, runs[1][5]) if len(runs) > 1 else None
+    outputs = {runs[0][0]: iris_outputs(runs[0][5])} if runs else {}
     if second is not None:
         outputs[runs[1][0]] = second.result()
-    for eye, region, contour, mirrored, tensor, gap, kept in eyes:
+    for eye, region, crop, contour, mirrored, tensor, gap, kept in eyes:
         eye_points, iris = kept if kept is not None else outputs[eye]
         if gate is not None and kept is None:
             gate.ran(eye, tensor, gap, (eye_points, iris))
@@ -470,7 +471,7 @@ def refine_eyes(image: np.ndarray, mesh: np.ndarray, gate: IrisGate | None = Non
         if mirrored:
             points[:, 0] = IRIS_SIZE - points[:, 0]
         points -= 0.5  # the net's pixels span [0, 64] (MediaPipe's normalised points); OpenCV's centres are integers
-        refined[list(contour), :2] = to_frame(points, eye_crop(region))
+        refined[list(contour), :2] = to_frame(points, crop)
         irises[eye] = eye_iris(eye_points, iris, region, mirrored)
     return refined, irises
 

@@ -17,7 +17,7 @@
 //   small motions' gain undone (retarget.ts driverShare);
 // * the paste: each chosen eye mapped onto the target's corners, its opening stretched toward the target's by at
 //   most STRETCH (its lids alone: lidStretch), its iris moved along the eye to the target's gaze (iris_warp.ts
-//   shiftIris), bicubic (remap.ts remapCubic), lit as the skin around it (interior.ts matchLight, skin on skin) and
+//   shiftIris), bicubic (remap_wasm.ts remapImage), lit as the skin around it (interior.ts matchLight, skin on skin) and
 //   laid in under the feathered ellipse of eyes.ts (its FEATHER and RING, this module's REGION).
 //
 // The module's CANON_WIDTH, PATCH, SCALES, STRETCH, NEAREST, LID_BAND and REGION are BANK_CANON_WIDTH, ... here.
@@ -31,8 +31,8 @@ import { EntryTrack } from "./hysteresis.js";
 import { checkLandmarks, matchLight } from "./interior.js";
 import { shiftIris } from "./iris_warp.js";
 import { estimateHeadPose } from "./pose.js";
-import { gaussianBlurF32, openCvInverse, remapCubic, roundHalfEven, warpAffineLinear } from "./remap.js";
-import { CubicSources } from "./remap_wasm.js";
+import { gaussianBlurF32, openCvInverse, roundHalfEven, warpAffineLinear } from "./remap.js";
+import { remapImage } from "./remap_wasm.js";
 import { closedGap, driverShare, finite, flat, interOcularDistance, lidGaps } from "./retarget.js";
 import { Affine, Tensor, percentile, tensor } from "./tensor.js";
 
@@ -411,16 +411,9 @@ export function placedEye(bank: EyeBank, entry: number, eye: number, points: Flo
     shiftIris({ mapX: tensor(mapX, [h, w]), mapY: tensor(mapY, [h, w]) }, tensor(points, [68, 2]), eye, start, gaze);
   }
   const [pw, ph] = BANK_PATCH, size = ph * pw * 3, at = (2 * entry + eye) * size;
-  const patch = { data: bank.patches.data.subarray(at, at + size), width: pw, height: ph, channels: 3 };
-  // in remap_wasm.ts's kernel where it runs (the same bytes): one instance, the patch loaded into it each time
-  const out = new Uint8Array(h * w * 3);
-  patchSources = CubicSources.reload(patchSources, patch.data, 1, pw, ph);
-  if (patchSources) patchSources.remap(0, mapX, mapY, "replicate", out);
-  else remapCubic(patch, mapX, mapY, "replicate", out);
-  return Float32Array.from(out);
+  const patch = tensor(bank.patches.data.subarray(at, at + size), [ph, pw, 3]);
+  return Float32Array.from(remapImage(patch, tensor(mapX, [h, w]), tensor(mapY, [h, w]), "replicate").data);
 }
-
-let patchSources: CubicSources | null = null;  // placedEye's bank patch in WebAssembly memory
 
 /** `image` (S, S, 3) uint8, the synthesis for the target's (68, 2) points (its pixels), with the chosen bank eyes laid
  * over its own (paste_bank_eyes): `image` itself when there is no choice or the points are not finite, else a new

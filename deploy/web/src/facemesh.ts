@@ -142,12 +142,13 @@ function outputBySize(outputs: ort.InferenceSession.OnnxValueMapType, names: rea
   throw new Error(`no output of ${size} values among ${names.join(", ")}`);
 }
 
-/** The gap between an eye contour's lids (corner, 7 lower-lid points, corner, 7 upper-lid points; (16, 2) flat):
- * the mean distance of the middle three pairs (landmarks.detect.mediapipe_mesh.lid_gap). */
-export function lidGap(contour: ArrayLike<number>): number {
+/** The gap between an eye contour's lids (corner, 7 lower-lid points, corner, 7 upper-lid points; (16, stride) flat,
+ * x and y first in each row): the mean distance of the middle three pairs (landmarks.detect.mediapipe_mesh.lid_gap). */
+export function lidGap(contour: ArrayLike<number>, stride = 2): number {
   let total = 0;
   for (let k = 3; k < 6; k++) {
-    total += Math.hypot(contour[2 * (k + 8)] - contour[2 * k], contour[2 * (k + 8) + 1] - contour[2 * k + 1]);
+    const lower = stride * k, upper = stride * (k + 8);
+    total += Math.hypot(contour[upper] - contour[lower], contour[upper + 1] - contour[lower + 1]);
   }
   return total / 3;
 }
@@ -266,7 +267,7 @@ export class FaceMesh {
     // both regions (and the mesh's own lid gaps) from the unrefined mesh, as the Python takes them before it writes
     // either eye
     const regions = EYE_CONTOURS.map(({ corners }) => eyeRegion(refined, corners));
-    const gaps = EYE_CONTOURS.map(({ contour }, eye) => {
+    const gaps = gate === null ? [0, 0] : EYE_CONTOURS.map(({ contour }, eye) => {
       const m = eyeCrop(regions[eye]), own = new Float64Array(2 * contour.length);
       contour.forEach((vertex, k) => {
         const x = refined[3 * vertex], y = refined[3 * vertex + 1];
@@ -308,9 +309,5 @@ export function eyeIris(points: Float32Array, iris: Float32Array, inverse: Affin
   }
   let radius = 0;
   for (let k = 1; k < 5; k++) radius += Math.hypot(frame[k][0] - frame[0][0], frame[k][1] - frame[0][1]);
-  let gap = 0;
-  for (let k = 0; k < 3; k++) {
-    gap += Math.hypot(points[3 * (11 + k)] - points[3 * (3 + k)], points[3 * (11 + k) + 1] - points[3 * (3 + k) + 1]);
-  }
-  return [frame[0][0], frame[0][1], radius / 4, (gap / 3 / IRIS_SIZE) * EYE_ROI_SCALE];
+  return [frame[0][0], frame[0][1], radius / 4, (lidGap(points, 3) / IRIS_SIZE) * EYE_ROI_SCALE];
 }

@@ -245,15 +245,19 @@ export function remapsInWasm(): boolean {
   return webAssemblyWanted() && module() !== null;
 }
 
+let imageSources: CubicSources | null = null;  // remapImage's: one instance, the image loaded into it each call
+
 /** remapCubic of one (H, W, 3) uint8 image through float32 maps of one shape: in WebAssembly where the kernels run
- * (remapsInWasm), else in remap.ts; the same bytes either way -> (...the maps' shape, 3). */
+ * (remapsInWasm; one instance kept, the image loaded into it each call), else in remap.ts; the same bytes either way
+ * -> (...the maps' shape, 3). */
 export function remapImage(image: Tensor<Uint8Array>, mapX: Tensor<Float32Array>, mapY: Tensor<Float32Array>,
                            border: BorderMode): Tensor<Uint8Array> {
   const [height, width, channels] = image.shape;
   if (image.shape.length !== 3 || channels !== 3) throw new Error(`the image must be (H, W, 3), got [${image.shape}]`);
   if (mapY.data.length !== mapX.data.length) throw new Error("mapX and mapY must be of one shape");
-  const out = new Uint8Array(mapX.data.length * 3), sources = CubicSources.create(image.data, 1, width, height);
-  if (sources) sources.remap(0, mapX.data, mapY.data, border, out);
+  const out = new Uint8Array(mapX.data.length * 3);
+  imageSources = CubicSources.reload(imageSources, image.data, 1, width, height);
+  if (imageSources) imageSources.remap(0, mapX.data, mapY.data, border, out);
   else remapCubic({ data: image.data, width, height, channels: 3 }, mapX.data, mapY.data, border, out);
   return tensor(out, [...mapX.shape, 3]);
 }
