@@ -226,8 +226,10 @@ async function main(): Promise<void> {
     if (result.face) stats.faces += 1;
     stats.grabbed.push(grabbed); stats.shown.push(shown); stats.latency.push(shown - grabbed); stats.ms.push(result.ms);
     stats.stages.push(result.stages as Record<string, number>);
-    const recent = stats.shown.filter((time) => time > shown - 2000);
-    const fps = recent.length > 1 ? (recent.length - 1) / ((recent[recent.length - 1] - recent[0]) / 1000) : NaN;
+    let first = stats.shown.length - 1;  // the frames shown in the last 2 s: a loop back from the newest, not a
+    while (first > 0 && stats.shown[first - 1] > shown - 2000) first--;  // filter over the whole stream each frame
+    const last = stats.shown.length - 1;
+    const fps = first < last ? (last - first) / ((shown - stats.shown[first]) / 1000) : NaN;
     statsLine.textContent = `${fps.toFixed(1)} fps · ${result.ms.toFixed(0)} ms per frame (${BACKEND_NAMES[backend]}) · latency ` +
       `${median(stats.latency.slice(-30)).toFixed(0)} ms · frame ${stats.frames}` +
       (result.face ? "" : " · no face in the camera: showing the last frame");

@@ -242,10 +242,10 @@ function checkScene(scene: Tensor<Uint8Array>): void {
 
 function rows(points: Tensor, indices: number[], dx: number, dy: number): Tensor<Float64Array> {
   const out = new Float64Array(indices.length * 2);
-  indices.forEach((index, i) => {
-    out[2 * i] = points.data[2 * index] - dx;
-    out[2 * i + 1] = points.data[2 * index + 1] - dy;
-  });
+  for (let i = 0; i < indices.length; i++) {
+    out[2 * i] = points.data[2 * indices[i]] - dx;
+    out[2 * i + 1] = points.data[2 * indices[i] + 1] - dy;
+  }
   return tensor(out, [indices.length, 2]);
 }
 
@@ -273,7 +273,9 @@ function headLayer(scene: Tensor<Uint8Array>, output: Uint8Array, scenePoints: T
   }
   if (!(largest > STILL)) return;
   const chin = Math.max(scenePoints.data[17], targetPoints.data[17]), sides = Math.max(side, faceSide(scenePoints));
-  const gridX = Float64Array.from(xs, (x) => x + x0), gridY = Float64Array.from(ys, (y) => y + y0);
+  const gridX = new Float64Array(xs.length), gridY = new Float64Array(ys.length);  // loops: no closures made per frame
+  for (let i = 0; i < xs.length; i++) gridX[i] = xs[i] + x0;
+  for (let j = 0; j < ys.length; j++) gridY[j] = ys[j] + y0;
   const weight = foldFreeWeight(ellipses, gridX, gridY, shiftX, shiftY, chin, sides, layers !== null, box, height,
                                 width);
   for (let p = 0; p < count; p++) {
@@ -490,10 +492,14 @@ function withinHead(ellipses: Ellipse[], width: number, height: number, x0: numb
   const corners = [[x0, y0], [x0 + width - 1, y0], [x0, y0 + height - 1], [x0 + width - 1, y0 + height - 1]];
   if (ellipses.some((e) => corners.every(([x, y]) => radiusAt(e, x, y) <= f32(0.95)))) return null;
   // radiusAt's squared terms, float32: across per column, down per row
-  const across = ellipses.map((e) => Float32Array.from({ length: width }, (_, x) => {
-    const a = f32(f32(f32(x0 + x) - f32(e.cx)) / f32(e.ax));
-    return a * a;
-  }));
+  const across = ellipses.map((e) => {
+    const squares = new Float32Array(width);
+    for (let x = 0; x < width; x++) {
+      const a = f32(f32(f32(x0 + x) - f32(e.cx)) / f32(e.ax));
+      squares[x] = a * a;
+    }
+    return squares;
+  });
   const down = new Float32Array(ellipses.length), out = new Float32Array(width * height);
   for (let y = 0, i = 0; y < height; y++) {
     ellipses.forEach((e, k) => { const d = f32(f32(f32(y0 + y) - f32(e.cy)) / f32(e.ay)); down[k] = d * d; });

@@ -216,22 +216,24 @@ export function buildEyeBank(faces: Iterable<BankFace>, maxEntries = BANK_MAX_EN
   return eyeBankOf(rows.spread());
 }
 
+const orZero = (value: number) => (Number.isFinite(value) ? value : 0.0);  // an unknown term: 0
+const square = (value: number) => value * value;
+
 /** (N,) how far each entry's state lies from the target's (state_cost): apertures (2,), gazes (2, 2) flat or null
  * (not asked), yaw and pitch (2,). A gaze term counts only where both gazes are known; an entry's unknown aperture or
  * pose costs as much as a far one. */
 export function stateCost(bank: EyeBank, apertures: ArrayLike<number>, gazes: ArrayLike<number> | null,
                           pose: ArrayLike<number>): Float64Array {
   const n = bankSize(bank), a = bank.apertures.data, g = bank.gazes.data, p = bank.poses.data;
-  const cost = new Float64Array(n), known = (value: number) => (Number.isFinite(value) ? value : 0.0);
-  const square = (value: number) => value * value;
+  const cost = new Float64Array(n);
   const poseScales = [BANK_SCALES.yaw, BANK_SCALES.pitch];
   for (let i = 0; i < n; i++) {
     let value = square((a[2 * i] - apertures[0]) / BANK_SCALES.aperture)
       + square((a[2 * i + 1] - apertures[1]) / BANK_SCALES.aperture);
-    value += known(square((p[2 * i] - pose[0]) / poseScales[0])) + known(square((p[2 * i + 1] - pose[1]) / poseScales[1]));
+    value += orZero(square((p[2 * i] - pose[0]) / poseScales[0])) + orZero(square((p[2 * i + 1] - pose[1]) / poseScales[1]));
     if (gazes !== null) {
       let gazeTerms = 0;
-      for (let k = 0; k < 4; k++) gazeTerms += known(square((g[4 * i + k] - gazes[k]) / BANK_SCALES.gaze));
+      for (let k = 0; k < 4; k++) gazeTerms += orZero(square((g[4 * i + k] - gazes[k]) / BANK_SCALES.gaze));
       value += gazeTerms;
     }
     cost[i] = Number.isFinite(value) ? value : Infinity;
@@ -267,6 +269,13 @@ export function gazeSpan(bank: EyeBank): Float64Array {
     if (known.length > 0) BANK_GAZE_SPAN.forEach((q, k) => { span[2 * eye + k] = percentile(known, q); });
   }
   return span;
+}
+
+/** Which of `n` bank entries show the openings asked for the eyes `which` takes ((N, 2) flat `shows`). */
+function usableEntries(shows: boolean[], which: boolean[], n: number): boolean[] {
+  const usable: boolean[] = new Array(n);
+  for (let i = 0; i < n; i++) usable[i] = (!which[0] || shows[2 * i]) && (!which[1] || shows[2 * i + 1]);
+  return usable;
 }
 
 /** One driven sequence's choice of bank entries, frame by frame (EyeBankTrack; the module comment).
@@ -329,32 +338,36 @@ export class EyeBankTrack {
       return null;
     }
     const apertures = this.asked(points), n = bankSize(this.bank), own = this.bank.apertures.data;
-    // (N, 2): how far each entry's lids would stretch (|log| of the ratio; not known: Infinity)
-    const far = Float64Array.from({ length: 2 * n }, (_, k) => {
+    // (N, 2): how far each entry's lids would stretch (|log| of the ratio; not known: Infinity). Plain loops here,
+    // no closures made per frame (V8 optimised those again on every frame)
+    const far = new Float64Array(2 * n), least = [Infinity, Infinity];
+    for (let k = 0; k < 2 * n; k++) {
       const value = Math.abs(Math.log(apertures[k % 2] / own[k]));
-      return Number.isFinite(value) ? value : Infinity;
-    });
+      far[k] = Number.isFinite(value) ? value : Infinity;
+      if (far[k] < least[k % 2]) least[k % 2] = far[k];
+    }
     // an entry within STRETCH where there is one; for an eye opened or shut beyond every entry, or between two far
     // apart, the nearest (stretched as far as it goes: placedEye)
-    const least = [0, 1].map((e) => far.reduce((best, value, k) => (k % 2 === e && value < best ? value : best), Infinity));
-    const reach = least.map((value) => Math.max(Math.log(BANK_STRETCH), value + Math.log(BANK_NEAREST)) + 1e-9);
-    const shows = Array.from(far, (value, k) => Number.isFinite(value) && value <= reach[k % 2]);
-    const count = (e: number) => shows.filter((flag, k) => flag && k % 2 === e).length;
-    let eyes = [count(0) > 0, count(1) > 0];
+    const reach = [0, 0], shows: boolean[] = new Array(2 * n), counts = [0, 0];
+    for (let e = 0; e < 2; e++) reach[e] = Math.max(Math.log(BANK_STRETCH), least[e] + Math.log(BANK_NEAREST)) + 1e-9;
+    for (let k = 0; k < 2 * n; k++) {
+      shows[k] = Number.isFinite(far[k]) && far[k] <= reach[k % 2];
+      if (shows[k]) counts[k % 2]++;
+    }
+    let eyes = [counts[0] > 0, counts[1] > 0];
     if (!eyes[0] && !eyes[1]) {
       this.reset();
       return null;
     }
-    const usableFor = (which: boolean[]) => Array.from({ length: n }, (_, i) => (!which[0] || shows[2 * i])
-                                                                               && (!which[1] || shows[2 * i + 1]));
-    let usable = usableFor(eyes);
-    if (!usable.some(Boolean)) {  // no one entry shows both eyes' openings: the eye that more entries show
-      const more = count(1) > count(0) ? 1 : 0;  // np.argmax: the first of equals
+    let usable = usableEntries(shows, eyes, n);
+    if (!usable.includes(true)) {  // no one entry shows both eyes' openings: the eye that more entries show
+      const more = counts[1] > counts[0] ? 1 : 0;  // np.argmax: the first of equals
       eyes = [more === 0, more === 1];
-      usable = usableFor(eyes);
+      usable = usableEntries(shows, eyes, n);
     }
     const state = stateCost(this.bank, apertures, gazes, headTurn(points));
-    const cost = Float64Array.from(state, (value, i) => (usable[i] ? value : Infinity));
+    const cost = new Float64Array(n);
+    for (let i = 0; i < n; i++) cost[i] = usable[i] ? state[i] : Infinity;
     const [entry, previous, previousWeight] = this.entries.step(cost);
     const shut = shutBeyondEntry(apertures, [own[2 * entry], own[2 * entry + 1]], eyes);
     return {
@@ -441,12 +454,13 @@ export function pasteBankEyes(image: Tensor, landmarks: Tensor, bank: EyeBank | 
     const x1 = Math.min(Math.ceil(centre[0] + margin) + 1, width), y1 = Math.min(Math.ceil(centre[1] + margin) + 1, height);
     if (x1 - x0 < 2 || y1 - y0 < 2) continue;
     const w = x1 - x0, h = y1 - y0, box: [number, number] = [h, w];
-    const local = Float64Array.from(p, (value, i) => value - (i % 2 === 0 ? x0 : y0));
+    const local = new Float64Array(p.length);  // loops, not closures made per frame (V8 optimised each again)
+    for (let i = 0; i < p.length; i++) local[i] = p[i] - (i % 2 === 0 ? x0 : y0);
     let warped = placedEye(source, choice.entry, eye, local, apertures[eye], choice.gazes[eye], box);
     if (choice.previous !== null && choice.previousWeight > 0) {
       const fading = placedEye(source, choice.previous, eye, local, apertures[eye], choice.gazes[eye], box);
       const old = f32(choice.previousWeight), kept = f32(1.0 - choice.previousWeight);
-      warped = Float32Array.from(warped, (value, i) => f32(f32(old * fading[i]) + f32(kept * value)));
+      for (let i = 0; i < warped.length; i++) warped[i] = f32(f32(old * fading[i]) + f32(kept * warped[i]));
     }
     const region = new Float32Array(w * h * 3);
     for (let y = 0; y < h; y++) {

@@ -6,7 +6,7 @@
 
 import { EYE_ROI_SCALE, FaceMesh, eyeCrop, eyeIris } from "./facemesh.js";
 import { invertAffine } from "./geometry.js";
-import { Tensor, median, tensor } from "./tensor.js";
+import { Tensor, columnMedian, median, tensor } from "./tensor.js";
 import { createTracker, readTrackerAssets } from "./tracker.js";
 
 /** Per eye of the 68 points, image left first: its corners and whether the iris net sees it mirrored
@@ -84,7 +84,7 @@ export class DriverGaze {
       this.apertures = [...this.apertures, [rows[3], rows[7]] as [number, number]].slice(-DriverGaze.HISTORY);
     }
     const open = this.apertures.length
-      ? [median(this.apertures.map((a) => a[0])), median(this.apertures.map((a) => a[1]))] : null;
+      ? [columnMedian(this.apertures, 0), columnMedian(this.apertures, 1)] : null;
     const gaze = gazeOffsets(rows, points, open);
     if (this.source === null) return gaze;
     if (this.reference === null && gaze.every(Number.isFinite)) this.reference = gaze;

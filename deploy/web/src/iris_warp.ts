@@ -155,16 +155,20 @@ export function alignIrises(maps: DenseMaps[], irises: Tensor, landmarks: Tensor
   if (irises.data.length !== maps.length * 4) {
     throw new Error(`irises must be (${maps.length}, 2, 2), got [${irises.shape}]`);
   }
-  const iris = (k: number, eye: number) => irises.data.subarray(4 * k + 2 * eye, 4 * k + 2 * eye + 2);
-  // every eye's start on the maps as they came, as Python measures them
-  const starts = [0, 1].map((eye) => maps.map((map, k) => irisAlong(map, iris(k, eye), landmarks, eye)));
+  // every eye's start on the maps as they came, as Python measures them (loops: no closures made per frame)
+  const starts: number[][] = [[], []];
+  for (let eye = 0; eye < 2; eye++) {
+    for (let k = 0; k < maps.length; k++) {
+      starts[eye].push(irisAlong(maps[k], irises.data.subarray(4 * k + 2 * eye, 4 * k + 2 * eye + 2), landmarks, eye));
+    }
+  }
   for (let eye = 0; eye < 2; eye++) {
     const wanted = gaze === null ? NaN : gaze.data[2 * eye];
     const end = Number.isFinite(wanted) ? wanted : starts[eye][0];
     if (!Number.isFinite(end)) continue;
-    maps.forEach((map, k) => {
-      if (Number.isFinite(starts[eye][k])) shiftIris(map, landmarks, eye, starts[eye][k], end);
-    });
+    for (let k = 0; k < maps.length; k++) {
+      if (Number.isFinite(starts[eye][k])) shiftIris(maps[k], landmarks, eye, starts[eye][k], end);
+    }
   }
   return maps;
 }

@@ -6,7 +6,7 @@
 
 import { dilateEllipse, gaussianBlurF32, roundHalfEven } from "./remap.js";
 import { fillPolyAA } from "./shapes.js";
-import { Tensor, tensor } from "./tensor.js";
+import { Tensor, ascending, tensor } from "./tensor.js";
 import { interOcularDistance, mouthOpening } from "./retarget.js";
 
 export const MOUTH_MARGIN = 0.15;
@@ -111,7 +111,7 @@ export function mouthStrength(landmarks: Tensor, shotLandmarks: Tensor, indices:
   let median: number;
   if (openings.some(Number.isNaN)) median = NaN;
   else {
-    openings.sort((a, b) => a - b);
+    openings.sort(ascending);
     const h = openings.length >> 1;
     median = openings.length % 2 ? openings[h] : (openings[h - 1] + openings[h]) / 2;
   }

@@ -64,17 +64,27 @@ const CANONICAL = canonicalFace();
 
 type Matrix3 = Float64Array; // 3 x 3 row-major
 
-function rotationFromVector(w0: number, w1: number, w2: number): Matrix3 {
+// The Levenberg-Marquardt loop below writes into buffers it keeps (`into`, `out`): it runs every frame (the eye
+// bank's head turn), and its small arrays, a thousand a frame, were garbage for the collector to sweep.
+
+/** exp([w]) (Rodrigues), into `out`. */
+function rotationFromVector(w0: number, w1: number, w2: number, out: Matrix3): Matrix3 {
   const theta = Math.hypot(w0, w1, w2);
-  if (theta < 1e-300) return Float64Array.of(1, 0, 0, 0, 1, 0, 0, 0, 1);
+  if (theta < 1e-300) {
+    out.set(IDENTITY);
+    return out;
+  }
   const x = w0 / theta, y = w1 / theta, z = w2 / theta, c = Math.cos(theta), s = Math.sin(theta), v = 1 - c;
-  return Float64Array.of(c + x * x * v, x * y * v - z * s, x * z * v + y * s,
-                         y * x * v + z * s, c + y * y * v, y * z * v - x * s,
-                         z * x * v - y * s, z * y * v + x * s, c + z * z * v);
+  out[0] = c + x * x * v; out[1] = x * y * v - z * s; out[2] = x * z * v + y * s;
+  out[3] = y * x * v + z * s; out[4] = c + y * y * v; out[5] = y * z * v - x * s;
+  out[6] = z * x * v - y * s; out[7] = z * y * v + x * s; out[8] = c + z * z * v;
+  return out;
 }
 
-function multiply3(a: Matrix3, b: Matrix3): Matrix3 {
-  const out = new Float64Array(9);
+const IDENTITY = Float64Array.of(1, 0, 0, 0, 1, 0, 0, 0, 1);
+
+/** a b, into `out` (not a or b). */
+function multiply3(a: Matrix3, b: Matrix3, out: Matrix3): Matrix3 {
   for (let i = 0; i < 3; i++) for (let j = 0; j < 3; j++) {
     out[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j];
   }
@@ -110,10 +120,11 @@ function solveSpd(a: Float64Array, b: Float64Array, n: number): Float64Array | n
 
 interface Pose { rotation: Matrix3; translation: [number, number, number] }
 
-/** Reprojection residuals (2N) of model points under a pose; null when a point is at or behind the camera. */
-function residuals(pose: Pose, model: Float64Array, image: Float64Array, focal: number, cx: number, cy: number
-                   ): Float64Array | null {
-  const n = image.length / 2, r = pose.rotation, [tx, ty, tz] = pose.translation, out = new Float64Array(2 * n);
+/** Reprojection residuals (2N) of model points under a pose, into `out`; null when a point is at or behind the
+ * camera. */
+function residuals(pose: Pose, model: Float64Array, image: Float64Array, focal: number, cx: number, cy: number,
+                   out: Float64Array): Float64Array | null {
+  const n = image.length / 2, r = pose.rotation, [tx, ty, tz] = pose.translation;
   for (let i = 0; i < n; i++) {
     const X = model[3 * i], Y = model[3 * i + 1], Z = model[3 * i + 2];
     const x = r[0] * X + r[1] * Y + r[2] * Z + tx, y = r[3] * X + r[4] * Y + r[5] * Z + ty;
@@ -131,12 +142,17 @@ function squaredNorm(values: Float64Array): number {
   return sum;
 }
 
-/** The pose of a small update: rotation exp([w]) R, translation t + dt. */
-function updated(pose: Pose, step: ArrayLike<number>): Pose {
-  return {
-    rotation: multiply3(rotationFromVector(step[0], step[1], step[2]), pose.rotation),
-    translation: [pose.translation[0] + step[3], pose.translation[1] + step[4], pose.translation[2] + step[5]],
-  };
+/** The pose of a small update, into `into` (not `pose`): rotation exp([w]) R, translation t + dt. */
+function updated(pose: Pose, step: ArrayLike<number>, into: Pose, scratch: Matrix3): Pose {
+  multiply3(rotationFromVector(step[0], step[1], step[2], scratch), pose.rotation, into.rotation);
+  into.translation[0] = pose.translation[0] + step[3];
+  into.translation[1] = pose.translation[1] + step[4];
+  into.translation[2] = pose.translation[2] + step[5];
+  return into;
+}
+
+function emptyPose(): Pose {
+  return { rotation: new Float64Array(9), translation: [0, 0, 0] };
 }
 
 /** The scaled-orthographic pose that best fits the points (an affine camera, then its rotation made proper). */
@@ -177,22 +193,27 @@ function affineStart(model: Float64Array, image: Float64Array, focal: number, cx
  * (N, 2) under a pinhole camera (cv2.solvePnP's least squares): Levenberg-Marquardt from a scaled-orthographic
  * start. null when it finds none in front of the camera. */
 export function solvePnP(model: Float64Array, image: Float64Array, focal: number, cx: number, cy: number): Pose | null {
-  let pose = affineStart(model, image, focal, cx, cy);
-  let current = residuals(pose, model, image, focal, cx, cy);
-  if (current === null) return null;
+  let pose = affineStart(model, image, focal, cx, cy), candidate = emptyPose();
+  const m = image.length, probe = emptyPose(), scratch = new Float64Array(9), delta = new Float64Array(6);
+  const plus = new Float64Array(m), minus = new Float64Array(m);
+  let current = new Float64Array(m), next = new Float64Array(m);
+  if (residuals(pose, model, image, focal, cx, cy, current) === null) return null;
   let cost = squaredNorm(current), lambda = 1e-3;
-  const m = current.length, jacobian = new Float64Array(m * 6);
+  const jacobian = new Float64Array(m * 6), jtj = new Float64Array(36), jtr = new Float64Array(6);
+  const damped = new Float64Array(36);
   for (let iteration = 0; iteration < 200; iteration++) {
     for (let p = 0; p < 6; p++) { // central differences of the update parameters
       const h = p < 3 ? 1e-6 : 1e-6 * Math.max(1, Math.abs(pose.translation[2]));
-      const plus = new Float64Array(6), minus = new Float64Array(6);
-      plus[p] = h; minus[p] = -h;
-      const a = residuals(updated(pose, plus), model, image, focal, cx, cy);
-      const b = residuals(updated(pose, minus), model, image, focal, cx, cy);
+      delta.fill(0);
+      delta[p] = h;
+      const a = residuals(updated(pose, delta, probe, scratch), model, image, focal, cx, cy, plus);
+      delta[p] = -h;
+      const b = a && residuals(updated(pose, delta, probe, scratch), model, image, focal, cx, cy, minus);
       if (a === null || b === null) return null;
       for (let k = 0; k < m; k++) jacobian[6 * k + p] = (a[k] - b[k]) / (2 * h);
     }
-    const jtj = new Float64Array(36), jtr = new Float64Array(6);
+    jtj.fill(0);
+    jtr.fill(0);
     for (let k = 0; k < m; k++) {
       for (let a = 0; a < 6; a++) {
         jtr[a] -= jacobian[6 * k + a] * current[k];
@@ -201,17 +222,18 @@ export function solvePnP(model: Float64Array, image: Float64Array, focal: number
     }
     let improved = false, small = false;
     for (let attempt = 0; attempt < 30 && !improved; attempt++) {
-      const damped = jtj.slice();
+      damped.set(jtj);
       for (let a = 0; a < 6; a++) damped[7 * a] += lambda * jtj[7 * a];
       const step = solveSpd(damped, jtr, 6);
       if (step === null) { lambda *= 10; continue; }
-      const candidate = updated(pose, step);
-      const next = residuals(candidate, model, image, focal, cx, cy);
-      const nextCost = next === null ? Infinity : squaredNorm(next);
-      if (next !== null && nextCost <= cost) {
+      updated(pose, step, candidate, scratch);
+      const tried = residuals(candidate, model, image, focal, cx, cy, next);
+      const nextCost = tried === null ? Infinity : squaredNorm(next);
+      if (tried !== null && nextCost <= cost) {
         small = Math.hypot(step[0], step[1], step[2]) < 1e-13
           && Math.hypot(step[3], step[4], step[5]) < 1e-13 * Math.max(1, Math.abs(pose.translation[2]));
-        pose = candidate; current = next;
+        [pose, candidate] = [candidate, pose];  // the buffers swap: the accepted pose and residuals are kept
+        [current, next] = [next, current];
         const gain = cost - nextCost;
         cost = nextCost;
         lambda = Math.max(lambda / 10, 1e-12);

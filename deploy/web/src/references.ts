@@ -6,7 +6,7 @@ import { LEFT_EYE, RIGHT_EYE } from "./geometry.js";
 import { DenseMaps, alignIrises } from "./iris_warp.js";
 import { densifyGrid, remapCubic } from "./remap.js";
 import { CubicSources, MapSlot } from "./remap_wasm.js";
-import { Tensor, tensor } from "./tensor.js";
+import { Tensor, ascending, tensor } from "./tensor.js";
 import { GridMap, WarpMethod, tpsGridMaps, warpValidMask } from "./tps.js";
 
 // ---- references for the warp-guided generator ---------------------------------------------------------------
@@ -73,7 +73,7 @@ export function warpReferences(shots: Tensor<Uint8Array>, shotLandmarks: Tensor,
   const indices = Array.from({ length: count }, (_, i) => nearest[i % nearest.length]);
   const [, height, width] = shots.shape, pixels = height * width, points = shotLandmarks.shape.slice(1);
   const stride = points[0] * points[1];
-  const unique = [...new Set(indices)].sort((a, b) => a - b);
+  const unique = [...new Set(indices)].sort(ascending);
   const sets = unique.map((k) => tensor(shotLandmarks.data.slice(k * stride, (k + 1) * stride), points));
   const warps = tpsGridMaps(sets, targetLandmarks, height, width, { gridStep });
   const warped = new Uint8Array(count * pixels * 3), masks = new Float32Array(count * pixels);

@@ -6,7 +6,7 @@
 // Points are (68, 2) float64 in row-major (x, y).
 
 import { Similarity, cropTransform, similarityProcrustes, transformPoints } from "./geometry.js";
-import { Tensor, checkPoints, median, tensor } from "./tensor.js";
+import { Tensor, checkPoints, columnMedian, tensor } from "./tensor.js";
 
 /** Points barely moved by expressions: upper jaw, nose, eye corners and lids (landmarks.motion.retarget_points.RIGID_INDEX). */
 export const RIGID_INDEX: number[] = [0, 1, 2, 14, 15, 16, 27, 28, 29, 30, 31, 32, 33, 34, 35,
@@ -95,19 +95,34 @@ export function setMouthOpening(landmarks: Tensor, opening: number): Tensor<Floa
   const norm = Math.max(Math.sqrt(downX * downX + downY * downY), 1e-9);
   downX /= norm;
   downY /= norm;
-  const drop = (step: number): void => {
-    const v = nanToNum(step * distance), mx = v * downX, my = v * downY;
-    for (const [i, amount] of JAW_DROP) { p[2 * i] += amount * mx; p[2 * i + 1] += amount * my; }
-  };
-  drop(target - signedMouthGap(p, downX, downY));
+  dropJaw(p, (target - signedMouthGap(p, downX, downY)) * distance, downX, downY);
   for (let k = 0; k < 3; k++) {
     const want = target - mouthOpening(p), floor = -signedMouthGap(p, downX, downY);
-    drop(Number.isNaN(want) || Number.isNaN(floor) ? NaN : Math.max(want, floor));
+    dropJaw(p, (Number.isNaN(want) || Number.isNaN(floor) ? NaN : Math.max(want, floor)) * distance, downX, downY);
   }
   return tensor(p, [68, 2]);
 }
 
+/** The lower lip and jaw of (68, 2) flat `p` moved by `length` (NaN: not at all) along (downX, downY), each point by
+ * its JAW_DROP share (setMouthOpening's step). */
+function dropJaw(p: Float64Array, length: number, downX: number, downY: number): void {
+  const v = nanToNum(length), mx = v * downX, my = v * downY;
+  for (const [i, amount] of JAW_DROP) { p[2 * i] += amount * mx; p[2 * i + 1] += amount * my; }
+}
+
 // ---------------------------------------------------------------------------------------------------------- lids
+
+/** The indices of `keys` in ascending order of their keys, equal keys by index (a stable insertion sort: the lists
+ * here are a lid's few points; a comparator closure per call was optimised again by V8 on every frame). */
+function orderBy(keys: number[]): number[] {
+  const order: number[] = [];
+  for (let k = 0; k < keys.length; k++) {
+    let at = order.length;
+    while (at > 0 && (keys[order[at - 1]] - keys[k] || order[at - 1] - k) > 0) at--;
+    order.splice(at, 0, k);
+  }
+  return order;
+}
 
 /** numpy.interp for an increasing xp (numpy's own branches: outside -> the end values, on a knot -> its value). */
 export function numpyInterp(x: number, xp: number[], fp: number[]): number {
@@ -149,10 +164,14 @@ function measureLids(p: ArrayLike<number>): EyeMeasure[] {
     if (!(Number.isFinite(alongX) && Number.isFinite(alongY))) {
       for (let k = 0; k < upper.length; k++) opening.push(NaN);
     } else {
-      const lowerAlong = lower.map((i) => (p[2 * i] - ox) * alongX + (p[2 * i + 1] - oy) * alongY);
-      const lowerAcross = lower.map((i) => (p[2 * i] - ox) * acrossX + (p[2 * i + 1] - oy) * acrossY);
-      const order = lowerAlong.map((_, k) => k).sort((a, b) => lowerAlong[a] - lowerAlong[b] || a - b);
-      const xp = order.map((k) => lowerAlong[k]), fp = order.map((k) => lowerAcross[k]);
+      const n = lower.length, lowerAlong: number[] = new Array(n), lowerAcross: number[] = new Array(n);
+      for (let k = 0; k < n; k++) {
+        const i = lower[k];
+        lowerAlong[k] = (p[2 * i] - ox) * alongX + (p[2 * i + 1] - oy) * alongY;
+        lowerAcross[k] = (p[2 * i] - ox) * acrossX + (p[2 * i + 1] - oy) * acrossY;
+      }
+      const order = orderBy(lowerAlong), xp: number[] = new Array(n), fp: number[] = new Array(n);
+      for (let k = 0; k < n; k++) { xp[k] = lowerAlong[order[k]]; fp[k] = lowerAcross[order[k]]; }
       for (const i of upper) {
         const ux = p[2 * i] - ox, uy = p[2 * i + 1] - oy;
         opening.push(numpyInterp(ux * alongX + uy * alongY, xp, fp) - (ux * acrossX + uy * acrossY));
@@ -285,7 +304,7 @@ export class LidReference {
     if (this.ahead) this.ahead -= 1;
     else this.add(driver);
     if (!this.gaps.length) return new Float64Array([NaN, NaN]);
-    return new Float64Array([median(this.gaps.map((g) => g[0])), median(this.gaps.map((g) => g[1]))]);
+    return new Float64Array([columnMedian(this.gaps, 0), columnMedian(this.gaps, 1)]);
   }
 }
 

@@ -242,7 +242,8 @@ export class LiveSession {
     const { config, person } = this.site;
     const warping = now();
     const scale = config.resolution / config.crop_size;
-    const small = tensor(Float64Array.from(target.data, (value) => value * scale), [68, 2]);
+    const small = tensor(new Float64Array(target.data.length), [68, 2]);
+    for (let i = 0; i < target.data.length; i++) small.data[i] = target.data[i] * scale;
     const landmarkImage = drawLandmarks(small, config.resolution);
     const irises = this.warpsIrises ? tensor(person.shotIrises, [person.shots.shape[0], 2, 2]) : null;
     const references = warpReferences(person.shots, person.shotLandmarks, target, config.references, 4, irises,

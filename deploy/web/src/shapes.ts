@@ -6,6 +6,7 @@
 // and mouth.ts (polygonMask's anti-aliased polygons).
 
 import { roundHalfEven as rint } from "./remap.js";
+import { ascending } from "./tensor.js";
 
 const f32 = Math.fround;
 
@@ -298,7 +299,7 @@ export function fillPolyAA(img: Uint8Array, width: number, height: number, point
     xs.length = 0;
     for (const e of edges) if (e.y0 <= y && y < e.y1) xs.push(e.x + (y - e.y0) * e.dx);
     if (y < 0) continue;
-    xs.sort((a, b) => a - b);
+    xs.sort(ascending);
     for (let k = 0; k + 1 < xs.length; k += 2) {
       let left = shr(xs[k] + XY_ONE - 1, XY_SHIFT), right = shr(xs[k + 1], XY_SHIFT);
       if (left < width && right >= 0) {
@@ -310,14 +311,15 @@ export function fillPolyAA(img: Uint8Array, width: number, height: number, point
   }
 }
 
+const byXThenY = (a: number[], b: number[]) => a[0] - b[0] || a[1] - b[1];
+const cross = (o: number[], a: number[], b: number[]) => (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
+
 /** cv2.convexHull of integer points (flat x, y): the hull's vertices, no collinear ones. */
 export function convexHull(points: number[]): number[][] {
   const pts: number[][] = [];
   for (let i = 0; i < points.length; i += 2) pts.push([points[i], points[i + 1]]);
-  pts.sort((a, b) => a[0] - b[0] || a[1] - b[1]);
+  pts.sort(byXThenY);
   if (pts.length < 3) return pts;
-  const cross = (o: number[], a: number[], b: number[]) =>
-    (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
   const lower: number[][] = [], upper: number[][] = [];
   for (const p of pts) {
     while (lower.length >= 2 && cross(lower[lower.length - 2], lower[lower.length - 1], p) <= 0) lower.pop();

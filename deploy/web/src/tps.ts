@@ -144,10 +144,11 @@ function solve(a: Float64Array, b: Float64Array, n: number, columns: number): vo
     let pivot = k;
     for (let i = k + 1; i < n; i++) if (Math.abs(a[i * n + k]) > Math.abs(a[pivot * n + k])) pivot = i;
     if (a[pivot * n + k] === 0) throw new DegenerateTpsError("TPS system is singular");
-    if (pivot !== k) {
-      const row = a.slice(k * n, k * n + n), right = b.slice(k * columns, k * columns + columns);
-      a.copyWithin(k * n, pivot * n, pivot * n + n); a.set(row, pivot * n);
-      b.copyWithin(k * columns, pivot * columns, pivot * columns + columns); b.set(right, pivot * columns);
+    if (pivot !== k) {  // rows swapped in place: no copies made per pivot (each a buffer for the collector)
+      for (let j = 0; j < n; j++) { const t = a[k * n + j]; a[k * n + j] = a[pivot * n + j]; a[pivot * n + j] = t; }
+      for (let j = 0; j < columns; j++) {
+        const t = b[k * columns + j]; b[k * columns + j] = b[pivot * columns + j]; b[pivot * columns + j] = t;
+      }
     }
     const diagonal = a[k * n + k];
     for (let i = k + 1; i < n; i++) {
@@ -279,34 +280,41 @@ export function fitTps(controlPoints: Tensor, values: Tensor, regularization = D
            scale: spline.scale };
 }
 
+/** Whether control points i and j ((N, 2) flat) lie closer than sqrt(limit). Module functions here and below, not
+ * closures made per call, which V8 optimised again on every frame. */
+function closePoints(control: Float64Array, i: number, j: number, limit: number): boolean {
+  return (control[2 * i] - control[2 * j]) ** 2 + (control[2 * i + 1] - control[2 * j + 1]) ** 2 < limit;
+}
+
 /** Greedily merge control points closer than minDistance, their values averaged; first occurrence order kept
  * (landmarks.warp.tps.merge_close_points). control (N, 2), values (N, columns), flat. */
 function mergeClosePoints(control: Float64Array, values: Float64Array, columns: number, minDistance: number
                           ): [Float64Array, Float64Array] {
   const count = control.length / 2, limit = minDistance * minDistance;
-  const close = (i: number, j: number) =>
-    (control[2 * i] - control[2 * j]) ** 2 + (control[2 * i + 1] - control[2 * j + 1]) ** 2 < limit;
   let any = false;
-  for (let i = 0; i < count && !any; i++) for (let j = i + 1; j < count; j++) if (close(i, j)) { any = true; break; }
+  for (let i = 0; i < count && !any; i++) {
+    for (let j = i + 1; j < count; j++) if (closePoints(control, i, j, limit)) { any = true; break; }
+  }
   if (!any) return [control, values];
   const owner = new Int32Array(count).fill(-1), clusters: number[][] = [];
   for (let index = 0; index < count; index++) {
     if (owner[index] >= 0) continue;
     const members: number[] = [];
-    for (let j = 0; j < count; j++) if (owner[j] < 0 && close(index, j)) members.push(j);
+    for (let j = 0; j < count; j++) if (owner[j] < 0 && closePoints(control, index, j, limit)) members.push(j);
     if (members.length === 0) members.push(index);
     for (const j of members) owner[j] = clusters.length;
     clusters.push(members);
   }
   const mergedControl = new Float64Array(2 * clusters.length);
   const mergedValues = new Float64Array(columns * clusters.length);
-  clusters.forEach((members, c) => {
+  for (let c = 0; c < clusters.length; c++) {
+    const members = clusters[c];
     for (const j of members) {
       mergedControl[2 * c] += control[2 * j] / members.length;
       mergedControl[2 * c + 1] += control[2 * j + 1] / members.length;
       for (let k = 0; k < columns; k++) mergedValues[c * columns + k] += values[j * columns + k] / members.length;
     }
-  });
+  }
   return [mergedControl, mergedValues];
 }
 
@@ -316,20 +324,22 @@ function borderPoints(height: number, width: number): number[] {
   return [0, 0, right / 2, 0, right, 0, right, bottom / 2, right, bottom, right / 2, bottom, 0, bottom, 0, bottom / 2];
 }
 
+/** np.gradient of a (rows, cols) grid `m` at (i, j), along its rows or its columns. */
+function gridGradient(m: Float64Array, rows: number, cols: number, i: number, j: number, alongRows: boolean): number {
+  const n = alongRows ? rows : cols, k = alongRows ? i : j, step = alongRows ? cols : 1, at = i * cols + j;
+  if (n < 2) return 0;
+  if (k === 0) return m[at + step] - m[at];
+  if (k === n - 1) return m[at] - m[at - step];
+  return (m[at + step] - m[at - step]) / 2;
+}
+
 /** Share of the grid where the map folds: Jacobian determinant <= 0 (np.gradient along each axis). */
 export function foldedFraction(mapX: Float64Array, mapY: Float64Array, rows: number, cols: number): number {
-  const gradient = (m: Float64Array, i: number, j: number, alongRows: boolean): number => {
-    const n = alongRows ? rows : cols, k = alongRows ? i : j, step = alongRows ? cols : 1, at = i * cols + j;
-    if (n < 2) return 0;
-    if (k === 0) return m[at + step] - m[at];
-    if (k === n - 1) return m[at] - m[at - step];
-    return (m[at + step] - m[at - step]) / 2;
-  };
   let folded = 0;
   for (let i = 0; i < rows; i++) {
     for (let j = 0; j < cols; j++) {
-      const determinant = gradient(mapX, i, j, false) * gradient(mapY, i, j, true)
-        - gradient(mapX, i, j, true) * gradient(mapY, i, j, false);
+      const determinant = gridGradient(mapX, rows, cols, i, j, false) * gridGradient(mapY, rows, cols, i, j, true)
+        - gridGradient(mapX, rows, cols, i, j, true) * gridGradient(mapY, rows, cols, i, j, false);
       if (!(determinant > 0)) folded++;
     }
   }
@@ -393,6 +403,20 @@ function finiteRows(points: Tensor): boolean[] {
   return rows;
 }
 
+/** The indices where `flags` (and `also`, where given) hold. Loops, not closures made per call: V8 optimised those
+ * again on every frame. */
+function indicesWhere(flags: boolean[], also: boolean[] | null = null): number[] {
+  const out: number[] = [];
+  for (let i = 0; i < flags.length; i++) if (flags[i] && (also === null || also[i])) out.push(i);
+  return out;
+}
+
+/** Whether `rows` holds wherever `needed` does. */
+function covers(rows: boolean[], needed: boolean[]): boolean {
+  for (let i = 0; i < needed.length; i++) if (needed[i] && !rows[i]) return false;
+  return true;
+}
+
 function checkPair(source: Tensor, target: Tensor): void {
   if (source.shape.length !== 2 || source.shape[1] !== 2 || target.shape.length !== 2
       || target.shape[0] !== source.shape[0] || target.shape[1] !== 2) {
@@ -437,7 +461,7 @@ export function tpsGridMap(sourcePoints: Tensor, targetPoints: Tensor, height: n
                            settings: TpsSettings = {}): GridMap {
   checkPair(sourcePoints, targetPoints);
   const o = options(settings), targetRows = finiteRows(targetPoints);
-  const found = finiteRows(sourcePoints).flatMap((ok, i) => (ok && targetRows[i] ? [i] : []));
+  const found = indicesWhere(finiteRows(sourcePoints), targetRows);
   const [targets, sources] = controlPoints(targetPoints, [sourcePoints], found, []);
   const fixed = o.fixBorder ? borderPoints(height, width) : [];
   const [control, values] = mergeClosePoints(...controlPoints(targetPoints, [sourcePoints], found, fixed), 2,
@@ -459,10 +483,11 @@ function gridTries(control: Float64Array, values: Float64Array, sets: number, gr
     const lambda = o.regularization * RETRY_FACTORS[attempt], span = 2 * pending.length;
     const picked = new Float64Array(count * span);
     for (let r = 0; r < count; r++) {
-      pending.forEach((slot, column) => {
+      for (let column = 0; column < pending.length; column++) {
+        const slot = pending[column];
         picked[r * span + 2 * column] = values[r * columns + 2 * slot];
         picked[r * span + 2 * column + 1] = values[r * columns + 2 * slot + 1];
-      });
+      }
     }
     let spline: ThinPlateSpline;
     try {
@@ -542,10 +567,10 @@ export function tpsGridMaps(sourceSets: Tensor[], targetPoints: Tensor, height: 
   const shared = targetOk ? sourceSets.flatMap((points, index) => {
     if (points.shape.length !== 2 || points.shape[0] !== targetPoints.shape[0] || points.shape[1] !== 2) return [];
     const rows = finiteRows(points);
-    return found.every((ok, i) => !ok || rows[i]) ? [index] : [];
+    return covers(rows, found) ? [index] : [];
   }) : [];
   if (shared.length > 0) {
-    const columns = 2 * shared.length, rows = found.flatMap((ok, i) => (ok ? [i] : []));
+    const columns = 2 * shared.length, rows = indicesWhere(found);
     const fixed = o.fixBorder ? borderPoints(height, width) : [];
     const sets = shared.map((index) => sourceSets[index]);
     const [control, values] = mergeClosePoints(...controlPoints(targetPoints, sets, rows, fixed), columns,

@@ -109,6 +109,11 @@ export function splinesInWasm(): boolean {
   return webAssemblyWanted() && splineKernel() !== null;
 }
 
+/** The bytes `values` float64 take, rounded up to 16. */
+function aligned(values: number): number {
+  return Math.ceil((values * 8) / 16) * 16;
+}
+
 /** A fitted spline's parts (tps.ts ThinPlateSpline) at `points` (M, 2) flat -> (M, columns) flat, as tps.ts evaluate
  * gives them; null without WebAssembly SIMD. */
 export function evaluateSpline(control: Float64Array, weights: Float64Array, affine: Float64Array, columns: number,
@@ -116,24 +121,24 @@ export function evaluateSpline(control: Float64Array, weights: Float64Array, aff
   const wasm = webAssemblyWanted() ? splineKernel() : null;
   if (wasm === null) return null;
   const count = control.length / 2, total = points.length / 2, even = columns + (columns % 2);
-  let at = 0;
-  const take = (values: number) => { const here = at; at += Math.ceil((values * 8) / 16) * 16; return here; };
-  const pointsAt = take(2 * total), controlAt = take(2 * count), weightsAt = take(count * even);
-  const affineAt = take(3 * even), rowAt = take(count), outAt = take(total * even);
-  reserveMemory(wasm.memory, at);
-  const buffer = wasm.memory.buffer, view = (offset: number, values: number) => new Float64Array(buffer, offset, values);
-  view(pointsAt, 2 * total).set(points);
-  view(controlAt, 2 * count).set(control);
+  // the float64 arrays' offsets, each 16-byte aligned (no closures made per call: V8 optimised those on every frame)
+  const pointsAt = 0, controlAt = pointsAt + aligned(2 * total), weightsAt = controlAt + aligned(2 * count);
+  const affineAt = weightsAt + aligned(count * even), rowAt = affineAt + aligned(3 * even), outAt = rowAt + aligned(count);
+  reserveMemory(wasm.memory, outAt + aligned(total * even));
+  const buffer = wasm.memory.buffer;
+  new Float64Array(buffer, pointsAt, 2 * total).set(points);
+  new Float64Array(buffer, controlAt, 2 * count).set(control);
   if (even === columns) {
-    view(weightsAt, count * even).set(weights);
-    view(affineAt, 3 * even).set(affine);
+    new Float64Array(buffer, weightsAt, count * even).set(weights);
+    new Float64Array(buffer, affineAt, 3 * even).set(affine);
   } else {  // an odd column count: each row padded with a zero column
-    const w = view(weightsAt, count * even).fill(0), a = view(affineAt, 3 * even).fill(0);
+    const w = new Float64Array(buffer, weightsAt, count * even).fill(0);
+    const a = new Float64Array(buffer, affineAt, 3 * even).fill(0);
     for (let i = 0; i < count; i++) w.set(weights.subarray(i * columns, (i + 1) * columns), i * even);
     for (let r = 0; r < 3; r++) a.set(affine.subarray(r * columns, (r + 1) * columns), r * even);
   }
   wasm.spline(pointsAt, total, controlAt, count, weightsAt, affineAt, even, outAt, rowAt, centre[0], centre[1], scale);
-  const out = view(outAt, total * even);
+  const out = new Float64Array(buffer, outAt, total * even);
   if (even === columns) return out.slice();
   const trimmed = new Float64Array(total * columns);
   for (let p = 0; p < total; p++) trimmed.set(out.subarray(p * even, p * even + columns), p * columns);
