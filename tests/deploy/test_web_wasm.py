@@ -23,8 +23,8 @@ def test_the_kernels_run_in_node(web):
 
 
 def test_splines_are_the_javascripts_at_every_kind_of_distance(web, rng):
-    """The kernel row U(r) = r^2 log r^2 (the weights pick it out column by column) where fdlibm's log takes each of
-    its branches: powers of two, within 2^-20 of one and just past it, subnormal, huge, zero, and anywhere."""
+    """The kernel row U(r) = r^2 log r^2 (the weights pick it out column by column) where the log's reduction turns:
+    powers of two, about sqrt(2), within 2^-20 of one and just past it, tiny, huge, zero, and anywhere."""
     control = rng.uniform(-2, 2, (7, 2))
     offsets = [1.0, 2.0, 0.5, 2.0**-30, 1 + 2.0**-22, 1 - 2.0**-22, 1 + 2.0**-19, 1 - 2.0**-19, 2.0**-530, 1e-160, 1e150,
                0.0, np.sqrt(2.0), 3.0]
@@ -37,6 +37,17 @@ def test_splines_are_the_javascripts_at_every_kind_of_distance(web, rng):
         javascript, webassembly = _both(web, "splineAt", control, weights, affine, [0.25, -0.5], 1.5, points)
         np.testing.assert_array_equal(webassembly, javascript)
         assert np.isfinite(javascript[: len(offsets) - 3]).all()
+
+
+def test_the_splines_log_is_within_an_ulp_of_the_platforms(web, rng):
+    """tps_wasm.ts splineLog (fdlibm's reduction and polynomial, one path for every value, as its kernel computes it
+    two lanes at a time) against libm's log, from 1e-300 to 1e300, about one and about sqrt(2)."""
+    values = np.concatenate([np.exp(rng.uniform(-690, 690, 4000)), 1 + rng.uniform(-1e-3, 1e-3, 500),
+                             np.sqrt(2.0) * (1 + rng.uniform(-1e-6, 1e-6, 500)), [1.0, 2.0, 0.5, np.sqrt(2.0), 1e-300]])
+    got = np.asarray(web.calls(*[("splineLog", [float(v)]) for v in values]), np.float64)
+    want = np.log(values)
+    assert (np.abs(got - want) <= np.spacing(np.abs(want)) * 1.01 + (want == 0)).all()
+    assert np.mean(got == want) > 0.95  # most are the same value
 
 
 def test_spline_maps_are_the_javascripts(web, real_shots):

@@ -29,5 +29,5 @@ export * from "./eye_bank.js";
 export * from "./backend.js";
 export { useWebAssembly } from "./wasm.js";
 export { remapImage, remapsInWasm } from "./remap_wasm.js";
-export { splinesInWasm } from "./tps_wasm.js";
+export { splineLog, splinesInWasm } from "./tps_wasm.js";
 export { composeReferences, composesInWasm, loadedReferences } from "./blend_wasm.js";

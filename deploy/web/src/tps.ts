@@ -8,7 +8,7 @@
 
 import { CoarseGrid, coarseGrid, densifyGrid } from "./remap.js";
 import { Tensor, tensor } from "./tensor.js";
-import { evaluateSpline } from "./tps_wasm.js";
+import { evaluateSpline, splineLog } from "./tps_wasm.js";
 
 export const DEFAULT_REGULARIZATION = 1e-3;
 export const DEFAULT_MERGE_DISTANCE = 1.0;  // pixels
@@ -230,7 +230,7 @@ function evaluate(spline: ThinPlateSpline, points: Float64Array): Float64Array {
     const x = (points[2 * p] - cx) / scale, y = (points[2 * p + 1] - cy) / scale, o = p * columns;
     for (let i = 0; i < count; i++) {
       const dx = x - control[2 * i], dy = y - control[2 * i + 1], squared = dx * dx + dy * dy;
-      row[i] = squared > 0 ? squared * Math.log(squared) : 0;  // kernel(squared)
+      row[i] = squared > 0 ? squared * splineLog(squared) : 0;  // the kernel, with tps_wasm.ts's log
     }
     let c = 0;
     for (; c + 3 < columns; c += 4) {

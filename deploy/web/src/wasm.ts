@@ -70,7 +70,7 @@ export const V = {
   load32Splat: 0x09, i32x4Splat: 0x11, f32x4Nearest: 0x6a, i32x4Shl: 0xab, i32x4Add: 0xae,
   f32x4Add: 0xe4, f32x4Sub: 0xe5, f32x4Mul: 0xe6, f32x4Div: 0xe7, f32x4Min: 0xe8, f32x4Max: 0xe9,
   i32x4TruncSatF32x4S: 0xf8, f32x4ConvertI32x4S: 0xfa, f64x2Add: 0xf0, f64x2Sub: 0xf1, f64x2Mul: 0xf2,
-  f64x2Pmin: 0xf6, f64x2Pmax: 0xf7,
+  f64x2Pmin: 0xf6, f64x2Pmax: 0xf7, f64x2Div: 0xf3, f64x2Gt: 0x4a, or: 0x50, bitselect: 0x52, i64x2ShrU: 0xcd,
 };
 
 /** One function's code: `params` then `locals` ([count, type] groups) numbered from 0, its `results`; `build` emits
