@@ -46,8 +46,12 @@ function splineFunction(): Func {
   const [X, Y, kernel] = [19, 20, 21];  // v128
   const sums = [22, 23, 24, 25];  // v128
   const [SQ, E, M, BIG, DK, F, S, Z, W, T, HALF] = [26, 27, 28, 29, 30, 31, 32, 33, 34, 35, 36];  // v128: the log's
+  // the log's constants, each in a local set once (a v128.const in the loop was rebuilt on every pass)
+  const CONSTANTS = [Math.SQRT2, 0.5, 2 ** 52 + 1023, 1, 2, LN2_HI, LN2_LO, 0, ...LG];
+  const MASKS = [[0xffffffff, 0xfffff], [0, 0x3ff00000], [0, 0x43300000]];  // mantissa, 1's exponent, 2^52's
+  const firstConstant = 37, constantCount = CONSTANTS.length + MASKS.length;
   const params = [I32, I32, I32, I32, I32, I32, I32, I32, I32, I32, F64, F64, F64];
-  return func(params, [], [[4, I32], [2, F64], [18, V128]], (emit) => {
+  return func(params, [], [[4, I32], [2, F64], [18 + constantCount, V128]], (emit) => {
     const get = (l: number) => emit(op.get, l), set = (l: number) => emit(op.set, l), tee = (l: number) => emit(op.tee, l);
     const i32 = (v: number) => emit(op.i32Const, signed(v));
     const increment = (l: number, by: number) => { get(l); i32(by); emit(op.i32Add); set(l); };
@@ -61,10 +65,19 @@ function splineFunction(): Func {
       emit(op.br, 0, op.end, op.end);
     };
     const [add, sub, mul, div] = [simd(V.f64x2Add), simd(V.f64x2Sub), simd(V.f64x2Mul), simd(V.f64x2Div)];
-    const both = (value: number) => emit(simd(V.const), float64(value), float64(value));  // an f64x2 constant
-    const words = (low: number, high: number) => {  // an i64x2 constant of two 32-bit words, both lanes
+    CONSTANTS.forEach((value, k) => { emit(simd(V.const), float64(value), float64(value)); set(firstConstant + k); });
+    MASKS.forEach(([low, high], k) => {  // i64x2 constants of two 32-bit words, both lanes
       const lane = Array.from(new Uint8Array(new Uint32Array([low, high]).buffer));
-      emit(simd(V.const), lane, lane);
+      emit(simd(V.const), lane, lane); set(firstConstant + CONSTANTS.length + k);
+    });
+    const constant = (k: number) => {
+      if (k < 0) throw new Error("a spline kernel constant is missing from its table");
+      get(firstConstant + k);
+    };
+    const both = (value: number) => constant(CONSTANTS.indexOf(value));  // value in both lanes
+    const words = (low: number, high: number) => {  // an i64x2 mask of MASKS
+      const k = MASKS.findIndex(([l, h]) => l === low && h === high);
+      constant(k < 0 ? k : CONSTANTS.length + k);
     };
     /** row[i, i + 1] = U(SQ) per lane: splineLog's operations, then SQ log SQ where SQ > 0, else 0. */
     const kernelPair = () => {
