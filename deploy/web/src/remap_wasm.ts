@@ -31,14 +31,16 @@ function remapFunction(): Func {
   let next = params.length;
   const take = (size: number) => Array.from({ length: size }, () => next++);
   const [i, n, ix, iy, row, rowBytes, c0, c1, c2, c3, r0, r1, r2, r3] = take(14);  // i32
-  const [x, y, xEnd, yEnd] = take(4);  // f32
+  const [ix2, iy2, s0, s1, s2, s3] = take(6);  // i32: the second pixel of a pair's
+  const [x, y, xEnd, yEnd, x2, y2] = take(6);  // f32
   // v128: the fractions (x, y) in lanes 0 and 1, the four weights of x and of y side by side, each weight of x and of
   // y in all four lanes, the sum, the bytes out
   const [T, S, W0, W1, W2, W3, X0, X1, X2, X3, Y0, Y1, Y2, Y3, SUM, OUT] = take(16);
+  const [U0, U1, U2, U3, V0, V1, V2, V3, SUM2] = take(9);  // the second pixel's weights of x and y, and its sum
   const A = -0.75;
   const constants = [1, A, 5 * A, 8 * A, 4 * A, A + 2, A + 3];  // each in every lane of a v128 local
   const C = take(constants.length);
-  return func(params, [I32], [[14, I32], [4, F32], [16 + constants.length, V128]], (emit) => {
+  return func(params, [I32], [[20, I32], [6, F32], [25 + constants.length, V128]], (emit) => {
     const get = (l: number) => emit(op.get, l), set = (l: number) => emit(op.set, l);
     const i32 = (v: number) => emit(op.i32Const, signed(v));
     const f32 = (v: number) => emit(op.f32Const, float32(v));
@@ -57,12 +59,12 @@ function remapFunction(): Func {
       all(1); emit(add); set(into);
     };
     // lane `at` of a weight in every lane
-    const lane = (from: number, at: 0 | 1, into: number) => {
+    const lane = (from: number, at: number, into: number) => {
       const bytes = Array.from({ length: 16 }, (_, k) => 4 * at + (k % 4));
       get(from); get(from); emit(simd(V.shuffle), bytes); set(into);
     };
-    // the weights of T's fractions
-    const weights = () => {
+    // the weights of T's fractions (x, y of a pixel in lanes 0, 1; with `pair`, a second pixel's in lanes 2, 3)
+    const weights = (pair = false) => {
       outer(W0);
       inner(T, W1);
       all(1); get(T); emit(sub); set(S);
@@ -70,21 +72,45 @@ function remapFunction(): Func {
       all(1); get(W0); emit(sub); get(W1); emit(sub); get(W2); emit(sub); set(W3);
       lane(W0, 0, X0); lane(W1, 0, X1); lane(W2, 0, X2); lane(W3, 0, X3);
       lane(W0, 1, Y0); lane(W1, 1, Y1); lane(W2, 1, Y2); lane(W3, 1, Y3);
+      if (!pair) return;
+      lane(W0, 2, U0); lane(W1, 2, U1); lane(W2, 2, U2); lane(W3, 2, U3);
+      lane(W0, 3, V0); lane(W1, 3, V1); lane(W2, 3, V2); lane(W3, 3, V3);
     };
-    // sum over rows k of Y_k * (the sum over the row's taps j of pixel * X_j, in order); tap(k, j) pushes the
-    // address of tap (k, j) and gives the load's offset
-    const sum = (tap: (k: number, j: number) => number) => {
-      [Y0, Y1, Y2, Y3].forEach((Y, k) => {
-        if (k > 0) get(SUM);
-        [X0, X1, X2, X3].forEach((X, j) => {
+    // into `total`: the sum over rows k of ys_k * (the sum over the row's taps j of pixel * xs_j, in order); tap(k, j)
+    // pushes the address of tap (k, j) and gives the load's offset
+    const sum = (tap: (k: number, j: number) => number, xs = [X0, X1, X2, X3], ys = [Y0, Y1, Y2, Y3], total = SUM) => {
+      ys.forEach((Y, k) => {
+        if (k > 0) get(total);
+        xs.forEach((X, j) => {
           emit(simd(V.load), 4, unsigned(tap(k, j)));
           get(X); emit(mul);
           if (j > 0) emit(add);
         });
         get(Y); emit(mul);
         if (k > 0) emit(add);
-        set(SUM);
+        set(total);
       });
+    };
+    // `total` rounded half to even, saturated to [0, 255] by the two narrowings: R, G and B as bytes 0-2 of pixel
+    // `pixel` (its index: pushed by `pixel()`)
+    const store = (total: number, pixel: () => void) => {
+      get(total); emit(simd(V.f32x4Nearest), simd(V.i32x4TruncSatF32x4S)); set(OUT);
+      get(OUT); get(OUT); emit(simd(V.i16x8NarrowI32x4S)); set(OUT);
+      get(OUT); get(OUT); emit(simd(V.i8x16NarrowI16x8U)); set(OUT);
+      get(dst); pixel(); i32(3); emit(op.i32Mul, op.i32Add); set(row);
+      get(row); get(OUT); emit(simd(V.store16Lane), 0, 0, 0);
+      get(row); get(OUT); emit(simd(V.store8Lane), 0, 2, 2);
+    };
+    // the four tap rows' addresses of the pixel at (ix, iy) (its taps from (ix - 1, iy - 1)), into rows
+    const tapRows = (atX: number, atY: number, rows: number[]) => {
+      get(src); get(atY); i32(1); emit(op.i32Sub); get(width); emit(op.i32Mul); get(atX); emit(op.i32Add);
+      i32(1); emit(op.i32Sub); i32(4); emit(op.i32Shl, op.i32Add); set(rows[0]);
+      for (let k = 1; k < 4; k++) { get(rows[k - 1]); get(rowBytes); emit(op.i32Add); set(rows[k]); }
+    };
+    // whether (atX, atY) has its taps inside the source
+    const inside = (atX: number, atY: number) => {
+      get(atX); f32(1); emit(op.f32Ge); get(atX); get(xEnd); emit(op.f32Lt, op.i32And);
+      get(atY); f32(1); emit(op.f32Ge, op.i32And); get(atY); get(yEnd); emit(op.f32Lt, op.i32And);
     };
     // (value + shift) clamped to [0, last], into `into`
     const clamped = (value: number, shift: number, last: number, into: number) => {
@@ -98,25 +124,51 @@ function remapFunction(): Func {
     get(height); i32(2); emit(op.i32Sub, op.f32ConvertI32S); set(yEnd);
     emit(op.block, op.void, op.loop, op.void);
     get(i); get(count); emit(op.i32GeS, op.brIf, 1);
+    // two pixels at once where both are asked for and have their taps inside: their weights in one register, their
+    // sums side by side (each pixel's operations as the single path's, in its order); else the single path
+    emit(op.block, op.void);
+    get(i); i32(1); emit(op.i32Add); get(count); emit(op.i32GeS, op.brIf, 0);
+    get(only); emit(op.if, op.void);
+    get(only); get(i); emit(op.i32Add, op.i32Load8U, 0, 0, op.i32Eqz, op.brIf, 1);
+    get(only); get(i); emit(op.i32Add, op.i32Load8U, 0, 1, op.i32Eqz, op.brIf, 1);
+    emit(op.end);
+    get(mapX); get(i); i32(2); emit(op.i32Shl, op.i32Add); set(row);
+    get(row); emit(op.f32Load, 2, 0); set(x); get(row); emit(op.f32Load, 2, 4); set(x2);
+    get(mapY); get(i); i32(2); emit(op.i32Shl, op.i32Add); set(row);
+    get(row); emit(op.f32Load, 2, 0); set(y); get(row); emit(op.f32Load, 2, 4); set(y2);
+    inside(x, y); inside(x2, y2); emit(op.i32And, op.i32Eqz, op.brIf, 0);
+    get(x); emit(op.i32TruncF32S); set(ix);
+    get(y); emit(op.i32TruncF32S); set(iy);
+    get(x2); emit(op.i32TruncF32S); set(ix2);
+    get(y2); emit(op.i32TruncF32S); set(iy2);
+    get(x); get(ix); emit(op.f32ConvertI32S, op.f32Sub, simd(V.f32x4Splat));  // exact: x >= 1
+    get(y); get(iy); emit(op.f32ConvertI32S, op.f32Sub, simd(V.f32x4Replace), 1);
+    get(x2); get(ix2); emit(op.f32ConvertI32S, op.f32Sub, simd(V.f32x4Replace), 2);
+    get(y2); get(iy2); emit(op.f32ConvertI32S, op.f32Sub, simd(V.f32x4Replace), 3); set(T);
+    weights(true);
+    tapRows(ix, iy, [r0, r1, r2, r3]);
+    tapRows(ix2, iy2, [s0, s1, s2, s3]);
+    sum((k, j) => { get([r0, r1, r2, r3][k]); return PIXEL * j; });
+    sum((k, j) => { get([s0, s1, s2, s3][k]); return PIXEL * j; }, [U0, U1, U2, U3], [V0, V1, V2, V3], SUM2);
+    store(SUM, () => get(i));
+    store(SUM2, () => { get(i); i32(1); emit(op.i32Add); });
+    get(i); i32(2); emit(op.i32Add); set(i);
+    emit(op.br, 1);  // the loop
+    emit(op.end);
     emit(op.block, op.void);  // a pixel done (or left) goes on past this block
     get(only); emit(op.if, op.void);
     get(only); get(i); emit(op.i32Add, op.i32Load8U, 0, 0, op.i32Eqz, op.brIf, 1);
     emit(op.end);
     get(mapX); get(i); i32(2); emit(op.i32Shl, op.i32Add, op.f32Load, 2, 0); set(x);
     get(mapY); get(i); i32(2); emit(op.i32Shl, op.i32Add, op.f32Load, 2, 0); set(y);
-    get(x); f32(1); emit(op.f32Ge); get(x); get(xEnd); emit(op.f32Lt, op.i32And);
-    get(y); f32(1); emit(op.f32Ge, op.i32And); get(y); get(yEnd); emit(op.f32Lt, op.i32And);
+    inside(x, y);
     emit(op.if, op.void);  // the taps inside: from (ix - 1, iy - 1), row after row
     get(x); emit(op.i32TruncF32S); set(ix);
     get(y); emit(op.i32TruncF32S); set(iy);
     get(x); get(ix); emit(op.f32ConvertI32S, op.f32Sub, simd(V.f32x4Splat));  // exact: x >= 1
     get(y); get(iy); emit(op.f32ConvertI32S, op.f32Sub, simd(V.f32x4Replace), 1); set(T);
     weights();
-    get(src); get(iy); i32(1); emit(op.i32Sub); get(width); emit(op.i32Mul); get(ix); emit(op.i32Add);
-    i32(1); emit(op.i32Sub); i32(4); emit(op.i32Shl, op.i32Add); set(r0);
-    get(r0); get(rowBytes); emit(op.i32Add); set(r1);
-    get(r1); get(rowBytes); emit(op.i32Add); set(r2);
-    get(r2); get(rowBytes); emit(op.i32Add); set(r3);
+    tapRows(ix, iy, [r0, r1, r2, r3]);
     sum((k, j) => { get([r0, r1, r2, r3][k]); return PIXEL * j; });
     emit(op.else);
     // outside: the border replicated where asked and not far off (NaN fails these), else listed
@@ -139,13 +191,7 @@ function remapFunction(): Func {
     });
     sum((k, j) => { get([r0, r1, r2, r3][k]); get([c0, c1, c2, c3][j]); emit(op.i32Add); return 0; });
     emit(op.end);  // inside or outside
-    // rounded half to even, saturated to [0, 255] by the two narrowings: R, G and B as bytes 0-2, stored at dst + 3 i
-    get(SUM); emit(simd(V.f32x4Nearest), simd(V.i32x4TruncSatF32x4S)); set(OUT);
-    get(OUT); get(OUT); emit(simd(V.i16x8NarrowI32x4S)); set(OUT);
-    get(OUT); get(OUT); emit(simd(V.i8x16NarrowI16x8U)); set(OUT);
-    get(dst); get(i); i32(3); emit(op.i32Mul, op.i32Add); set(row);
-    get(row); get(OUT); emit(simd(V.store16Lane), 0, 0, 0);
-    get(row); get(OUT); emit(simd(V.store8Lane), 0, 2, 2);
+    store(SUM, () => get(i));
     emit(op.end);  // block
     get(i); i32(1); emit(op.i32Add); set(i);
     emit(op.br, 0, op.end, op.end);  // loop, block
