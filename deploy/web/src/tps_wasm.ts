@@ -44,14 +44,14 @@ function splineFunction(): Func {
   const [p, i, c, at] = [13, 14, 15, 16];  // i32
   const [x, y] = [17, 18];  // f64
   const [X, Y, kernel] = [19, 20, 21];  // v128
-  const sums = [22, 23, 24, 25];  // v128
+  const sums = [22, 23, 24, 25, 37];  // v128 (37: after the log's locals)
   const [SQ, E, M, BIG, DK, F, S, Z, W, T, HALF] = [26, 27, 28, 29, 30, 31, 32, 33, 34, 35, 36];  // v128: the log's
   // the log's constants, each in a local set once (a v128.const in the loop was rebuilt on every pass)
   const CONSTANTS = [Math.SQRT2, 0.5, 2 ** 52 + 1023, 1, 2, LN2_HI, LN2_LO, 0, ...LG];
   const MASKS = [[0xffffffff, 0xfffff], [0, 0x3ff00000], [0, 0x43300000]];  // mantissa, 1's exponent, 2^52's
-  const firstConstant = 37, constantCount = CONSTANTS.length + MASKS.length;
+  const firstConstant = 38, constantCount = CONSTANTS.length + MASKS.length;
   const params = [I32, I32, I32, I32, I32, I32, I32, I32, I32, I32, F64, F64, F64];
-  return func(params, [], [[4, I32], [2, F64], [18 + constantCount, V128]], (emit) => {
+  return func(params, [], [[4, I32], [2, F64], [19 + constantCount, V128]], (emit) => {
     const get = (l: number) => emit(op.get, l), set = (l: number) => emit(op.set, l), tee = (l: number) => emit(op.tee, l);
     const i32 = (v: number) => emit(op.i32Const, signed(v));
     const increment = (l: number, by: number) => { get(l); i32(by); emit(op.i32Add); set(l); };
@@ -141,15 +141,18 @@ function splineFunction(): Func {
         });
         increment(c, 2 * pairs);
       };
+      // four pairs a pass while six or more are left, then the 1 to 5 left in one pass: each pass's sums are
+      // independent chains, so the five pairs of five references take one pass (five chains), not four and one
       i32(0); set(c);
       emit(op.block, op.void, op.loop, op.void);
-      get(c); i32(8); emit(op.i32Add); get(columns); emit(op.i32GtS, op.brIf, 1);
+      get(c); i32(12); emit(op.i32Add); get(columns); emit(op.i32GtS, op.brIf, 1);
       pass(4);
       emit(op.br, 0, op.end, op.end);
-      emit(op.block, op.void, op.loop, op.void);
-      get(c); get(columns); emit(op.i32GeS, op.brIf, 1);
-      pass(1);
-      emit(op.br, 0, op.end, op.end);
+      for (let pairs = 5; pairs >= 1; pairs--) {
+        get(columns); get(c); emit(op.i32Sub); i32(2 * pairs); emit(op.i32Eq, op.if, op.void);
+        pass(pairs);
+        emit(op.end);
+      }
     });
   });
 }
