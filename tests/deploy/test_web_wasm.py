@@ -1,5 +1,6 @@
-"""The web runtime's WebAssembly kernels (deploy/web/src/wasm.ts, remap_wasm.ts, tps_wasm.ts) against the JavaScript
-they stand in for (remap.ts, tps.ts, composite.ts): the same bytes out, for the splines, the warps and the composite
+"""The web runtime's WebAssembly kernels (deploy/web/src/wasm.ts, remap_wasm.ts, tps_wasm.ts, blur_wasm.ts) against the
+JavaScript they stand in for (remap.ts, tps.ts, composite.ts): the same bytes out, for the splines, the warps, the
+blurs and the composite
 (``useWebAssembly`` turns them off and on within one Node process)."""
 
 from __future__ import annotations
@@ -48,6 +49,16 @@ def test_the_splines_log_is_within_an_ulp_of_the_platforms(web, rng):
     want = np.log(values)
     assert (np.abs(got - want) <= np.spacing(np.abs(want)) * 1.01 + (want == 0)).all()
     assert np.mean(got == want) > 0.95  # most are the same value
+
+
+def test_blurs_are_the_javascripts(web, rng):
+    """blur_wasm.ts (cv2.GaussianBlur's two passes two values at a time) against remap.ts's loops: one to four channels,
+    odd and even sizes, kernels wider than the image (reflect-101 all the way), and the composite's shrunk blur."""
+    for shape, sigma in [((37, 29), 2.0), ((8, 5), 3.0), ((16, 31, 3), 1.2), ((21, 14, 4), 5.5), ((9, 12, 2), 0.7),
+                         ((61, 47, 4), 20.0), ((3, 1), 0.5)]:
+        values = rng.normal(size=shape).astype(np.float32)
+        javascript, webassembly = _both(web, "sceneBlur", values, sigma)
+        np.testing.assert_array_equal(webassembly, javascript)
 
 
 def test_spline_maps_are_the_javascripts(web, real_shots):

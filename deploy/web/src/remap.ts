@@ -4,6 +4,7 @@
 // (cv2.borderInterpolate), and the coarse grids smooth maps are made on, then densified bilinearly
 // (landmarks.warp.tps._Grid). Used by tps.ts (landmarks/warp/tps.py: _remap, _Grid) and composite.ts (landmarks/scene/compositing.py).
 
+import { blurInWasm } from "./blur_wasm.js";
 import { Affine, Tensor, tensor } from "./tensor.js";
 
 export type BorderMode = "constant" | "replicate" | "reflect" | "reflect101";
@@ -327,7 +328,6 @@ export function reflect101(p: number, length: number): number {
 export function gaussianBlurF32(src: Float32Array, width: number, height: number, channels: number, sigma: number
                                 ): Float32Array {
   const n = roundHalfEven(sigma * 8 + 1) | 1, kernel = gaussianKernel(n, sigma), anchor = n >> 1;
-  const rows = new Float32Array(src.length), out = new Float32Array(src.length);
   const xIndex = new Int32Array(width * n), yIndex = new Int32Array(height * n);
   for (let x = 0; x < width; x++) {
     for (let k = 0; k < n; k++) xIndex[x * n + k] = reflect101(x + k - anchor, width) * channels;
@@ -335,6 +335,9 @@ export function gaussianBlurF32(src: Float32Array, width: number, height: number
   for (let y = 0; y < height; y++) {
     for (let k = 0; k < n; k++) yIndex[y * n + k] = reflect101(y + k - anchor, height) * width * channels;
   }
+  const fast = blurInWasm(src, width, height, channels, kernel, xIndex, yIndex);  // the same values
+  if (fast !== null) return fast;
+  const rows = new Float32Array(src.length), out = new Float32Array(src.length);
   for (let y = 0; y < height; y++) {
     const row = y * width * channels;
     for (let x = 0; x < width; x++) {
