@@ -414,15 +414,12 @@ export function compositeFace(scene: Tensor<Uint8Array>, sceneLandmarks: Tensor,
   const face = warpFace(crop, faceMatrix, fw, fh);
   // the crop's inside (edge pixels in from its border) under a bilinear warp: a separable indicator, so per axis
   const edge = Math.max(1, Math.floor(cropSide / 32));
-  const indicator = (v: number) => {
-    const v0 = Math.floor(v), a = v - v0;
-    return (v0 >= edge && v0 < cropSide - edge ? 1 - a : 0) + (v0 + 1 >= edge && v0 + 1 < cropSide - edge ? a : 0);
-  };
   const footprint = new Float32Array(pixels);
   for (let y = 0, i = 0; y < fh; y++) {
     for (let x = 0; x < fw; x++, i++) {
       const u = faceMatrix[0] * x + faceMatrix[1] * y + faceMatrix[2];
-      footprint[i] = indicator(u) * indicator(faceMatrix[3] * x + faceMatrix[4] * y + faceMatrix[5]);
+      footprint[i] = indicator(u, edge, cropSide) * indicator(faceMatrix[3] * x + faceMatrix[4] * y + faceMatrix[5], edge,
+                                                              cropSide);
     }
   }
   const hull = new Uint8Array(pixels);
@@ -484,6 +481,12 @@ export function compositeFace(scene: Tensor<Uint8Array>, sceneLandmarks: Tensor,
     fullAlpha.set(alpha.subarray(y * fw, (y + 1) * fw), (fy0 - y0 + y) * (x1 - x0) + fx0 - x0);
   }
   return { frame, box, faceAlpha: tensor(fullAlpha, [y1 - y0, x1 - x0]), headMotion: motion };
+}
+
+/** The crop's inside (`edge` pixels in from the border of a `side` crop) at v under a bilinear warp, along one axis. */
+function indicator(v: number, edge: number, side: number): number {
+  const v0 = Math.floor(v), a = v - v0;
+  return (v0 >= edge && v0 < side - edge ? 1 - a : 0) + (v0 + 1 >= edge && v0 + 1 < side - edge ? a : 0);
 }
 
 /** 1 inside the head regions, ramping to 0 over their outermost 5 %; null when the whole box lies inside one of

@@ -181,7 +181,6 @@ export function warpAffineLinear(src: PixelImage<Uint8Array>, m: Affine, width: 
                                  border: BorderMode): Uint8Array {
   const { channels, data } = src, stride = src.width * channels;
   const out = new Uint8Array(width * height * channels), clamped = clampedView(out);
-  const lerp = (p: number, q: number, t: number) => f(p + f(t * f(q - p)));
   for (let y = 0; y < height; y++) {
     for (let x = 0; x < width; x++) {
       const u = f(m[0] * x + m[1] * y + m[2]), v = f(m[3] * x + m[4] * y + m[5]);
@@ -191,13 +190,24 @@ export function warpAffineLinear(src: PixelImage<Uint8Array>, m: Affine, width: 
       const c1 = inside ? ix + 1 : borderIndex(ix + 1, src.width, border);
       const r0 = inside ? iy : borderIndex(iy, src.height, border);
       const r1 = inside ? iy + 1 : borderIndex(iy + 1, src.height, border);
-      for (let c = 0; c < channels; c++) {
-        const at = (row: number, column: number) => (row < 0 || column < 0 ? 0 : data[row * stride + column * channels + c]);
-        clamped[o + c] = lerp(lerp(at(r0, c0), at(r0, c1), a), lerp(at(r1, c0), at(r1, c1), a), b);
+      for (let c = 0; c < channels; c++) {  // module functions, not closures made per pixel
+        const v00 = valueAt(data, stride, channels, c, r0, c0), v01 = valueAt(data, stride, channels, c, r0, c1);
+        const v10 = valueAt(data, stride, channels, c, r1, c0), v11 = valueAt(data, stride, channels, c, r1, c1);
+        clamped[o + c] = lerp(lerp(v00, v01, a), lerp(v10, v11, a), b);
       }
     }
   }
   return out;
+}
+
+/** p + t (q - p) in float32 (warpAffineLinear's interpolation). */
+function lerp(p: number, q: number, t: number): number {
+  return f(p + f(t * f(q - p)));
+}
+
+/** Channel c of pixel (row, column) of `data` (0 for a row or column of -1: a constant border's). */
+function valueAt(data: Uint8Array, stride: number, channels: number, c: number, row: number, column: number): number {
+  return row < 0 || column < 0 ? 0 : data[row * stride + column * channels + c];
 }
 
 /** Bilinear sample of a one-channel float image at (x, y) (cv2.remap / warpAffine INTER_LINEAR on float32); a

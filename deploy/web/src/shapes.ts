@@ -16,12 +16,30 @@ const XY_SHIFT = 16, XY_ONE = 1 << XY_SHIFT;
 const SIN_TABLE = Float32Array.from({ length: 451 }, (_, i) => Number(Math.sin((i * Math.PI) / 180).toFixed(7)));
 const shr = (value: number, bits: number) => Math.floor(value / 2 ** bits);  // int64 >> bits
 
+/** Pixel (x, y) of a (height, width) mask set to 1 where it lies in the mask (Line's put). Module functions here, not
+ * closures made per line, which V8 compiled again on every frame. */
+function setPixel(img: Uint8Array, width: number, height: number, x: number, y: number): void {
+  if (x >= 0 && x < width && y >= 0 && y < height) img[y * width + x] = 1;
+}
+
+/** Pixel `at` of a mask moved toward `color` by a/256 twice (LineAA's anti-aliased put). */
+function blendPixel(img: Uint8Array, at: number, color: number, a: number): void {
+  let v = img[at];
+  v += ((color - v) * a + 127) >> 8;
+  v += ((color - v) * a + 127) >> 8;
+  img[at] = v & 0xff;
+}
+
+/** Which of an image's sides (x, y) lies beyond: clipLine's region code. */
+function outCode(x: number, y: number, right: number, bottom: number): number {
+  return (x < 0 ? 1 : 0) + (x > right ? 2 : 0) + (y < 0 ? 4 : 0) + (y > bottom ? 8 : 0);
+}
+
 /** clipLine on an (width, height) image, int64 arithmetic: clips p = [x1, y1, x2, y2] in place; false if outside. */
 function clipLine(width: number, height: number, p: number[]): boolean {
   if (width <= 0 || height <= 0) return false;
   const right = width - 1, bottom = height - 1;
-  const code = (x: number, y: number) => (x < 0 ? 1 : 0) + (x > right ? 2 : 0) + (y < 0 ? 4 : 0) + (y > bottom ? 8 : 0);
-  let c1 = code(p[0], p[1]), c2 = code(p[2], p[3]);
+  let c1 = outCode(p[0], p[1], right, bottom), c2 = outCode(p[2], p[3], right, bottom);
   if ((c1 & c2) === 0 && (c1 | c2) !== 0) {
     if (c1 & 12) {
       const a = c1 < 8 ? 0 : bottom;
@@ -83,7 +101,6 @@ function line2(img: Uint8Array, width: number, height: number, p1x: number, p1y:
   let [x1, y1, x2, y2] = p;
   const dx0 = x2 - x1, dy0 = y2 - y1, ax = Math.abs(dx0), ay = Math.abs(dy0);
   let xStep: number, yStep: number, ecount: number;
-  const put = (x: number, y: number) => { if (x >= 0 && x < width && y >= 0 && y < height) img[y * width + x] = 1; };
   if (ax > ay) {
     const dy = dx0 < 0 ? -dy0 : dy0;
     if (dx0 < 0) [x1, y1, x2, y2] = [x2, y2, x1, y1];
@@ -99,13 +116,13 @@ function line2(img: Uint8Array, width: number, height: number, p1x: number, p1y:
   }
   x1 += XY_ONE >> 1;
   y1 += XY_ONE >> 1;
-  put(shr(x2 + (XY_ONE >> 1), XY_SHIFT), shr(y2 + (XY_ONE >> 1), XY_SHIFT));
+  setPixel(img, width, height, shr(x2 + (XY_ONE >> 1), XY_SHIFT), shr(y2 + (XY_ONE >> 1), XY_SHIFT));
   if (ax > ay) {
     x1 = shr(x1, XY_SHIFT);
-    for (; ecount >= 0; ecount--, x1++, y1 += yStep) put(x1, shr(y1, XY_SHIFT));
+    for (; ecount >= 0; ecount--, x1++, y1 += yStep) setPixel(img, width, height, x1, shr(y1, XY_SHIFT));
   } else {
     y1 = shr(y1, XY_SHIFT);
-    for (; ecount >= 0; ecount--, x1 += xStep, y1++) put(shr(x1, XY_SHIFT), y1);
+    for (; ecount >= 0; ecount--, x1 += xStep, y1++) setPixel(img, width, height, shr(x1, XY_SHIFT), y1);
   }
 }
 
@@ -235,30 +252,22 @@ function lineAA(img: Uint8Array, width: number, height: number, p: number[], col
   ep[5] = ((t1 + t0) >> 8) & 0x1ff;
   ep[6] = (t2 >> 8) & 0x1ff;
   ep[7] = ((t2 + t0) >> 8) & 0x1ff;
-  const put = (x: number, y: number, a: number): void => {
-    const at = y * width + x;
-    let v = img[at];
-    v += ((color - v) * a + 127) >> 8;
-    v += ((color - v) * a + 127) >> 8;
-    img[at] = v & 0xff;
-  };
   let scount = 0;
-  const corr = (): number => ep[(((+(scount >= 2) + 1) & (scount | 2)) * 3) + ((+(ecount >= 2) + 1) & (ecount | 2))];
   if (ax > ay) {
     for (let x = shr(x1, XY_SHIFT); ecount >= 0; x++, y1 += yStep, scount++, ecount--) {
       if (x < 0 || x >= width) continue;
-      const y = shr(y1, XY_SHIFT) - 1, epCorr = corr(), dist = (y1 >> (XY_SHIFT - 5)) & 31;
-      if (y >= 0 && y < height) put(x, y, ((epCorr * FILTER_TABLE[dist + 32]) >> 8) & 0xff);
-      if (y + 1 >= 0 && y + 1 < height) put(x, y + 1, ((epCorr * FILTER_TABLE[dist]) >> 8) & 0xff);
-      if (y + 2 >= 0 && y + 2 < height) put(x, y + 2, ((epCorr * FILTER_TABLE[63 - dist]) >> 8) & 0xff);
+      const y = shr(y1, XY_SHIFT) - 1, epCorr = ep[(((+(scount >= 2) + 1) & (scount | 2)) * 3) + ((+(ecount >= 2) + 1) & (ecount | 2))], dist = (y1 >> (XY_SHIFT - 5)) & 31;
+      if (y >= 0 && y < height) blendPixel(img, y * width + x, color, ((epCorr * FILTER_TABLE[dist + 32]) >> 8) & 0xff);
+      if (y + 1 >= 0 && y + 1 < height) blendPixel(img, (y + 1) * width + x, color, ((epCorr * FILTER_TABLE[dist]) >> 8) & 0xff);
+      if (y + 2 >= 0 && y + 2 < height) blendPixel(img, (y + 2) * width + x, color, ((epCorr * FILTER_TABLE[63 - dist]) >> 8) & 0xff);
     }
   } else {
     for (let y = shr(y1, XY_SHIFT); ecount >= 0; y++, x1 += xStep, scount++, ecount--) {
       if (y < 0 || y >= height) continue;
-      const x = shr(x1, XY_SHIFT) - 1, epCorr = corr(), dist = (x1 >> (XY_SHIFT - 5)) & 31;
-      if (x >= 0 && x < width) put(x, y, ((epCorr * FILTER_TABLE[dist + 32]) >> 8) & 0xff);
-      if (x + 1 >= 0 && x + 1 < width) put(x + 1, y, ((epCorr * FILTER_TABLE[dist]) >> 8) & 0xff);
-      if (x + 2 >= 0 && x + 2 < width) put(x + 2, y, ((epCorr * FILTER_TABLE[63 - dist]) >> 8) & 0xff);
+      const x = shr(x1, XY_SHIFT) - 1, epCorr = ep[(((+(scount >= 2) + 1) & (scount | 2)) * 3) + ((+(ecount >= 2) + 1) & (ecount | 2))], dist = (x1 >> (XY_SHIFT - 5)) & 31;
+      if (x >= 0 && x < width) blendPixel(img, y * width + x, color, ((epCorr * FILTER_TABLE[dist + 32]) >> 8) & 0xff);
+      if (x + 1 >= 0 && x + 1 < width) blendPixel(img, y * width + x + 1, color, ((epCorr * FILTER_TABLE[dist]) >> 8) & 0xff);
+      if (x + 2 >= 0 && x + 2 < width) blendPixel(img, y * width + x + 2, color, ((epCorr * FILTER_TABLE[63 - dist]) >> 8) & 0xff);
     }
   }
 }
