@@ -118,7 +118,11 @@ export function eyeAffine(corners: Tensor | ArrayLike<number>, size: [number, nu
 /** (2, 2, 2) flat: each eye's two corners (image left first) of (68, 2) points (eye_corners). */
 export function eyeCorners(landmarks: Tensor | ArrayLike<number>): Float64Array {
   const p = flat(landmarks), corners = new Float64Array(8);
-  BANK_CORNERS.forEach(([first, last], e) => corners.set([p[2 * first], p[2 * first + 1], p[2 * last], p[2 * last + 1]], 4 * e));
+  for (let e = 0; e < BANK_CORNERS.length; e++) {
+    const [first, last] = BANK_CORNERS[e];
+    corners[4 * e] = p[2 * first]; corners[4 * e + 1] = p[2 * first + 1];
+    corners[4 * e + 2] = p[2 * last]; corners[4 * e + 3] = p[2 * last + 1];
+  }
   return corners;
 }
 
@@ -154,15 +158,17 @@ export function headTurn(landmarks: Tensor | ArrayLike<number>): [number, number
  * (landmarks.shape.measures.eye_apertures). */
 export function eyeApertures(landmarks: Tensor | ArrayLike<number>): Float64Array {
   const p = flat(landmarks), apertures = new Float64Array(2);
-  EYE_RINGS.forEach((ring, eye) => {
-    const { width } = eyeAxes(p, eye);
-    const gap = (a: number, b: number) => {
-      const dx = p[2 * a] - p[2 * b], dy = p[2 * a + 1] - p[2 * b + 1];
-      return Math.sqrt(dx * dx + dy * dy);
-    };
-    apertures[eye] = (gap(ring[1], ring[5]) + gap(ring[2], ring[4])) / 2 / Math.max(width, 1e-9);
-  });
+  for (let eye = 0; eye < EYE_RINGS.length; eye++) {
+    const ring = EYE_RINGS[eye], { width } = eyeAxes(p, eye);
+    apertures[eye] = (pointGap(p, ring[1], ring[5]) + pointGap(p, ring[2], ring[4])) / 2 / Math.max(width, 1e-9);
+  }
   return apertures;
+}
+
+/** The distance between points a and b of (68, 2) flat `p`. */
+function pointGap(p: ArrayLike<number>, a: number, b: number): number {
+  const dx = p[2 * a] - p[2 * b], dy = p[2 * a + 1] - p[2 * b + 1];
+  return Math.sqrt(dx * dx + dy * dy);
 }
 
 /** What a face's eyes show (eye_state): 68 points (its pixels) and its irises ((2, 4) flat, gaze.ts findIrises rows,

@@ -58,10 +58,12 @@ export function gazeOffsets(irises: Tensor | ArrayLike<number>, landmarks: Tenso
 export function retargetGaze(driver: Tensor | ArrayLike<number>, driverReference: Tensor | ArrayLike<number>,
                              source: Tensor | ArrayLike<number>): Float64Array {
   const reference = values(driverReference), own = values(source);
-  return Float64Array.from(values(driver), (value, i) => {
+  const driven = values(driver), out = new Float64Array(driven.length);
+  for (let i = 0; i < driven.length; i++) {
     const shift = own[i] - reference[i];
-    return value + (Number.isFinite(shift) ? shift : 0);
-  });
+    out[i] = driven[i] + (Number.isFinite(shift) ? shift : 0);
+  }
+  return out;
 }
 
 /** A driver's gaze, frame by frame, as the target's (lsr.core.finish.DriverGaze): `source` null, its own (absolute);

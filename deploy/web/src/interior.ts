@@ -93,7 +93,7 @@ export function noseLight(image: Tensor, p: ArrayLike<number>): Float64Array | n
     for (let c = 0; c < 3; c++) sum[c] += cut.patch.data[3 * k + c];
     count++;
   }
-  return count ? Float64Array.from(sum, (v) => v / count) : null;
+  return count ? Float64Array.of(sum[0] / count, sum[1] / count, sum[2] / count) : null;
 }
 
 /** interior_strength: the lesser opening of the target's (68, 2) points and the driver's, OPEN[0] -> 0, OPEN[1] -> 1,
@@ -103,6 +103,22 @@ export function interiorStrength(landmarks: Tensor, mouth: DriverMouth): number 
   if (!Number.isFinite(opening) || !Number.isFinite(mouth.yaw)) return 0;
   const opened = Math.min(Math.max((opening - OPEN[0]) / (OPEN[1] - OPEN[0]), 0), 1);
   return opened * Math.min(Math.max((TURN[1] - Math.abs(mouth.yaw)) / (TURN[1] - TURN[0]), 0), 1);
+}
+
+/** The determinant of a 3 x 3 matrix (row-major). */
+function det3(m: number[]): number {
+  return m[0] * (m[4] * m[8] - m[5] * m[7]) - m[1] * (m[3] * m[8] - m[5] * m[6]) + m[2] * (m[3] * m[7] - m[4] * m[6]);
+}
+
+/** x with a x = b (3 x 3 a, row-major) by Cramer's rule: column i of a replaced by b (b[row] in row `row`). */
+function cramer(a: number[], b: number[]): number[] {
+  const whole = det3(a), out = [0, 0, 0];
+  for (let column = 0; column < 3; column++) {
+    const replaced = a.slice();
+    for (let k = column; k < 9; k += 3) replaced[k] = b[Math.floor(k / 3)];
+    out[column] = det3(replaced) / whole;
+  }
+  return out;
 }
 
 /** lip_affine: the affine map [a, b, c, d, e, f] (x' = a x + b y + c, y' = d x + e y + f) taking the points
@@ -117,13 +133,7 @@ export function lipAffine(from: Tensor | ArrayLike<number>, to: Tensor | ArrayLi
       aty[r] += row[r] * target[2 * i + 1];
     }
   }
-  const solve = (b: number[]): number[] => {  // Cramer's rule on the 3 x 3 symmetric system
-    const det = (m: number[]) => m[0] * (m[4] * m[8] - m[5] * m[7]) - m[1] * (m[3] * m[8] - m[5] * m[6])
-      + m[2] * (m[3] * m[7] - m[4] * m[6]);
-    const whole = det(ata);
-    return [0, 1, 2].map((column) => det(ata.map((value, k) => (k % 3 === column ? b[Math.floor(k / 3)] : value))) / whole);
-  };
-  return [...solve(atx), ...solve(aty)] as Affine;
+  return [...cramer(ata, atx), ...cramer(ata, aty)] as Affine;
 }
 
 /** The length of pixel k's colour ((h, w, 3) float32 `values`): its channels less their mean, as colourScale sums it.

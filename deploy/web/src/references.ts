@@ -19,19 +19,26 @@ export function landmarkDistance(first: Tensor, second: Tensor, firstOffset = 0)
   for (let i = 0, o = firstOffset; i < count; i++, o += 2) {
     total += Math.hypot(a[o] - b[2 * i], a[o + 1] - b[2 * i + 1]);
   }
-  const eye = (indices: number[], c: number) => indices.reduce((s, i) => s + b[2 * i + c], 0) / indices.length;
-  const eyes = Math.hypot(eye(LEFT_EYE, 0) - eye(RIGHT_EYE, 0), eye(LEFT_EYE, 1) - eye(RIGHT_EYE, 1));
+  const eyes = Math.hypot(meanOf(b, LEFT_EYE, 0) - meanOf(b, RIGHT_EYE, 0), meanOf(b, LEFT_EYE, 1) - meanOf(b, RIGHT_EYE, 1));
   return eyes > 0 ? total / count / eyes : NaN;
+}
+
+/** The mean of coordinate c of points `indices` of (N, 2) flat `points`, summed in order. */
+function meanOf(points: ArrayLike<number>, indices: number[], c: number): number {
+  let sum = 0;
+  for (const i of indices) sum += points[2 * i + c];
+  return sum / indices.length;
 }
 
 /** Indices of the `count` shots nearest the target (landmarkDistance, ties by index; shots with NaN last)
  * (landmarks.warp.tps.nearest_shots). shotLandmarks: (K, 68, 2); targetLandmarks: (68, 2) -> min(count, K) indices. */
 export function nearestShots(shotLandmarks: Tensor, targetLandmarks: Tensor, count: number): number[] {
   const shots = shotLandmarks.shape[0], stride = targetLandmarks.data.length;
-  const distances = Array.from({ length: shots }, (_, k) => {
+  const distances: number[] = new Array(shots);
+  for (let k = 0; k < shots; k++) {
     const distance = landmarkDistance(shotLandmarks, targetLandmarks, k * stride);
-    return Number.isNaN(distance) ? Infinity : distance;
-  });
+    distances[k] = Number.isNaN(distance) ? Infinity : distance;
+  }
   const order = Array.from({ length: shots }, (_, k) => k).sort((p, q) => distances[p] - distances[q] || p - q);
   return order.slice(0, Math.max(1, Math.min(count, shots)));
 }
@@ -145,7 +152,9 @@ function bentMaps(warps: GridMap[], unique: number[], nearestFirst: number[], ir
     return { mapX: tensor(mapX, [height, width]), mapY: tensor(mapY, [height, width]) };
   });
   const shotIrises = new Float64Array(4 * nearestFirst.length);
-  nearestFirst.forEach((index, i) => shotIrises.set(irises.data.subarray(4 * index, 4 * index + 4), 4 * i));
+  for (let i = 0; i < nearestFirst.length; i++) {
+    shotIrises.set(irises.data.subarray(4 * nearestFirst[i], 4 * nearestFirst[i] + 4), 4 * i);
+  }
   alignIrises(maps, tensor(shotIrises, [nearestFirst.length, 2, 2]), target, gaze);
   return new Map(nearestFirst.map((index, i) => [index, maps[i]]));
 }

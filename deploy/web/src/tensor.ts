@@ -12,7 +12,8 @@ export interface Tensor<T extends TypedArray = TypedArray> {
 export type Affine = [number, number, number, number, number, number];
 
 export function tensor<T extends TypedArray>(data: T, shape: number[]): Tensor<T> {
-  const size = shape.reduce((a, b) => a * b, 1);
+  let size = 1;
+  for (const extent of shape) size *= extent;
   if (data.length !== size) throw new Error(`data of ${data.length} values cannot have shape [${shape}]`);
   return { data, shape };
 }

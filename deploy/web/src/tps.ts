@@ -434,10 +434,10 @@ function controlPoints(target: Tensor, sources: Tensor[], rows: number[], fixed:
     const row = rows[r], f = r - rows.length, x = fixed[2 * f], y = fixed[2 * f + 1];  // fixed: past the rows
     control[2 * r] = row === undefined ? x : target.data[2 * row];
     control[2 * r + 1] = row === undefined ? y : target.data[2 * row + 1];
-    sources.forEach((set, slot) => {
-      values[r * columns + 2 * slot] = row === undefined ? x : set.data[2 * row];
-      values[r * columns + 2 * slot + 1] = row === undefined ? y : set.data[2 * row + 1];
-    });
+    for (let slot = 0; slot < sources.length; slot++) {
+      values[r * columns + 2 * slot] = row === undefined ? x : sources[slot].data[2 * row];
+      values[r * columns + 2 * slot + 1] = row === undefined ? y : sources[slot].data[2 * row + 1];
+    }
   }
   return [control, values];
 }
@@ -498,8 +498,8 @@ function gridTries(control: Float64Array, values: Float64Array, sets: number, gr
       break;  // more regularisation does not help a system without spread / affine rank
     }
     const mapped = evaluate(spline, grid.points), left: number[] = [];
-    pending.forEach((slot, column) => {
-      const [mapX, mapY, finite] = slotMap(mapped, span, column);
+    for (let column = 0; column < pending.length; column++) {
+      const slot = pending[column], [mapX, mapY, finite] = slotMap(mapped, span, column);
       const folds = foldedFraction(mapX, mapY, grid.ys.length, grid.xs.length);
       if (finite && folds <= o.maxFoldedFraction) {
         maps[slot] = { mapX, mapY, method: attempt === 0 ? "tps" : "tps_stronger", regularization: lambda,
@@ -508,7 +508,7 @@ function gridTries(control: Float64Array, values: Float64Array, sets: number, gr
         reasons[slot].push(foldedReason(lambda, folds));
         left.push(slot);
       }
-    });
+    }
     pending = left;
   }
   return maps.map((map, slot) => map ?? fallback(slot, reasons[slot]));
