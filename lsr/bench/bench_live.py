@@ -379,10 +379,11 @@ def run_live(url: str, y4m: Path, seconds: float, warmup: float, screenshot: Pat
         live.LIVE_TRACE = None
 
 
-def camera_file(path: Path, video: Path | None, seconds: float) -> Path:
-    """The fake camera's .y4m: ``seconds`` of ``video`` (letterboxed), or 4 s of a synthetic talking person on loop."""
-    count = int(seconds * CAMERA_FPS) if video is not None else 4 * CAMERA_FPS
-    return write_y4m(path, camera_frames(video, count))
+def camera_file(path: Path, video: Path | None, seconds: float, fps: int = CAMERA_FPS) -> Path:
+    """The fake camera's .y4m at ``fps``: ``seconds`` of ``video`` (letterboxed, its frames played at ``fps``), or
+    4 s of a synthetic talking person on loop."""
+    count = int(seconds * fps) if video is not None else 4 * fps
+    return write_y4m(path, camera_frames(video, count), fps)
 
 
 def live_tab(weights: Path | None, y4m: Path, seconds: float, warmup: float, screenshot: Path | None,

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lsr.bench.bench_live import CHROMIUM, LiveMeasure, camera_file, camera_page, live_tab
+from lsr.bench.bench_live import CAMERA_FPS, CHROMIUM, LiveMeasure, camera_file, camera_page, live_tab
 
 if TYPE_CHECKING:
     from lsr.config import BenchWebConfig
@@ -35,11 +35,12 @@ STAGES = ("track", "retarget", "warps", "network", "mouth", "composite")
 
 
 def measure_site(folder: Path, y4m: Path, seconds: float, warmup: float, screenshot: Path | None
-                 ) -> tuple[LiveMeasure, dict[str, float], int, str, dict[str, float]]:
+                 ) -> tuple[LiveMeasure, dict[str, float], int, str, dict[str, float], int]:
     """The site in ``folder`` served statically and opened in Chromium with ``y4m`` as the camera, its stream
     measured: (the measure, median ms of each stage, WASM threads, the frame generator's backend as the page names it:
     WASM, WebGPU or WebNN, ``deploy/web/src/backend.ts``, the cores Chromium's threads kept busy over the window,
-    ``lsr.bench.thread_cpu.core_shares``: {} where /proc cannot be read)."""
+    ``lsr.bench.thread_cpu.core_shares``: {} where /proc cannot be read, the camera frames that came over the
+    window)."""
     from deploy.web_serve import serve_folder
     from landmarks.io.image_files import atomic_output
     from lsr.bench.thread_cpu import core_shares, thread_times
@@ -70,13 +71,17 @@ def measure_site(folder: Path, y4m: Path, seconds: float, warmup: float, screens
                          [stats["latency"][i] for i in window], [stats["ms"][i] for i in window])
     stages = {name: statistics.median(values) for name in STAGES
               if (values := [stats["stages"][i][name] for i in window if name in stats["stages"][i]])}
-    return result, stages, threads, backend, core_shares(cpu_before, cpu_after, (end - begin) / 1000)
+    seen = [count for came, count in zip(stats["cameraTimes"], stats["cameraFrames"]) if came <= end]
+    before = [count for came, count in zip(stats["cameraTimes"], stats["cameraFrames"]) if came < begin]
+    offered = (seen[-1] - before[-1]) if seen and before else 0
+    return result, stages, threads, backend, core_shares(cpu_before, cpu_after, (end - begin) / 1000), offered
 
 
 def web_markdown(web: LiveMeasure, live: LiveMeasure, stages: dict[str, float], threads: int, backend: str, camera: str,
-                 site_mib: float, machine: str, cpu: dict[str, float] | None = None, cores: int | None = None) -> str:
+                 site_mib: float, machine: str, cpu: dict[str, float] | None = None, cores: int | None = None, *,
+                 camera_fps: int = CAMERA_FPS, offered: int | None = None) -> str:
     """The section's text. cpu: the cores Chromium kept busy while the site ran (``measure_site``); {} or None: no
-    such line."""
+    such line. offered: the camera frames that came while the site was measured (None: no such line)."""
     from lsr.bench.thread_cpu import shares_line
 
     def row(what: str, result: LiveMeasure, latency: str) -> str:
@@ -88,17 +93,20 @@ def web_markdown(web: LiveMeasure, live: LiveMeasure, stages: dict[str, float], 
     fps_ratio = web.fps / live.fps if live.fps > 0 else float("nan")
     web_latency = statistics.median(web.latency_ms) if web.latency_ms else float("nan")
     live_latency = statistics.median(live.latency_ms) if live.latency_ms else float("nan")
-    lines = [f"The shipped default driving the example person; camera: {camera} (Chromium's fake camera; both ask "
-             "for 320x240). The site: `lsr export --web`, served by a plain static server, onnxruntime-web "
-             f"(the frame generator on {backend}; WASM with SIMD and {threads} threads); {site_mib:.0f} MiB.", "",
+    lines = [f"The shipped default driving the example person; camera: {camera} at {camera_fps} fps (Chromium's "
+             "fake camera; both ask for 320x240). The site: `lsr export --web`, served by a plain static server, "
+             f"onnxruntime-web (the frame generator on {backend}; WASM with SIMD and {threads} threads); {site_mib:.0f} MiB.", "",
              "| where | frames shown | seconds | fps | latency ms, median | latency ms, 90th percentile | ms per frame, "
              "median |", "|---|---|---|---|---|---|---|",
              row("the web site: everything in the browser", web, "camera grab to picture drawn"),
              row("the app's live tab (`lsr bench live`), same run", live, "camera grab to picture loaded"), "",
              f"**Ratios, same run:** frame rate {fps_ratio:.2f}x the live tab's (goal >= 0.8x); median latency "
-             f"{web_latency / live_latency:.2f}x (goal <= 1x).", "",
-             "In the browser, median ms per frame of each stage: " +
-             ", ".join(f"{name} {ms:.1f}" for name, ms in stages.items()) + ".", ""]
+             f"{web_latency / live_latency:.2f}x (goal <= 1x).", ""]
+    if offered:
+        lines += [f"The page showed {web.frames} of the {offered} frames the camera sent over its window "
+                  f"({web.frames / offered:.0%}): the camera's {camera_fps} fps is the most it can show.", ""]
+    lines += ["In the browser, median ms per frame of each stage: " +
+              ", ".join(f"{name} {ms:.1f}" for name, ms in stages.items()) + ".", ""]
     if line := shares_line(cpu or {}, cores):
         lines += [line, ""]
     return "\n".join([*lines, machine])
@@ -118,11 +126,13 @@ def run_bench_web(cfg: BenchWebConfig) -> tuple[LiveMeasure, LiveMeasure]:
         temp = Path(temp)
         site = write_site(resolve_weights(cfg.weights), temp / "site")
         site_mib = sum(path.stat().st_size for path in site.files) / 2**20
-        y4m = camera_file(temp / "camera.y4m", cfg.camera_video, cfg.seconds + cfg.warmup)
-        web, stages, threads, backend, cpu = measure_site(site.folder, y4m, cfg.seconds, cfg.warmup, cfg.screenshot)
+        y4m = camera_file(temp / "camera.y4m", cfg.camera_video, cfg.seconds + cfg.warmup, cfg.camera_fps)
+        web, stages, threads, backend, cpu, offered = measure_site(site.folder, y4m, cfg.seconds, cfg.warmup,
+                                                                   cfg.screenshot)
         live = live_tab(cfg.weights, y4m, cfg.seconds, cfg.warmup, None, temp / "examples")
     camera = ("a synthetic talking person (lsr.data.synth)" if cfg.camera_video is None
               else f"`{shown_path(cfg.camera_video)}`")
-    text = web_markdown(web, live, stages, threads, backend, camera, site_mib, machine_markdown(), cpu, usable_cores())
+    text = web_markdown(web, live, stages, threads, backend, camera, site_mib, machine_markdown(), cpu, usable_cores(),
+                        camera_fps=cfg.camera_fps, offered=offered)
     sections.publish(cfg, "lsr bench web", SECTION, "The web site: everything in the browser (`lsr bench web`)", text)
     return web, live

@@ -50,6 +50,8 @@ class BenchWebConfig:
     """Model folder; default: the shipped default model."""
     camera_video: OptionalPath = None
     """A clip to play as the camera (its first frames, letterboxed to 640x480); default a synthetic talking person."""
+    camera_fps: int = 25
+    """The camera's frame rate (webcams send 25-30): the most frames a second either can show."""
     seconds: float = 30.0
     """Measured stream time of each, after the warm-up."""
     warmup: float = 5.0
@@ -60,8 +62,8 @@ class BenchWebConfig:
     """Also write the table as the 'web' section of this markdown file (e.g. BENCHMARKS.md)."""
 
     def validate(self) -> None:
-        if self.seconds <= 0 or self.warmup < 0:
-            raise ConfigError("--seconds must be > 0 and --warmup >= 0")
+        if self.seconds <= 0 or self.warmup < 0 or not 1 <= self.camera_fps <= 120:
+            raise ConfigError("--seconds must be > 0, --warmup >= 0 and --camera-fps in 1..120")
         if self.camera_video is not None and not Path(self.camera_video).is_file():
             raise ConfigError(f"--camera-video {self.camera_video} is not a file")
 

@@ -15,6 +15,9 @@ const MARK = "SYNTHETIC";
 
 interface Stats {
   grabbed: number[]; shown: number[]; latency: number[]; ms: number[]; stages: Record<string, number>[];
+  // each time the page saw a camera frame, tracked or not, and the camera's frames presented by then (frames that
+  // came while this thread was busy are counted, not seen): the share shown of what the camera sent
+  cameraTimes: number[]; cameraFrames: number[];
   faces: number; frames: number;
 }
 
@@ -189,7 +192,7 @@ async function main(): Promise<void> {
   status.textContent = `Ready (onnxruntime-web, the network on ${BACKEND_NAMES[backend]}, ` +
     `${threads} thread${threads === 1 ? "" : "s"}${failed.length ? `; ${failed.join(" and ")} failed, see the console` : ""}). ` +
     "Start the camera to drive the person.";
-  const stats: Stats = { grabbed: [], shown: [], latency: [], ms: [], stages: [], faces: 0, frames: 0 };
+  const stats: Stats = { grabbed: [], shown: [], latency: [], ms: [], stages: [], cameraTimes: [], cameraFrames: [], faces: 0, frames: 0 };
   let session = new LiveSession(site, site.config.layout !== "none");
   let running = false;
 
@@ -200,14 +203,17 @@ async function main(): Promise<void> {
   const grabContext = grabCanvas.getContext("2d", { willReadFrequently: true })!;
   let fresh: number | null = null;
   let arrived: (() => void) | null = null;
-  const onVideoFrame = (next: () => void) => {
-    if ("requestVideoFrameCallback" in video) video.requestVideoFrameCallback(() => next());
-    else requestAnimationFrame(() => next());
+  /** Calls `next` at the video's next frame with the frames presented so far (null where the browser does not say). */
+  const onVideoFrame = (next: (presented: number | null) => void) => {
+    if ("requestVideoFrameCallback" in video) video.requestVideoFrameCallback((_, frame) => next(frame.presentedFrames));
+    else requestAnimationFrame(() => next(null));
   };
-  const watch = () => {
+  const watch = (presented: number | null = null) => {
     if (!running) return;
     if (video.videoWidth) {
       fresh = performance.now();
+      stats.cameraTimes.push(fresh);
+      stats.cameraFrames.push(presented ?? stats.cameraFrames.length + 1);
       arrived?.();
       arrived = null;
     }

@@ -99,3 +99,6 @@ def test_the_web_section_says_where_the_cores_went_only_when_it_knows():
     assert text.rstrip().endswith("| machine |")
     assert "cores" not in web_markdown(*args).split("| machine |")[0].split("threads)")[-1]
     assert shares_line({}, 2) == ""
+    assert "showed 100 of the 125 frames the camera sent over its window (80%): the camera's 25 fps" in web_markdown(
+        *args, camera_fps=25, offered=125)
+    assert "camera sent" not in web_markdown(*args)
