@@ -5,7 +5,7 @@
 // float32 once): the same values out. Across the rows, two channels of a pixel where it has two or more (their taps
 // side by side in memory), else two neighbouring pixels; down the columns, two neighbouring values.
 
-import { Func, I32, V, V128, compileModule, func, op, reserveMemory, signed, simd, webAssemblyWanted } from "./wasm.js";
+import { Func, I32, V, V128, func, op, reserveMemory, sharedInstance, signed, simd, webAssemblyWanted } from "./wasm.js";
 
 /** across(src, out, width, height, channels, kernel, n, index): out[y, x, c] = sum_k kernel[k] src[y, index[x, k] + c]
  * (index: int32 (width, n) element offsets of each tap's pixel, reflect-101's, times channels; kernel: float64 (n,);
@@ -127,23 +127,7 @@ function downFunction(): Func {
   });
 }
 
-interface BlurKernel { memory: WebAssembly.Memory; across: (...args: number[]) => void; down: (...args: number[]) => void }
-let blurKernel: BlurKernel | null | undefined;
-
-function kernels(): BlurKernel | null {
-  if (blurKernel === undefined) {
-    const compiled = compileModule([["across", acrossFunction()], ["down", downFunction()]]);
-    try {
-      const instance = compiled && new WebAssembly.Instance(compiled, {});
-      blurKernel = instance ? { memory: instance.exports.memory as WebAssembly.Memory,
-                                across: instance.exports.across as (...args: number[]) => void,
-                                down: instance.exports.down as (...args: number[]) => void } : null;
-    } catch {
-      blurKernel = null;
-    }
-  }
-  return blurKernel;
-}
+const kernels = sharedInstance(() => [["across", acrossFunction()], ["down", downFunction()]]);
 
 const aligned = (bytes: number) => Math.ceil(bytes / 16) * 16;
 
@@ -163,7 +147,7 @@ export function blurInWasm(src: Float32Array, width: number, height: number, cha
   new Float64Array(buffer, kernelAt, n).set(kernel);
   new Int32Array(buffer, xAt, xIndex.length).set(xIndex);
   new Int32Array(buffer, yAt, yIndex.length).set(yIndex);
-  wasm.across(srcAt, rowsAt, width, height, channels, kernelAt, n, xAt);
-  wasm.down(rowsAt, outAt, width * channels, height, kernelAt, n, yAt);
+  wasm.kernels.across(srcAt, rowsAt, width, height, channels, kernelAt, n, xAt);
+  wasm.kernels.down(rowsAt, outAt, width * channels, height, kernelAt, n, yAt);
   return new Float32Array(buffer, outAt, values).slice();
 }

@@ -213,7 +213,6 @@ export class IrisGate {
 /** The face-mesh and iris nets' sessions with their input buffers (landmarks.detect.mediapipe_mesh's predict_mesh and refine_eyes). */
 export class FaceMesh {
   private readonly meshInput = new Float32Array(MESH_SIZE * MESH_SIZE * 3);
-  private readonly eyeBuffer = new Float32Array(IRIS_SIZE * IRIS_SIZE * 3);
 
   constructor(readonly meshSession: ort.InferenceSession, readonly irisSession: ort.InferenceSession) {}
 
@@ -239,10 +238,11 @@ export class FaceMesh {
   }
 
   /** The iris net's input for one eye's square (landmarks.detect.mediapipe_mesh.eye_input): (64, 64, 3) float32 flat
-   * in [0, 1] (mirrored for the image-right eye), a fresh array. */
+   * in [0, 1] (mirrored for the image-right eye), a fresh array (the iris gate keeps it). */
   eyeInput(image: Tensor<Uint8Array>, region: Region, mirrored: boolean): Float32Array {
-    warpAffineInto(image, eyeCrop(region), IRIS_SIZE, true, mirrored, this.eyeBuffer);
-    return this.eyeBuffer.slice();
+    const input = new Float32Array(IRIS_SIZE * IRIS_SIZE * 3);
+    warpAffineInto(image, eyeCrop(region), IRIS_SIZE, true, mirrored, input);  // writes every value
+    return input;
   }
 
   /** The iris net on one eye's input (landmarks.detect.mediapipe_mesh.iris_outputs); `input` stays the caller's (the

@@ -30,6 +30,12 @@ function blendPixel(img: Uint8Array, at: number, color: number, a: number): void
   img[at] = v & 0xff;
 }
 
+/** LineAA's end-point correction at `scount` steps from the line's start and `ecount` from its end (ep: its 3 x 3
+ * table). */
+function endCorrection(ep: Int32Array | number[], scount: number, ecount: number): number {
+  return ep[((+(scount >= 2) + 1) & (scount | 2)) * 3 + ((+(ecount >= 2) + 1) & (ecount | 2))];
+}
+
 /** Which of an image's sides (x, y) lies beyond: clipLine's region code. */
 function outCode(x: number, y: number, right: number, bottom: number): number {
   return (x < 0 ? 1 : 0) + (x > right ? 2 : 0) + (y < 0 ? 4 : 0) + (y > bottom ? 8 : 0);
@@ -256,7 +262,7 @@ function lineAA(img: Uint8Array, width: number, height: number, p: number[], col
   if (ax > ay) {
     for (let x = shr(x1, XY_SHIFT); ecount >= 0; x++, y1 += yStep, scount++, ecount--) {
       if (x < 0 || x >= width) continue;
-      const y = shr(y1, XY_SHIFT) - 1, epCorr = ep[(((+(scount >= 2) + 1) & (scount | 2)) * 3) + ((+(ecount >= 2) + 1) & (ecount | 2))], dist = (y1 >> (XY_SHIFT - 5)) & 31;
+      const y = shr(y1, XY_SHIFT) - 1, epCorr = endCorrection(ep, scount, ecount), dist = (y1 >> (XY_SHIFT - 5)) & 31;
       if (y >= 0 && y < height) blendPixel(img, y * width + x, color, ((epCorr * FILTER_TABLE[dist + 32]) >> 8) & 0xff);
       if (y + 1 >= 0 && y + 1 < height) blendPixel(img, (y + 1) * width + x, color, ((epCorr * FILTER_TABLE[dist]) >> 8) & 0xff);
       if (y + 2 >= 0 && y + 2 < height) blendPixel(img, (y + 2) * width + x, color, ((epCorr * FILTER_TABLE[63 - dist]) >> 8) & 0xff);
@@ -264,7 +270,7 @@ function lineAA(img: Uint8Array, width: number, height: number, p: number[], col
   } else {
     for (let y = shr(y1, XY_SHIFT); ecount >= 0; y++, x1 += xStep, scount++, ecount--) {
       if (y < 0 || y >= height) continue;
-      const x = shr(x1, XY_SHIFT) - 1, epCorr = ep[(((+(scount >= 2) + 1) & (scount | 2)) * 3) + ((+(ecount >= 2) + 1) & (ecount | 2))], dist = (x1 >> (XY_SHIFT - 5)) & 31;
+      const x = shr(x1, XY_SHIFT) - 1, epCorr = endCorrection(ep, scount, ecount), dist = (x1 >> (XY_SHIFT - 5)) & 31;
       if (x >= 0 && x < width) blendPixel(img, y * width + x, color, ((epCorr * FILTER_TABLE[dist + 32]) >> 8) & 0xff);
       if (x + 1 >= 0 && x + 1 < width) blendPixel(img, y * width + x + 1, color, ((epCorr * FILTER_TABLE[dist]) >> 8) & 0xff);
       if (x + 2 >= 0 && x + 2 < width) blendPixel(img, y * width + x + 2, color, ((epCorr * FILTER_TABLE[63 - dist]) >> 8) & 0xff);

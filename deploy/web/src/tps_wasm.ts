@@ -7,8 +7,8 @@
 // cost), then each pair of output columns summed in one SIMD register, four pairs per pass over the row, the affine
 // part first and the kernel terms by control point, as evaluate's JavaScript sums each column.
 
-import { F64, Func, I32, V, V128, compileModule, float64, func, op, reserveMemory, signed, simd,
-         webAssemblyWanted } from "./wasm.js";
+import { F64, Func, I32, V, V128, float64, func, op, reserveMemory, signed, simd,
+         sharedInstance, webAssemblyWanted } from "./wasm.js";
 
 // fdlibm's e_log.c: ln 2 in two parts and the minimax polynomial's coefficients (its Lg1..Lg7)
 const LN2_HI = 6.93147180369123816490e-01, LN2_LO = 1.90821492927058770002e-10;
@@ -157,22 +157,7 @@ function splineFunction(): Func {
   });
 }
 
-interface SplineKernel { memory: WebAssembly.Memory; spline: (...args: number[]) => void }
-let kernel: SplineKernel | null | undefined;
-
-function splineKernel(): SplineKernel | null {
-  if (kernel === undefined) {
-    const compiled = compileModule([["spline", splineFunction()]]);
-    try {
-      const instance = compiled && new WebAssembly.Instance(compiled, {});
-      kernel = instance ? { memory: instance.exports.memory as WebAssembly.Memory,
-                            spline: instance.exports.spline as (...args: number[]) => void } : null;
-    } catch {
-      kernel = null;
-    }
-  }
-  return kernel;
-}
+const splineKernel = sharedInstance(() => [["spline", splineFunction()]]);
 
 /** Whether splines are evaluated in WebAssembly here (false: tps.ts's JavaScript). */
 export function splinesInWasm(): boolean {
@@ -211,7 +196,7 @@ export function evaluateSpline(control: Float64Array, weights: Float64Array, aff
     for (let i = 0; i < count; i++) w.set(weights.subarray(i * columns, (i + 1) * columns), i * even);
     for (let r = 0; r < 3; r++) a.set(affine.subarray(r * columns, (r + 1) * columns), r * even);
   }
-  wasm.spline(pointsAt, total, controlXAt, controlYAt, count, weightsAt, affineAt, even, outAt, rowAt, centre[0],
+  wasm.kernels.spline(pointsAt, total, controlXAt, controlYAt, count, weightsAt, affineAt, even, outAt, rowAt, centre[0],
               centre[1], scale);
   const out = new Float64Array(buffer, outAt, total * even);
   if (even === columns) return out.slice();

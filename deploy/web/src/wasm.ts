@@ -1,9 +1,9 @@
 // A small WebAssembly writer for the per-frame kernels written here opcode by opcode, without a toolchain
 // (remap_wasm.ts: the warps' and the head layer's bicubic remaps; tps_wasm.ts: the splines on their grids;
-// blend_wasm.ts: the page's composite). Each kernel does the same operations, in float32 or float64, in the same
-// order as the JavaScript it stands in for, so that the bytes out are the same; 128-bit SIMD (in every browser since
-// 2021, and Node 16) carries four float32 or two float64 lanes at once. Where WebAssembly or its SIMD is missing,
-// `compileModule` gives null and the callers keep to their JavaScript.
+// blend_wasm.ts: the page's composite; blur_wasm.ts: the Gaussian blurs). Each kernel does the same operations, in
+// float32 or float64, in the same order as the JavaScript it stands in for, so that the bytes out are the same;
+// 128-bit SIMD (in every browser since 2021, and Node 16) carries four float32 or two float64 lanes at once. Where
+// WebAssembly or its SIMD is missing, `compileModule` gives null and the callers keep to their JavaScript.
 
 export function unsigned(value: number): number[] {
   const out: number[] = [];
@@ -122,10 +122,33 @@ export function compileModule(functions: [string, Func][], imports: Import[] = [
   }
 }
 
+/** One instance of a module: its memory and its exported functions by name. */
+export interface KernelInstance { memory: WebAssembly.Memory; kernels: Record<string, (...args: number[]) => void> }
+
+/** A getter of one shared instance of the module of `functions`, compiled and instantiated on the first call, then
+ * kept (null where WebAssembly or its SIMD is missing, or the instance cannot be made). */
+export function sharedInstance(functions: () => [string, Func][]): () => KernelInstance | null {
+  let instance: KernelInstance | null | undefined;
+  return () => {
+    if (instance === undefined) {
+      const compiled = compileModule(functions());
+      try {
+        const made = compiled && new WebAssembly.Instance(compiled, {});
+        instance = made ? { memory: made.exports.memory as WebAssembly.Memory,
+                            kernels: made.exports as unknown as KernelInstance["kernels"] } : null;
+      } catch {
+        instance = null;
+      }
+    }
+    return instance;
+  };
+}
+
 let wanted = true;
 
-/** Node, for the tests and benchmarks: whether the kernels of remap_wasm.ts and tps_wasm.ts run (true, where
- * WebAssembly SIMD is) or the JavaScript they stand in for (false), to compare the two. Returns the setting before. */
+/** Node, for the tests and benchmarks: whether the kernels of remap_wasm.ts, tps_wasm.ts and blur_wasm.ts run (true,
+ * where WebAssembly SIMD is) or the JavaScript they stand in for (false), to compare the two. Returns the setting
+ * before. */
 export function useWebAssembly(on: boolean): boolean {
   const before = wanted;
   wanted = on;
